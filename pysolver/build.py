@@ -1,0 +1,266 @@
+"""The whole pipeline for one shape: design -> program -> render -> simulate -> report.
+
+``build(shape)`` runs every stage in a staging folder ``build/.staging/<name>``
+and moves it to ``build/<name>`` only when all stages have finished, so an
+interrupted build leaves the previous complete result (or nothing).  The staging
+folder survives an interruption: a re-run with the same inputs reuses it, which
+lets the simulation resume from its last checkpoint.  A lock per shape keeps two
+builds of the same shape apart; different shapes build concurrently.
+
+Every build writes ``summary.json`` with its key figures (counts, sizes,
+thickness range, check results, timings), the versions of the project,
+OpenSCAD and key libraries, and a hash of the inputs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .atomic import atomic_write_text, build_lock, replace_dir
+from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+BUILD_ROOT = Path("build")
+
+
+def _log(msg: str, progress: bool = True) -> None:
+    if progress:
+        print(f"[morphshell] {msg}", file=sys.stderr, flush=True)
+
+
+def shape_name(source: str) -> str:
+    """Folder name for a built-in shape name or a mesh path (its file stem).
+
+    Raises
+    ------
+    InputError
+        If ``source`` is neither a built-in shape nor an existing file.
+    """
+    from .surfaces import BUILTIN_SHAPES
+
+    if source in BUILTIN_SHAPES:
+        return source
+    p = Path(source)
+    if p.suffix or "/" in source:
+        if not p.exists():
+            raise InputError(f"mesh file {source!r} does not exist.",
+                             fix="check the path, or use a built-in shape: "
+                                 + ", ".join(BUILTIN_SHAPES))
+        return p.stem
+    raise InputError(f"unknown shape {source!r}.",
+                     fix="use one of the built-in shapes (" + ", ".join(BUILTIN_SHAPES)
+                         + ") or give a mesh file path (OBJ, STL, PLY, OFF).")
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def inputs_hash(source: str, options: dict) -> str:
+    """Hash of everything a build depends on: the source, options, material file, code version."""
+    h = hashlib.sha256()
+    p = Path(source)
+    h.update(_sha256_file(p).encode() if p.is_file() else source.encode())
+    h.update(json.dumps(options, sort_keys=True, default=str).encode())
+    if options.get("material"):
+        h.update(_sha256_file(Path(options["material"])).encode())
+    h.update(_version("morphshell").encode())
+    return h.hexdigest()
+
+
+def _version(dist: str) -> str:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def tool_versions() -> dict:
+    """Versions of the project, OpenSCAD, Python and the key libraries."""
+    v = {name: _version(name) for name in (
+        "morphshell", "numpy", "scipy", "libigl", "trimesh", "manifold3d", "triangle",
+        "pymeshlab", "scikit-sparse", "qpsolvers", "matplotlib", "pyvista")}
+    v["python"] = sys.version.split()[0]
+    try:
+        out = subprocess.run(["openscad", "--version"], capture_output=True, text=True,
+                             timeout=30)
+        v["openscad"] = (out.stderr or out.stdout).strip().split("\n")[-1]
+    except (OSError, subprocess.TimeoutExpired):
+        v["openscad"] = "not found"
+    return v
+
+
+def _has_module(name: str) -> bool:
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec(name) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+def design_only(source: str, *, out=None, progress: bool = True, **options) -> dict:
+    """Run only the design stage into ``out`` (default ``build/<name>``), atomically."""
+    from .atomic import atomic_dir
+    from .design import run_design
+
+    name = shape_name(source)
+    out = Path(out) if out else BUILD_ROOT / name
+    with build_lock(out), atomic_dir(out) as tmp:
+        result = run_design(source, tmp, progress=progress, **options)
+    return result
+
+
+def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0,
+          flattening: str = "cetm", stencil_order: bool = False, material=None,
+          refine: int = 0, program: bool = True, render: bool = True,
+          simulate: bool = True, t_end=None, jobs=None, progress: bool = True) -> dict:
+    """Build ``build/<name>/`` for a built-in shape or a mesh file.
+
+    Parameters
+    ----------
+    source : str
+        Built-in shape name (``petal``, ``saddle``, ``dome``, ``weave``, ``spiral``,
+        ``regular``) or a path to a mesh / stencil OBJ.
+    out : path-like, optional
+        Output folder (default ``build/<name>``).
+    vertices, time, scale, flattening, stencil_order
+        Design options, see :func:`pysolver.design.run_design`.
+    material : path-like, optional
+        Bracket model file (default: the committed model).
+    refine : int
+        Rounds of timing correction from the simulation (temporal programming).
+    program, render, simulate : bool
+        Run the temporal programming, STL rendering, and simulation + report stages.
+    t_end : float, s, optional
+        Simulated time in water (default 120 s).
+    jobs : int, optional
+        Parallel OpenSCAD processes.
+
+    Returns
+    -------
+    summary : dict
+        The content of ``summary.json`` plus ``exit_code``.
+    """
+    if material is not None and not Path(material).is_file():
+        raise InputError(f"material model file {material!r} does not exist.",
+                         fix="give a file written by 'make material DATA=dir' "
+                             "(morphshell fit-material --out FILE), or omit MATERIAL.")
+    if refine < 0:
+        raise InputError(f"--refine must be >= 0, got {refine}.", fix="use e.g. --refine 2")
+    name = shape_name(source)
+    out = Path(out) if out else BUILD_ROOT / name
+    design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
+                       stencil_order=stencil_order)
+    all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
+                    program=program, t_end=t_end)
+    digest = inputs_hash(source, all_opts)
+    staging = out.parent / ".staging" / out.name
+    summary: dict = {"shape": name, "source": str(source), "options": all_opts,
+                     "inputs_sha256": digest, "stages": {}, "timings_s": {}}
+    t_build = _now()
+    with build_lock(out):
+        _prepare_staging(staging, digest, progress)
+        stages = summary["stages"]
+
+        def stage(key: str, fn, *a, **kw):
+            _log(f"{name}: {key} ...", progress)
+            t0 = _now()
+            res = fn(*a, **kw)
+            summary["timings_s"][key] = round(_now() - t0, 3)
+            stages[key] = res if isinstance(res, dict) else {}
+            _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
+            return res
+
+        from .design import run_design
+        stage("design", run_design, source, staging, progress=progress, **design_opts)
+        if program and _has_module("pysolver.temporal"):
+            from .temporal import program_design
+            stage("program", program_design, staging, material=material, progress=progress)
+        if render:
+            from .render import render_design
+            stage("render", render_design, staging, jobs=jobs, progress=progress)
+        if simulate:
+            from sim.simulate import simulate_design
+            kw = {} if t_end is None else {"t_end": t_end}
+            stage("simulate", simulate_design, staging, material=material, progress=progress,
+                  **kw)
+            if refine and program:
+                from .temporal import refine_design
+                stage("refine", refine_design, staging, iterations=refine, material=material,
+                      progress=progress, **kw)
+            from sim.report import make_report
+            stage("report", make_report, staging, progress=progress)
+        summary["timings_s"]["total"] = round(_now() - t_build, 3)
+        summary["versions"] = tool_versions()
+        summary["figures"] = _key_figures(staging, stages)
+        atomic_write_text(staging / "summary.json",
+                          json.dumps(summary, indent=2, sort_keys=True, default=_json_default)
+                          + "\n")
+        (staging / ".inputs_sha256").unlink(missing_ok=True)
+        replace_dir(staging, out)
+    _log(f"{name}: build complete in {summary['timings_s']['total']:.1f} s -> {out}", progress)
+    verdict = stages.get("report", {}).get("verdict")
+    summary["exit_code"] = EXIT_CHECK_FAILED if verdict == "FAIL" else EXIT_OK
+    return summary
+
+
+def _now() -> float:
+    return time.perf_counter()
+
+
+def _prepare_staging(staging: Path, digest: str, progress: bool) -> None:
+    """Reuse a staging folder left by an interrupted build with the same inputs, else start clean."""
+    marker = staging / ".inputs_sha256"
+    if staging.exists():
+        if marker.exists() and marker.read_text().strip() == digest:
+            _log(f"resuming the interrupted build in {staging}", progress)
+            return
+        shutil.rmtree(staging)
+    staging.mkdir(parents=True)
+    marker.write_text(digest + "\n")
+
+
+def _key_figures(folder: Path, stages: dict) -> dict:
+    """A few headline numbers collected from the stage results and the tables."""
+    fig: dict = {}
+    try:
+        from .tables import read_bases, read_cells
+
+        bases = read_bases(folder / "bases.csv")
+        cells = read_cells(folder / "cells.csv")
+        fig["n_bases"] = len(bases["base_id"])
+        fig["n_cells"] = len(cells["cell_id"])
+        for key in ("thickness_top_mm", "thickness_bottom_mm"):
+            if key in cells:
+                fig[f"{key}_range"] = [float(cells[key].min()), float(cells[key].max())]
+        fig["max_central_length_mm"] = float(cells["central_length_mm"].max())
+    except Exception as e:  # figures are a summary, never a reason to fail a build
+        fig["error"] = f"{type(e).__name__}: {e}"
+    rep = stages.get("report", {})
+    if rep:
+        fig["verdict"] = rep.get("verdict")
+    return fig
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(type(o).__name__)

@@ -1,0 +1,210 @@
+"""``morphshell``: the command line, one subcommand per stage.
+
+Each subcommand is a thin wrapper around one stage function; the heavy imports
+happen inside the subcommand so ``morphshell --help`` is instant.  Errors the
+project raises on purpose (:class:`pysolver.errors.MorphshellError`) are printed
+without a traceback (``--debug`` shows it) and exit with a code that tells bad
+input (2) from a failed check (3) and an internal error (1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from pathlib import Path
+
+from .errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, MorphshellError
+
+STAGES_HELP = """\
+stages (each reads and writes plain files in a design folder, build/<shape>/):
+  build         the whole pipeline: design -> program -> render -> simulate -> report
+  design        target surface -> stencil -> flat layout -> bases.csv, cells.csv, bumpers.csv
+  program       bracket thicknesses from the time landscape (temporal programming)
+  render        per-part OpenSCAD rendering and union -> stl/*.stl
+  simulate      quasi-static morphing simulation -> sim/frames.npz
+  report        simulation check report (verdict, pictures, animation) -> report/
+  compare-scan  compare a 3D scan of the printed shell's marker dots with the simulation
+  fit-material  fit the bracket material model from tensile-test measurements
+  fit-membrane  fit the linearised membrane model from FEM samples
+  specimens     printable unit-cell test specimens from the same SCAD modules
+  shapes        list the built-in shapes
+"""
+
+
+def _add_design_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--vertices", type=int, default=None,
+                   help="number of stencil vertices N (default: estimated from the area, then "
+                        "searched to minimise stencil scaling)")
+    p.add_argument("--time", default=None,
+                   help="time landscape: a constant in s, or a Python expression of the target "
+                        "coordinates x, y, z in mm (e.g. '30 + 0.5*z'); default: the shape's own")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="multiply the input mesh coordinates by this factor (e.g. 1000 for metres)")
+    p.add_argument("--flattening", choices=("cetm", "lscm"), default="cetm",
+                   help="conformal flattening method (default: cetm)")
+    p.add_argument("--stencil-order", action="store_true",
+                   help="treat an OBJ with vt as a finished stencil: keep its vertex and face order")
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="morphshell",
+        description="Design flat-printed shells that morph in hot water into a chosen 3D shape "
+                    "at chosen times, and check the morph by simulation before printing.",
+        epilog=STAGES_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    ap.add_argument("--quiet", action="store_true", help="no progress output")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("build", help="run the whole pipeline for a shape or a mesh file")
+    p.add_argument("shape", help="built-in shape name (see 'shapes') or a mesh/stencil file")
+    p.add_argument("--out", default=None, help="output folder (default: build/<name>)")
+    _add_design_options(p)
+    p.add_argument("--material", default=None, help="bracket model file (default: committed one)")
+    p.add_argument("--refine", type=int, default=0,
+                   help="K rounds of closing the timing loop: correct t* from the simulation")
+    p.add_argument("--no-program", action="store_true", help="keep uniform thickness")
+    p.add_argument("--no-render", action="store_true", help="skip STL rendering")
+    p.add_argument("--no-sim", action="store_true", help="skip simulation and report")
+    p.add_argument("--t-end", type=float, default=None, help="simulated time in water, s")
+    p.add_argument("--jobs", type=int, default=None, help="parallel OpenSCAD processes")
+
+    p = sub.add_parser("design", help="design the flat layout only")
+    p.add_argument("shape")
+    p.add_argument("--out", default=None)
+    _add_design_options(p)
+
+    p = sub.add_parser("program", help="bracket thicknesses from the time landscape")
+    p.add_argument("dir", help="design folder")
+    p.add_argument("--material", default=None)
+
+    p = sub.add_parser("render", help="render the STLs of a design folder")
+    p.add_argument("dir")
+    p.add_argument("--jobs", type=int, default=None)
+
+    p = sub.add_parser("simulate", help="simulate the morph of a design folder")
+    p.add_argument("dir")
+    p.add_argument("--t-end", type=float, default=None)
+    p.add_argument("--material", default=None)
+    p.add_argument("--no-resume", action="store_true", help="start over, ignore a checkpoint")
+
+    p = sub.add_parser("report", help="simulation check report of a design folder")
+    p.add_argument("dir")
+
+    p = sub.add_parser("compare-scan", help="compare scanned marker dots with the simulation")
+    p.add_argument("dir")
+    p.add_argument("scan", help="point set: OBJ vertices, PLY, or CSV with x y z columns (mm)")
+    p.add_argument("--layer", choices=("auto", "top", "bottom"), default="auto")
+
+    p = sub.add_parser("fit-material", help="fit the bracket model from measurements")
+    p.add_argument("--data", default=None, help="measurement folder (default: ../shared/material-data)")
+    p.add_argument("--out", default=None, help="model file to write (default: the committed one)")
+    p.add_argument("--report", default=None, help="fit report folder (default: build/material)")
+    p.add_argument("--compare-to", default=None,
+                   help="plot the new model against this one (default: the committed model)")
+
+    p = sub.add_parser("fit-membrane", help="fit the linearised membrane model (F_mem)")
+    p.add_argument("--out", default=None)
+    p.add_argument("--report", default=None)
+
+    p = sub.add_parser("specimens", help="printable unit-cell test specimens")
+    p.add_argument("--out", default="build/specimens")
+    p.add_argument("--jobs", type=int, default=None)
+
+    sub.add_parser("shapes", help="list the built-in shapes")
+    return ap
+
+
+def _run(args: argparse.Namespace) -> int:
+    progress = not args.quiet
+    cmd = args.command
+    if cmd == "build":
+        from .build import build
+        result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
+                       scale=args.scale, flattening=args.flattening,
+                       stencil_order=args.stencil_order, material=args.material,
+                       refine=args.refine, program=not args.no_program,
+                       render=not args.no_render, simulate=not args.no_sim,
+                       t_end=args.t_end, jobs=args.jobs, progress=progress)
+        return result.get("exit_code", EXIT_OK)
+    if cmd == "design":
+        from .build import design_only
+        design_only(args.shape, out=args.out, vertices=args.vertices, time=args.time,
+                    scale=args.scale, flattening=args.flattening,
+                    stencil_order=args.stencil_order, progress=progress)
+        return EXIT_OK
+    if cmd == "program":
+        from .temporal import program_design
+        program_design(Path(args.dir), material=args.material, progress=progress)
+        return EXIT_OK
+    if cmd == "render":
+        from .render import render_design
+        render_design(Path(args.dir), jobs=args.jobs, progress=progress)
+        return EXIT_OK
+    if cmd == "simulate":
+        from sim.simulate import simulate_design
+        kw = {} if args.t_end is None else {"t_end": args.t_end}
+        simulate_design(Path(args.dir), material=args.material, progress=progress,
+                        resume=not args.no_resume, **kw)
+        return EXIT_OK
+    if cmd == "report":
+        from sim.report import make_report
+        rep = make_report(Path(args.dir), progress=progress)
+        return 3 if rep.get("verdict") == "FAIL" else EXIT_OK
+    if cmd == "compare-scan":
+        from sim.scan import compare_scan
+        compare_scan(Path(args.dir), Path(args.scan), layer=args.layer)
+        return EXIT_OK
+    if cmd == "fit-material":
+        from .material.fit import fit_material
+        fit_material(data_dir=args.data, out_path=args.out, report_dir=args.report,
+                     compare_to=args.compare_to)
+        return EXIT_OK
+    if cmd == "fit-membrane":
+        from .membrane_model import fit_membrane_model
+        fit_membrane_model(out_path=args.out, report_dir=args.report)
+        return EXIT_OK
+    if cmd == "specimens":
+        from .specimens import make_specimens
+        make_specimens(Path(args.out), jobs=args.jobs)
+        return EXIT_OK
+    if cmd == "shapes":
+        from .surfaces import BUILTIN_SHAPES
+        for name in BUILTIN_SHAPES:
+            print(name)
+        return EXIT_OK
+    raise AssertionError(cmd)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``morphshell`` console script."""
+    ap = _parser()
+    args = ap.parse_args(argv)
+    if args.command is None:
+        ap.print_help()
+        return EXIT_OK
+    try:
+        return _run(args)
+    except MorphshellError as e:
+        if args.debug:
+            traceback.print_exc()
+        print(f"morphshell {args.command}: error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print(f"morphshell {args.command}: interrupted; previous complete results are kept.",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as e:  # a bug: say so, and how to get details
+        if args.debug:
+            traceback.print_exc()
+        print(f"morphshell {args.command}: internal error ({type(e).__name__}: {e}). "
+              "This is a bug; re-run with --debug for the traceback and report it.",
+              file=sys.stderr)
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,173 @@
+"""Unit-cell dimensions, simulation constants and tolerances, in one place.
+
+All lengths mm, forces N, times s, moduli MPa, angles deg unless a name says
+``_rad``.  The defaults are the paper's (Supplementary Note 1, 2) and the
+reference implementation's (``shared/design/pipeline.md`` §1.1, ``simulator.md``
+§1); where they disagree the choice is written next to the field.
+
+The same numbers are the defaults of the OpenSCAD modules in ``scad/``; a test
+(``tests/test_scad_modules.py``) checks that the two stay equal.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class UnitCell:
+    """Geometry of bases, brackets and bumpers (mm, deg).
+
+    Attributes
+    ----------
+    base_r : float, mm
+        Base disc radius (Ø 4 mm).
+    base_th : float, mm
+        Layer core thickness; also the side of the square bumper prism.
+    base_p : float, mm
+        Base indent: extra base height on the membrane side (0.3 mm), which
+        leaves a 2 * base_p slot between opposing bumpers for the membrane.
+    bracket_w : float, mm
+        Bracket height (out of plane), 1 mm.
+    min_gap : float, mm
+        Minimal flat gap between facing bumper tips (2D scaling rule), 0.1 mm.
+        The reference's json has 0.0 (stale); its examples and the paper use 0.1.
+    min_bumper : float, mm
+        Minimal bumper length beyond the base rim (3D scaling rule).  The paper
+        says 0.3 mm, most reference examples 0.1 mm; we follow the paper: a
+        longer bumper stops the bracket further from its breaking strain.
+    clearance : float, mm
+        Printing clearance removed from every bumper tip, 0.05 mm.
+    align_r : float, mm
+        Alignment hole radius (Ø 1.5 mm; the reference passes 0.75 as radius).
+    marker_r, marker_depth : float, mm
+        Marker-dot pocket radius and depth on the far face.
+    max_cell_length : float, mm
+        Longest printable unit cell (flat centre distance), 9.5 mm.
+    """
+
+    base_r: float = 2.0
+    base_th: float = 2.0
+    base_p: float = 0.3
+    bracket_w: float = 1.0
+    min_gap: float = 0.1
+    min_bumper: float = 0.3
+    clearance: float = 0.05
+    align_r: float = 0.75
+    marker_r: float = 0.3
+    marker_depth: float = 0.5
+    max_cell_length: float = 9.5
+    alpha_margin_deg: float = 7.0
+    thickness_min: float = 0.30
+    thickness_max: float = 0.65
+
+    @property
+    def layer_h(self) -> float:
+        """Height of one printed layer (base_th + base_p = 2.3 mm)."""
+        return self.base_th + self.base_p
+
+    @property
+    def alpha_deg(self) -> float:
+        """Bracket arm angle to the cell axis: asin(base_th / (2 base_r)) + 7 deg = 37 deg."""
+        return math.degrees(math.asin(self.base_th / (2 * self.base_r))) + self.alpha_margin_deg
+
+    @property
+    def alpha_rad(self) -> float:
+        return math.radians(self.alpha_deg)
+
+    @property
+    def bracket_offset(self) -> float:
+        """l - b: central length minus bracket length, 2 base_r cos(alpha) = 3.1945 mm."""
+        return 2 * self.base_r * math.cos(self.alpha_rad)
+
+    def bracket_length(self, central_length):
+        """Bracket length b (mm) of a cell of flat central length l (mm): b = l - 2 r cos(alpha)."""
+        return central_length - self.bracket_offset
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class SimConstants:
+    """Physical and numerical constants of the simulator (simulator.md §1, §6, §8).
+
+    Attributes
+    ----------
+    tau : float
+        Membrane equibiaxial pre-stretch factor.
+    mu : float, MPa
+        Membrane shear modulus (incompressible neo-Hookean).
+    membrane_h : float, mm
+        Membrane thickness.
+    kappa_s : float, N/mm^2
+        Shear-resisting (cross pair) stiffness, weighted by the flat diagonal sum.
+    kappa_c : float, N/mm
+        Bumper contact spring stiffness (E = kappa_c/2 (L - L_c)^2; 2 * 99.9).
+    eta : float
+        Plastic fraction.
+    dt, t_end : float, s
+        Time step and end time.
+    boundary_weakening : float
+        Factor on the target membrane force of boundary cells (thickness design).
+    """
+
+    tau: float = 3.0
+    mu: float = 0.72
+    membrane_h: float = 0.5
+    kappa_s: float = 0.1
+    kappa_c: float = 199.8
+    eta: float = 0.2
+    dt: float = 0.5
+    t_end: float = 120.0
+    boundary_weakening: float = 0.6
+    membrane_max_area: float = 5.0
+    membrane_min_angle: float = 20.0
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Every geometric and solver tolerance, named (trimesh's ``tol`` habit).
+
+    Attributes
+    ----------
+    merge : float, mm
+        Distance under which two points are the same point.
+    stl_bbox : float, mm
+        Allowed bounding-box difference between an STL and its table.
+    newton_grad : float, N
+        Newton convergence: infinity norm of the reduced gradient (forces in N,
+        torques in N mm scaled by 1/base_r so both are forces).
+    newton_max_iter_dry, newton_max_iter_wet : int
+        Newton iteration caps for the dry step and the wet steps.
+    """
+
+    merge: float = 1e-6
+    stl_bbox: float = 0.05
+    newton_grad: float = 1e-6
+    newton_max_iter_dry: int = 200
+    newton_max_iter_wet: int = 100
+    line_search_halvings: int = 30
+
+
+UNIT_CELL = UnitCell()
+SIM = SimConstants()
+tol = Tolerances()
+
+LAYERS = ("top", "bottom")
+"""Layer names.  ``top`` = +z in the flat print frame = +face-normal side of the
+target (the reference's ``o``); ``bottom`` = -z = -normal side (``u``)."""
+
+
+def layer_sign(layer) -> int:
+    """+1 for the top layer (index 0 / ``"top"``), -1 for the bottom layer (1 / ``"bottom"``)."""
+    if layer in (0, "top"):
+        return 1
+    if layer in (1, "bottom"):
+        return -1
+    raise ValueError(f"layer must be 0/'top' or 1/'bottom', got {layer!r}")
+
+
+__all__ = ["UnitCell", "SimConstants", "Tolerances", "UNIT_CELL", "SIM", "tol", "LAYERS",
+           "layer_sign"]
