@@ -1,4 +1,7 @@
-"""Run every benchmark in bench/ (files bench_*.py with a ``main()``); figures go to build/bench/*.json."""
+"""Run every benchmark in bench/ (``bench_*.py`` with a ``main()``).
+
+Figures go to build/bench/*.json.
+"""
 
 from __future__ import annotations
 

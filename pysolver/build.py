@@ -43,17 +43,16 @@ def shape_name(source: str) -> str:
     InputError
         If ``source`` is neither a built-in shape nor an existing file.
     """
+    p = Path(source)
+    if p.suffix or "/" in source:
+        if not p.is_file():
+            raise InputError(f"mesh file {source!r} does not exist.",
+                             fix="check the path, or use a built-in shape (morphshell shapes).")
+        return p.stem
     from .surfaces import BUILTIN_SHAPES
 
     if source in BUILTIN_SHAPES:
         return source
-    p = Path(source)
-    if p.suffix or "/" in source:
-        if not p.exists():
-            raise InputError(f"mesh file {source!r} does not exist.",
-                             fix="check the path, or use a built-in shape: "
-                                 + ", ".join(BUILTIN_SHAPES))
-        return p.stem
     raise InputError(f"unknown shape {source!r}.",
                      fix="use one of the built-in shapes (" + ", ".join(BUILTIN_SHAPES)
                          + ") or give a mesh file path (OBJ, STL, PLY, OFF).")
@@ -221,7 +220,7 @@ def _now() -> float:
 
 
 def _prepare_staging(staging: Path, digest: str, progress: bool) -> None:
-    """Reuse a staging folder left by an interrupted build with the same inputs, else start clean."""
+    """Reuse the staging folder of an interrupted build with the same inputs, else start clean."""
     marker = staging / ".inputs_sha256"
     if staging.exists():
         if marker.exists() and marker.read_text().strip() == digest:

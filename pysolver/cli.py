@@ -44,7 +44,7 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flattening", choices=("cetm", "lscm"), default="cetm",
                    help="conformal flattening method (default: cetm)")
     p.add_argument("--stencil-order", action="store_true",
-                   help="treat an OBJ with vt as a finished stencil: keep its vertex and face order")
+                   help="treat an OBJ with vt as a finished stencil: keep vertex/face order")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -100,7 +100,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--layer", choices=("auto", "top", "bottom"), default="auto")
 
     p = sub.add_parser("fit-material", help="fit the bracket model from measurements")
-    p.add_argument("--data", default=None, help="measurement folder (default: ../shared/material-data)")
+    p.add_argument("--data", default=None,
+                   help="measurement folder (default: ../shared/material-data)")
     p.add_argument("--out", default=None, help="model file to write (default: the committed one)")
     p.add_argument("--report", default=None, help="fit report folder (default: build/material)")
     p.add_argument("--compare-to", default=None,
