@@ -1,0 +1,1042 @@
+"""Simulation check report: is the simulated morph the designed one?
+
+:func:`make_report` reads a design folder (``bases.csv``, ``cells.csv``,
+``stencil.obj``, ``time_landscape.csv``, ``sim/frames.npz``; see
+``docs/design-folder.md``), measures the morph and writes
+``<design_dir>/report/index.html`` (self-contained: every picture is embedded as
+a base64 data URI) and ``report.json``, then prints the verdict
+(PASS / WARN / FAIL with reasons).  The checks and their thresholds
+(:class:`Thresholds`) are explained in ``docs/report.md``.
+
+Sections: verdict; final shape vs target (rigid Kabsch alignment of the base
+centres, error in mm and % of the target size, base-normal orientation);
+timing (simulated unit-cell completion vs the programmed t*); collisions along
+the path (:mod:`sim.collisions`); solver health; shaded renders at chosen
+times and an animated GIF; flat layout coloured by bracket thickness; time
+landscape.
+
+Run as ``python -m sim.report <design_dir>`` or ``morphshell report <dir>``.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from pysolver.errors import InputError
+from pysolver.params import UNIT_CELL
+
+from .collisions import base_collisions, membrane_collisions
+from .collisions import completion_times as _local_completion_times
+from .scan import rigid_fit
+
+SECTIONS = ("verdict", "shape", "timing", "collisions", "solver", "renders", "animation",
+            "layout", "landscape")
+"""Section ids of ``index.html``, in order."""
+
+FRAME_KEYS = ("t", "base_center", "base_rotation", "bracket_length", "collided")
+OPTIONAL_KEYS = ("membrane_vertices", "membrane_triangles", "newton_iterations", "residual",
+                 "wall_s", "converged", "marker_top", "marker_bottom")
+
+
+# --------------------------------------------------------------------------------------------
+# thresholds
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Limits of the verdict (justified in ``docs/report.md``).
+
+    Attributes
+    ----------
+    shape_rms_warn_pct, shape_rms_fail_pct : float, %
+        RMS distance of the aligned final base centres to the target centres,
+        in % of the target size (bounding-box diagonal of the target centres).
+    shape_max_warn_pct : float, %
+        Largest single base distance, % of the target size (a local defect).
+    normal_warn_deg, normal_fail_deg : float, deg
+        RMS angle between the aligned final base normals (flat +z of each base)
+        and the target face normals (global orientation of the layers).
+    fold_rms_warn_deg : float, deg
+        RMS error of the signed fold angle per unit cell (angle between the two
+        base normals, + when folding toward the top layer; ``cells.csv``
+        ``fold_angle_deg``).  Alignment-free: measures the local bending.
+    fold_flip_fail_fraction : float
+        Fraction of the folded cells (target ``|fold| >= fold_min_deg``) whose
+        simulated fold has the opposite sign, above which the shell is bent
+        the wrong way: FAIL.  Any flipped folded cell is a WARN.
+    fold_min_deg : float, deg
+    timing_rms_warn_s : float, s
+        RMS of (simulated completion - t*) over the cells that complete.
+    spearman_warn : float
+        Rank correlation of simulated completion vs t* below this: the order of
+        morphing is not the programmed one.  Only checked when the programmed
+        t* spread (std) is at least ``timing_spread_min_s``.
+    timing_spread_min_s : float, s
+    incomplete_fail_fraction : float
+        Fraction of unit cells (with t* <= the simulated end time) that never
+        complete above which the morph has not happened: FAIL.  Any such cell
+        is a WARN.
+    collision_depth_mm : float, mm
+        Penetration deeper than this counts as a collision (base/base and
+        membrane/base).
+    membrane_collision_fail : bool
+        Membrane-through-base collisions are FAIL (True) or WARN (False).
+    residual_fail_N : float, N
+        A non-converged step whose final residual is above this is FAIL; below
+        it, WARN.
+    """
+
+    shape_rms_warn_pct: float = 2.0
+    shape_rms_fail_pct: float = 5.0
+    shape_max_warn_pct: float = 10.0
+    normal_warn_deg: float = 15.0
+    normal_fail_deg: float = 45.0
+    fold_rms_warn_deg: float = 5.0
+    fold_flip_fail_fraction: float = 0.25
+    fold_min_deg: float = 1.0
+    timing_rms_warn_s: float = 10.0
+    spearman_warn: float = 0.5
+    timing_spread_min_s: float = 2.0
+    incomplete_fail_fraction: float = 0.5
+    collision_depth_mm: float = 0.1
+    membrane_collision_fail: bool = False
+    residual_fail_N: float = 1e-3
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.type in ("float", float) and not (isinstance(v, (int, float))
+                                                    and math.isfinite(v) and v >= 0):
+                raise InputError(f"Thresholds.{f.name} = {v!r}: must be a finite number >= 0",
+                                 fix="pass a non-negative number")
+        if self.shape_rms_warn_pct > self.shape_rms_fail_pct:
+            raise InputError("Thresholds: shape_rms_warn_pct > shape_rms_fail_pct",
+                             fix="the WARN limit must not exceed the FAIL limit")
+        if self.normal_warn_deg > self.normal_fail_deg:
+            raise InputError("Thresholds: normal_warn_deg > normal_fail_deg",
+                             fix="the WARN limit must not exceed the FAIL limit")
+
+    @classmethod
+    def coerce(cls, value) -> Thresholds:
+        """``None`` -> defaults; a mapping -> defaults updated by it; a Thresholds as is."""
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, dict):
+            names = {f.name for f in dataclasses.fields(cls)}
+            bad = sorted(set(value) - names)
+            if bad:
+                raise InputError(f"unknown threshold(s) {bad}",
+                                 fix=f"use some of {sorted(names)}")
+            return cls(**value)
+        raise InputError(f"thresholds must be a Thresholds or a dict, got {type(value).__name__}")
+
+
+# --------------------------------------------------------------------------------------------
+# loading
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class SimData:
+    """A design folder and its simulation, loaded and validated.
+
+    Attributes
+    ----------
+    folder : Path
+    bases, cells : dict of (r,) arrays — ``bases.csv`` / ``cells.csv`` columns
+    V, UV : (n, 3), (n, 2) float, mm, or None — stencil (target, flat)
+    F : (m, 3) int or None
+    landscape : (n,) float, s, or None — time landscape per stencil vertex
+    frames : dict of arrays — ``sim/frames.npz``
+    """
+
+    folder: Path
+    bases: dict
+    cells: dict
+    V: np.ndarray | None
+    UV: np.ndarray | None
+    F: np.ndarray | None
+    landscape: np.ndarray | None
+    frames: dict
+
+    @property
+    def t(self):
+        return self.frames["t"]
+
+    @property
+    def n_bases(self):
+        return len(self.bases["base_id"])
+
+    @property
+    def n_cells(self):
+        return len(self.cells["cell_id"])
+
+    @property
+    def target(self):
+        b = self.bases
+        return np.c_[b["target_x_mm"], b["target_y_mm"], b["target_z_mm"]]
+
+    @property
+    def target_normals(self):
+        b = self.bases
+        return np.c_[b["normal_x"], b["normal_y"], b["normal_z"]]
+
+    @property
+    def flat_xy(self):
+        return np.c_[self.bases["flat_x_mm"], self.bases["flat_y_mm"]]
+
+    @property
+    def cell_pairs(self):
+        return np.c_[self.cells["base_a"], self.cells["base_b"]]
+
+
+def load_frames(path, n_bases=None, n_cells=None) -> dict:
+    """Read and validate ``sim/frames.npz``.
+
+    Parameters
+    ----------
+    path : path-like
+    n_bases, n_cells : int, optional
+        Expected counts (from the tables).
+
+    Returns
+    -------
+    dict of arrays (all contract keys present in the file).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found",
+                         fix="run the simulation first (morphshell simulate <design_dir>)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            fr = {k: z[k] for k in z.files}
+    except Exception as e:
+        raise InputError(f"{path}: cannot read ({type(e).__name__}: {e})",
+                         fix="re-run the simulation; the file is damaged") from None
+    missing = [k for k in FRAME_KEYS if k not in fr]
+    if missing:
+        raise InputError(f"{path}: missing array(s) {missing}",
+                         fix="re-run the simulation with the current sim.simulate")
+    t = np.asarray(fr["t"], float)
+    nf = len(t)
+    if t.ndim != 1 or nf < 1:
+        raise InputError(f"{path}: t has shape {t.shape}, expected (n_frames,) with n_frames >= 1")
+    nb = fr["base_center"].shape[1] if fr["base_center"].ndim == 3 else -1
+    nc = fr["collided"].shape[1] if fr["collided"].ndim == 3 else -1
+    shapes = {"base_center": (nf, nb, 3), "base_rotation": (nf, nb, 3, 3),
+              "bracket_length": (nf, nc, 4), "collided": (nf, nc, 4)}
+    for k, s in shapes.items():
+        if fr[k].shape != s:
+            raise InputError(f"{path}: {k} has shape {fr[k].shape}, expected {s} "
+                             "(n_frames, n_bases/n_cells, ...)",
+                             fix="re-run the simulation; frames.npz does not follow the contract")
+    if n_bases is not None and nb != n_bases:
+        raise InputError(f"{path}: {nb} bases in the frames but {n_bases} rows in bases.csv",
+                         fix="re-run the simulation after the last design change")
+    if n_cells is not None and nc != n_cells:
+        raise InputError(f"{path}: {nc} cells in the frames but {n_cells} rows in cells.csv",
+                         fix="re-run the simulation after the last design change")
+    if "membrane_vertices" in fr:
+        mv = fr["membrane_vertices"]
+        if mv.ndim != 3 or mv.shape[0] != nf or mv.shape[2] != 3:
+            raise InputError(f"{path}: membrane_vertices has shape {mv.shape}, expected "
+                             f"({nf}, n_mem, 3)")
+        tri = fr.get("membrane_triangles")
+        if tri is not None and tri.size and (tri.ndim != 2 or tri.shape[1] != 3 or tri.min() < 0
+                                             or tri.max() >= mv.shape[1]):
+            raise InputError(f"{path}: membrane_triangles must be (n_tri, 3) indices into "
+                             f"0..{mv.shape[1] - 1}")
+    for k in ("newton_iterations", "residual", "wall_s", "converged"):
+        if k in fr and fr[k].shape != (nf,):
+            raise InputError(f"{path}: {k} has shape {fr[k].shape}, expected ({nf},)")
+    fr["t"] = t
+    return fr
+
+
+def load_sim(design_dir) -> SimData:
+    """Load the tables, the stencil (optional) and ``sim/frames.npz`` of a design folder."""
+    from pysolver.tables import read_stencil, read_table
+
+    folder = Path(design_dir)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a design folder",
+                         fix="pass the folder written by the design stage (build/<shape>)")
+    bases = read_table(folder, "bases")
+    cells = read_table(folder, "cells")
+    n_b = len(bases["base_id"])
+    for c in ("base_a", "base_b"):
+        if len(cells[c]) and (cells[c].min() < 0 or cells[c].max() >= n_b):
+            raise InputError(f"{folder / 'cells.csv'}: {c} outside 0..{n_b - 1}",
+                             fix="re-run the design stage")
+    V = UV = F = land = None
+    if (folder / "stencil.obj").exists():
+        V, UV, F = read_stencil(folder / "stencil.obj")
+        if (folder / "time_landscape.csv").exists():
+            land = read_table(folder, "time_landscape")["time_s"]
+            if len(land) != len(V):
+                land = None
+    frames = load_frames(folder / "sim" / "frames.npz", n_b, len(cells["cell_id"]))
+    return SimData(folder, bases, cells, V, UV, F, land, frames)
+
+
+# --------------------------------------------------------------------------------------------
+# metrics
+# --------------------------------------------------------------------------------------------
+
+def completion_times(t, collided):
+    """Completion time per cell: ``sim.simulate.completion_times`` when available, else local.
+
+    Returns
+    -------
+    t_done : (n_cells,) float, s (NaN = never)
+    source : str
+    """
+    try:
+        from sim.simulate import completion_times as sim_ct
+    except Exception:  # the simulator is optional for the report
+        sim_ct = None
+    if sim_ct is not None:
+        try:
+            out = np.asarray(sim_ct(t, collided), float)
+            if out.shape == (np.shape(collided)[1],):
+                return out, "sim.simulate.completion_times"
+        except TypeError:
+            pass
+    return _local_completion_times(t, collided), "sim.collisions.completion_times"
+
+
+def shape_metrics(C, R, target, target_normals):
+    """Final shape vs target after rigid (Kabsch) alignment of the base centres.
+
+    Parameters
+    ----------
+    C : (n_bases, 3) float, mm — simulated base centres
+    R : (n_bases, 3, 3) float — simulated base rotations (flat -> current)
+    target : (n_bases, 3) float, mm — target base centres
+    target_normals : (n_bases, 3) float — target face normals
+
+    Returns
+    -------
+    dict with ``rms_mm, max_mm, size_mm, rms_pct, max_pct, normal_rms_deg,
+    normal_max_deg, worst_base`` and arrays ``err`` (n_bases,), ``angle`` (n_bases,),
+    ``Q`` (3, 3), ``s`` (3,) (the alignment x -> Q x + s).
+    """
+    Q, s = rigid_fit(C, target)
+    A = C @ Q.T + s
+    err = np.linalg.norm(A - target, axis=1)
+    size = float(np.linalg.norm(np.ptp(target, axis=0)))
+    n_sim = np.einsum("ij,bj->bi", Q, R[:, :, 2])
+    cosang = np.clip(np.sum(n_sim * target_normals, axis=1)
+                     / np.linalg.norm(target_normals, axis=1), -1.0, 1.0)
+    ang = np.degrees(np.arccos(cosang))
+    rms = float(np.sqrt(np.mean(err ** 2)))
+    return {
+        "rms_mm": rms, "max_mm": float(err.max()), "mean_mm": float(err.mean()),
+        "size_mm": size, "rms_pct": 100 * rms / size if size > 0 else float("nan"),
+        "max_pct": 100 * float(err.max()) / size if size > 0 else float("nan"),
+        "normal_rms_deg": float(np.sqrt(np.mean(ang ** 2))), "normal_max_deg": float(ang.max()),
+        "worst_base": int(np.argmax(err)),
+        "err": err, "angle": ang, "Q": Q, "s": s, "aligned": A,
+    }
+
+
+def fold_metrics(C, R, cell_pairs, target_fold_deg, th: Thresholds):
+    """Signed fold angle per unit cell in the final frame vs the target's.
+
+    Parameters
+    ----------
+    C : (n_bases, 3) float, mm
+    R : (n_bases, 3, 3) float
+    cell_pairs : (n_cells, 2) int
+    target_fold_deg : (n_cells,) float, deg — ``cells.csv`` fold_angle_deg
+
+    Returns
+    -------
+    dict with ``rms_deg, max_deg, n_folded, n_flipped, flipped_fraction, flipped_cells``
+    and the array ``fold_deg`` (n_cells,).
+    """
+    from types import SimpleNamespace
+
+    from pysolver.layout import fold_angles_deg
+
+    fold = fold_angles_deg(C, R[:, :, 2], SimpleNamespace(faces=np.asarray(cell_pairs)))
+    tgt = np.asarray(target_fold_deg, float)
+    d = fold - tgt
+    folded = np.abs(tgt) >= th.fold_min_deg
+    flipped = folded & (np.sign(fold) != np.sign(tgt))
+    return {
+        "rms_deg": float(np.sqrt(np.mean(d ** 2))) if d.size else 0.0,
+        "max_deg": float(np.abs(d).max()) if d.size else 0.0,
+        "n_folded": int(folded.sum()), "n_flipped": int(flipped.sum()),
+        "flipped_fraction": float(flipped.sum() / max(folded.sum(), 1)),
+        "flipped_cells": [int(i) for i in np.flatnonzero(flipped)[:50]],
+        "fold_deg": fold,
+    }
+
+
+def shape_rms_over_time(C_frames, target):
+    """RMS distance (mm) of every frame's base centres to the target after its own alignment."""
+    out = np.empty(len(C_frames))
+    for f, C in enumerate(C_frames):
+        Q, s = rigid_fit(C, target)
+        out[f] = np.sqrt(np.mean(np.sum((C @ Q.T + s - target) ** 2, axis=1)))
+    return out
+
+
+def timing_metrics(t, collided, t_star, th: Thresholds):
+    """Simulated completion of every unit cell vs its programmed t*."""
+    t_done, source = completion_times(t, collided)
+    t_star = np.asarray(t_star, float)
+    t_end = float(t[-1])
+    done = np.isfinite(t_done)
+    due = t_star <= t_end
+    never_due = ~done & due
+    d = t_done[done] - t_star[done]
+    rms = float(np.sqrt(np.mean(d ** 2))) if d.size else float("nan")
+    rho = None
+    spread = float(np.std(t_star[done])) if done.sum() >= 3 else 0.0
+    if done.sum() >= 3 and spread >= th.timing_spread_min_s and np.std(t_done[done]) > 0:
+        rho = float(stats.spearmanr(t_star[done], t_done[done]).statistic)
+    return {
+        "source": source, "t_end_s": t_end, "n_cells": int(len(t_star)),
+        "n_completed": int(done.sum()), "n_never": int((~done).sum()),
+        "n_never_due": int(never_due.sum()),
+        "never_due_fraction": float(never_due.sum() / max(due.sum(), 1)),
+        "never_due_cells": [int(i) for i in np.flatnonzero(never_due)[:50]],
+        "rms_s": rms, "bias_s": float(d.mean()) if d.size else float("nan"),
+        "max_abs_s": float(np.abs(d).max()) if d.size else float("nan"),
+        "spearman": rho, "t_star_spread_s": spread,
+        "worst_cell": int(np.flatnonzero(done)[np.argmax(np.abs(d))]) if d.size else None,
+        "t_done": t_done,
+    }
+
+
+def solver_metrics(fr, th: Thresholds):
+    """Newton iterations, residuals and wall time per step; non-converged steps."""
+    t = fr["t"]
+    n = len(t)
+    present = all(k in fr for k in ("newton_iterations", "residual", "wall_s", "converged"))
+    if not present:
+        return {"recorded": False, "n_steps": n, "n_nonconverged": 0, "n_bad_residual": 0,
+                "nonconverged_frames": []}
+    it = np.asarray(fr["newton_iterations"], float)
+    res = np.asarray(fr["residual"], float)
+    wall = np.asarray(fr["wall_s"], float)
+    conv = np.asarray(fr["converged"], bool)
+    bad = np.flatnonzero(~conv)
+    bad_res = bad[~(res[bad] <= th.residual_fail_N)]       # NaN residual counts as bad
+    return {
+        "recorded": True, "n_steps": n,
+        "iterations_total": int(np.nansum(it)), "iterations_mean": float(np.nanmean(it)),
+        "iterations_max": int(np.nanmax(it)) if n else 0,
+        "residual_max": float(np.nanmax(res)) if n else float("nan"),
+        "wall_total_s": float(np.nansum(wall)), "wall_mean_s": float(np.nanmean(wall)),
+        "wall_max_s": float(np.nanmax(wall)) if n else float("nan"),
+        "n_nonconverged": int(len(bad)), "n_bad_residual": int(len(bad_res)),
+        "nonconverged_frames": [int(i) for i in bad[:50]],
+        "nonconverged_times_s": [float(t[i]) for i in bad[:50]],
+    }
+
+
+def decide(metrics: dict, th: Thresholds):
+    """Verdict from the metrics.
+
+    Returns
+    -------
+    verdict : {"PASS", "WARN", "FAIL"}
+    reasons : list of dict(level, check, message)
+    """
+    reasons = []
+
+    def add(level, check, msg):
+        reasons.append({"level": level, "check": check, "message": msg})
+
+    nf = metrics.get("nonfinite")
+    if nf is not None:
+        add("FAIL", "solver", f"non-finite positions from frame {nf['frame']} "
+                              f"(t = {nf['time_s']:g} s): the simulation diverged")
+    sh = metrics["shape"]
+    if sh["rms_pct"] > th.shape_rms_fail_pct:
+        add("FAIL", "shape", f"final shape RMS error {sh['rms_mm']:.2f} mm = "
+                             f"{sh['rms_pct']:.1f} % of the size > {th.shape_rms_fail_pct:g} %")
+    elif sh["rms_pct"] > th.shape_rms_warn_pct:
+        add("WARN", "shape", f"final shape RMS error {sh['rms_mm']:.2f} mm = "
+                             f"{sh['rms_pct']:.1f} % of the size > {th.shape_rms_warn_pct:g} %")
+    if sh["max_pct"] > th.shape_max_warn_pct:
+        add("WARN", "shape", f"base {sh['worst_base']} ends {sh['max_mm']:.2f} mm "
+                             f"({sh['max_pct']:.1f} % of the size) from its target "
+                             f"> {th.shape_max_warn_pct:g} %")
+    if sh["normal_rms_deg"] > th.normal_fail_deg:
+        add("FAIL", "shape", f"base orientation RMS error {sh['normal_rms_deg']:.0f} deg > "
+                             f"{th.normal_fail_deg:g} deg (bent the wrong way?)")
+    elif sh["normal_rms_deg"] > th.normal_warn_deg:
+        add("WARN", "shape", f"base orientation RMS error {sh['normal_rms_deg']:.0f} deg > "
+                             f"{th.normal_warn_deg:g} deg")
+    fo = metrics.get("fold")
+    if fo is not None:
+        if fo["flipped_fraction"] > th.fold_flip_fail_fraction:
+            add("FAIL", "shape", f"{fo['n_flipped']} of {fo['n_folded']} folded unit cells fold "
+                                 "the wrong way (bent the wrong way; > "
+                                 f"{100 * th.fold_flip_fail_fraction:g} %)")
+        elif fo["n_flipped"]:
+            add("WARN", "shape", f"{fo['n_flipped']} folded unit cell(s) fold the wrong way "
+                                 f"(e.g. cell {fo['flipped_cells'][0]})")
+        if fo["rms_deg"] > th.fold_rms_warn_deg:
+            add("WARN", "shape", f"fold angle RMS error {fo['rms_deg']:.1f} deg > "
+                                 f"{th.fold_rms_warn_deg:g} deg")
+    tm = metrics["timing"]
+    if tm["never_due_fraction"] > th.incomplete_fail_fraction:
+        add("FAIL", "timing", f"{tm['n_never_due']} of {tm['n_cells']} unit cells never "
+                              f"complete by t = {tm['t_end_s']:g} s "
+                              f"(> {100 * th.incomplete_fail_fraction:g} %)")
+    elif tm["n_never_due"]:
+        add("WARN", "timing", f"{tm['n_never_due']} unit cell(s) never complete by "
+                              f"t = {tm['t_end_s']:g} s although t* <= t_end "
+                              f"(e.g. cell {tm['never_due_cells'][0]})")
+    if np.isfinite(tm["rms_s"]) and tm["rms_s"] > th.timing_rms_warn_s:
+        add("WARN", "timing", f"completion time RMS error {tm['rms_s']:.1f} s > "
+                              f"{th.timing_rms_warn_s:g} s (bias {tm['bias_s']:+.1f} s)")
+    if tm["spearman"] is not None and tm["spearman"] < th.spearman_warn:
+        add("WARN", "timing", f"completion order differs from the programmed one: Spearman "
+                              f"{tm['spearman']:.2f} < {th.spearman_warn:g}")
+    bc = metrics["collisions"]["base_base"]
+    if bc["count"]:
+        f = bc["first"]
+        add("FAIL", "collisions",
+            f"{bc['count']} pair(s) of non-neighbouring bases collide; first bases "
+            f"{f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s, depth "
+            f"{f['depth_mm']:.2f} mm (max {bc['max_depth_mm']:.2f} mm)")
+    mc = metrics["collisions"].get("membrane_base")
+    if mc and mc["count"]:
+        f = mc["first"]
+        add("FAIL" if th.membrane_collision_fail else "WARN", "collisions",
+            f"membrane passes through bases ({mc['count']} vertex/base pairs); first vertex "
+            f"{f['pair'][0]} in base {f['pair'][1]} at t = {f['time_s']:g} s, depth "
+            f"{f['depth_mm']:.2f} mm")
+    so = metrics["solver"]
+    if so["n_bad_residual"]:
+        add("FAIL", "solver", f"{so['n_bad_residual']} step(s) did not converge, residual above "
+                              f"{th.residual_fail_N:g} N (first at t = "
+                              f"{so['nonconverged_times_s'][0]:g} s)")
+    elif so["n_nonconverged"]:
+        add("WARN", "solver", f"{so['n_nonconverged']} step(s) stopped before the Newton "
+                              f"tolerance, residual <= {th.residual_fail_N:g} N")
+    if metrics.get("stopped_early"):
+        add("WARN", "solver", f"the simulation stopped early, at t = {metrics['t_end_s']:g} s: "
+                              "later morphing is not checked")
+    levels = {r["level"] for r in reasons}
+    verdict = "FAIL" if "FAIL" in levels else "WARN" if "WARN" in levels else "PASS"
+    order = {"FAIL": 0, "WARN": 1}
+    reasons.sort(key=lambda r: order[r["level"]])
+    return verdict, reasons
+
+
+# --------------------------------------------------------------------------------------------
+# report
+# --------------------------------------------------------------------------------------------
+
+class _Progress:
+    def __init__(self, enabled, n):
+        self.enabled, self.n, self.k = enabled, n, 0
+        self.t0 = self.t_last = time.perf_counter()
+
+    def step(self, name):
+        self.k += 1
+        now = time.perf_counter()
+        if self.enabled:
+            print(f"report [{self.k}/{self.n}] {name} (+{now - self.t_last:.1f} s)",
+                  file=sys.stderr, flush=True)
+        self.t_last = now
+
+
+def _nearest_frames(t, times):
+    """Nearest frame per requested time, plus the last frame; de-duplicated, in time order."""
+    t = np.asarray(t, float)
+    idx = [int(np.argmin(np.abs(t - x))) for x in times] + [len(t) - 1]
+    return sorted(set(idx))
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, (np.bool_, bool)):
+        return bool(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (float, np.floating)):
+        x = float(o)
+        return x if math.isfinite(x) else None
+    if isinstance(o, Path):
+        return str(o)
+    return o
+
+
+def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_dir=None,
+                progress=True, image_px=560, gif_frames=60, renderer="auto") -> dict:
+    """Check a simulated morph and write the HTML/JSON report.
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder with ``bases.csv``, ``cells.csv`` and ``sim/frames.npz``
+        (``stencil.obj`` and ``time_landscape.csv`` are used when present).
+    times : sequence of float, s
+        Times of the still renders (nearest frame; the last frame is always added).
+    thresholds : Thresholds or dict, optional
+        Verdict limits (default :class:`Thresholds`).
+    out_dir : path-like, optional
+        Report folder (default ``<design_dir>/report``).  Written into a
+        temporary folder beside it and moved into place when complete.
+    progress : bool
+        One line per step on stderr.
+    image_px : int, px
+        Width of the renders (height = 3/4); the GIF is at most 480 px wide.
+    gif_frames : int
+        Frames of the animation (at most 60).
+    renderer : {"auto", "pyvista", "matplotlib"}
+        Shell renderer; "auto" uses pyvista when off-screen rendering works.
+
+    Returns
+    -------
+    dict
+        The content of ``report.json``: ``verdict``, ``reasons``, ``metrics``,
+        ``thresholds``, ``files``, ``renderer``, ``timings_s``, ``out_dir``.
+    """
+    from pysolver.atomic import atomic_dir
+
+    from . import report_plots as rp
+
+    th = Thresholds.coerce(thresholds)
+    if renderer not in ("auto", "pyvista", "matplotlib"):
+        raise InputError(f"renderer = {renderer!r}", fix="use 'auto', 'pyvista' or 'matplotlib'")
+    if not (16 <= int(image_px) <= 4096):
+        raise InputError(f"image_px = {image_px}", fix="use a width between 16 and 4096 px")
+    gif_frames = int(min(max(gif_frames, 2), 60))
+    t_start = time.perf_counter()
+    timings = {}
+    pr = _Progress(progress, 9)
+
+    def lap(name, t0):
+        timings[name] = round(time.perf_counter() - t0, 3)
+
+    t0 = time.perf_counter()
+    sd = load_sim(design_dir)
+    folder = sd.folder
+    out_dir = Path(out_dir) if out_dir is not None else folder / "report"
+    fr = sd.frames
+    t = fr["t"]
+    C_all = np.asarray(fr["base_center"], float)
+    R_all = np.asarray(fr["base_rotation"], float)
+    M_all = fr.get("membrane_vertices")
+    tri = fr.get("membrane_triangles")
+    lap("load", t0)
+    pr.step("loaded")
+
+    metrics = {"n_bases": sd.n_bases, "n_cells": sd.n_cells, "n_frames": int(len(t)),
+               "t_end_s": float(t[-1]),
+               "stopped_early": bool(np.asarray(fr.get("stopped_early", False)).any())}
+    # frames up to the first non-finite one
+    finite = np.isfinite(C_all).all(axis=(1, 2)) & np.isfinite(R_all).all(axis=(1, 2, 3))
+    if M_all is not None:
+        finite &= np.isfinite(M_all).all(axis=(1, 2))
+    n_ok = int(np.argmin(finite)) if not finite.all() else len(t)
+    if n_ok < len(t):
+        metrics["nonfinite"] = {"frame": n_ok, "time_s": float(t[n_ok])}
+    if n_ok == 0:
+        raise InputError(f"{folder / 'sim/frames.npz'}: the first frame has non-finite positions",
+                         fix="re-run the simulation; the flat state is broken")
+    last = n_ok - 1
+
+    # ---- shape
+    t0 = time.perf_counter()
+    sh = shape_metrics(C_all[last], R_all[last], sd.target, sd.target_normals)
+    rms_t = shape_rms_over_time(C_all[:n_ok], sd.target)
+    metrics["shape"] = {k: v for k, v in sh.items()
+                        if k not in ("err", "angle", "Q", "s", "aligned")}
+    metrics["shape"]["final_frame"] = int(last)
+    fo = fold_metrics(C_all[last], R_all[last], sd.cell_pairs, sd.cells["fold_angle_deg"], th)
+    metrics["fold"] = {k: v for k, v in fo.items() if k != "fold_deg"}
+    lap("shape", t0)
+    pr.step("shape vs target")
+
+    # ---- timing
+    t0 = time.perf_counter()
+    tm = timing_metrics(t[:n_ok], fr["collided"][:n_ok], sd.cells["t_star_s"], th)
+    metrics["timing"] = {k: v for k, v in tm.items() if k != "t_done"}
+    lap("timing", t0)
+    pr.step("timing")
+
+    # ---- collisions
+    t0 = time.perf_counter()
+    bc = base_collisions(C_all[:n_ok], R_all[:n_ok], sd.cell_pairs, t=t[:n_ok],
+                         tol=th.collision_depth_mm)
+    col = {"base_base": bc.summary()}
+    mc = None
+    if M_all is not None and M_all.shape[1]:
+        mc = membrane_collisions(C_all[:n_ok], R_all[:n_ok], M_all[:n_ok], t=t[:n_ok],
+                                 tol=th.collision_depth_mm,
+                                 flat_vertices=fr.get("flat_membrane_vertices"),
+                                 flat_centers=fr.get("flat_base_center"))
+        col["membrane_base"] = mc.summary()
+    metrics["collisions"] = col
+    lap("collisions", t0)
+    pr.step("collisions")
+
+    # ---- solver
+    so = solver_metrics({k: (v[:n_ok] if k in ("newton_iterations", "residual", "wall_s",
+                                                 "converged", "t") else v)
+                         for k, v in fr.items()}, th)
+    metrics["solver"] = so
+    verdict, reasons = decide(metrics, th)
+    pr.step("verdict")
+
+    files = {}
+    notes = []
+    with atomic_dir(out_dir) as tmp:
+        # ---- 2D plots
+        t0 = time.perf_counter()
+        files["timing"] = rp.plot_timing(tmp / "timing.png", sd.cells["t_star_s"],
+                                         tm["t_done"], float(t[last])).name
+        files["clearance"] = rp.plot_clearance(
+            tmp / "collisions.png", t[:n_ok], bc.min_clearance,
+            mc.min_clearance if mc is not None else None, th.collision_depth_mm,
+            reach=bc.extra["reach_mm"]).name
+        if so["recorded"]:
+            files["solver"] = rp.plot_solver(tmp / "solver.png", t[:n_ok],
+                                             fr["newton_iterations"][:n_ok],
+                                             fr["residual"][:n_ok], fr["wall_s"][:n_ok],
+                                             fr["converged"][:n_ok], th.residual_fail_N).name
+        files["shape_over_time"] = _plot_shape_over_time(tmp / "shape_over_time.png",
+                                                         t[:n_ok], rms_t, sh["size_mm"], th).name
+        files["layout"] = rp.plot_layout_thickness(
+            tmp / "layout_thickness.png", sd.flat_xy, sd.cell_pairs,
+            sd.cells["thickness_top_mm"], sd.cells["thickness_bottom_mm"]).name
+        files["landscape"] = rp.plot_time_landscape(
+            tmp / "time_landscape.png", sd.flat_xy, sd.cell_pairs, sd.cells["t_star_s"],
+            tm["t_done"], uv=sd.UV, faces=sd.F, landscape=sd.landscape, t_end=float(t[last])).name
+        lap("plots", t0)
+        pr.step("plots")
+
+        # ---- shell renders (all frames shown in the target frame: x -> Q x + s)
+        t0 = time.perf_counter()
+        Q, s = sh["Q"], sh["s"]
+        C_d = C_all[:n_ok] @ Q.T + s
+        R_d = np.einsum("ij,fbjk->fbik", Q, R_all[:n_ok])
+        M_d = M_all[:n_ok] @ Q.T + s if M_all is not None else None
+        T_d = np.asarray(tri, np.int64) if tri is not None and M_d is not None else None
+        w = int(image_px)
+        size = (w, int(round(0.75 * w)))
+        ren = rp.ShellRenderer(C_d, R_d, M_d, T_d, normals=sd.target_normals, size=size,
+                               backend=renderer)
+        try:
+            imgs = _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w)
+        except Exception as e:  # pyvista failed mid-way: redo everything with matplotlib
+            if ren.backend != "pyvista":
+                raise
+            notes.append(f"pyvista rendering failed ({type(e).__name__}: {e}); "
+                         "fell back to matplotlib 3D")
+            ren.backend = "matplotlib"
+            imgs = _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w)
+        if ren.backend == "matplotlib":
+            notes.append((ren.note + "; " if ren.note else "")
+                         + "renders use matplotlib 3D (no depth buffer: parts may be drawn "
+                           "in the wrong order)")
+        files.update(imgs)
+        lap("renders", t0)
+        pr.step(f"renders ({ren.backend})")
+
+        # ---- json + html
+        t0 = time.perf_counter()
+        timings["total_before_write"] = round(time.perf_counter() - t_start, 3)
+        result = {
+            "design_dir": str(folder), "out_dir": str(out_dir), "verdict": verdict,
+            "reasons": reasons, "metrics": metrics, "thresholds": dataclasses.asdict(th),
+            "renderer": ren.backend, "notes": notes, "files": files, "timings_s": timings,
+            "render_frames": {"frames": files.get("render_frames", []),
+                              "times_s": [float(t[f]) for f in files.get("render_frames", [])]},
+        }
+        result = _jsonable(result)
+        (tmp / "report.json").write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+        (tmp / "index.html").write_text(_html(result, tmp, sd), encoding="utf-8")
+        lap("write", t0)
+    timings["total"] = round(time.perf_counter() - t_start, 3)
+    result["timings_s"] = timings
+    pr.step("written")
+    _print_verdict(result, out_dir)
+    return result
+
+
+def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
+    """Still renders, error picture, collision picture and the GIF; returns their file names."""
+    out = {}
+    sel = _nearest_frames(t[:last + 1], times)
+    labels = [f"t = {t[f]:g} s" + (" (end)" if f == last else "") for f in sel]
+    names = []
+    for f, img in zip(sel, ren.images(sel, labels=labels), strict=True):
+        name = f"render_f{f:04d}.png"
+        rp.save_png(img, tmp / name)
+        names.append(name)
+    out["renders"] = names
+    out["render_frames"] = sel
+    err = sh["err"]
+    img = ren.images([last], labels=[f"final shape error (mm), t = {t[last]:g} s"],
+                     base_scalars=err, clim=(0.0, max(float(err.max()), 1e-3)), cmap="plasma",
+                     scalar_title="error (mm)", fit="these")[0]
+    out["shape_error"] = rp.save_png(img, tmp / "shape_error.png").name
+    if bc.count:
+        ev = bc.first()
+        f = ev["frame"]
+        hit = np.unique(bc.pairs[bc.first_frame == f].ravel())
+        point = (np.asarray(ev["point_mm"]) @ sh["Q"].T + sh["s"])[None]
+        label = f"first collision, t = {t[f]:g} s: bases {ev['pair'][0]} & {ev['pair'][1]}"
+        over = ren.images([f], labels=[label + " (red)"], highlight=hit, fit="these",
+                          extra_points=point)[0]
+        # close-up: 25 mm box around the contact, seen from the first base's top side
+        a = ev["pair"][0]
+        box = (point[0] - 12.5, point[0] + 12.5)
+        close = ren.images([f], labels=["close-up"], highlight=hit, fit=box,
+                           normal=ren.R[f, a, :, 2], extra_points=point)[0]
+        img = np.concatenate([over, close], axis=1)
+        out["collision_frame"] = rp.save_png(img, tmp / "collision_frame.png").name
+    # animation: at most gif_frames frames, at most 480 px wide
+    gw = min(w, 480)
+    saved = ren.size
+    ren.size = (gw, int(round(0.75 * gw)))
+    try:
+        gsel = sorted(set(np.linspace(0, last, min(gif_frames, last + 1)).round().astype(int)))
+        gimgs = ren.images(gsel, labels=[f"t = {t[f]:5.1f} s" for f in gsel])
+    finally:
+        ren.size = saved
+    out["animation"] = rp.save_gif(gimgs, tmp / "morph.gif").name
+    return out
+
+
+def _plot_shape_over_time(path, t, rms_t, size, th):
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 3.4))
+    ax.plot(t, rms_t, lw=1.2)
+    for pct, c in ((th.shape_rms_warn_pct, "orange"), (th.shape_rms_fail_pct, "red")):
+        ax.axhline(size * pct / 100, color=c, ls="--", lw=0.8, label=f"{pct:g} % of size")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("RMS distance to target (mm)")
+    ax.set_title("base centres vs target (each frame aligned rigidly)")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# HTML
+# --------------------------------------------------------------------------------------------
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
+max-width:1100px;color:#222;padding:0 1em}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+.verdict{font-size:2em;font-weight:bold;padding:.2em .6em;display:inline-block;border-radius:6px}
+.PASS{background:#d7f5d7;color:#135e13}.WARN{background:#fff0c2;color:#7a5a00}
+.FAIL{background:#ffd6d6;color:#8a1010}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ddd;padding:.25em .6em;
+text-align:left}th{background:#f4f4f4}
+figure{display:inline-block;margin:.4em;vertical-align:top}
+figcaption{font-size:.85em;color:#555;max-width:560px}img{max-width:100%}
+li.FAIL{color:#8a1010}li.WARN{color:#7a5a00}.note{color:#555;font-size:.9em}
+"""
+
+
+def _img(tmp, name, caption):
+    p = Path(tmp) / name
+    mime = "image/gif" if name.endswith(".gif") else "image/png"
+    data = base64.b64encode(p.read_bytes()).decode("ascii")
+    return (f'<figure><img src="data:{mime};base64,{data}" alt="{html.escape(caption)}" '
+            f'data-file="{html.escape(name)}"><figcaption>{html.escape(caption)}</figcaption>'
+            "</figure>")
+
+
+def _table(rows):
+    out = ["<table>"]
+    for k, v in rows:
+        if isinstance(v, float):
+            v = "n/a" if not math.isfinite(v) else f"{v:.4g}"
+        elif v is None:
+            v = "n/a"
+        out.append(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def _f(x, fmt="{:.3g}"):
+    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
+
+
+def _html(r, tmp, sd) -> str:
+    m, fl, th = r["metrics"], r["files"], r["thresholds"]
+    name = sd.folder.resolve().name
+    sh, tm, co, so = m["shape"], m["timing"], m["collisions"], m["solver"]
+    fo = m["fold"]
+    parts = [f"<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+             f"<title>morphshell simulation check: {html.escape(name)}</title>"
+             f"<style>{_CSS}</style></head><body>",
+             f"<h1>Simulation check: {html.escape(name)}</h1>",
+             f"<p class='note'>{m['n_bases']} bases, {m['n_cells']} unit cells, "
+             f"{m['n_frames']} frames to t = {m['t_end_s']:g} s. Renderer: "
+             f"{html.escape(r['renderer'])}. Thresholds: docs/report.md.</p>"]
+    # verdict
+    items = "".join(f"<li class='{x['level']}'><b>{x['level']}</b> [{x['check']}] "
+                    f"{html.escape(x['message'])}</li>" for x in r["reasons"])
+    parts.append(f"<section id='verdict'><h2>Verdict</h2><span class='verdict {r['verdict']}'>"
+                 f"{r['verdict']}</span><ul>{items or '<li>all checks within thresholds</li>'}"
+                 "</ul>" + "".join(f"<p class='note'>{html.escape(n)}</p>" for n in r["notes"])
+                 + "</section>")
+    # shape
+    parts.append("<section id='shape'><h2>Final shape vs target</h2>"
+                 "<p>Base centres of the last frame, rigidly aligned (Kabsch, no scaling) to the "
+                 "target base centres. Size = bounding-box diagonal of the target centres.</p>"
+                 + _table([("RMS distance", f"{_f(sh['rms_mm'])} mm ({_f(sh['rms_pct'])} %)"),
+                           ("max distance", f"{_f(sh['max_mm'])} mm ({_f(sh['max_pct'])} %), "
+                                            f"base {sh['worst_base']}"),
+                           ("target size", f"{_f(sh['size_mm'])} mm"),
+                           ("base normal error", f"RMS {_f(sh['normal_rms_deg'])} deg, max "
+                                                 f"{_f(sh['normal_max_deg'])} deg"),
+                           ("fold angle error per cell",
+                            f"RMS {_f(fo['rms_deg'])} deg, max {_f(fo['max_deg'])} deg; "
+                            f"{fo['n_flipped']} of {fo['n_folded']} folded cells fold the "
+                            "wrong way"),
+                           ("limits", f"WARN > {th['shape_rms_warn_pct']} %, FAIL > "
+                                      f"{th['shape_rms_fail_pct']} % RMS; normals WARN > "
+                                      f"{th['normal_warn_deg']} deg, FAIL > "
+                                      f"{th['normal_fail_deg']} deg; folds WARN RMS > "
+                                      f"{th['fold_rms_warn_deg']} deg or any flipped, FAIL > "
+                                      f"{100 * th['fold_flip_fail_fraction']:g} % flipped")])
+                 + _img(tmp, fl["shape_error"], "final shell in the target frame, bases "
+                                                "coloured by distance to their target centre")
+                 + _img(tmp, fl["shape_over_time"], "RMS distance to the target over time")
+                 + "</section>")
+    # timing
+    never = ", ".join(map(str, tm["never_due_cells"][:20])) or "none"
+    parts.append("<section id='timing'><h2>Timing</h2><p>A unit cell completes at the first "
+                 "frame where all 4 of its bracket springs are collided (source: "
+                 f"{html.escape(tm['source'])}).</p>"
+                 + _table([("completed cells", f"{tm['n_completed']} / {tm['n_cells']}"),
+                           ("never completed (t* <= t_end)", f"{tm['n_never_due']}: {never}"),
+                           ("RMS error vs t*", f"{_f(tm['rms_s'])} s"),
+                           ("mean error (bias)", f"{_f(tm['bias_s'], '{:+.3g}')} s"),
+                           ("max |error|", f"{_f(tm['max_abs_s'])} s"),
+                           ("Spearman rank correlation", _f(tm["spearman"])),
+                           ("limits", f"WARN RMS > {th['timing_rms_warn_s']} s, Spearman < "
+                                      f"{th['spearman_warn']}, any never-completed cell; "
+                                      f"FAIL > {100 * th['incomplete_fail_fraction']:g} % "
+                                      "never completed")])
+                 + _img(tmp, fl["timing"], "simulated completion vs programmed t* per cell")
+                 + "</section>")
+    # collisions
+    bb = co["base_base"]
+    rows = [("base vs base (non-neighbours)",
+             "none" if not bb["count"] else
+             f"{bb['count']} pairs, first bases {bb['first']['pair']} at t = "
+             f"{bb['first']['time_s']:g} s, point {np.round(bb['first']['point_mm'], 2).tolist()}"
+             f" mm, max depth {bb['max_depth_mm']:.3g} mm"),
+            ("closest approach (base vs base)", f"{_f(bb['min_clearance_mm'])} mm"
+             if bb["min_clearance_mm"] is not None else
+             f"no non-neighbouring pair came within {bb['reach_mm']:.1f} mm (centres)")]
+    mb = co.get("membrane_base")
+    if mb:
+        rows.append(("membrane vs far base",
+                     "none" if not mb["count"] else
+                     f"{mb['count']} vertex/base pairs, first vertex {mb['first']['pair'][0]} "
+                     f"in base {mb['first']['pair'][1]} at t = {mb['first']['time_s']:g} s"))
+    else:
+        rows.append(("membrane vs far base", "not checked (no membrane in frames.npz)"))
+    parts.append("<section id='collisions'><h2>Collisions along the path</h2>"
+                 f"<p>Bases are solid cylinders of radius {UNIT_CELL.base_r:g} mm and height "
+                 f"{2 * UNIT_CELL.layer_h:g} mm centred on the membrane; bases sharing a unit "
+                 "cell are not checked (their bumpers touch by design). A collision is a "
+                 f"penetration deeper than {th['collision_depth_mm']} mm.</p>" + _table(rows)
+                 + _img(tmp, fl["clearance"], "smallest clearance per frame")
+                 + (_img(tmp, fl["collision_frame"], "first collision: colliding bases in red")
+                    if "collision_frame" in fl else "") + "</section>")
+    # solver
+    if so["recorded"]:
+        srows = [("steps", so["n_steps"]),
+                 ("Newton iterations", f"total {so['iterations_total']}, mean "
+                                       f"{_f(so['iterations_mean'])}, max {so['iterations_max']}"),
+                 ("largest residual", f"{_f(so['residual_max'])} N"),
+                 ("wall time", f"total {_f(so['wall_total_s'])} s, mean "
+                               f"{_f(so['wall_mean_s'])} s, max {_f(so['wall_max_s'])} s"),
+                 ("non-converged steps", f"{so['n_nonconverged']} "
+                  + (f"(t = {', '.join(f'{x:g}' for x in so['nonconverged_times_s'][:20])} s)"
+                     if so["n_nonconverged"] else "")),
+                 ("limit", f"FAIL if a non-converged step ends above {th['residual_fail_N']} N,"
+                           " else WARN")]
+        body = _table(srows) + _img(tmp, fl["solver"], "solver statistics per step")
+    else:
+        body = "<p>The frames hold no solver statistics.</p>"
+    parts.append(f"<section id='solver'><h2>Solver health</h2>{body}</section>")
+    # renders
+    figs = "".join(_img(tmp, n, f"t = {x:g} s") for n, x in
+                   zip(fl["renders"], r["render_frames"]["times_s"], strict=True))
+    parts.append("<section id='renders'><h2>Shell at chosen times</h2><p>Top layer amber, "
+                 "bottom layer blue, membrane grey; every frame shown in the target frame "
+                 f"(nearest frames to {html.escape(str(list(r['render_frames']['times_s'])))} s)."
+                 f"</p>{figs}</section>")
+    parts.append("<section id='animation'><h2>Animation</h2>"
+                 + _img(tmp, fl["animation"], "the whole morph") + "</section>")
+    parts.append("<section id='layout'><h2>Flat layout</h2>"
+                 + _img(tmp, fl["layout"], "bracket thickness per unit cell and layer")
+                 + "</section>")
+    parts.append("<section id='landscape'><h2>Time landscape</h2>"
+                 + _img(tmp, fl["landscape"], "programmed time landscape and simulated "
+                                              "completion per cell (same colour scale)")
+                 + "</section>")
+    parts.append("</body></html>\n")
+    return "\n".join(parts)
+
+
+def _print_verdict(r, out_dir):
+    print(f"simulation check: {r['verdict']}  ({out_dir / 'index.html'})")
+    for x in r["reasons"]:
+        print(f"  {x['level']}: [{x['check']}] {x['message']}")
+    for n in r["notes"]:
+        print(f"  note: {n}")
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m sim.report", description=__doc__.split("\n")[0])
+    ap.add_argument("design_dir")
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--renderer", default="auto", choices=("auto", "pyvista", "matplotlib"))
+    a = ap.parse_args(argv)
+    r = make_report(a.design_dir, out_dir=a.out, progress=not a.quiet, renderer=a.renderer)
+    return 3 if r["verdict"] == "FAIL" else 0
+
+
+__all__ = ["Thresholds", "SECTIONS", "SimData", "load_frames", "load_sim", "completion_times",
+           "shape_metrics", "fold_metrics", "shape_rms_over_time", "timing_metrics",
+           "solver_metrics", "decide", "make_report"]
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,493 @@
+"""Compare a 3D scan of a printed, morphed shell with the simulation (marker dots).
+
+Every base except the alignment bases carries a coloured marker dot on the far
+face of each layer (``design/pipeline.md`` §1.5); a scan of the morphed shell
+gives their positions as a point set.  :func:`compare_scan` registers that
+point set to the simulated marker tips of the final frame
+(``marker_top`` / ``marker_bottom`` in ``sim/frames.npz``) and reports the
+distances:
+
+1. **Robust start**: centroids (median, so outliers do not drag them) and
+   principal axes of both sets; 24 starts = principal frames x 12 rotations of
+   30 deg about the smallest-variance axis (the shell's mean normal) x 2 flips,
+   plus the 24 rotations of the cube group for shapes without a clear normal.
+2. **Trimmed ICP** from every start (nearest marker per scan point, keep the
+   closest 80 %, Kabsch), the best by a truncated-distance score refined further.
+3. **One-to-one matching** (:func:`scipy.optimize.linear_sum_assignment` on the
+   distances capped at the gate) with **outlier rejection**: pairs farther
+   than the gate (default half the median marker spacing) are outliers.
+4. **L1 rigid fit**: the rigid motion minimising the *sum* of distances of the
+   matched pairs, by iteratively re-weighted Kabsch (weights 1/distance),
+   alternated with re-matching until the matches stop changing.
+
+The scan may have fewer points than markers and outliers.  ``layer="auto"``
+registers both layers and keeps the one with the lower truncated error.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+from scipy.spatial.distance import pdist
+from scipy.spatial.transform import Rotation
+
+from pysolver.errors import InputError
+
+TRIM_FRACTION = 0.8
+"""Fraction of closest pairs kept by each trimmed-ICP iteration (allows 20 % missing/outliers)."""
+ICP_MAX_ITER = 60
+IRLS_MAX_ITER = 100
+IRLS_EPS_MM = 1e-4
+"""Floor of the distances in the IRLS weights (1/max(d, eps)), mm."""
+
+
+# --------------------------------------------------------------------------------------------
+# rigid fits
+# --------------------------------------------------------------------------------------------
+
+def rigid_fit(A, B, weights=None):
+    """Rigid motion (rotation + translation, no scaling) taking ``A`` onto ``B`` (Kabsch).
+
+    Minimises ``sum_i w_i |Q a_i + s - b_i|^2``.
+
+    Parameters
+    ----------
+    A, B : (n, 3) float, mm
+        Corresponding points, n >= 3 (n = 2 gives a rotation about the pair's axis
+        chosen by scipy).
+    weights : (n,) float, optional
+
+    Returns
+    -------
+    Q : (3, 3) float
+        Rotation matrix (det +1).
+    s : (3,) float, mm
+    """
+    A = np.asarray(A, float)
+    B = np.asarray(B, float)
+    if A.shape != B.shape or A.ndim != 2 or A.shape[1] != 3 or len(A) < 2:
+        raise InputError(f"rigid_fit: point sets of shapes {A.shape} and {B.shape}",
+                         fix="pass two (n, 3) arrays of corresponding points, n >= 2")
+    w = np.ones(len(A)) if weights is None else np.asarray(weights, float)
+    w = w / w.sum()
+    ca = w @ A
+    cb = w @ B
+    # scipy's align_vectors(a, b) finds R minimising sum w |a - R b|^2
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "optimal rotation is not uniquely defined"
+        rot, _ = Rotation.align_vectors(B - cb, A - ca, weights=w)
+    Q = rot.as_matrix()
+    return Q, cb - Q @ ca
+
+
+def l1_rigid_fit(A, B, *, Q0=None, s0=None, max_iter=IRLS_MAX_ITER, eps=IRLS_EPS_MM):
+    """Rigid motion minimising the sum of distances ``sum_i |Q a_i + s - b_i|`` (IRLS).
+
+    Iteratively re-weighted Kabsch with weights ``1 / max(d_i, eps)``; each step
+    does not increase the objective (majorise-minimise).
+
+    Parameters
+    ----------
+    A, B : (n, 3) float, mm
+    Q0, s0 : optional start (default: the least-squares fit)
+
+    Returns
+    -------
+    Q : (3, 3) float
+    s : (3,) float, mm
+    """
+    if Q0 is None:
+        Q, s = rigid_fit(A, B)
+    else:
+        Q, s = Q0, s0
+    prev = np.inf
+    for _ in range(max_iter):
+        d = np.linalg.norm(A @ Q.T + s - B, axis=1)
+        obj = d.sum()
+        if prev - obj <= 1e-10 * max(obj, 1e-12):
+            break
+        prev = obj
+        Q, s = rigid_fit(A, B, weights=1.0 / np.maximum(d, eps))
+    return Q, s
+
+
+# --------------------------------------------------------------------------------------------
+# reading scans
+# --------------------------------------------------------------------------------------------
+
+def read_points(path):
+    """Read a point set: OBJ (``v`` lines), PLY (via trimesh) or CSV/TXT/XYZ (x y z columns).
+
+    Returns
+    -------
+    P : (n, 3) float, mm
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found", fix="give the path of the scan point set")
+    ext = path.suffix.lower()
+    if ext == ".obj":
+        # hand-written: an OBJ of bare vertices is not a mesh for trimesh (it loads as empty)
+        pts = []
+        with open(path, errors="replace") as fh:
+            for ln, line in enumerate(fh, start=1):
+                parts = line.split()
+                if parts and parts[0] == "v":
+                    try:
+                        pts.append([float(x) for x in parts[1:4]])
+                    except ValueError:
+                        raise InputError(f"{path}:{ln}: cannot parse {line.strip()!r}") from None
+        P = np.array(pts, float).reshape(-1, 3)
+    elif ext == ".ply":
+        import trimesh
+
+        try:
+            geom = trimesh.load(path, process=False)
+        except Exception as e:
+            raise InputError(f"{path}: cannot read PLY ({type(e).__name__}: {e})") from None
+        P = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
+    elif ext in (".csv", ".txt", ".xyz"):
+        rows = []
+        with open(path, errors="replace") as fh:
+            for ln, line in enumerate(fh, start=1):
+                s = line.strip()
+                if not s or s.startswith("#"):
+                    continue
+                fields = s.replace(",", " ").replace(";", " ").split()
+                try:
+                    vals = [float(x) for x in fields[:3]]
+                except ValueError:
+                    if rows:
+                        raise InputError(f"{path}:{ln}: not numbers: {s!r}") from None
+                    continue  # header line
+                if len(vals) != 3:
+                    raise InputError(f"{path}:{ln}: need 3 columns x y z, got {s!r}")
+                rows.append(vals)
+        P = np.array(rows, float).reshape(-1, 3)
+    else:
+        raise InputError(f"{path}: unknown point-set format {ext!r}",
+                         fix="use .obj (v lines), .ply, or .csv/.txt/.xyz with x y z columns")
+    if len(P) < 3:
+        raise InputError(f"{path}: {len(P)} points, need at least 3",
+                         fix="check that the file holds the detected marker dots")
+    if not np.isfinite(P).all():
+        raise InputError(f"{path}: NaN or infinite coordinates")
+    return P
+
+
+def simulated_markers(design_dir, layer, frame=-1):
+    """Simulated marker-dot tips of one layer at a frame, without alignment bases.
+
+    Returns
+    -------
+    M : (k, 3) float, mm
+    base_ids : (k,) int
+    """
+    from pysolver.tables import read_table
+
+    from .report import load_frames
+
+    folder = Path(design_dir)
+    bases = read_table(folder, "bases")
+    fr = load_frames(folder / "sim" / "frames.npz", len(bases["base_id"]))
+    key = f"marker_{layer}"
+    if key not in fr:
+        raise InputError(f"{folder / 'sim/frames.npz'}: no {key} array",
+                         fix="re-run the simulation with the current sim.simulate")
+    M = np.asarray(fr[key][frame], float)
+    keep = ~bases["alignment"].astype(bool) & np.isfinite(M).all(axis=1)
+    return M[keep], np.flatnonzero(keep)
+
+
+# --------------------------------------------------------------------------------------------
+# registration
+# --------------------------------------------------------------------------------------------
+
+def _pca(P):
+    c = np.median(P, axis=0)
+    X = P - P.mean(axis=0)
+    w, V = np.linalg.eigh(X.T @ X)
+    V = V[:, ::-1]                   # largest variance first; column 2 = normal axis
+    if np.linalg.det(V) < 0:
+        V[:, 2] *= -1
+    return c, V
+
+
+def _start_rotations(P, M):
+    """Candidate rotations taking the scan's principal frame onto the markers'."""
+    _, Vp = _pca(P)
+    _, Vm = _pca(M)
+    starts = []
+    for flip in (False, True):
+        F = np.diag([1.0, -1.0, -1.0]) if flip else np.eye(3)  # 180 deg about the major axis
+        for k in range(12):
+            a = np.radians(30.0 * k)
+            Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+            starts.append(Vm @ Rz @ F @ Vp.T)
+    for g in Rotation.create_group("O").as_matrix():
+        starts.append(Vm @ g @ Vp.T)
+    return starts
+
+
+def _trimmed_icp(P, tree, M, Q, s, max_iter=ICP_MAX_ITER, trim=TRIM_FRACTION):
+    n_keep = max(3, int(np.ceil(trim * len(P))))
+    prev = None
+    for _ in range(max_iter):
+        X = P @ Q.T + s
+        d, j = tree.query(X)
+        keep = np.argpartition(d, n_keep - 1)[:n_keep]
+        Q, s = rigid_fit(P[keep], M[j[keep]])
+        key = (j[keep].tobytes(), keep.tobytes())
+        if key == prev:
+            break
+        prev = key
+    return Q, s
+
+
+def _score(P, tree, Q, s, gate):
+    d, _ = tree.query(P @ Q.T + s)
+    return float(np.mean(np.minimum(d, gate)))
+
+
+def register(P, M, *, gate=None):
+    """Register scan points ``P`` to markers ``M`` (rigid), then match them one-to-one.
+
+    Parameters
+    ----------
+    P : (n, 3) float, mm
+        Scan points (any order, may miss markers and hold outliers).
+    M : (k, 3) float, mm
+        Simulated marker tips.
+    gate : float, mm, optional
+        Matches farther than this are outliers; default half the median
+        nearest-neighbour spacing of ``M``.
+
+    Returns
+    -------
+    dict with ``Q`` (3, 3), ``s`` (3,) (scan -> simulation: ``x -> Q x + s``),
+    ``pairs`` (m, 2) int (scan index, marker index), ``dist`` (m,) mm,
+    ``outliers`` (scan indices without a match), ``gate_mm``, ``score_mm``.
+    """
+    P = np.asarray(P, float)
+    M = np.asarray(M, float)
+    if len(M) < 3:
+        raise InputError(f"{len(M)} simulated markers, need at least 3 to register a scan")
+    tree = cKDTree(M)
+    if gate is None:
+        dnn, _ = tree.query(M, k=2)
+        gate = 0.5 * float(np.median(dnn[:, 1]))
+    gate = float(gate)
+    cm, _ = _pca(M)
+    cp, _ = _pca(P)
+    # coarse ICP from every start, then refine the best few
+    cand = []
+    for Q0 in _start_rotations(P, M):
+        s0 = cm - Q0 @ cp
+        Q, s = _trimmed_icp(P, tree, M, Q0, s0, max_iter=15)
+        cand.append((_score(P, tree, Q, s, gate), Q, s))
+    cand.sort(key=lambda c: c[0])
+    best = None
+    for _, Q, s in cand[:4]:
+        Q, s = _trimmed_icp(P, tree, M, Q, s)
+        sc = _score(P, tree, Q, s, gate)
+        if best is None or sc < best[0]:
+            best = (sc, Q, s)
+    _, Q, s = best
+    # one-to-one matching with a distance gate, alternated with the L1 rigid fit
+    prev = None
+    for _ in range(10):
+        X = P @ Q.T + s
+        D = np.linalg.norm(X[:, None, :] - M[None, :, :], axis=2)
+        r, c = linear_sum_assignment(np.minimum(D, gate))
+        ok = D[r, c] < gate
+        r, c = r[ok], c[ok]
+        if len(r) < 3:
+            break
+        key = (r.tobytes(), c.tobytes())
+        if key == prev:
+            break
+        prev = key
+        Q, s = l1_rigid_fit(P[r], M[c], Q0=Q, s0=s)
+    X = P @ Q.T + s
+    dist = np.linalg.norm(X[r] - M[c], axis=1)
+    outliers = np.setdiff1d(np.arange(len(P)), r)
+    return {"Q": Q, "s": s, "pairs": np.c_[r, c], "dist": dist, "outliers": outliers,
+            "gate_mm": gate, "score_mm": _score(P, tree, Q, s, gate)}
+
+
+# --------------------------------------------------------------------------------------------
+# the comparison
+# --------------------------------------------------------------------------------------------
+
+def _stats(reg, P, M):
+    d = reg["dist"]
+    diam = float(pdist(M).max()) if len(M) > 1 else float("nan")
+    Q = reg["Q"]
+    return {
+        "matched": int(len(d)), "n_scan": int(len(P)), "n_markers": int(len(M)),
+        "outliers": int(len(reg["outliers"])),
+        "unmatched_markers": int(len(M) - len(d)),
+        "mean_mm": float(d.mean()) if d.size else float("nan"),
+        "max_mm": float(d.max()) if d.size else float("nan"),
+        "std_mm": float(d.std()) if d.size else float("nan"),
+        "median_mm": float(np.median(d)) if d.size else float("nan"),
+        "rms_mm": float(np.sqrt(np.mean(d ** 2))) if d.size else float("nan"),
+        "diameter_mm": diam,
+        "mean_over_diameter": float(d.mean() / diam) if d.size and diam > 0 else float("nan"),
+        "gate_mm": reg["gate_mm"], "score_mm": reg["score_mm"],
+        "rotation_deg": float(np.degrees(Rotation.from_matrix(Q).magnitude())),
+        "transform_scan_to_sim": {"R": Q.tolist(), "t_mm": reg["s"].tolist()},
+    }
+
+
+def _plot(path, P, M, reg, title):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    X = P @ reg["Q"].T + reg["s"]
+    pr = reg["pairs"]
+    d = reg["dist"]
+    fig = plt.figure(figsize=(11, 5))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    ax.scatter(*M.T, s=8, c="tab:blue", label=f"simulated markers ({len(M)})", depthshade=False)
+    ax.scatter(*X[pr[:, 0]].T, s=8, c="tab:orange", label=f"scan, matched ({len(pr)})",
+               depthshade=False)
+    if len(reg["outliers"]):
+        ax.scatter(*X[reg["outliers"]].T, s=18, c="red", marker="x",
+                   label=f"scan, outliers ({len(reg['outliers'])})", depthshade=False)
+    if len(pr):
+        segs = np.stack([X[pr[:, 0]], M[pr[:, 1]]], axis=1)
+        lc = Line3DCollection(segs, colors=plt.cm.plasma(d / max(d.max(), 1e-9)), linewidths=1.5)
+        ax.add_collection3d(lc)
+    allp = np.concatenate([M, X])
+    mid = 0.5 * (allp.min(0) + allp.max(0))
+    half = 0.5 * np.ptp(M, axis=0).max() * 1.1
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title(title, fontsize=9)
+    ax2 = fig.add_subplot(1, 2, 2)
+    if len(d):
+        ax2.hist(d, bins=min(40, max(5, len(d) // 5)), color="tab:orange")
+        ax2.axvline(d.mean(), color="k", ls="--", label=f"mean {d.mean():.2f} mm")
+        ax2.axvline(reg["gate_mm"], color="red", ls=":", label=f"gate {reg['gate_mm']:.2f} mm")
+        ax2.legend(fontsize=8)
+    ax2.set_xlabel("distance scan dot - simulated marker (mm)")
+    ax2.set_ylabel("matched pairs")
+    ax2.set_title("matched-pair distances")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=None,
+                 frame=-1, progress=True) -> dict:
+    """Compare scanned marker dots with the simulated marker tips of the final frame.
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder with ``bases.csv`` and ``sim/frames.npz``.
+    scan_path : path-like
+        Point set of detected marker dots, mm: OBJ vertices, PLY, or CSV x y z.
+    layer : {"auto", "top", "bottom"}
+        Which layer's markers were scanned; "auto" keeps the layer with the
+        lower error (truncated mean distance).
+    out_dir : path-like, optional
+        Where ``scan_<stem>.json`` and ``scan_<stem>.png`` go (default
+        ``<design_dir>/scan_report``; not inside ``report/``, which the report
+        stage replaces as a whole).
+    gate_mm : float, mm, optional
+        Outlier distance gate (default: half the median marker spacing).
+    frame : int
+        Simulation frame to compare with (default the last).
+    progress : bool
+        Print the result line.
+
+    Returns
+    -------
+    dict
+        ``layer``, ``mean_mm``, ``max_mm``, ``std_mm``, ``mean_over_diameter``,
+        ``matched``, ``outliers``, ``unmatched_markers``, ``transform_scan_to_sim``,
+        ``per_layer`` (auto), ``pairs`` (scan index, base id, distance), ``files``.
+    """
+    if layer not in ("auto", "top", "bottom"):
+        raise InputError(f"layer = {layer!r}", fix="use 'auto', 'top' or 'bottom'")
+    folder = Path(design_dir)
+    scan_path = Path(scan_path)
+    P = read_points(scan_path)
+    layers = ("top", "bottom") if layer == "auto" else (layer,)
+    results = {}
+    for ly in layers:
+        M, ids = simulated_markers(folder, ly, frame)
+        reg = register(P, M, gate=gate_mm)
+        results[ly] = (M, ids, reg)
+    chosen = min(results, key=lambda k: (results[k][2]["score_mm"], -len(results[k][2]["dist"])))
+    M, ids, reg = results[chosen]
+    out = {"design_dir": str(folder), "scan": str(scan_path), "layer": chosen,
+           "layer_option": layer, **_stats(reg, P, M)}
+    if layer == "auto":
+        out["per_layer"] = {k: {kk: vv for kk, vv in _stats(v[2], P, v[0]).items()
+                                if kk in ("mean_mm", "max_mm", "matched", "score_mm")}
+                            for k, v in results.items()}
+    out["pairs"] = [[int(a), int(ids[b]), float(d)] for (a, b), d in
+                    zip(reg["pairs"], reg["dist"], strict=True)]
+    out_dir = Path(out_dir) if out_dir is not None else folder / "scan_report"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = scan_path.stem
+    png = _plot(out_dir / f"scan_{stem}.png", P, M, reg,
+                f"{scan_path.name} vs simulated {chosen} markers: mean {out['mean_mm']:.2f} mm")
+    out["files"] = {"png": str(png), "json": str(out_dir / f"scan_{stem}.json")}
+    from pysolver.atomic import atomic_write_text
+
+    def clean(o):
+        if isinstance(o, float) and not np.isfinite(o):
+            return None
+        if isinstance(o, dict):
+            return {k: clean(v) for k, v in o.items()}
+        if isinstance(o, list):
+            return [clean(v) for v in o]
+        return o
+
+    atomic_write_text(out_dir / f"scan_{stem}.json", json.dumps(clean(out), indent=2) + "\n")
+    if progress:
+        print(f"scan vs simulation ({chosen} layer): mean {out['mean_mm']:.3f} mm, max "
+              f"{out['max_mm']:.3f} mm, std {out['std_mm']:.3f} mm, mean/diameter "
+              f"{100 * out['mean_over_diameter']:.2f} %, {out['matched']} matched, "
+              f"{out['outliers']} outliers -> {png}")
+    return out
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m sim.scan", description=__doc__.split("\n")[0])
+    ap.add_argument("design_dir")
+    ap.add_argument("scan")
+    ap.add_argument("--layer", default="auto", choices=("auto", "top", "bottom"))
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args(argv)
+    compare_scan(a.design_dir, a.scan, layer=a.layer, out_dir=a.out)
+    return 0
+
+
+__all__ = ["rigid_fit", "l1_rigid_fit", "read_points", "simulated_markers", "register",
+           "compare_scan"]
+
+if __name__ == "__main__":
+    sys.exit(main())
