@@ -1,0 +1,336 @@
+"""The design stage: from a target surface to the design folder (tables, stencil, pictures).
+
+:func:`run_design` is the one entry point::
+
+    from pysolver.design import run_design
+    summary = run_design("petal", "build/petal")
+
+Stages (timed in the summary): load -> remesh -> flatten (CETM and LSCM, compared)
+-> layout (scaling rules, bases, bumpers) -> nodes -> time landscape -> checks -> write
+-> plots.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time as _time
+from pathlib import Path
+
+import numpy as np
+
+from . import tables
+from .cellnodes import bracket_nodes, collision_lengths
+from .checks import check_layout
+from .errors import InputError
+from .layout import Layout, build_layout
+from .params import UNIT_CELL, UnitCell
+from .time_landscape import cell_times, check_time_source, resolve_time
+
+FLATTENINGS = ("cetm", "lscm")
+
+
+class _Clock:
+    def __init__(self, progress: bool, label: str):
+        self.t = {}
+        self.progress = progress
+        self.label = label
+        self._t0 = _time.perf_counter()
+        self._start = self._t0
+
+    def step(self, name: str):
+        now = _time.perf_counter()
+        self.t[name] = round(now - self._t0, 4)
+        self._t0 = now
+        if self.progress:
+            print(f"[design {self.label}] {name:<10s} {self.t[name]:7.2f} s "
+                  f"(total {now - self._start:6.1f} s)", file=sys.stderr, flush=True)
+
+
+def _load_source(source, scale: float):
+    """Returns (surface-like object, kind, source description, hash)."""
+    from . import surfaces
+
+    if isinstance(source, surfaces.Surface):
+        h = hashlib.sha256(np.ascontiguousarray(source.V).tobytes()).hexdigest()[:16]
+        return source, "builtin", source.name, h, None
+    src = str(source)
+    p = Path(src)
+    if not p.exists() and surfaces.is_builtin(src):
+        surf = surfaces.builtin(src)
+        if scale != 1.0:
+            surf.V = surf.V * scale
+            if surf.UV is not None:
+                surf.UV = surf.UV * scale
+            if surf.time is not None:
+                t0 = surf.time
+                surf.time = lambda X, t0=t0: t0(np.asarray(X) / scale)
+            surf.remesh = {}
+        h = hashlib.sha256(src.encode()).hexdigest()[:16]
+        return surf, "builtin", src, h, None
+    if not p.exists():
+        raise InputError(f"{src}: no such file and not a built-in shape",
+                         fix=f"give a mesh file (OBJ, STL, PLY, OFF) or one of "
+                             f"{', '.join(surfaces.BUILTIN)}")
+    from .mesh_input import load_input
+
+    mesh = load_input(p, scale=scale)
+    h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
+    surf = surfaces.Surface(p.stem, mesh.V, mesh.F, UV=mesh.UV)
+    return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh
+
+
+def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -> Layout:
+    """Layout of a ready stencil (thin wrapper of :func:`pysolver.layout.build_layout`)."""
+    return build_layout(V, UV, F, params, central_length=central_length)
+
+
+def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
+               params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
+               stencil_order=False, progress=True, plots=True, seed=None) -> dict:
+    """Design a shell and write the design folder.
+
+    Parameters
+    ----------
+    source : str, Path or Surface
+        Built-in shape (``"petal"``, ``"weave:large"``, ...), a mesh file (OBJ, STL,
+        PLY, OFF; one connected disk-like surface in mm) or a stencil OBJ (v = target,
+        vt = flat, row-aligned; its vertex and face order is kept).
+    out_dir : str or Path
+        Design folder (created if needed); files are written atomically one by one.
+    vertices : int, optional
+        Stencil vertex count N (default: searched to minimise the stencil scaling).
+    time : None, float, str or array
+        Time landscape, see :func:`pysolver.time_landscape.resolve_time`.  Expressions
+        use the final target coordinates (``stencil.obj`` v, mm, centred).
+    scale : float
+        Factor applied to the input coordinates (e.g. 10 for a mesh in cm).
+    flattening : {"cetm", "lscm"}
+        Conformal flattening used for the layout (both are computed and compared).
+    params : UnitCell
+    thickness : float, mm
+        Uniform bracket thickness written until the temporal stage sets it.
+    central_length : float, mm, optional
+        Flat central length override (shortest cell); default from the shape.
+    stencil_order : bool
+        For an input mesh without vt: use its own triangulation as the stencil
+        (no remeshing), keeping vertex and face order.
+    progress : bool
+        One line per stage on stderr.
+    plots : bool
+        Write the PNG pictures (skip in fast tests).
+    seed : int, optional
+        CVT remeshing seed (default: searched, or the built-in shape's tuned value).
+
+    Returns
+    -------
+    summary : dict
+        Counts, sizes, cell lengths, distortion, scale factors, flattening comparison,
+        checks and timings per stage (also in ``design.json``).
+    """
+    if flattening not in FLATTENINGS:
+        raise InputError(f"flattening={flattening!r}", fix=f"use one of {FLATTENINGS}")
+    if not (np.isfinite(scale) and scale > 0):
+        raise InputError(f"scale={scale!r} must be a positive number")
+    if not (params.thickness_min <= thickness <= params.thickness_max):
+        raise InputError(f"thickness={thickness} mm outside {params.thickness_min}-"
+                         f"{params.thickness_max} mm")
+    if vertices is not None and (int(vertices) != vertices or vertices < 4):
+        raise InputError(f"vertices={vertices!r} must be an integer >= 4")
+    out_dir = Path(out_dir)
+    clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
+    surf, kind, src_desc, src_hash, mesh = _load_source(source, scale)
+    check_time_source(time, mesh)
+    clock.step("load")
+
+    from .flatten import compare_flattenings
+
+    remesh_info = {}
+    comparison = {}
+    if surf.UV is not None:
+        V0, UV0, F0 = surf.V, surf.UV, surf.F
+        remesh_info = {"remeshed": False, "vertices": int(len(V0))}
+        clock.step("remesh")
+        clock.step("flatten")
+    else:
+        if stencil_order:
+            V0, F0 = surf.V, surf.F
+            remesh_info = {"remeshed": False, "vertices": int(len(V0))}
+        else:
+            from .remesh import remesh_surface
+
+            n_req, sd = vertices, seed
+            if n_req is None and seed is None and surf.remesh and params == UNIT_CELL:
+                n_req, sd = surf.remesh.get("vertices"), surf.remesh.get("seed")
+            V0, F0, remesh_info = remesh_surface(surf.V, surf.F, vertices=n_req, seed=sd,
+                                                 target_bases=surf.target_bases, params=params)
+        clock.step("remesh")
+        results = compare_flattenings(V0, F0, params=params)
+        comparison = {k: r.metrics for k, r in results.items()}
+        chosen = results[flattening]
+        if chosen.UV is None:
+            raise InputError(f"flattening {flattening!r} failed: {chosen.metrics['error']}",
+                             fix="try the other flattening or remesh the surface")
+        UV0 = chosen.UV
+        clock.step("flatten")
+
+    cl = central_length if central_length is not None else surf.central_length
+    lay = build_layout(V0, UV0, F0, params, central_length=cl)
+    clock.step("layout")
+
+    nodes_t, _ = bracket_nodes(lay.V, lay.UV, lay.F, params, ff=lay.ff,
+                               rotvec=lay.rotvec)
+    coll = collision_lengths(nodes_t, lay.cells)
+    clock.step("nodes")
+
+    # time landscape: built-in defaults see the shape's own frame; user input the target
+    center = np.asarray(V0, float).mean(axis=0)
+    if time is None and surf.time is not None:
+        t_vertex, t_desc = resolve_time(None, lay.V,
+                                        default=lambda X: surf.time(X / lay.scale3d + center))
+    else:
+        src_mesh = None
+        if mesh is not None:
+            src_mesh = mesh.transformed(-center, lay.scale3d)
+        t_vertex, t_desc = resolve_time(time, lay.V, source_mesh=src_mesh)
+    t_star = cell_times(t_vertex, lay.cells.verts)
+    th = np.full((len(lay.cells.faces), 2), float(thickness))
+    clock.step("time")
+
+    report = check_layout(lay, params, raise_=False)
+    from .flatten import distortion_metrics
+
+    dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
+    clock.step("checks")
+    report.raise_if_failed()
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_design_tables(out_dir, lay, coll, t_vertex, t_star, th, params)
+    clock.step("write")
+
+    summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
+                       flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
+    if plots:
+        from .design_plots import write_design_plots
+
+        pics = write_design_plots(lay, out_dir, t_vertex, th)
+        clock.step("plots")
+        summary["pictures"] = [p.name for p in pics]
+    summary["timings_s"] = dict(clock.t)
+    options = {
+        "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
+        "vertices": vertices, "seed": seed,
+        "time": time if isinstance(time, (str, int, float, type(None))) else "array",
+        "scale": scale, "flattening": flattening, "thickness_mm": thickness,
+        "central_length_mm": cl, "stencil_order": stencil_order,
+        "params": params.to_dict(),
+        "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
+        "alignment_bases": [int(i) for i in lay.alignment],
+    }
+    _write_json(out_dir / "design.json", {"options": options, "summary": summary})
+    return summary
+
+
+def write_design_tables(out_dir, lay: Layout, coll, t_vertex, t_star, thickness,
+                        params: UnitCell = UNIT_CELL) -> None:
+    """Write stencil.obj and the five CSV tables of a layout into ``out_dir``."""
+    out_dir = Path(out_dir)
+    F = lay.F
+    m = len(F)
+    align = np.zeros(m, dtype=bool)
+    align[lay.alignment] = True
+    tables.write_stencil(out_dir / "stencil.obj", lay.V, lay.UV, F)
+    tables.write_table(out_dir / "bases.csv", "bases", {
+        "base_id": np.arange(m), "v0": F[:, 0], "v1": F[:, 1], "v2": F[:, 2],
+        "flat_x_mm": lay.C2[:, 0], "flat_y_mm": lay.C2[:, 1],
+        "target_x_mm": lay.Fc[:, 0], "target_y_mm": lay.Fc[:, 1], "target_z_mm": lay.Fc[:, 2],
+        "normal_x": lay.N[:, 0], "normal_y": lay.N[:, 1], "normal_z": lay.N[:, 2],
+        "rot_x_rad": lay.rotvec[:, 0], "rot_y_rad": lay.rotvec[:, 1],
+        "rot_z_rad": lay.rotvec[:, 2], "ref_slot": lay.ref_slot,
+        "boundary": lay.boundary_face, "alignment": align})
+    c = lay.cells
+    nc = len(c.faces)
+    tables.write_table(out_dir / "cells.csv", "cells", {
+        "cell_id": np.arange(nc), "base_a": c.faces[:, 0], "base_b": c.faces[:, 1],
+        "slot_a": c.slots[:, 0], "slot_b": c.slots[:, 1],
+        "vertex_a": c.verts[:, 0], "vertex_b": c.verts[:, 1], "boundary": c.boundary,
+        "central_length_mm": lay.central_length,
+        "bracket_length_mm": params.bracket_length(lay.central_length),
+        "target_length_mm": lay.target_length, "fold_angle_deg": lay.fold_angle_deg,
+        "collision_length_top_mm": coll[:, 0], "collision_length_bottom_mm": coll[:, 1],
+        "t_star_s": t_star, "thickness_top_mm": thickness[:, 0],
+        "thickness_bottom_mm": thickness[:, 1],
+        "t_min_s": np.full(nc, np.nan), "t_max_s": np.full(nc, np.nan),
+        "clamped": np.zeros(nc, dtype=bool)})
+    b = lay.bumpers
+    tables.write_table(out_dir / "bumpers.csv", "bumpers", {
+        "base_id": b.base, "layer": np.where(b.layer == 0, "top", "bottom"), "slot": b.slot,
+        "cell_id": b.cell, "neighbour": b.neighbour, "dir_deg": b.dir_deg,
+        "plane_px": b.plane_p[:, 0], "plane_py": b.plane_p[:, 1], "plane_pz": b.plane_p[:, 2],
+        "plane_nx": b.plane_n[:, 0], "plane_ny": b.plane_n[:, 1], "plane_nz": b.plane_n[:, 2],
+        "cut": b.cut, "length_mm": b.length})
+    tables.write_table(out_dir / "time_landscape.csv", "time_landscape", {
+        "vertex_id": np.arange(len(lay.V)), "time_s": t_vertex})
+    tables.write_table(out_dir / "support_frame.csv", "support_frame", {
+        "x_mm": lay.support[:, 0], "y_mm": lay.support[:, 1]})
+
+
+def _r(x, k=4):
+    return round(float(x), k)
+
+
+def _summary(surf, kind, src_desc, lay: Layout, report, dist, comparison, remesh_info,
+             flattening, t_desc, t_vertex, coll) -> dict:
+    l = lay.central_length
+    ratio = lay.target_length / l
+    flat_ext = np.ptp(lay.C2, axis=0) + 2 * UNIT_CELL.base_r
+    tgt_ext = np.ptp(lay.V, axis=0)
+    return {
+        "shape": surf.name, "source": src_desc, "source_kind": kind,
+        "counts": {"vertices": int(len(lay.V)), "bases": int(len(lay.F)),
+                   "cells": int(len(lay.cells.faces)),
+                   "boundary_cells": int(lay.cells.boundary.sum()),
+                   "boundary_bases": int(lay.boundary_face.sum()),
+                   "alignment_bases": int(len(lay.alignment)),
+                   "bumpers": int(len(lay.bumpers))},
+        "size_mm": {"flat_xy": [_r(flat_ext[0], 2), _r(flat_ext[1], 2)],
+                    "target_xyz": [_r(v, 2) for v in tgt_ext]},
+        "cell_length_mm": {"min": _r(l.min()), "max": _r(l.max()), "mean": _r(l.mean())},
+        "contraction_target_over_flat": {"min": _r(ratio.min()), "max": _r(ratio.max())},
+        "collision_length_mm": {"min": _r(coll.min()), "max": _r(coll.max())},
+        "fold_angle_deg_absmax": _r(np.abs(lay.fold_angle_deg).max(), 2),
+        "bumper_cuts": {"bisector": int(np.sum(lay.bumpers.cut == "bisector")),
+                        "straight": int(np.sum(lay.bumpers.cut == "straight"))},
+        "scale": {"scale3d": _r(lay.scale3d, 6), "scale2d": _r(lay.scale2d, 6),
+                  "scale2d_rule": _r(lay.scale2d_rule, 6)},
+        "distortion": dist,
+        "flattening": {"method": flattening, "comparison": comparison},
+        "remesh": remesh_info,
+        "time": {"source": t_desc, "min_s": _r(t_vertex.min(), 3), "max_s": _r(t_vertex.max(), 3)},
+        "checks": report.to_dict(),
+    }
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(type(o))
+
+
+def _write_json(path: Path, data: dict):
+    tmp = path.with_suffix(".json.tmp")
+    with open(tmp, "w", newline="\n") as fh:
+        json.dump(data, fh, indent=1, sort_keys=False, default=_json_default)
+        fh.write("\n")
+    os.replace(tmp, path)
+
+
+__all__ = ["run_design", "design_layout", "write_design_tables", "FLATTENINGS"]

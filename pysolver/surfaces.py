@@ -1,0 +1,414 @@
+"""Built-in procedural target shapes (generated in code) and their default time landscapes.
+
+Names: ``regular``, ``petal``, ``saddle``, ``dome``, ``weave``, ``spiral``; an option
+may follow a colon: ``"weave:large"`` (about 549 bases, the benchmark size), or
+``"dome:size=1.5"`` (linear size factor, more bases).  See :func:`builtin`.
+
+A :class:`Surface` is either a dense target surface (then the pipeline remeshes and
+flattens it) or a ready stencil (``UV`` given, e.g. ``regular``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import triangle as tr
+
+from .errors import InputError
+
+
+@dataclass
+class Surface:
+    """A target surface.
+
+    Attributes
+    ----------
+    name : str
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    UV : (n, 2) float or None
+        Flat layout when the surface is already a stencil (no remesh / flattening).
+    time : callable((k, 3) float, mm) -> (k,) float, s, or None
+        Default time landscape as a function of the (scaled, centred) stencil vertices.
+    central_length : float, mm, or None
+        Flat central length override (test patches).
+    target_bases : int or None
+        Suggested number of bases (remeshing search start).
+    remesh : dict
+        Tuned ``{"vertices": N, "seed": s}`` for the default options of a built-in shape
+        (found by the search of :func:`pysolver.remesh.remesh_surface`; makes the default
+        designs fast and reproducible).  Empty: search.
+    description : str
+    options : dict
+    """
+
+    name: str
+    V: np.ndarray
+    F: np.ndarray
+    UV: np.ndarray | None = None
+    time: Callable | None = None
+    central_length: float | None = None
+    target_bases: int | None = None
+    description: str = ""
+    options: dict = field(default_factory=dict)
+    remesh: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+
+
+def _disk_mesh(boundary_xy: np.ndarray, max_area: float) -> tuple[np.ndarray, np.ndarray]:
+    """Quality triangulation of a simple polygon (Shewchuk's Triangle, ``pq30a``)."""
+    n = len(boundary_xy)
+    seg = np.c_[np.arange(n), (np.arange(n) + 1) % n]
+    t = tr.triangulate({"vertices": boundary_xy, "segments": seg}, f"pq30a{max_area:.6f}Q")
+    P, F = t["vertices"], t["triangles"].astype(np.int64)
+    # CCW in xy
+    e1, e2 = P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]]
+    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    F[cw] = F[cw][:, ::-1]
+    return P, F
+
+
+def _resample_closed(P: np.ndarray, spacing: float) -> np.ndarray:
+    """Resample a closed polyline at roughly uniform arc length."""
+    Q = np.vstack([P, P[:1]])
+    s = np.r_[0, np.cumsum(np.linalg.norm(np.diff(Q, axis=0), axis=1))]
+    k = max(int(np.ceil(s[-1] / spacing)), 8)
+    t = np.linspace(0, s[-1], k, endpoint=False)
+    return np.c_[np.interp(t, s, Q[:, 0]), np.interp(t, s, Q[:, 1])]
+
+
+def _parse_options(spec: str) -> tuple[str, dict]:
+    name, _, rest = spec.partition(":")
+    opts: dict = {}
+    for tok in filter(None, rest.split(",")):
+        if "=" in tok:
+            k, v = tok.split("=", 1)
+            try:
+                vals = [float(x) for x in v.strip("()[] ").split(";")]
+            except ValueError:
+                raise InputError(f"shape option {tok!r}: value must be a number "
+                                 "(or numbers separated by ';')") from None
+            opts[k.strip()] = vals[0] if len(vals) == 1 else tuple(vals)
+        else:
+            opts[tok.strip()] = True
+    return name.strip(), opts
+
+
+def _time_on_dense(V, F, t_dense):
+    """Time function of points near the surface: interpolate per-vertex times of the dense
+    source mesh (closest point, barycentric) -- robust where arms overlap in space."""
+
+    def time(X):
+        from .time_landscape import interpolate_to_stencil
+
+        return interpolate_to_stencil(t_dense, V, F, np.asarray(X, float))
+
+    return time
+
+
+def _smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+# --------------------------------------------------------------------------------------
+# regular test patch
+
+
+def regular(rows: int = 6, cols: int = 5, central_length: float = 7.0) -> Surface:
+    """Flat patch of identical unit cells (Supplementary Note 6 mechanical test patch).
+
+    Equilateral triangles in ``rows`` strips of ``2 cols`` triangles (first edge
+    horizontal).  Target = the flat patch, scaled later by the 3D min-bumper rule (so
+    the bumpers just touch); flat layout = the same mesh scaled so every central length
+    is ``central_length`` (7 mm): 60 bases, about 59 x 60 mm, 0.5 mm brackets.
+    """
+    a = central_length * np.sqrt(3)  # edge of the flat layout (mm); the target is rescaled
+    h = a * np.sqrt(3) / 2
+    P = []
+    for r in range(rows + 1):
+        off = (r % 2) * a / 2
+        P += [(i * a + off, r * h) for i in range(cols + 1)]
+    P = np.array(P)
+    idx = lambda r, i: r * (cols + 1) + i
+    F = []
+    for r in range(rows):
+        for i in range(cols):
+            p0, p1, q0, q1 = idx(r, i), idx(r, i + 1), idx(r + 1, i), idx(r + 1, i + 1)
+            if r % 2 == 0:
+                F += [(p0, p1, q0), (p1, q1, q0)]
+            else:
+                F += [(p0, q1, q0), (p0, p1, q1)]
+    F = np.array(F, dtype=np.int64)
+    used = np.unique(F)
+    remap = -np.ones(len(P), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    P, F = P[used], remap[F]
+    V = np.c_[P, np.zeros(len(P))]
+    return Surface("regular", V, F, UV=P.copy(), time=lambda X: np.full(len(X), 60.0),
+                   central_length=central_length,
+                   description="flat test patch of identical 7 mm unit cells, 0.3 mm bumpers",
+                   options=dict(rows=rows, cols=cols))
+
+
+__all__ = ["Surface", "regular", "petal", "saddle", "dome", "weave", "spiral", "BUILTIN",
+           "BUILTIN_SHAPES",
+           "builtin", "is_builtin"]
+
+
+# --------------------------------------------------------------------------------------
+# dense procedural surfaces (remeshed and flattened by the pipeline)
+
+DENSE_EDGE = 2.5  # mm, edge length of the dense source triangulations
+LARGE_WEAVE = (30.0, 44.0, (40.0, 48.0, 56.0))  # hub, arm width, arc radii of "weave:large"
+
+# tuned remeshing (vertex count, CVT seed) of the default options, found by the search of
+# pysolver.remesh.remesh_surface (seeds=8); keyed by (shape, options)
+TUNED = {
+    ("dome", ()): {"vertices": 69, "seed": 0},
+    ("saddle", ()): {"vertices": 71, "seed": 0},
+    ("petal", ()): {"vertices": 124, "seed": 1},
+    ("spiral", ()): {"vertices": 107, "seed": 2},
+    ("weave", ()): {"vertices": 212, "seed": 6},
+    ("weave", (("large", True),)): {"vertices": 342, "seed": 14},
+}
+
+
+def _dense(boundary_xy, edge=DENSE_EDGE):
+    B = _resample_closed(np.asarray(boundary_xy, float), edge)
+    return _disk_mesh(B, max_area=np.sqrt(3) / 4 * edge**2)
+
+
+def dome(size: float = 1.0, radius: float = 50.0, cap_deg: float = 50.0) -> Surface:
+    """Spherical cap (sphere radius 50 mm, polar angle 50 deg): about 110 bases.
+
+    Default time landscape: the centre finishes first (40 s), the rim last (70 s).
+    """
+    R = radius * size
+    beta = np.radians(cap_deg)
+    rho = R * beta  # geodesic radius; azimuthal-equidistant parametrisation
+    phi = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    P, F = _dense(np.c_[rho * np.cos(phi), rho * np.sin(phi)])
+    g = np.hypot(P[:, 0], P[:, 1]) / R  # polar angle
+    az = np.arctan2(P[:, 1], P[:, 0])
+    V = np.c_[R * np.sin(g) * np.cos(az), R * np.sin(g) * np.sin(az), R * (np.cos(g) - 1)]
+    # normals up (+z): the top layer is on the concave (inner) side
+
+    def time(X):
+        return 40.0 + 30.0 * np.clip(np.hypot(X[:, 0], X[:, 1]) / (R * np.sin(beta)), 0, 1)
+
+    return Surface("dome", V, F, time=time, description=f"spherical cap R={R:g} mm, "
+                   f"{cap_deg:g} deg", options=dict(size=size))
+
+
+def saddle(size: float = 1.0, radius: float = 42.0, curvature_radius: float = 65.0) -> Surface:
+    """Hyperbolic paraboloid z = (x^2 - y^2) / (2 rho) over a disc of radius 42 mm.
+
+    Default time landscape: 40 s at the centre to 65 s at the rim.
+    """
+    Rd = radius * size
+    rho = curvature_radius * size
+    phi = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    P, F = _dense(np.c_[Rd * np.cos(phi), Rd * np.sin(phi)])
+    V = np.c_[P, (P[:, 0] ** 2 - P[:, 1] ** 2) / (2 * rho)]
+
+    def time(X):
+        return 40.0 + 25.0 * np.clip(np.hypot(X[:, 0], X[:, 1]) / Rd, 0, 1)
+
+    return Surface("saddle", V, F, time=time, description=f"saddle over a disc R={Rd:g} mm, "
+                   f"rho={rho:g} mm", options=dict(size=size))
+
+
+def petal(size: float = 1.0, petals: int = 6, r0: float = 34.0, small: float = 34.0,
+          large: float = 50.0, bend_small: float = 50.0, bend_large: float = 85.0,
+          notch: float = 1.2) -> Surface:
+    """Flower: flat centre (radius 34 mm) and petals of two sizes (34 / 50 mm) that curl up.
+
+    Petals alternate small / large (``petals`` must be even).  Each petal bends up along
+    circular arcs; small petals close to 50 deg, large petals to 85 deg, i.e. they rise
+    higher and lean over the small ones (about 190 bases).  Default time landscape:
+    centre 35 s, small petals 45 s, large petals 75 s -- the small petals close first and
+    the large ones then cover them.
+    """
+    petals = int(petals)
+    if petals % 2 or petals < 4:
+        raise InputError(f"petal: petals={petals} must be even and >= 4")
+    half = petals // 2
+    r0, small, large = r0 * size, small * size, large * size
+    wlarge = lambda phi: 0.5 + 0.5 * np.cos(half * phi)  # 1 on large petals, 0 on small
+    plen = lambda phi: small + (large - small) * wlarge(phi)
+    bend = lambda phi: np.radians(bend_small + (bend_large - bend_small) * wlarge(phi))
+    phi = np.linspace(0, 2 * np.pi, 1200, endpoint=False)
+    r = r0 + plen(phi) * np.abs(np.cos(petals * phi / 2)) ** notch
+    P, F = _dense(np.c_[r * np.cos(phi), r * np.sin(phi)])
+    rho = np.hypot(P[:, 0], P[:, 1])
+    az = np.arctan2(P[:, 1], P[:, 0])
+    s = np.maximum(rho - r0, 0.0)
+    Rc = plen(az) / bend(az)  # arc radius: the petal tip reaches the bend angle
+    rad = np.where(s > 0, r0 + Rc * np.sin(s / Rc), rho)
+    z = np.where(s > 0, Rc * (1 - np.cos(s / Rc)), 0.0)
+    V = np.c_[rad * np.cos(az), rad * np.sin(az), z]
+    # faces CCW seen from +z in the flat domain: normal up = top layer on the inside
+
+    tp = 45.0 + 30.0 * wlarge(az)  # small petals 45 s, large 75 s
+    depth = _smoothstep((rho - 0.75 * r0) / (0.5 * r0))
+    time = _time_on_dense(V, F, 35.0 + (tp - 35.0) * depth)
+
+    return Surface("petal", V, F, time=time,
+                   description=f"{petals}-petal flower, petals {small:g}/{large:g} mm",
+                   options=dict(size=size, petals=petals))
+
+
+def _polygon_union(polys) -> np.ndarray:
+    """Outline of the union of simple polygons (manifold3d CrossSection)."""
+    from manifold3d import CrossSection
+
+    cs = None
+    for P in polys:
+        c = CrossSection([np.asarray(P, float)])
+        cs = c if cs is None else cs + c
+    loops = cs.to_polygons()
+    if len(loops) != 1:
+        raise RuntimeError("procedural outline is not a single simple polygon")
+    return np.asarray(loops[0], float)
+
+
+def weave(size: float = 1.0, large: bool = False, arms: int = 3, hub: float | None = None,
+          width: float | None = None, bend_start: float = 30.0, offset: float = 7.0,
+          overshoot: float = 16.0, radii=None) -> Surface:
+    """Three arms that curl over the hub and interweave; they must morph in order.
+
+    A pinwheel (three 38 mm wide arms at 120 deg, offset sideways) around a flat hub.  Arm
+    k bends up by half a turn with arc radius 32 / 38 / 44 mm and runs back over the hub,
+    past the centre, so its tip lies over the root of the next-but-one arm.  The arms'
+    returning parts are stacked (arm 0 lowest): arm 1 must close over arm 0 and arm 2
+    over arm 1, while arm 2's root stays under arm 0's tip -- a cyclic over/under
+    pattern that only works in the order 0, 1, 2.  Default time landscape: hub 30 s,
+    arm 0 45 s, arm 1 65 s, arm 2 85 s.
+
+    About 325 bases.  ``large=True`` (``"weave:large"``): 44 mm wide arms, hub 30 mm, arc
+    radii 40 / 48 / 56 mm -- 554 bases, the benchmark size of the paper's self-interweaving
+    shape (549 bases).
+    """
+    if arms != 3:
+        raise InputError("weave: only 3 arms are supported")
+    dflt = LARGE_WEAVE if large else (28.0, 38.0, (32.0, 38.0, 44.0))
+    hub = dflt[0] if hub is None else hub
+    width = dflt[1] if width is None else width
+    radii = dflt[2] if radii is None else radii
+    hub, width, s0, e, over = (x * size for x in (hub, width, bend_start, offset, overshoot))
+    Rcs = np.array(radii, float) * size
+    ang = np.radians(90.0 + 120.0 * np.arange(3))
+    A = np.c_[np.cos(ang), np.sin(ang)]  # arm axes
+    B = np.c_[-A[:, 1], A[:, 0]]  # lateral (left)
+    total = s0 + np.pi * Rcs + (s0 + over)  # out, half turn, back past the centre
+    polys = [np.c_[hub * np.cos(t), hub * np.sin(t)]
+             for t in [np.linspace(0, 2 * np.pi, 180, endpoint=False)]]
+    for k in range(3):
+        c0 = A[k] * 0.0
+        corners = [c0 + B[k] * (e - width / 2), c0 + A[k] * total[k] + B[k] * (e - width / 2),
+                   c0 + A[k] * total[k] + B[k] * (e + width / 2), c0 + B[k] * (e + width / 2)]
+        polys.append(np.array(corners))
+    outline = _polygon_union(polys)
+    P, F = _dense(outline)
+    V = np.c_[P, np.zeros(len(P))]
+    arm_of = -np.ones(len(P), dtype=int)
+    for k in range(3):
+        s = P @ A[k]
+        t = P @ B[k] - e
+        inarm = (s > s0) & (np.abs(t) <= width / 2 + 1e-6)
+        arm_of[inarm] = k
+        sp_ = s[inarm] - s0
+        Rc = Rcs[k]
+        beta = sp_ / Rc
+        S = np.where(beta <= np.pi, s0 + Rc * np.sin(np.minimum(beta, np.pi)),
+                     s0 - (sp_ - np.pi * Rc))
+        Z = np.where(beta <= np.pi, Rc * (1 - np.cos(np.minimum(beta, np.pi))), 2 * Rc)
+        V[inarm, :2] = S[:, None] * A[k] + (t[inarm] + e)[:, None] * B[k]
+        V[inarm, 2] = Z
+
+    # flat-domain arm membership (largest axial coordinate among the strips containing it)
+    t_dense = np.full(len(P), 30.0)
+    best = np.full(len(P), -np.inf)
+    for k, tk in enumerate((45.0, 65.0, 85.0)):
+        sk = P @ A[k]
+        lat = P @ B[k] - e
+        mine = (np.abs(lat) <= width / 2 + 1e-6) & (sk > best) & (sk > 0)
+        best[mine] = sk[mine]
+        t_dense[mine] = 30.0 + (tk - 30.0) * _smoothstep((sk[mine] - 0.6 * s0) / (0.4 * s0))
+    time = _time_on_dense(V, F, t_dense)
+
+    return Surface("weave", V, F, time=time,
+                   description="three-arm pinwheel, arms curl over the hub in order",
+                   options=dict(size=size, large=bool(large)))
+
+
+def spiral(size: float = 1.0, length: float = 280.0, width: float = 32.0,
+           turns: float = 0.8) -> Surface:
+    """A strip (280 x 32 mm) that curls into a spiral (curvature growing toward the tip).
+
+    The centre line is a clothoid in the x-z plane: curvature proportional to arc length,
+    total turning ``turns`` x 360 deg, so the tip rolls inside the first loop.  Default time
+    landscape: the root finishes first (35 s), the tip last (80 s).
+    """
+    Ls, W = length * size, width * size
+    outline = np.array([[0, -W / 2], [Ls, -W / 2], [Ls, W / 2], [0, W / 2]])
+    P, F = _dense(outline)
+    total = 2 * np.pi * turns
+    kmax = 2 * total / Ls
+    s_grid = np.linspace(0, Ls, 4001)
+    beta = 0.5 * kmax * s_grid**2 / Ls
+    ds = s_grid[1] - s_grid[0]
+    cx = np.r_[0, np.cumsum(0.5 * (np.cos(beta[1:]) + np.cos(beta[:-1])) * ds)]
+    cz = np.r_[0, np.cumsum(0.5 * (np.sin(beta[1:]) + np.sin(beta[:-1])) * ds)]
+    X = np.interp(P[:, 0], s_grid, cx)
+    Z = np.interp(P[:, 0], s_grid, cz)
+    V = np.c_[X, P[:, 1], Z]
+
+    time = _time_on_dense(V, F, 35.0 + 45.0 * P[:, 0] / Ls)
+
+    return Surface("spiral", V, F, time=time,
+                   description=f"{Ls:g} x {W:g} mm strip curling {turns:g} turns",
+                   options=dict(size=size, turns=turns))
+
+
+# --------------------------------------------------------------------------------------
+# registry
+
+BUILTIN = {"regular": regular, "petal": petal, "saddle": saddle, "dome": dome,
+           "weave": weave, "spiral": spiral}
+
+
+class _ShapeNames(tuple):
+    """Names of the built-in shapes; ``"weave:large" in BUILTIN_SHAPES`` is True too."""
+
+    def __contains__(self, spec):
+        return isinstance(spec, str) and is_builtin(spec)
+
+
+BUILTIN_SHAPES = _ShapeNames(BUILTIN)
+
+
+def is_builtin(spec: str) -> bool:
+    """True if ``spec`` (``name`` or ``name:options``) names a built-in shape."""
+    return _parse_options(str(spec))[0] in BUILTIN
+
+
+def builtin(spec: str) -> Surface:
+    """Make a built-in shape from ``"name"`` or ``"name:opt,key=value"``."""
+    name, opts = _parse_options(spec)
+    if name not in BUILTIN:
+        raise InputError(f"unknown shape {name!r}", fix=f"use one of {', '.join(BUILTIN)}")
+    try:
+        surf = BUILTIN[name](**opts)
+    except TypeError as e:
+        raise InputError(f"shape {spec!r}: bad option ({e})") from None
+    key = (name, tuple(sorted(opts.items())))
+    if key in TUNED:
+        surf.remesh = dict(TUNED[key])
+    return surf

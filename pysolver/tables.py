@@ -1,0 +1,485 @@
+"""Read and write the design folder's tables (``docs/design-folder.md``), with validation.
+
+Every stage reads tables through this module.  Tables are CSV with a header row,
+fixed column order, ``%.9g`` floats, ``\\n`` line ends.  Readers check the header,
+every value's type and range, and raise :class:`~pysolver.errors.InputError`
+naming the file, line, column and value.
+
+Main entry points
+-----------------
+* :func:`write_table` / :func:`read_table` -- one table by kind
+  (``"bases"``, ``"cells"``, ``"bumpers"``, ``"time_landscape"``, ``"support_frame"``).
+* :func:`write_stencil` / :func:`read_stencil` -- ``stencil.obj`` (v, vt row-aligned, f).
+* :func:`read_design` -- the whole folder as a :class:`Design`, cross-checked.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+# column -> type: "int", "float", "bool" (0/1), or a tuple of allowed strings
+SCHEMAS: dict[str, dict[str, object]] = {
+    "bases": {
+        "base_id": "int", "v0": "int", "v1": "int", "v2": "int",
+        "flat_x_mm": "float", "flat_y_mm": "float",
+        "target_x_mm": "float", "target_y_mm": "float", "target_z_mm": "float",
+        "normal_x": "float", "normal_y": "float", "normal_z": "float",
+        "rot_x_rad": "float", "rot_y_rad": "float", "rot_z_rad": "float",
+        "ref_slot": "int", "boundary": "bool", "alignment": "bool",
+    },
+    "cells": {
+        "cell_id": "int", "base_a": "int", "base_b": "int", "slot_a": "int", "slot_b": "int",
+        "vertex_a": "int", "vertex_b": "int", "boundary": "bool",
+        "central_length_mm": "float", "bracket_length_mm": "float",
+        "target_length_mm": "float", "fold_angle_deg": "float",
+        "collision_length_top_mm": "float", "collision_length_bottom_mm": "float",
+        "t_star_s": "float", "thickness_top_mm": "float", "thickness_bottom_mm": "float",
+        "t_min_s": "float", "t_max_s": "float", "clamped": "bool",
+    },
+    "bumpers": {
+        "base_id": "int", "layer": ("top", "bottom"), "slot": "int", "cell_id": "int",
+        "neighbour": "int", "dir_deg": "float",
+        "plane_px": "float", "plane_py": "float", "plane_pz": "float",
+        "plane_nx": "float", "plane_ny": "float", "plane_nz": "float",
+        "cut": ("bisector", "straight"), "length_mm": "float",
+    },
+    "time_landscape": {"vertex_id": "int", "time_s": "float"},
+    "support_frame": {"x_mm": "float", "y_mm": "float"},
+}
+
+FILENAMES = {
+    "bases": "bases.csv", "cells": "cells.csv", "bumpers": "bumpers.csv",
+    "time_landscape": "time_landscape.csv", "support_frame": "support_frame.csv",
+}
+
+# float columns allowed to hold NaN ("not computed yet" before the temporal stage)
+NAN_OK = {("cells", "t_min_s"), ("cells", "t_max_s")}
+# columns whose values must be >= 0
+NONNEGATIVE = {("cells", "central_length_mm"), ("cells", "target_length_mm"),
+               ("cells", "collision_length_top_mm"), ("cells", "collision_length_bottom_mm"),
+               ("cells", "t_star_s"), ("cells", "thickness_top_mm"),
+               ("cells", "thickness_bottom_mm"), ("time_landscape", "time_s"),
+               ("bumpers", "length_mm")}
+SLOT_COLUMNS = {("bases", "ref_slot"), ("cells", "slot_a"), ("cells", "slot_b"),
+                ("bumpers", "slot")}
+
+
+def _fmt(x, kind) -> str:
+    if kind == "float":
+        x = float(x)
+        if math.isnan(x):
+            return "nan"
+        return "%.9g" % (x + 0.0)  # + 0.0 turns -0.0 into 0
+    if kind in ("int", "bool"):
+        return str(int(x))
+    return str(x)
+
+
+def write_table(path, kind: str, data: dict) -> Path:
+    """Write one table.
+
+    Parameters
+    ----------
+    path : str or Path
+        File path, or a design folder (then the standard file name is used).
+    kind : str
+        Key of :data:`SCHEMAS`.
+    data : dict of (r,) arrays
+        One array per column (all columns of the schema, same length).
+
+    Returns
+    -------
+    Path of the written file.
+    """
+    schema = SCHEMAS[kind]
+    path = Path(path)
+    if path.is_dir():
+        path = path / FILENAMES[kind]
+    missing = [c for c in schema if c not in data]
+    if missing:
+        raise InputError(f"write_table({kind}): missing column(s) {missing}")
+    cols = [np.asarray(data[c]) for c in schema]
+    n = len(cols[0])
+    for c, a in zip(schema, cols, strict=True):
+        if len(a) != n:
+            raise InputError(f"write_table({kind}): column {c} has {len(a)} rows, expected {n}")
+    lines = [",".join(schema)]
+    kinds = list(schema.values())
+    for r in range(n):
+        lines.append(",".join(_fmt(cols[k][r], kinds[k]) for k in range(len(kinds))))
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with open(tmp, "w", newline="\n") as fh:
+        fh.write("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def read_table(path, kind: str) -> dict[str, np.ndarray]:
+    """Read and validate one table.
+
+    Parameters
+    ----------
+    path : str or Path
+        File path, or a design folder.
+    kind : str
+        Key of :data:`SCHEMAS`.
+
+    Returns
+    -------
+    dict of column name -> (r,) array (int64, float64, bool or str).
+    """
+    schema = SCHEMAS[kind]
+    path = Path(path)
+    if path.is_dir():
+        path = path / FILENAMES[kind]
+    if not path.exists():
+        raise InputError(f"{path}: file not found",
+                         fix="run the design stage first (morphshell design <shape>)")
+    with open(path) as fh:
+        text = fh.read()
+    rows = [ln for ln in text.split("\n") if ln.strip() != ""]
+    if not rows:
+        raise InputError(f"{path}: empty file, expected header {','.join(schema)}",
+                         fix="re-run the design stage")
+    header = [h.strip() for h in rows[0].split(",")]
+    expected = list(schema)
+    if header != expected:
+        miss = [c for c in expected if c not in header]
+        extra = [c for c in header if c not in expected]
+        raise InputError(
+            f"{path}: header does not match the {kind} table"
+            + (f"; missing {miss}" if miss else "") + (f"; unexpected {extra}" if extra else "")
+            + ("; columns out of order" if not miss and not extra else ""),
+            fix=f"the header must be exactly: {','.join(expected)}")
+    out = {c: [] for c in expected}
+    kinds = list(schema.values())
+    for ln, row in enumerate(rows[1:], start=2):
+        fields = row.split(",")
+        if len(fields) != len(expected):
+            raise InputError(f"{path}:{ln}: {len(fields)} fields, expected {len(expected)}",
+                             fix="check for missing or extra commas")
+        for c, k, v in zip(expected, kinds, fields, strict=True):
+            v = v.strip()
+            where = f"{path}:{ln}: column {c} = {v!r}"
+            if k == "float":
+                try:
+                    x = float(v)
+                except ValueError:
+                    raise InputError(f"{where} is not a number") from None
+                if math.isnan(x) and (kind, c) not in NAN_OK:
+                    raise InputError(f"{where}: NaN not allowed here")
+                if math.isinf(x):
+                    raise InputError(f"{where}: infinite value")
+                if (kind, c) in NONNEGATIVE and x < 0:
+                    raise InputError(f"{where}: must be >= 0")
+                out[c].append(x)
+            elif k in ("int", "bool"):
+                try:
+                    x = int(v)
+                except ValueError:
+                    raise InputError(f"{where} is not an integer") from None
+                if k == "bool" and x not in (0, 1):
+                    raise InputError(f"{where}: must be 0 or 1")
+                if (kind, c) in SLOT_COLUMNS and not 0 <= x <= 2:
+                    raise InputError(f"{where}: a slot must be 0, 1 or 2")
+                out[c].append(x)
+            else:
+                if v not in k:
+                    raise InputError(f"{where}: must be one of {list(k)}")
+                out[c].append(v)
+    res = {}
+    for c, k in zip(expected, kinds, strict=True):
+        if k == "float":
+            res[c] = np.array(out[c], dtype=float)
+        elif k == "int":
+            res[c] = np.array(out[c], dtype=np.int64)
+        elif k == "bool":
+            res[c] = np.array(out[c], dtype=bool)
+        else:
+            res[c] = np.array(out[c], dtype=str)
+    for idc in {"bases": "base_id", "cells": "cell_id",
+                "time_landscape": "vertex_id"}.get(kind, "").split():
+        ids = res[idc]
+        bad = np.flatnonzero(ids != np.arange(len(ids)))
+        if len(bad):
+            raise InputError(f"{path}:{bad[0] + 2}: {idc} = {ids[bad[0]]}, expected {bad[0]} "
+                             "(ids must be 0, 1, 2, ... in row order)")
+    return res
+
+
+def read_bases(path) -> dict[str, np.ndarray]:
+    """``read_table(path, "bases")``."""
+    return read_table(path, "bases")
+
+
+def read_cells(path) -> dict[str, np.ndarray]:
+    """``read_table(path, "cells")``."""
+    return read_table(path, "cells")
+
+
+def read_bumpers(path) -> dict[str, np.ndarray]:
+    """``read_table(path, "bumpers")``."""
+    return read_table(path, "bumpers")
+
+
+def read_time_landscape(path) -> np.ndarray:
+    """(n,) float, s: ``time_s`` of ``time_landscape.csv``."""
+    return read_table(path, "time_landscape")["time_s"]
+
+
+def read_support_frame(path) -> np.ndarray:
+    """(b, 2) float, mm: the support-frame outline."""
+    t = read_table(path, "support_frame")
+    return np.c_[t["x_mm"], t["y_mm"]]
+
+
+# --------------------------------------------------------------------------------------
+# stencil.obj
+
+
+def write_stencil(path, V, UV, F) -> Path:
+    """Write ``stencil.obj``: ``v`` (target, mm), ``vt`` (flat, mm, row-aligned), ``f`` 1-based."""
+    V = np.asarray(V, float)
+    UV = np.asarray(UV, float)
+    F = np.asarray(F, dtype=np.int64)
+    _check_stencil(V, UV, F, str(path))
+    path = Path(path)
+    if path.is_dir():
+        path = path / "stencil.obj"
+    lines = ["# morphshell stencil: v = target (mm), vt = flat layout (mm), row-aligned"]
+    lines += ["v {:.9g} {:.9g} {:.9g}".format(*tuple(p)) for p in V + 0.0]
+    lines += ["vt {:.9g} {:.9g}".format(*tuple(p)) for p in UV + 0.0]
+    lines += ["f {} {} {}".format(*(f + 1)) for f in F]
+    tmp = path.with_suffix(".obj.tmp")
+    with open(tmp, "w", newline="\n") as fh:
+        fh.write("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def round_sig9(X) -> np.ndarray:
+    """Round values to 9 significant digits, exactly as the writers format them
+    (so tables computed from the result agree with what ``stencil.obj`` stores)."""
+    X = np.asarray(X, float)
+    return np.array([float(f"{v:.9g}") for v in X.ravel()]).reshape(X.shape)
+
+
+def _check_stencil(V, UV, F, where):
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) < 3:
+        raise InputError(f"{where}: need at least 3 vertices with 3 coordinates, got {V.shape}")
+    if UV.shape != (len(V), 2):
+        raise InputError(f"{where}: {len(UV)} flat (vt) vertices for {len(V)} target (v) "
+                         "vertices; they must be row-aligned",
+                         fix="give one vt per v, in the same order")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+        raise InputError(f"{where}: faces must be triangles, got shape {F.shape}",
+                         fix="triangulate the mesh")
+    if F.min() < 0 or F.max() >= len(V):
+        raise InputError(f"{where}: face index out of range (0..{len(V) - 1}): "
+                         f"{F.min()}..{F.max()}")
+    if not (np.all(np.isfinite(V)) and np.all(np.isfinite(UV))):
+        raise InputError(f"{where}: NaN or infinite coordinates")
+
+
+def read_stencil(path):
+    """Read a stencil OBJ.
+
+    ``f`` may use plain indices (vt row-aligned with v) or ``v/vt`` pairs; with pairs
+    the vt indices must map one-to-one onto the v indices (no seams), and vt is
+    reordered to be row-aligned.  Faces with more than 3 corners are refused.
+
+    Returns
+    -------
+    V : (n, 3) float
+    UV : (n, 2) float or None
+        None if the file has no vt.
+    F : (m, 3) int
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "stencil.obj"
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    V, T, F, FT = [], [], [], []
+    with open(path, errors="replace") as fh:
+        for ln, line in enumerate(fh, start=1):
+            parts = line.split()
+            if not parts or parts[0].startswith("#"):
+                continue
+            tag = parts[0]
+            try:
+                if tag == "v":
+                    V.append([float(x) for x in parts[1:4]])
+                    if len(V[-1]) != 3:
+                        raise ValueError
+                elif tag == "vt":
+                    T.append([float(x) for x in parts[1:3]])
+                    if len(T[-1]) != 2:
+                        raise ValueError
+                elif tag == "f":
+                    corners = parts[1:]
+                    if len(corners) != 3:
+                        raise InputError(f"{path}:{ln}: face with {len(corners)} corners",
+                                         fix="triangulate the mesh")
+                    idx = [c.split("/") for c in corners]
+                    F.append([int(c[0]) for c in idx])
+                    if all(len(c) > 1 and c[1] != "" for c in idx):
+                        FT.append([int(c[1]) for c in idx])
+            except InputError:
+                raise
+            except ValueError:
+                raise InputError(f"{path}:{ln}: cannot parse {line.strip()!r}") from None
+    if not V or not F:
+        raise InputError(f"{path}: no vertices or no faces", fix="check the OBJ file")
+    V = np.array(V, float)
+    F = np.array(F, dtype=np.int64)
+    F = np.where(F < 0, F + len(V), F - 1)  # OBJ negative = relative
+    UV = None
+    if T:
+        T = np.array(T, float)
+        if FT and len(FT) == len(F):
+            FT = np.array(FT, dtype=np.int64)
+            FT = np.where(FT < 0, FT + len(T), FT - 1)
+            UV = np.full((len(V), 2), np.nan)
+            mapping = {}
+            for fv, ft in zip(F.ravel(), FT.ravel(), strict=True):
+                if mapping.setdefault(fv, ft) != ft:
+                    raise InputError(
+                        f"{path}: vertex {fv + 1} uses several vt ({mapping[fv] + 1}, {ft + 1}):"
+                        " the flat layout has a seam", fix="give a one-to-one vt per v")
+            for fv, ft in mapping.items():
+                UV[fv] = T[ft]
+            if np.isnan(UV).any():
+                raise InputError(f"{path}: some vertices are not used by any face",
+                                 fix="remove unreferenced vertices")
+        elif len(T) == len(V):
+            UV = T
+        else:
+            raise InputError(f"{path}: {len(T)} vt for {len(V)} v and faces without vt indices",
+                             fix="give one vt per v (row-aligned) or v/vt face indices")
+    _check_stencil(V, UV if UV is not None else np.zeros((len(V), 2)), F, str(path))
+    return V, UV, F
+
+
+# --------------------------------------------------------------------------------------
+# the whole folder
+
+
+@dataclass
+class Design:
+    """A design folder loaded into memory.
+
+    Attributes
+    ----------
+    folder : Path
+    V : (n, 3) float, mm  -- target stencil vertices
+    UV : (n, 2) float, mm -- flat stencil vertices
+    F : (m, 3) int
+    bases, cells, bumpers : dict of column arrays
+    time : (n,) float, s -- time landscape per vertex
+    support : (b, 2) float, mm -- flat support-frame outline
+    meta : dict -- design.json
+    """
+
+    folder: Path
+    V: np.ndarray
+    UV: np.ndarray
+    F: np.ndarray
+    bases: dict
+    cells: dict
+    bumpers: dict
+    time: np.ndarray
+    support: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n_bases(self) -> int:
+        return len(self.F)
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cells["cell_id"])
+
+
+def read_design(folder, check: bool = True) -> Design:
+    """Load a design folder and cross-check its tables.
+
+    Parameters
+    ----------
+    folder : str or Path
+    check : bool
+        Cross-check the tables against the stencil (ids, vertex refs, cell order).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a design folder",
+                         fix="run the design stage first (morphshell design <shape>)")
+    V, UV, F = read_stencil(folder / "stencil.obj")
+    if UV is None:
+        raise InputError(f"{folder / 'stencil.obj'}: no vt (flat layout)")
+    bases = read_table(folder, "bases")
+    cells = read_table(folder, "cells")
+    bumpers = read_table(folder, "bumpers")
+    tl = read_table(folder, "time_landscape")
+    sf = read_table(folder, "support_frame")
+    meta = {}
+    if (folder / "design.json").exists():
+        try:
+            meta = json.loads((folder / "design.json").read_text())
+        except json.JSONDecodeError as e:
+            raise InputError(f"{folder / 'design.json'}: invalid JSON ({e})") from None
+    d = Design(folder, V, UV, F, bases, cells, bumpers, tl["time_s"],
+               np.c_[sf["x_mm"], sf["y_mm"]], meta)
+    if check:
+        check_design(d)
+    return d
+
+
+def check_design(d: Design) -> None:
+    """Cross-check a loaded design; raises InputError naming the first inconsistency."""
+    from .layout import unit_cells  # local: layout imports nothing from here
+
+    f = d.folder
+    m, n = len(d.F), len(d.V)
+    if len(d.bases["base_id"]) != m:
+        raise InputError(f"{f}/bases.csv: {len(d.bases['base_id'])} rows for {m} stencil faces",
+                         fix="re-run the design stage")
+    Fb = np.c_[d.bases["v0"], d.bases["v1"], d.bases["v2"]]
+    bad = np.flatnonzero(np.any(Fb != d.F, axis=1))
+    if len(bad):
+        raise InputError(f"{f}/bases.csv:{bad[0] + 2}: vertices {Fb[bad[0]].tolist()} differ "
+                         f"from stencil face {d.F[bad[0]].tolist()}")
+    if len(d.time) != n:
+        raise InputError(f"{f}/time_landscape.csv: {len(d.time)} rows for {n} stencil vertices")
+    cells = unit_cells(d.F)
+    if len(cells.faces) != d.n_cells:
+        raise InputError(f"{f}/cells.csv: {d.n_cells} rows but the stencil has "
+                         f"{len(cells.faces)} interior edges")
+    got = np.c_[d.cells["base_a"], d.cells["base_b"], d.cells["slot_a"], d.cells["slot_b"],
+                d.cells["vertex_a"], d.cells["vertex_b"]]
+    exp = np.c_[cells.faces, cells.slots, cells.verts]
+    bad = np.flatnonzero(np.any(got != exp, axis=1))
+    if len(bad):
+        raise InputError(f"{f}/cells.csv:{bad[0] + 2}: (base_a, base_b, slot_a, slot_b, "
+                         f"vertex_a, vertex_b) = {got[bad[0]].tolist()}, stencil gives "
+                         f"{exp[bad[0]].tolist()}")
+    b = d.bumpers
+    if len(b["base_id"]) and (b["base_id"].max() >= m or b["cell_id"].max() >= d.n_cells):
+        raise InputError(f"{f}/bumpers.csv: base_id or cell_id out of range")
+    n_exp = 2 * 2 * d.n_cells
+    if len(b["base_id"]) != n_exp:
+        raise InputError(f"{f}/bumpers.csv: {len(b['base_id'])} rows, expected {n_exp} "
+                         "(2 layers x 2 bases x cells)")
+
+
+__all__ = ["SCHEMAS", "FILENAMES", "write_table", "read_table", "read_bases", "read_cells",
+           "read_bumpers", "read_time_landscape", "read_support_frame", "write_stencil",
+           "read_stencil", "Design", "read_design", "check_design", "round_sig9"]

@@ -1,0 +1,222 @@
+"""Time landscape: requested completion time (s) per stencil vertex.
+
+Sources (argument ``time`` of :func:`resolve_time`):
+
+* ``None`` -- the shape's default (built-in shapes) or :data:`DEFAULT_TIME_S`;
+* a number -- constant;
+* a string expression of the target coordinates, e.g. ``"30 + 0.5*z"``, evaluated
+  safely: only numbers, the names ``x, y, z, r`` (mm, stencil vertices, centred)
+  plus ``xmin..zmax``-style extents, and whitelisted numpy functions are allowed;
+* ``"vertex"`` / ``"vertex:<name>"`` -- a scalar per vertex of the input mesh (a PLY
+  vertex property such as ``quality`` or ``time_s``), in seconds;
+* ``"color:<t0>:<t1>"`` -- the input mesh's vertex colour (luminance 0..1) mapped to
+  the range t0..t1 s;
+* an array -- one value per stencil vertex, or per input-mesh vertex (interpolated).
+
+Per-input-vertex values are interpolated onto the stencil by barycentric
+coordinates of the closest point on the input mesh.
+"""
+
+from __future__ import annotations
+
+import ast
+
+import igl
+import numpy as np
+
+from .errors import InputError
+
+DEFAULT_TIME_S = 60.0
+T_MIN_S, T_MAX_S = 0.0, 120.0
+
+_FUNCS = {n: getattr(np, n) for n in (
+    "sin", "cos", "tan", "arcsin", "arccos", "arctan", "arctan2", "sinh", "cosh", "tanh",
+    "exp", "log", "log10", "sqrt", "abs", "minimum", "maximum", "clip", "where", "floor",
+    "ceil", "round", "sign", "hypot", "degrees", "radians", "mod")}
+_CONSTS = {"pi": np.pi, "e": np.e}
+_ALLOWED_NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Compare, ast.BoolOp, ast.Call,
+                  ast.Name, ast.Load, ast.Constant, ast.IfExp, ast.operator, ast.unaryop,
+                  ast.cmpop, ast.boolop, ast.keyword)
+
+
+def evaluate_expression(expr: str, V: np.ndarray) -> np.ndarray:
+    """Evaluate a time expression on target coordinates, safely.
+
+    Parameters
+    ----------
+    expr : str
+        E.g. ``"30 + 0.5*z"``, ``"40 + 20*tanh(r/30)"``.
+    V : (n, 3) float, mm
+        Stencil target vertices.
+
+    Returns
+    -------
+    t : (n,) float, s
+    """
+    try:
+        tree = ast.parse(expr, mode="eval")
+    except SyntaxError as e:
+        raise InputError(f"time expression {expr!r}: syntax error ({e.msg})",
+                         fix='write a numpy expression of x, y, z, r, e.g. "30 + 0.5*z"') from None
+    x, y, z = V[:, 0], V[:, 1], V[:, 2]
+    names = {"x": x, "y": y, "z": z, "r": np.hypot(x, y), **_CONSTS, **_FUNCS}
+    for a, col in zip("xyz", (x, y, z), strict=True):
+        names[a + "min"], names[a + "max"] = float(col.min()), float(col.max())
+    for node in ast.walk(tree):
+        if not isinstance(node, _ALLOWED_NODES):
+            raise InputError(f"time expression {expr!r}: {type(node).__name__} is not allowed",
+                             fix="use arithmetic, comparisons and numpy functions only")
+        if isinstance(node, ast.Name) and node.id not in names:
+            raise InputError(f"time expression {expr!r}: unknown name {node.id!r}",
+                             fix=f"allowed names: x, y, z, r, pi, {', '.join(sorted(_FUNCS))}")
+        if isinstance(node, ast.Call) and not (isinstance(node.func, ast.Name)
+                                               and node.func.id in _FUNCS):
+            raise InputError(f"time expression {expr!r}: only numpy functions may be called")
+        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
+            raise InputError(f"time expression {expr!r}: only numeric constants are allowed")
+    code = compile(tree, "<time>", "eval")
+    with np.errstate(all="ignore"):
+        val = eval(code, {"__builtins__": {}}, names)  # noqa: S307 - AST checked above
+    return np.broadcast_to(np.asarray(val, dtype=float), (len(V),)).copy()
+
+
+def interpolate_to_stencil(values, V_src, F_src, V_stencil) -> np.ndarray:
+    """Interpolate per-vertex values of a source mesh onto points (closest point, barycentric)."""
+    values = np.asarray(values, float)
+    V_src = np.asarray(V_src, float)
+    F_src = np.asarray(F_src, dtype=np.int64)
+    _, fi, C = igl.point_mesh_squared_distance(np.asarray(V_stencil, float), V_src, F_src)
+    P = V_src[F_src[fi]]
+    # barycentric coordinates of C in triangle P (least squares, robust to tiny offsets)
+    e1, e2, w = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0], C - P[:, 0]
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    w1, w2 = (w * e1).sum(1), (w * e2).sum(1)
+    den = d11 * d22 - d12**2
+    b1 = (d22 * w1 - d12 * w2) / den
+    b2 = (d11 * w2 - d12 * w1) / den
+    b0 = 1 - b1 - b2
+    vals = values[F_src[fi]]
+    return b0 * vals[:, 0] + b1 * vals[:, 1] + b2 * vals[:, 2]
+
+
+def validate_time(t, n: int, what: str = "time landscape") -> np.ndarray:
+    """Check a per-vertex time array: length n, finite, >= 0; warn-free copy as float."""
+    t = np.asarray(t, dtype=float).ravel()
+    if len(t) != n:
+        raise InputError(f"{what}: {len(t)} values for {n} stencil vertices",
+                         fix="give one time per stencil vertex (or per input-mesh vertex)")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if len(bad):
+        raise InputError(f"{what}: NaN/inf at vertex {bad[0]} ({len(bad)} values)",
+                         fix="give finite times in seconds")
+    neg = np.flatnonzero(t < 0)
+    if len(neg):
+        raise InputError(f"{what}: negative time {t[neg[0]]:.3g} s at vertex {neg[0]}",
+                         fix="times are seconds under water, >= 0")
+    return t
+
+
+def resolve_time(time, V_stencil, *, default=None, source_mesh=None) -> tuple[np.ndarray, str]:
+    """Turn the ``time`` option into per-stencil-vertex times.
+
+    Parameters
+    ----------
+    time : None, float, str or array
+        See the module docstring.
+    V_stencil : (n, 3) float, mm
+        Stencil target vertices (scaled, centred).
+    default : callable(V) -> (n,) or None
+        Shape default.
+    source_mesh : object with ``V``, ``F``, ``vertex_attributes`` (dict), ``colors`` or None
+        The (centred, scaled) input mesh, for per-vertex sources.
+
+    Returns
+    -------
+    t : (n,) float, s
+    description : str
+    """
+    V = np.asarray(V_stencil, float)
+    n = len(V)
+    if time is None:
+        if default is not None:
+            return validate_time(default(V), n, "default time landscape"), "shape default"
+        return np.full(n, DEFAULT_TIME_S), f"constant {DEFAULT_TIME_S:g} s"
+    if isinstance(time, (int, float, np.floating, np.integer)) and not isinstance(time, bool):
+        return validate_time(np.full(n, float(time)), n), f"constant {float(time):g} s"
+    if isinstance(time, str):
+        s = time.strip()
+        try:
+            return validate_time(np.full(n, float(s)), n), f"constant {float(s):g} s"
+        except ValueError:
+            pass
+        if s.startswith("vertex") or s.startswith("color"):
+            if source_mesh is None:
+                raise InputError(f"time={s!r} needs an input mesh with per-vertex data",
+                                 fix="use a PLY/OBJ input with a vertex property or colours")
+            vals = _vertex_source(s, source_mesh)
+            t = interpolate_to_stencil(vals, source_mesh.V, source_mesh.F, V)
+            return validate_time(t, n, f"time={s!r}"), s
+        t = evaluate_expression(s, V)
+        return validate_time(t, n, f"time expression {s!r}"), f"expression {s}"
+    arr = np.asarray(time, dtype=float).ravel()
+    if len(arr) == n:
+        return validate_time(arr, n, "time array"), "array per stencil vertex"
+    if source_mesh is not None and len(arr) == len(source_mesh.V):
+        validate_time(arr, len(arr), "time array (input mesh)")
+        t = interpolate_to_stencil(arr, source_mesh.V, source_mesh.F, V)
+        return validate_time(t, n), "array per input vertex (interpolated)"
+    raise InputError(f"time array has {len(arr)} values; the stencil has {n} vertices"
+                     + (f" and the input mesh {len(source_mesh.V)}" if source_mesh else ""),
+                     fix="give one value per stencil or input-mesh vertex")
+
+
+def check_time_source(time, source_mesh) -> None:
+    """Fail early (before remeshing) when ``time`` asks for per-vertex data that the input
+    does not have."""
+    if isinstance(time, str) and time.strip().startswith(("vertex", "color")):
+        if source_mesh is None:
+            raise InputError(f"time={time!r} needs an input mesh with per-vertex data",
+                             fix="use a PLY/OBJ input with a vertex property or colours")
+        _vertex_source(time.strip(), source_mesh)
+
+
+def _vertex_source(spec: str, mesh) -> np.ndarray:
+    attrs = getattr(mesh, "vertex_attributes", {}) or {}
+    if spec.startswith("vertex"):
+        name = spec.split(":", 1)[1] if ":" in spec else None
+        if name is None:
+            for cand in ("time_s", "time", "quality", "scalar", "value"):
+                if cand in attrs:
+                    name = cand
+                    break
+        if name is None or name not in attrs:
+            raise InputError(f"time={spec!r}: the input mesh has no vertex property "
+                             f"{name or '(time_s/time/quality)'!r}; it has {sorted(attrs)}",
+                             fix="name the property: time='vertex:<name>'")
+        return np.asarray(attrs[name], float).ravel()
+    parts = spec.split(":")
+    if len(parts) != 3:
+        raise InputError(f"time={spec!r}: expected 'color:<t0>:<t1>' (seconds)")
+    try:
+        t0, t1 = float(parts[1]), float(parts[2])
+    except ValueError:
+        raise InputError(f"time={spec!r}: t0 and t1 must be numbers") from None
+    col = getattr(mesh, "colors", None)
+    if col is None:
+        raise InputError(f"time={spec!r}: the input mesh has no vertex colours",
+                         fix="export the mesh with vertex colours (PLY or OBJ)")
+    col = np.asarray(col, float)
+    if col.max() > 1.0:
+        col = col / 255.0
+    lum = 0.2126 * col[:, 0] + 0.7152 * col[:, 1] + 0.0722 * col[:, 2]
+    return t0 + (t1 - t0) * lum
+
+
+def cell_times(t_vertex, cell_verts) -> np.ndarray:
+    """t* per cell = mean of the landscape at the shared edge's two vertices (s)."""
+    t = np.asarray(t_vertex, float)
+    return 0.5 * (t[cell_verts[:, 0]] + t[cell_verts[:, 1]])
+
+
+__all__ = ["DEFAULT_TIME_S", "check_time_source", "evaluate_expression",
+           "interpolate_to_stencil", "validate_time", "resolve_time", "cell_times"]

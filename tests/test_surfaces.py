@@ -1,0 +1,283 @@
+"""Built-in shapes, time landscapes, user meshes and stencils, bad-input catalogue."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from pysolver import surfaces, tables
+from pysolver.design import run_design
+from pysolver.errors import InputError
+from pysolver.mesh_input import load_input, validate_surface
+from pysolver.time_landscape import evaluate_expression, resolve_time
+
+# golden figures of the default built-in designs: (bases, max cell length mm)
+GOLDEN = {
+    "regular": (60, 7.0),
+    "dome": (113, 8.94),
+    "saddle": (114, 8.80),
+    "petal": (191, 9.45),
+    "spiral": (157, 9.29),
+    "weave": (325, 8.99),
+}
+
+
+@pytest.mark.parametrize("name", list(surfaces.BUILTIN))
+def test_builtin_surface_is_a_disk(name):
+    s = surfaces.builtin(name)
+    validate_surface(s.V, s.F, name)  # one connected, manifold, oriented disk in mm
+    assert s.time is not None
+    t = s.time(s.V)
+    assert t.shape == (len(s.V),) and np.all(np.isfinite(t)) and t.min() >= 0
+    assert t.max() <= 120
+
+
+@pytest.mark.parametrize("name", list(surfaces.BUILTIN))
+def test_builtin_designs_and_passes_checks(name, tmp_path):
+    summary = run_design(name, tmp_path, progress=False, plots=False)
+    assert summary["checks"]["ok"], summary["checks"]
+    bases, lmax = GOLDEN[name]
+    assert summary["counts"]["bases"] == bases
+    assert summary["cell_length_mm"]["max"] == pytest.approx(lmax, abs=0.02)
+    assert summary["cell_length_mm"]["max"] <= 9.5
+    assert summary["checks"]["figures"].get("min_flat_gap_mm", 0.1) >= 0.1 - 1e-6
+    d = tables.read_design(tmp_path)
+    assert d.n_bases == bases
+    assert 1 <= summary["counts"]["alignment_bases"] <= 4
+    # every cell contracts from flat to target
+    assert np.all(d.cells["target_length_mm"] < d.cells["central_length_mm"])
+    assert np.all((d.time >= 0) & (d.time <= 120))
+
+
+def test_shape_options_and_errors():
+    assert surfaces.is_builtin("weave:large") and not surfaces.is_builtin("teapot")
+    big = surfaces.builtin("dome:size=1.5")
+    small = surfaces.builtin("dome")
+    assert np.ptp(big.V, axis=0)[0] == pytest.approx(1.5 * np.ptp(small.V, axis=0)[0], rel=0.02)
+    assert big.remesh == {}  # tuned remeshing only for the default options
+    with pytest.raises(InputError, match="unknown shape"):
+        surfaces.builtin("teapot")
+    with pytest.raises(InputError, match="bad option"):
+        surfaces.builtin("dome:colour=3")
+    with pytest.raises(InputError, match="must be a number"):
+        surfaces.builtin("dome:size=big")
+    large = surfaces.builtin("weave:large")
+    assert large.remesh == {"vertices": 342, "seed": 14}
+    assert np.ptp(large.V[:, 2]) == pytest.approx(2 * 56.0, abs=1e-6)  # top arm: radius 56
+
+
+# --------------------------------------------------------------------------------------
+# default time landscapes encode the intended order
+
+
+def test_petal_small_petals_close_first():
+    s = surfaces.builtin("petal")
+    az = np.arctan2(s.V[:, 1], s.V[:, 0])
+    tip = np.hypot(s.V[:, 0], s.V[:, 1]) > 0  # all
+    t = s.time(s.V)
+    w_large = 0.5 + 0.5 * np.cos(3 * az)
+    lifted = s.V[:, 2] > 10
+    assert t[lifted & (w_large > 0.9) & tip].min() > t[lifted & (w_large < 0.1)].max()
+    assert t[s.V[:, 2] == 0].min() <= t.min() + 1e-9  # the flat centre first
+
+
+def test_weave_arms_in_order():
+    s = surfaces.builtin("weave")
+    t = s.time(s.V)
+    # the returning parts lie exactly at z = 2 R_k (R = 32, 38, 44 mm): arm 0 lowest
+    ret = [np.abs(s.V[:, 2] - 2 * R) < 1e-9 for R in (32.0, 38.0, 44.0)]
+    assert all(r.sum() > 20 for r in ret)
+    np.testing.assert_allclose([t[r].mean() for r in ret], [45, 65, 85], atol=1e-6)
+    assert t.min() == pytest.approx(30.0)
+
+
+# --------------------------------------------------------------------------------------
+# time landscape sources
+
+
+def test_time_expression_and_safety():
+    V = np.array([[0.0, 0, -10], [3, 4, 0], [0, 0, 10]])
+    np.testing.assert_allclose(evaluate_expression("30 + 0.5*z", V), [25, 30, 35])
+    np.testing.assert_allclose(evaluate_expression("40 + clip(r, 0, 4)", V), [40, 44, 40])
+    np.testing.assert_allclose(evaluate_expression("where(z > 0, 60, 30)", V), [30, 30, 60])
+    for bad, msg in [("__import__('os')", "unknown name|only numpy"),
+                     ("x.__class__", "Attribute is not allowed"),
+                     ("open('f')", "unknown name|only numpy"), ("[1, 2]", "List is not allowed"),
+                     ("'a'", "numeric constants"), ("30 +", "syntax error")]:
+        with pytest.raises(InputError, match=msg):
+            evaluate_expression(bad, V)
+    t, desc = resolve_time("45", V)
+    assert np.all(t == 45) and "constant" in desc
+    with pytest.raises(InputError, match="negative time"):
+        resolve_time("10*z", V)
+    with pytest.raises(InputError, match="NaN"):
+        resolve_time([1.0, np.nan, 2.0], V)
+    with pytest.raises(InputError, match="2 values"):
+        resolve_time([1.0, 2.0], V)
+    with pytest.raises(InputError, match="needs an input mesh"):
+        resolve_time("vertex", V)
+
+
+@pytest.fixture(scope="module")
+def dome_ply(tmp_path_factory):
+    """The procedural dome exported as PLY with a per-vertex 'quality' = 30 + |z| and
+    grey vertex colours = how far from the centre."""
+    from trimesh.exchange.ply import export_ply
+
+    s = surfaces.builtin("dome")
+    m = trimesh.Trimesh(s.V, s.F, process=False)
+    m.vertex_attributes["quality"] = 30 + np.abs(s.V[:, 2])
+    r = np.hypot(s.V[:, 0], s.V[:, 1])
+    g = (255 * r / r.max()).astype(np.uint8)
+    m.visual.vertex_colors = np.c_[g, g, g, np.full_like(g, 255)]
+    p = tmp_path_factory.mktemp("in") / "dome.ply"
+    p.write_bytes(export_ply(m, include_attributes=True))
+    return p
+
+
+def test_user_mesh_with_vertex_times(dome_ply, tmp_path):
+    summary = run_design(dome_ply, tmp_path / "a", time="vertex:quality", vertices=60, seed=0,
+                         progress=False, plots=False)
+    assert summary["checks"]["ok"] and summary["source_kind"] == "mesh"
+    d = tables.read_design(tmp_path / "a")
+    # quality = 30 + depth below the rim; the stencil is centred and scaled (scale3d)
+    s3 = summary["scale"]["scale3d"]
+    depth = (d.V[:, 2].max() - d.V[:, 2]) / s3
+    assert np.corrcoef(depth, d.time)[0, 1] > 0.999
+    assert d.time.min() >= 30 - 1e-6
+    summary = run_design(dome_ply, tmp_path / "b", time="color:30:90", vertices=60, seed=0,
+                         progress=False, plots=False)
+    d = tables.read_design(tmp_path / "b")
+    r = np.hypot(d.V[:, 0], d.V[:, 1])
+    assert np.corrcoef(r, d.time)[0, 1] > 0.99 and 29 < d.time.min() and d.time.max() < 91
+    with pytest.raises(InputError, match="no vertex property 'speed'"):
+        run_design(dome_ply, tmp_path / "c", time="vertex:speed", vertices=60, seed=0,
+                   progress=False, plots=False)
+
+
+def test_user_stencil_keeps_vertex_and_face_order(tmp_path):
+    """A stencil OBJ (v target, vt flat) is used as is: same vertex and face order."""
+    out = tmp_path / "dome"
+    run_design("dome", out, progress=False, plots=False)
+    V, UV, F = tables.read_stencil(out / "stencil.obj")
+    rng = np.random.default_rng(7)
+    pv = rng.permutation(len(V))  # new vertex k = old vertex pv[k]
+    inv = np.argsort(pv)
+    pf = rng.permutation(len(F))
+    F2 = inv[F[pf]]
+    F2 = np.roll(F2, 1, axis=1)  # also rotate the corners
+    src = tmp_path / "mine.obj"
+    tables.write_stencil(src, V[pv], UV[pv], F2)
+    summary = run_design(src, tmp_path / "mine", progress=False, plots=False)
+    assert summary["source_kind"] == "stencil"
+    V3, UV3, F3 = tables.read_stencil(tmp_path / "mine" / "stencil.obj")
+    assert np.array_equal(F3, F2)
+    np.testing.assert_allclose(V3, V[pv] - V[pv].mean(0), atol=1e-5)  # already at scale
+    # the flat layout is the same up to a uniform scale: rotating the face corners changes
+    # the reference neighbours, hence the bumper directions and the critical flat gap
+    U0 = UV[pv] - UV[pv].mean(0)
+    k = np.sum(UV3 * U0) / np.sum(U0 * U0)
+    assert abs(k - 1) < 0.01
+    np.testing.assert_allclose(UV3, k * U0, atol=1e-5)
+    d = tables.read_design(tmp_path / "mine")
+    assert np.array_equal(np.c_[d.bases["v0"], d.bases["v1"], d.bases["v2"]], F2)
+
+
+# --------------------------------------------------------------------------------------
+# bad input catalogue
+
+
+def _grid(n=8, size=40.0):
+    X, Y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n))
+    V = np.c_[X.ravel(), Y.ravel(), np.zeros(n * n)]
+    F = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
+            F += [[a, b, d], [a, d, c]]
+    return V, np.array(F)
+
+
+def _write(path, V, F):
+    trimesh.Trimesh(V, F, process=False).export(path)
+    return path
+
+
+def _bad_meshes(tmp):
+    V, F = _grid()
+    n = 8
+    cases = {}
+    (tmp / "empty.obj").write_text("")
+    cases["empty"] = (tmp / "empty.obj", "empty file")
+    (tmp / "junk.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
+    cases["corrupt"] = (tmp / "junk.ply", "cannot read|no triangles")
+    (tmp / "shape.xyz").write_text("1 2 3\n")
+    cases["format"] = (tmp / "shape.xyz", "unsupported format '.xyz'")
+    Vn = np.vstack([V, [[20, 20, 10]]])
+    Fn = np.vstack([F, [[0, 1, len(V)]]])  # a third face on boundary edge (0,1)... fin
+    Fn = np.vstack([Fn, [[1, 0, len(V)]]])
+    cases["nonmanifold"] = (_write(tmp / "nm.obj", Vn, Fn), "non-manifold edge")
+    V2 = np.vstack([V, V + [100, 0, 0]])
+    F2 = np.vstack([F, F + len(V)])
+    cases["components"] = (_write(tmp / "two.obj", V2, F2), "2 separate pieces")
+    hole = np.array([k for k, f in enumerate(F) if not np.all(np.isin(f, [27, 28, 35, 36]))])
+    keep = np.ones(len(F), bool)
+    keep[[k for k, f in enumerate(F) if np.isin(f, [27, 28, 35, 36]).sum() >= 2]] = False
+    del hole
+    cases["hole"] = (_write(tmp / "hole.obj", V, F[keep]), "1 hole")
+    sphere = trimesh.creation.icosphere(2, radius=30.0)
+    cases["closed"] = (_write(tmp / "sphere.stl", sphere.vertices, sphere.faces), "closed")
+    torus = trimesh.creation.torus(30.0, 10.0)
+    cases["genus"] = (_write(tmp / "torus.off", torus.vertices, torus.faces[3:]), "handle")
+    Fd = F.copy()
+    Fd[5] = [Fd[5, 0], Fd[5, 0], Fd[5, 2]]
+    cases["degenerate"] = (_write(tmp / "deg.obj", V, Fd), "degenerate triangle")
+    cases["tiny"] = (_write(tmp / "tiny.stl", V / 1000, F), "scale=1000")
+    cases["cm"] = (_write(tmp / "cm.obj", V / 10, F), "scale=10")
+    cases["huge"] = (_write(tmp / "huge.obj", V * 1000, F), "implausibly large")
+    Fo = F.copy()
+    Fo[10] = Fo[10, ::-1]
+    cases["orientation"] = (_write(tmp / "flip.obj", V, Fo), "consistently oriented")
+    # pinch: merge the two far ends of a strip -> one vertex with two fans
+    Vs, Fs = _grid(n)
+    Fs = np.where(Fs == n * n - 1, 0, Fs)  # identify the last corner with the first
+    Vs[n * n - 1] = [1e3, 1e3, 1e3]  # now unreferenced (dropped on load)
+    cases["pinch"] = (_write(tmp / "pinch.obj", Vs, Fs), "non-manifold vertex")
+    (tmp / "nan.obj").write_text("v 0 0 0\nv 40 0 0\nv 0 40 0\nv nan 40 0\nf 1 2 3\nf 2 4 3\n")
+    cases["nan"] = (tmp / "nan.obj", "NaN")
+    return cases
+
+
+def test_bad_input_catalogue(tmp_path):
+    for name, (path, msg) in _bad_meshes(tmp_path).items():
+        with pytest.raises(InputError, match=msg):
+            load_input(path)
+        assert name  # each case named in the failure message via pytest's match
+
+
+def test_good_mesh_formats_load(tmp_path):
+    V, F = _grid()
+    for ext in ("obj", "stl", "ply", "off"):
+        m = load_input(_write(tmp_path / f"g.{ext}", V, F))
+        assert m.kind == "mesh" and len(m.F) == len(F)
+    m = load_input(_write(tmp_path / "g.obj", V / 10, F), scale=10)
+    np.testing.assert_allclose(np.ptp(m.V, axis=0)[:2], 40.0)
+
+
+def test_mesh_as_stencil_and_lscm(tmp_path):
+    """``stencil_order=True`` keeps a user mesh's own triangulation (order kept, flattened
+    here); ``flattening='lscm'`` is selectable and recorded."""
+    out = tmp_path / "dome"
+    run_design("dome", out, progress=False, plots=False)
+    V, _, F = tables.read_stencil(out / "stencil.obj")
+    src = _write(tmp_path / "mine.ply", V, F)
+    summary = run_design(src, tmp_path / "mine", stencil_order=True, flattening="lscm",
+                         progress=False, plots=False)
+    assert summary["flattening"]["method"] == "lscm"
+    assert set(summary["flattening"]["comparison"]) == {"cetm", "lscm"}
+    V2, _, F2 = tables.read_stencil(tmp_path / "mine" / "stencil.obj")
+    assert np.array_equal(F2, F)
+    np.testing.assert_allclose(V2, V - V.mean(0), atol=1e-4)
+    with pytest.raises(InputError, match="flattening='bff'"):
+        run_design(src, tmp_path / "x", flattening="bff", progress=False)
