@@ -1,0 +1,489 @@
+"""Render a design folder to printable STLs: OpenSCAD per part, manifold3d union per layer.
+
+Pipeline (``render_design``)
+----------------------------
+1. :mod:`pysolver.scad_io` writes one ``.scad`` data file per part into
+   ``<design>/scad/`` (part = one base of one layer, plus its actuated-pose twin,
+   the two support frames and one marker dot).  Each file ``use``s the OpenSCAD
+   library ``scad/`` by path.
+2. Every part whose STL is not cached is rendered by its own OpenSCAD process
+   (``openscad --export-format binstl -o part.stl part.scad``); a pool of
+   ``jobs`` workers (default: CPU count) runs them.  OpenSCAD's implicit CGAL
+   union grows faster than linearly with the part size, so one small file per
+   part is much faster than one file per layer (``shared/design/dependencies.md``).
+3. Part STLs are cached in ``cache_dir`` under a hash of the part file's text,
+   the text of every ``.scad`` file of the library and the OpenSCAD version: an
+   edit of any library file (e.g. a module default) re-renders every part with
+   no Python change; an unchanged re-render reads everything from the cache.
+4. The parts of a layer are moved to the print frame
+   (:func:`pysolver.frames.print_transform`: bed at z = 0, brackets down, top
+   layer turned over about x) and united with manifold3d into one watertight
+   solid; bracket apexes overlap, so a layer is a single connected volume.
+5. ``<design>/stl/`` receives ``top.stl``, ``bottom.stl``, ``markers_top.stl``,
+   ``markers_bottom.stl``, ``support_frame_top.stl``, ``support_frame_bottom.stl``
+   and ``actuated.stl`` (target frame: each node at its base's target pose, brackets
+   opened to the target spans, the two layers 0.5 mm apart where the membrane is; a
+   preview made of one separate solid per node),
+   written into a temporary folder and moved into place at the end.
+
+Faceting: circles are inscribed regular polygons with a sagitta of at most
+``FACET_TOL = 0.005 mm`` (``scad/params.scad``): base discs are 48-gons, whose
+area is 0.29 % below the circle's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_dir
+from .errors import ExternalToolError, InputError
+from .params import LAYERS, SIM, UNIT_CELL, layer_sign
+from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files
+
+OPENSCAD_ENV = "MORPHSHELL_OPENSCAD"
+"""Environment variable naming the OpenSCAD executable (default ``openscad`` on PATH)."""
+
+OPENSCAD_TIMEOUT_S = 900.0
+"""Seconds after which one part's OpenSCAD process is killed and reported as failed."""
+
+INSTALL_FIX = ("install OpenSCAD: 'sudo apt-get install openscad' (Debian/Ubuntu; any version "
+               f">= 2019.05 works), or set {OPENSCAD_ENV}=/path/to/openscad.")
+
+# stderr lines that make a part fail even when OpenSCAD exits 0: an unknown variable or
+# an undefined operation silently renders wrong geometry (e.g. cube(undef) is a unit cube)
+_FATAL_MARKERS = ("ERROR:", "unknown variable", "unknown module", "unknown function",
+                  "undefined operation", "Ignoring unknown")
+
+FACET_TOL_MM = 0.005
+"""mm: largest distance between a faceted circle and the true circle (``FACET_TOL`` in
+``scad/params.scad``; ``tests/test_scad_modules.py`` checks the two agree)."""
+
+STL_FILES = {
+    "top": "top.stl", "bottom": "bottom.stl",
+    "markers_top": "markers_top.stl", "markers_bottom": "markers_bottom.stl",
+    "support_frame_top": "support_frame_top.stl",
+    "support_frame_bottom": "support_frame_bottom.stl",
+    "actuated": "actuated.stl",
+}
+
+
+# --------------------------------------------------------------------------------------------
+# OpenSCAD
+
+
+def find_openscad() -> str:
+    """Path of the OpenSCAD executable.
+
+    Raises
+    ------
+    ExternalToolError
+        If OpenSCAD is not installed (message with the apt-get fix).
+    """
+    exe = os.environ.get(OPENSCAD_ENV, "openscad")
+    path = shutil.which(exe)
+    if path is None:
+        raise ExternalToolError(f"OpenSCAD executable {exe!r} was not found: the render stage "
+                                "needs it to turn the part files into STLs.", fix=INSTALL_FIX)
+    return path
+
+
+def openscad_version(exe: str) -> str:
+    """Version line of ``openscad --version`` (e.g. ``OpenSCAD version 2021.01``)."""
+    try:
+        out = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        raise ExternalToolError(f"cannot run {exe} --version: {e}", fix=INSTALL_FIX) from None
+    text = (out.stderr + out.stdout).strip().splitlines()
+    return text[-1] if text else "unknown"
+
+
+def library_digest(scad_dir) -> str:
+    """sha256 over every ``*.scad`` file below ``scad_dir`` (relative path and content)."""
+    scad_dir = Path(scad_dir)
+    h = hashlib.sha256()
+    for p in sorted(scad_dir.rglob("*.scad")):
+        h.update(p.relative_to(scad_dir).as_posix().encode() + b"\0")
+        h.update(p.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def part_key(part_text: bytes, lib_digest: str, version: str) -> str:
+    """Cache key of one part: sha256 of (part file, library digest, OpenSCAD version)."""
+    h = hashlib.sha256(b"morphshell-part-v1\0")
+    h.update(version.encode() + b"\0" + lib_digest.encode() + b"\0")
+    h.update(part_text)
+    return h.hexdigest()
+
+
+def _run_openscad(exe: str, scad: Path, out_stl: Path) -> tuple[bool, float, str]:
+    """Render one file; returns (ok, seconds, stderr)."""
+    t0 = time.perf_counter()
+    cmd = [exe, "--export-format", "binstl", "-o", str(out_stl), str(scad)]
+    try:
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=OPENSCAD_TIMEOUT_S,
+                             cwd=scad.parent)
+        err, rc = res.stderr, res.returncode
+    except subprocess.TimeoutExpired:
+        return False, time.perf_counter() - t0, f"timed out after {OPENSCAD_TIMEOUT_S:.0f} s"
+    dt = time.perf_counter() - t0
+    fatal = [ln for ln in err.splitlines() if any(m in ln for m in _FATAL_MARKERS)]
+    ok = rc == 0 and not fatal and out_stl.is_file() and out_stl.stat().st_size > 84
+    if not ok and rc == 0 and not fatal:
+        err += "\n(OpenSCAD wrote no geometry: the part is empty)"
+    return ok, dt, err
+
+
+def default_cache_dir(design_dir) -> Path:
+    """``build/.cache/parts`` of the ``build`` folder holding the design (else beside it)."""
+    design_dir = Path(design_dir).resolve()
+    for p in (design_dir, *design_dir.parents):
+        if p.name == "build":
+            return p / ".cache" / "parts"
+    return design_dir.parent / ".cache" / "parts"
+
+
+def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=True,
+                 exe=None) -> dict:
+    """Render part files to STL through the cache, in parallel.
+
+    Parameters
+    ----------
+    parts : list of pysolver.scad_io.Part
+    cache_dir : path-like
+        Folder of cached part STLs (``<key>.stl``), created if needed.
+    scad_dir : path-like
+        OpenSCAD library (hashed into every key).
+    jobs : int, optional
+        Parallel OpenSCAD processes (default: CPU count).
+    progress : bool
+        tqdm bar with ETA on stderr.
+    exe : str, optional
+        OpenSCAD executable (default :func:`find_openscad`).
+
+    Returns
+    -------
+    result : dict
+        ``stl`` {part name: cached STL path}, ``rendered`` / ``cached`` (counts),
+        ``seconds`` {name: OpenSCAD wall time of the parts rendered now},
+        ``wall_s`` (pool wall time), ``cpu_s`` (CPU time of the OpenSCAD processes),
+        ``openscad`` (version), ``jobs``.
+
+    Raises
+    ------
+    ExternalToolError
+        OpenSCAD is missing, or failed on some parts (each named with its base id
+        and layer, and OpenSCAD's stderr).  The parts that succeeded stay cached.
+    """
+    exe = exe or find_openscad()
+    version = openscad_version(exe)
+    digest = library_digest(scad_dir)
+    cache_dir = Path(cache_dir)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    jobs = int(jobs) if jobs else (os.cpu_count() or 1)
+    if jobs < 1:
+        raise InputError(f"jobs must be >= 1, got {jobs}.", fix="omit jobs to use every CPU.")
+    stl: dict[str, Path] = {}
+    todo: list[tuple[Part, Path]] = []
+    for p in parts:
+        target = cache_dir / f"{part_key(p.path.read_bytes(), digest, version)}.stl"
+        stl[p.name] = target
+        if not target.is_file():
+            todo.append((p, target))
+    seconds: dict[str, float] = {}
+    failures: list[tuple[Part, str]] = []
+    t0 = time.perf_counter()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if todo:
+        from tqdm import tqdm
+
+        def work(item):
+            part, target = item
+            fd, tmp = tempfile.mkstemp(prefix=f".{part.name}.", suffix=".stl", dir=cache_dir)
+            os.close(fd)
+            tmp = Path(tmp)
+            try:
+                ok, dt, err = _run_openscad(exe, part.path, tmp)
+                if ok:
+                    os.replace(tmp, target)
+                return part, ok, dt, err
+            finally:
+                tmp.unlink(missing_ok=True)
+
+        bar = tqdm(total=len(todo), desc="OpenSCAD parts", unit="part", file=sys.stderr,
+                   disable=not progress, dynamic_ncols=True)
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(work, item) for item in todo]
+            try:
+                for fut in as_completed(futures):
+                    part, ok, dt, err = fut.result()
+                    if ok:
+                        seconds[part.name] = dt
+                    else:
+                        failures.append((part, err))
+                    bar.update(1)
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
+            finally:
+                bar.close()
+    wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    if failures:
+        failures.sort(key=lambda pe: pe[0].name)
+        lines = []
+        for part, err in failures[:10]:
+            tail = "\n      ".join(err.strip().splitlines()[-12:])
+            lines.append(f"  - {part.label()}: {part.path}\n      {tail}")
+        more = f"\n  ... and {len(failures) - 10} more" if len(failures) > 10 else ""
+        raise ExternalToolError(
+            f"OpenSCAD failed on {len(failures)} of {len(parts)} parts "
+            f"({len(todo) - len(failures)} rendered and cached, {len(parts) - len(todo)} were "
+            "already cached):\n" + "\n".join(lines) + more,
+            fix="open the named part file in OpenSCAD to see the error; if you edited the "
+                f"library ({scad_dir}), fix the edit. Parts that rendered stay cached.")
+    return {"stl": stl, "rendered": len(todo), "cached": len(parts) - len(todo),
+            "seconds": seconds, "wall_s": wall, "cpu_s": cpu, "openscad": version, "jobs": jobs}
+
+
+# --------------------------------------------------------------------------------------------
+# meshes
+
+
+def load_stl(path):
+    """Load an STL as a vertex-merged trimesh."""
+    import trimesh
+
+    return trimesh.load_mesh(str(path), file_type="stl", process=True)
+
+
+def to_manifold(mesh, what: str = "mesh"):
+    """manifold3d solid of a trimesh (float64 vertices).
+
+    Raises
+    ------
+    ExternalToolError
+        If the mesh is not a closed 2-manifold (a broken OpenSCAD output).
+    """
+    import manifold3d
+
+    m = manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+        tri_verts=np.ascontiguousarray(mesh.faces, dtype=np.uint64)))
+    if m.status() != manifold3d.Error.NoError:
+        raise ExternalToolError(f"{what} is not a closed 2-manifold ({m.status().name}).",
+                                fix="delete the part cache folder and render again; if it "
+                                    "persists, the library edit produces self-touching geometry.")
+    return m
+
+
+def from_manifold(m):
+    """trimesh of a manifold3d solid."""
+    import trimesh
+
+    mesh = m.to_mesh64()
+    V = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+    F = np.asarray(mesh.tri_verts, dtype=np.int64)
+    return trimesh.Trimesh(V, F, process=False)
+
+
+def union(solids):
+    """Boolean union of a list of manifold3d solids."""
+    import manifold3d
+
+    if not solids:
+        return manifold3d.Manifold()
+    return manifold3d.Manifold.batch_boolean(list(solids), manifold3d.OpType.Add)
+
+
+def _affine(T):
+    """3x4 list-of-rows of a 4x4 transform, for Manifold.transform."""
+    return [list(map(float, row)) for row in np.asarray(T, float)[:3, :4]]
+
+
+def describe_stl(path, m) -> dict:
+    """Figures of one written STL: watertight (as re-read from the file), bodies, volume, bbox."""
+    mesh = load_stl(path)
+    return {"watertight": bool(mesh.is_watertight and mesh.is_volume),
+            "bodies": len(m.decompose()) if not m.is_empty() else 0,
+            "volume_mm3": float(m.volume()),
+            "bbox_mm": np.asarray(mesh.bounds, float).round(6).tolist(),
+            "triangles": int(len(mesh.faces))}
+
+
+# --------------------------------------------------------------------------------------------
+# the stage
+
+
+def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progress=True,
+                  actuated: bool = True) -> dict:
+    """Render the printable STLs of a design folder.
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder (tables; see ``docs/design-folder.md``).
+    jobs : int, optional
+        Parallel OpenSCAD processes (default: CPU count).
+    cache_dir : path-like, optional
+        Part STL cache (default ``build/.cache/parts`` of the enclosing ``build``
+        folder, else ``<design_dir>/../.cache/parts``).
+    scad_dir : path-like, optional
+        OpenSCAD library (default: the repository's ``scad/``).  An edited copy
+        changes every part's cache key.
+    progress : bool
+        Progress bar and one line per step on stderr.
+    actuated : bool
+        Also render ``actuated.stl`` (the shell in its target pose).
+
+    Returns
+    -------
+    summary : dict
+        ``parts``, ``rendered``, ``cached``, ``seconds_per_part`` (mean OpenSCAD
+        wall time of the parts rendered now, None if all were cached),
+        ``wall_seconds_per_part`` (pool wall time / rendered parts),
+        ``cpu_seconds_per_part`` (OpenSCAD CPU time / rendered parts),
+        ``stl`` {key: path}, ``watertight`` {key: bool}, ``bodies``, ``volumes_mm3``,
+        ``bbox_mm`` {key: [[xmin, ymin, zmin], [xmax, ymax, zmax]]}, ``timings_s``,
+        ``openscad``, ``jobs``, ``cache_dir``, ``scad_dir``, ``facet_tol_mm``.
+
+    Raises
+    ------
+    ExternalToolError
+        OpenSCAD missing or failing on some parts (named by base id and layer).
+    InputError
+        Bad or missing tables.
+    """
+    from .frames import print_transform, rotvec_to_matrix
+
+    t_start = time.perf_counter()
+    design_dir = Path(design_dir)
+    scad_dir = check_library(Path(scad_dir).resolve() if scad_dir else SCAD_DIR)
+    cache_dir = Path(cache_dir) if cache_dir else default_cache_dir(design_dir)
+    exe = find_openscad()
+
+    def log(msg):
+        if progress:
+            print(f"[render] {msg}", file=sys.stderr, flush=True)
+
+    design = read_design(design_dir)
+    t0 = time.perf_counter()
+    with atomic_dir(design_dir / "scad") as tmp:
+        parts = write_part_files(design_dir, tmp, scad_dir=scad_dir, actuated=actuated,
+                                 design=design)
+    parts = [dataclasses.replace(p, path=design_dir / "scad" / p.path.name) for p in parts]
+    t_write = time.perf_counter() - t0
+    log(f"{len(parts)} part files in {design_dir / 'scad'}; cache {cache_dir}")
+
+    res = render_parts(parts, cache_dir=cache_dir, scad_dir=scad_dir, jobs=jobs,
+                       progress=progress, exe=exe)
+    log(f"OpenSCAD: {res['rendered']} rendered, {res['cached']} cached, "
+        f"{res['wall_s']:.1f} s")
+
+    t0 = time.perf_counter()
+    meshes = {p.name: load_stl(res["stl"][p.name]) for p in parts}
+    solids = {n: to_manifold(m, f"part STL of {n}") for n, m in meshes.items()}
+    by_kind: dict[tuple, list[Part]] = {}
+    for p in parts:
+        by_kind.setdefault((p.kind, p.layer), []).append(p)
+    outputs = {}
+    for layer in LAYERS:
+        T = _affine(print_transform(layer))
+        outputs[layer] = union([solids[p.name].transform(T) for p in by_kind[("node", layer)]])
+        frame = by_kind[("frame", layer)][0]
+        outputs[f"support_frame_{layer}"] = solids[frame.name].transform(T)
+        # the marker dot is modelled in the layer-local frame (z up from the membrane)
+        s = layer_sign(layer)
+        dot = solids[by_kind[("marker", None)][0].name]
+        rows = np.flatnonzero(~np.asarray(design.bases["alignment"], bool))
+        dots = []
+        for r in rows:
+            A = np.diag([1.0, 1.0, float(s), 1.0])
+            A[:2, 3] = [design.bases["flat_x_mm"][r], design.bases["flat_y_mm"][r]]
+            dots.append(dot.transform(_affine(print_transform(layer) @ A)))
+        outputs[f"markers_{layer}"] = union(dots)
+    if actuated:
+        # Target pose of each node: p_target = c + R (p + s m/2 z), the part being drawn about
+        # its base centre.  The layers are moved apart by the membrane thickness m (0.5 mm):
+        # that is where they sit on the real shell, and two layers touching face to face at
+        # the mid-plane would make the union fragile (coincident rims from different parts).
+        # The opened arms stop short of each other (APEX_GAP): every node is its own solid.
+        row_of = {int(b): r for r, b in enumerate(design.bases["base_id"])}
+        rot = np.c_[design.bases["rot_x_rad"], design.bases["rot_y_rad"],
+                    design.bases["rot_z_rad"]]
+        tgt = np.c_[design.bases["target_x_mm"], design.bases["target_y_mm"],
+                    design.bases["target_z_mm"]]
+        layers = []
+        for layer in LAYERS:
+            posed = []
+            for p in by_kind[("actuated", layer)]:
+                r = row_of[p.base_id]
+                A = np.eye(4)
+                A[:3, :3] = rotvec_to_matrix(rot[r])
+                A[:3, 3] = tgt[r] + A[:3, :3] @ [0.0, 0.0, layer_sign(layer) * SIM.membrane_h / 2]
+                posed.append(solids[p.name].transform(_affine(A)))
+            layers.append(union(posed))
+        outputs["actuated"] = union(layers)
+    t_union = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    info = {}
+    with atomic_dir(design_dir / "stl") as tmp:
+        for key, m in outputs.items():
+            from_manifold(m).export(str(tmp / STL_FILES[key]), file_type="stl")
+            info[key] = describe_stl(tmp / STL_FILES[key], m)
+    t_export = time.perf_counter() - t0
+    for layer in LAYERS:
+        if info[layer]["bodies"] != 1:
+            log(f"WARNING: the {layer} layer is {info[layer]['bodies']} separate solids, not one: "
+                "some bases are not linked by brackets.")
+    for key, v in info.items():
+        if not v["watertight"]:
+            log(f"WARNING: {STL_FILES[key]} is not watertight once written (float32 STL "
+                "coordinates merged near-coincident vertices); a slicer's repair will fix it.")
+    n_r = res["rendered"]
+    summary = {
+        "parts": len(parts),
+        "parts_by_kind": {k: sum(p.kind == k for p in parts)
+                          for k in ("node", "actuated", "frame", "marker")},
+        "rendered": n_r,
+        "cached": res["cached"],
+        "seconds_per_part": (float(np.mean(list(res["seconds"].values()))) if n_r else None),
+        "wall_seconds_per_part": (res["wall_s"] / n_r if n_r else None),
+        "cpu_seconds_per_part": (res["cpu_s"] / n_r if n_r else None),
+        "stl": {k: str(design_dir / "stl" / STL_FILES[k]) for k in outputs},
+        "watertight": {k: v["watertight"] for k, v in info.items()},
+        "bodies": {k: v["bodies"] for k, v in info.items()},
+        "volumes_mm3": {k: v["volume_mm3"] for k, v in info.items()},
+        "bbox_mm": {k: v["bbox_mm"] for k, v in info.items()},
+        "triangles": {k: v["triangles"] for k, v in info.items()},
+        "timings_s": {"write_scad": round(t_write, 3), "openscad": round(res["wall_s"], 3),
+                      "union": round(t_union, 3), "export": round(t_export, 3),
+                      "total": round(time.perf_counter() - t_start, 3)},
+        "openscad": res["openscad"],
+        "jobs": res["jobs"],
+        "cache_dir": str(cache_dir),
+        "scad_dir": str(scad_dir),
+        "facet_tol_mm": FACET_TOL_MM,
+        "layer_height_mm": UNIT_CELL.layer_h,
+    }
+    log(f"done in {summary['timings_s']['total']:.1f} s -> {design_dir / 'stl'}")
+    return summary
+
+
+__all__ = ["render_design", "render_parts", "find_openscad", "openscad_version",
+           "library_digest", "part_key", "default_cache_dir", "load_stl", "to_manifold",
+           "from_manifold", "union", "describe_stl", "STL_FILES", "OPENSCAD_ENV", "FACET_TOL_MM"]

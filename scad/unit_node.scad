@@ -1,0 +1,73 @@
+// morphshell SCAD library: one node = one base of one layer with its bumpers,
+// brackets, marker pocket and alignment hole.  A generated part file calls
+// unit_node() once with the node's data (see pysolver/scad_io.py).
+include <params.scad>
+use <util.scad>
+use <base.scad>
+use <bumper.scad>
+use <bracket.scad>
+use <holes.scad>
+
+// Module: unit_node()
+// Usage:
+//   unit_node(centre, layer, bumpers, brackets, [alignment], [marker], [pose]);
+// Description:
+//   One base of one layer with everything attached to it, in the flat shell
+//   frame (x, y = flat layout, z = 0 membrane mid-plane; top layer z in
+//   [0, 2.3], bottom layer z in [-2.3, 0]): the base disc, one bumper per
+//   interior neighbour trimmed by its plane (minus the printing clearance), one
+//   V bracket (two arms) per interior neighbour, the marker pocket in the far
+//   face and, for alignment bases, the through-hole.  Dimensions are the
+//   defaults of base(), bumper(), bracket(), marker_pocket() and
+//   alignment_hole(): edit them there (or in params.scad).
+//   With `pose` (actuated preview) the node is instead placed in the target
+//   shape: p_target = t + R p_local, p_local = flat position relative to the
+//   base centre, and each bracket entry carries its actuated span.
+// Arguments:
+//   centre = [x, y] flat base centre, mm
+//   layer = "top" or "bottom"
+//   bumpers = list of [dir, plane_p, plane_n]: axis direction (deg, flat frame),
+//       a point of the ideal contact plane ([x,y,z] mm, flat shell frame,
+//       relative to the base centre) and its normal pointing away from the base
+//       (rows of bumpers.csv)
+//   brackets = list of [dir, l, h] or [dir, l, h, span]: direction of the
+//       neighbour (deg), central length l (mm), this layer's bracket thickness h
+//       (mm), optional actuated span (mm)
+//   alignment = cut the alignment through-hole. Default: false
+//   marker = cut the marker pocket. Default: true
+//   pose = [rotation vector (rad), target centre [x,y,z] mm] or undef (flat). Default: undef
+// Example:
+//   unit_node([0, 0], "top", bumpers=[[0, [3.5, 0, 1.3], [1, 0, 0]]], brackets=[[0, 7, 0.45]]);
+module unit_node(centre=[0, 0], layer="top", bumpers=[], brackets=[], alignment=false, marker=true,
+                 pose=undef) {
+    assert(layer == "top" || layer == "bottom",
+           str("unit_node(): layer must be \"top\" or \"bottom\", got ", layer));
+    assert(is_list(centre) && len(centre) == 2 && is_num(centre[0]) && is_num(centre[1]),
+           str("unit_node(): centre must be [x, y] in mm, got ", centre));
+    assert(is_list(bumpers) && len([for (b = bumpers) if (!(is_list(b) && len(b) == 3)) 0]) == 0,
+           "unit_node(): bumpers must be a list of [dir, plane_p, plane_n]");
+    assert(is_list(brackets)
+           && len([for (b = brackets) if (!(is_list(b) && (len(b) == 3 || len(b) == 4))) 0]) == 0,
+           "unit_node(): brackets must be a list of [dir, l, h] or [dir, l, h, span]");
+    assert(is_undef(pose) || (is_list(pose) && len(pose) == 2 && len(pose[0]) == 3 && len(pose[1]) == 3),
+           str("unit_node(): pose must be [rotation vector, target centre] or undef, got ", pose));
+    if (is_undef(pose))
+        translate([centre[0], centre[1], 0]) _unit_node_flat(layer, bumpers, brackets, alignment, marker);
+    else
+        multmatrix(rotvec_matrix(pose[0], pose[1]))
+            _unit_node_flat(layer, bumpers, brackets, alignment, marker);
+}
+
+// The node relative to its base centre, in the flat shell frame.
+module _unit_node_flat(layer, bumpers, brackets, alignment, marker) {
+    mirror([0, 0, layer == "top" ? 0 : 1])
+    difference() {
+        union() {
+            base();
+            for (b = bumpers) bumper(b[0], to_layer_local(b[1], layer), to_layer_local(b[2], layer));
+            for (b = brackets) bracket(b[0], b[1], b[2], span=len(b) > 3 ? b[3] : undef);
+        }
+        if (marker) marker_pocket();
+        if (alignment) alignment_hole();
+    }
+}
