@@ -37,6 +37,37 @@ def replace_dir(src: Path, dst: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
+def recover_stale(dst) -> list[Path]:
+    """Clean up after a run of ``dst`` that was killed (SIGKILL, power loss); call it while
+    holding :func:`build_lock` for ``dst``.
+
+    * a killed :func:`atomic_dir` leaves its temporary ``.<name>.tmp-*`` folder: removed;
+    * a :func:`replace_dir` killed between its two renames leaves ``dst`` absent and the
+      previous complete result in ``.<name>.old-<pid>``: renamed back to ``dst``;
+      otherwise old folders are removed.
+
+    Returns
+    -------
+    list of Path
+        The folders removed or restored.
+    """
+    dst = Path(dst)
+    if not dst.parent.is_dir():
+        return []
+    done = []
+    for tmp in sorted(dst.parent.glob(f".{dst.name}.tmp-*")):
+        shutil.rmtree(tmp, ignore_errors=True)
+        done.append(tmp)
+    olds = sorted(dst.parent.glob(f".{dst.name}.old-*"), key=lambda q: q.stat().st_mtime)
+    if olds and not dst.exists():
+        os.replace(olds.pop(), dst)
+        done.append(dst)
+    for old in olds:
+        shutil.rmtree(old, ignore_errors=True)
+        done.append(old)
+    return done
+
+
 @contextlib.contextmanager
 def atomic_dir(dst, *, keep_on_error: bool = False):
     """Context manager yielding a temporary folder that becomes ``dst`` on success.

@@ -23,8 +23,8 @@ import sys
 import time
 from pathlib import Path
 
-from .atomic import atomic_write_text, build_lock, replace_dir
-from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError
+from .atomic import atomic_write_text, build_lock, recover_stale, replace_dir
+from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 BUILD_ROOT = Path("build")
@@ -41,18 +41,25 @@ def shape_name(source: str) -> str:
     Raises
     ------
     InputError
-        If ``source`` is neither a built-in shape nor an existing file.
+        If ``source`` is neither a built-in shape (with valid options, e.g.
+        ``dome:size=1.5``) nor an existing file.
     """
-    p = Path(source)
-    if p.suffix or "/" in source:
-        if not p.is_file():
-            raise InputError(f"mesh file {source!r} does not exist.",
-                             fix="check the path, or use a built-in shape (morphshell shapes).")
-        return p.stem
-    from .surfaces import BUILTIN_SHAPES
+    from .surfaces import BUILTIN_SHAPES, check_spec
 
-    if source in BUILTIN_SHAPES:
+    source = str(source)
+    p = Path(source)
+    if p.is_file():
+        return p.stem
+    if p.is_dir():
+        raise InputError(f"{source!r} is a directory, not a mesh file.",
+                         fix="give the path of a mesh file (OBJ, STL, PLY, OFF) or a built-in "
+                             "shape (morphshell shapes).")
+    if "/" not in source and source in BUILTIN_SHAPES:
+        check_spec(source)  # unknown options / non-numbers: fail before anything runs
         return source
+    if p.suffix or "/" in source:
+        raise InputError(f"mesh file {source!r} does not exist.",
+                         fix="check the path, or use a built-in shape (morphshell shapes).")
     raise InputError(f"unknown shape {source!r}.",
                      fix="use one of the built-in shapes (" + ", ".join(BUILTIN_SHAPES)
                          + ") or give a mesh file path (OBJ, STL, PLY, OFF).")
@@ -112,19 +119,56 @@ def _has_module(name: str) -> bool:
 def design_only(source: str, *, out=None, progress: bool = True, **options) -> dict:
     """Run only the design stage into ``out`` (default ``build/<name>``), atomically."""
     from .atomic import atomic_dir
-    from .design import run_design
+    from .design import check_design_options, run_design
 
+    check_design_options(**{k: v for k, v in options.items()
+                            if k in ("vertices", "time", "scale", "flattening")})
     name = shape_name(source)
-    out = Path(out) if out else BUILD_ROOT / name
-    with build_lock(out), atomic_dir(out) as tmp:
-        result = run_design(source, tmp, progress=progress, **options)
+    out = (Path(out) if out else BUILD_ROOT / name).absolute()
+    with build_lock(out):
+        recover_stale(out)
+        with atomic_dir(out) as tmp:
+            result = run_design(source, tmp, progress=progress, **options)
     return result
+
+
+def check_build_options(*, jobs=None, t_end=None, dt=None, render: bool = True,
+                        simulate: bool = True) -> None:
+    """Refuse bad build options before any stage runs (even options of skipped stages:
+    a typo should not wait for the next full build to show).
+
+    Raises
+    ------
+    InputError
+        Naming the option, its value and the rule; ``ExternalToolError`` when rendering is
+        requested and OpenSCAD is missing.
+    """
+    import math
+
+    if jobs is not None and (int(jobs) != jobs or jobs < 1):
+        raise InputError(f"--jobs must be a whole number >= 1, got {jobs}.",
+                         fix="omit --jobs (JOBS=) to use every CPU, or give e.g. --jobs 2.")
+    for opt, v in (("--t-end", t_end), ("--dt", dt)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise InputError(f"{opt} must be a positive number of seconds, got {v}.",
+                             fix=f"omit {opt} for the default, or give e.g. "
+                                 f"{opt} {120 if opt == '--t-end' else 0.5}.")
+    if simulate and (t_end is not None or dt is not None) and _has_module("sim.simulate"):
+        from sim.simulate import SimSettings
+
+        kw = {k: float(v) for k, v in (("t_end", t_end), ("dt", dt)) if v is not None}
+        SimSettings(**kw).times()  # t_end must be a multiple of dt
+    if render:
+        from .render import find_openscad
+
+        find_openscad()  # missing OpenSCAD: say so now, not after the design stage
 
 
 def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0,
           flattening: str = "cetm", stencil_order: bool = False, material=None,
           refine: int = 0, program: bool = True, render: bool = True,
-          simulate: bool = True, t_end=None, jobs=None, progress: bool = True) -> dict:
+          simulate: bool = True, t_end=None, dt=None, jobs=None,
+          progress: bool = True) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -144,6 +188,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         Run the temporal programming, STL rendering, and simulation + report stages.
     t_end : float, s, optional
         Simulated time in water (default 120 s).
+    dt : float, s, optional
+        Simulation time step (default 0.5 s).
     jobs : int, optional
         Parallel OpenSCAD processes.
 
@@ -158,25 +204,39 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
                              "(morphshell fit-material --out FILE), or omit MATERIAL.")
     if refine < 0:
         raise InputError(f"--refine must be >= 0, got {refine}.", fix="use e.g. --refine 2")
+    from .design import check_design_options
+
+    check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening)
+    check_build_options(jobs=jobs, t_end=t_end, dt=dt, render=render, simulate=simulate)
     name = shape_name(source)
-    out = Path(out) if out else BUILD_ROOT / name
+    # absolute: stages may run external tools in other working directories (OpenSCAD)
+    out = (Path(out) if out else BUILD_ROOT / name).absolute()
     design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
                        stencil_order=stencil_order)
     all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
                     program=program, t_end=t_end)
+    if dt is not None:  # (only when given: keeps the hash of earlier builds)
+        all_opts["dt"] = dt
     digest = inputs_hash(source, all_opts)
     staging = out.parent / ".staging" / out.name
     summary: dict = {"shape": name, "source": str(source), "options": all_opts,
                      "inputs_sha256": digest, "stages": {}, "timings_s": {}}
     t_build = _now()
     with build_lock(out):
+        recover_stale(out)
         _prepare_staging(staging, digest, progress)
         stages = summary["stages"]
 
         def stage(key: str, fn, *a, **kw):
             _log(f"{name}: {key} ...", progress)
             t0 = _now()
-            res = fn(*a, **kw)
+            try:
+                res = fn(*a, **kw)
+            except MorphshellError as e:  # say which stage, and what was (not) kept
+                kept = (f"the previous complete build in {out} is unchanged"
+                        if out.exists() else f"nothing was written to {out}")
+                raise type(e)(f"{key} stage: {e.problem}\n  ({kept}; this build's partial "
+                              f"files are in {staging})", fix=e.fix) from e
             summary["timings_s"][key] = round(_now() - t0, 3)
             stages[key] = res if isinstance(res, dict) else {}
             _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
@@ -193,12 +253,17 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         if simulate:
             from sim.simulate import simulate_design
             kw = {} if t_end is None else {"t_end": t_end}
+            sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
             stage("simulate", simulate_design, staging, material=material, progress=progress,
-                  **kw)
+                  **sim_kw)
             if refine and program:
+                import functools
+
                 from .temporal import refine_design
+                hook = {} if dt is None else {
+                    "simulate": functools.partial(simulate_design, dt=dt)}
                 stage("refine", refine_design, staging, iterations=refine, material=material,
-                      progress=progress, **kw)
+                      progress=progress, **kw, **hook)
             from sim.report import make_report
             stage("report", make_report, staging, progress=progress)
         summary["timings_s"]["total"] = round(_now() - t_build, 3)

@@ -44,9 +44,28 @@ class CheckReport:
                 "warnings": list(self.warnings), "figures": self.figures}
 
 
-def _where(P: np.ndarray) -> str:
+def _where(P: np.ndarray, frame: str = "target") -> str:
     c = P.mean(axis=0)
-    return f"around target ({c[0]:.0f}, {c[1]:.0f}, {c[2]:.0f}) mm"
+    return f"around {frame} ({c[0]:.0f}, {c[1]:.0f}, {c[2]:.0f}) mm"
+
+
+def _region(P: np.ndarray, on_rim: np.ndarray) -> str:
+    """Where a set of items lies: centre and radius of the set, and whether it hugs the rim.
+
+    Parameters
+    ----------
+    P : (k, 3) float, mm -- item positions
+    on_rim : (k,) bool -- item touches a boundary base
+    """
+    c = np.round(P.mean(axis=0)) + 0.0  # no "-0"
+    r = float(np.linalg.norm(P - c, axis=1).max(initial=0.0))
+    s = f"region centred at ({c[0]:.0f}, {c[1]:.0f}, {c[2]:.0f}) mm, radius {r:.0f} mm"
+    nb = int(np.sum(on_rim))
+    if nb * 2 >= len(P):
+        s += f", mostly along the rim ({nb} of {len(P)} next to the boundary)"
+    else:
+        s += f", mostly inside ({len(P) - nb} of {len(P)} away from the boundary)"
+    return s
 
 
 def _worst(ids, pos, score, k=4) -> str:
@@ -96,8 +115,8 @@ def bumper_contact_errors(lay: Layout):
     return normal, lateral
 
 
-def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = True
-                 ) -> CheckReport:
+def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = True,
+                 to_input=None) -> CheckReport:
     """Check a layout for printability.
 
     Errors: cells longer than ``max_cell_length``; bases or bumpers closer than
@@ -111,11 +130,22 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     params : UnitCell
     raise_ : bool
         Raise InputError when there are errors.
+    to_input : callable((k, 3) float) -> (k, 3) float, optional
+        Maps target-frame points (the layout's centred, scaled ``V``) to the user's input
+        coordinates; messages then name places in the input (which the user can find in
+        their modeller) instead of the target frame (only written on success).
     """
     rep = CheckReport()
     cells = lay.cells
     l = lay.central_length
-    cell_pos = 0.5 * (lay.Fc[cells.faces[:, 0]] + lay.Fc[cells.faces[:, 1]])
+    frame = "the target"
+    Fc = lay.Fc
+    if to_input is not None:
+        Fc = np.asarray(to_input(Fc), float)
+        frame = "the input's coordinates"
+    cell_pos = 0.5 * (Fc[cells.faces[:, 0]] + Fc[cells.faces[:, 1]])
+    rim_face = np.any(lay.ff < 0, axis=1)
+    cell_rim = rim_face[cells.faces[:, 0]] | rim_face[cells.faces[:, 1]]
 
     # 1. flips in the flattening
     A = signed_areas_2d(lay.UV, lay.F)
@@ -123,7 +153,7 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     if len(flipped):
         rep.errors.append((
             f"{len(flipped)} flipped triangle(s) in the flat layout (faces {_ids(flipped)}, "
-            f"{_where(lay.Fc[flipped])})",
+            f"{_where(Fc[flipped], frame.removeprefix('the '))})",
             "use flattening='cetm', improve the mesh quality there, or cut the surface"))
 
     # 2. cell length
@@ -131,10 +161,12 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     if len(too_long):
         rep.errors.append((
             f"{len(too_long)} unit cell(s) longer than {params.max_cell_length} mm (max "
-            f"{l.max():.2f} mm), in the target: cell {_worst(too_long, cell_pos, l)}",
+            f"{l.max():.2f} mm), in {frame}: cell {_worst(too_long, cell_pos, l)}; "
+            f"{_region(cell_pos[too_long], cell_rim[too_long])}",
             "the surface needs too much stretching or bending there: cut the surface "
             "through that region or reduce its curvature; the stencil's irregularity also "
-            "matters: try another vertex count or CVT seed (vertices=N, seed=k)"))
+            "matters: try another vertex count (--vertices N) or CVT seed (Python: "
+            "vertices=N, seed=k)"))
     near = np.flatnonzero((l > NEAR_LIMIT * params.max_cell_length) & (l <= params.max_cell_length))
     if len(near):
         rep.warnings.append(f"{len(near)} cell(s) within 5% of the {params.max_cell_length} mm "
@@ -154,7 +186,7 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
             pairs = gaps.pairs[bad]
             over = np.flatnonzero(gaps.gap[bad] <= 0)
             kind = "overlap" if len(over) else f"are closer than {params.min_gap} mm"
-            mid = 0.5 * (lay.Fc[pairs[:, 0]] + lay.Fc[pairs[:, 1]])
+            mid = 0.5 * (Fc[pairs[:, 0]] + Fc[pairs[:, 1]])
             where = "; ".join(f"bases {a}-{b} ({g:.3f} mm) at ({m[0]:.0f}, {m[1]:.0f}, "
                               f"{m[2]:.0f}) mm" for (a, b), g, m in
                               zip(pairs[:4], gaps.gap[bad][:4], mid[:4], strict=True))

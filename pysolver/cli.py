@@ -10,11 +10,19 @@ input (2) from a failed check (3) and an internal error (1).
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 import traceback
+import warnings
 from pathlib import Path
 
-from .errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, MorphshellError
+from .errors import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    MorphshellError,
+)
 
 STAGES_HELP = """\
 stages (each reads and writes plain files in a design folder, build/<shape>/):
@@ -70,6 +78,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--no-render", action="store_true", help="skip STL rendering")
     p.add_argument("--no-sim", action="store_true", help="skip simulation and report")
     p.add_argument("--t-end", type=float, default=None, help="simulated time in water, s")
+    p.add_argument("--dt", type=float, default=None, help="simulation time step, s")
     p.add_argument("--jobs", type=int, default=None, help="parallel OpenSCAD processes")
 
     p = sub.add_parser("design", help="design the flat layout only")
@@ -88,6 +97,7 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate the morph of a design folder")
     p.add_argument("dir")
     p.add_argument("--t-end", type=float, default=None)
+    p.add_argument("--dt", type=float, default=None, help="time step, s (default 0.5)")
     p.add_argument("--material", default=None)
     p.add_argument("--no-resume", action="store_true", help="start over, ignore a checkpoint")
 
@@ -119,9 +129,16 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _design_dir(arg: str) -> Path:
+    """A stage's design folder argument, absolute (stages run external tools elsewhere)."""
+    return Path(arg).absolute()
+
+
 def _run(args: argparse.Namespace) -> int:
     progress = not args.quiet
     cmd = args.command
+    if hasattr(args, "dir"):
+        args.dir = _design_dir(args.dir)
     if cmd == "build":
         from .build import build
         result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
@@ -129,7 +146,7 @@ def _run(args: argparse.Namespace) -> int:
                        stencil_order=args.stencil_order, material=args.material,
                        refine=args.refine, program=not args.no_program,
                        render=not args.no_render, simulate=not args.no_sim,
-                       t_end=args.t_end, jobs=args.jobs, progress=progress)
+                       t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress)
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
         from .build import design_only
@@ -147,7 +164,11 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if cmd == "simulate":
         from sim.simulate import simulate_design
-        kw = {} if args.t_end is None else {"t_end": args.t_end}
+
+        from .build import check_build_options
+
+        check_build_options(t_end=args.t_end, dt=args.dt, render=False)
+        kw = {k: v for k, v in (("t_end", args.t_end), ("dt", args.dt)) if v is not None}
         simulate_design(Path(args.dir), material=args.material, progress=progress,
                         resume=not args.no_resume, **kw)
         return EXIT_OK
@@ -180,6 +201,24 @@ def _run(args: argparse.Namespace) -> int:
     raise AssertionError(cmd)
 
 
+def _warning_printer(command: str):
+    """``warnings.showwarning`` replacement: the project's warnings as one clean line
+    (``morphshell build: warning: ...``), other libraries' warnings as usual."""
+    default = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if category.__module__.split(".")[0] in ("pysolver", "sim"):
+            print(f"morphshell {command}: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    return show
+
+
+# OSError numbers that describe the machine (the user can fix them), not a bug
+_ENVIRONMENT_ERRNOS = {errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS, errno.EDQUOT}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``morphshell`` console script."""
     ap = _parser()
@@ -187,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         ap.print_help()
         return EXIT_OK
+    shown = warnings.showwarning
+    warnings.showwarning = _warning_printer(args.command)
     try:
         return _run(args)
     except MorphshellError as e:
@@ -201,10 +242,19 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # a bug: say so, and how to get details
         if args.debug:
             traceback.print_exc()
+        if isinstance(e, OSError) and e.errno in _ENVIRONMENT_ERRNOS:
+            # the machine, not the program: no permission, disk full, read-only file system
+            print(f"morphshell {args.command}: error: cannot write or read "
+                  f"{e.filename or 'a file'}: {e.strerror}.\n  Fix: check the permissions and "
+                  "the free space of the output folder (--out), then re-run; previous complete "
+                  "results are kept.", file=sys.stderr)
+            return EXIT_BAD_INPUT
         print(f"morphshell {args.command}: internal error ({type(e).__name__}: {e}). "
               "This is a bug; re-run with --debug for the traceback and report it.",
               file=sys.stderr)
         return EXIT_INTERNAL
+    finally:
+        warnings.showwarning = shown
 
 
 if __name__ == "__main__":

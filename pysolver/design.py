@@ -27,7 +27,7 @@ from .checks import check_layout
 from .errors import InputError
 from .layout import Layout, build_layout
 from .params import UNIT_CELL, UnitCell
-from .time_landscape import cell_times, check_time_source, resolve_time
+from .time_landscape import cell_times, check_time_option, check_time_source, resolve_time
 
 FLATTENINGS = ("cetm", "lscm")
 
@@ -87,6 +87,29 @@ def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -
     return build_layout(V, UV, F, params, central_length=central_length)
 
 
+def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cetm",
+                         thickness=0.5, params: UnitCell = UNIT_CELL) -> None:
+    """Check the design options (see :func:`run_design`) without running anything.
+
+    Raises
+    ------
+    InputError
+        Naming the option, its value and the rule.
+    """
+    if flattening not in FLATTENINGS:
+        raise InputError(f"flattening={flattening!r}", fix=f"use one of {FLATTENINGS}")
+    if not (np.isfinite(scale) and scale > 0):
+        raise InputError(f"scale={scale!r} must be a positive number",
+                         fix="e.g. --scale 1000 for a mesh in metres, 25.4 in inches")
+    if not (params.thickness_min <= thickness <= params.thickness_max):
+        raise InputError(f"thickness={thickness} mm outside {params.thickness_min}-"
+                         f"{params.thickness_max} mm")
+    if vertices is not None and (int(vertices) != vertices or vertices < 4):
+        raise InputError(f"vertices={vertices!r} must be an integer >= 4",
+                         fix="omit --vertices to let the design search it")
+    check_time_option(time)
+
+
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
                stencil_order=False, progress=True, plots=True, seed=None) -> dict:
@@ -130,15 +153,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         Counts, sizes, cell lengths, distortion, scale factors, flattening comparison,
         checks and timings per stage (also in ``design.json``).
     """
-    if flattening not in FLATTENINGS:
-        raise InputError(f"flattening={flattening!r}", fix=f"use one of {FLATTENINGS}")
-    if not (np.isfinite(scale) and scale > 0):
-        raise InputError(f"scale={scale!r} must be a positive number")
-    if not (params.thickness_min <= thickness <= params.thickness_max):
-        raise InputError(f"thickness={thickness} mm outside {params.thickness_min}-"
-                         f"{params.thickness_max} mm")
-    if vertices is not None and (int(vertices) != vertices or vertices < 4):
-        raise InputError(f"vertices={vertices!r} must be an integer >= 4")
+    check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
+                         thickness=thickness, params=params)
     out_dir = Path(out_dir)
     clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
     surf, kind, src_desc, src_hash, mesh = _load_source(source, scale)
@@ -199,7 +215,10 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     th = np.full((len(lay.cells.faces), 2), float(thickness))
     clock.step("time")
 
-    report = check_layout(lay, params, raise_=False)
+    # messages name places in the user's input: target = (V0 - centre) * scale3d, V0 in
+    # input units * scale
+    report = check_layout(lay, params, raise_=False,
+                          to_input=lambda P: (np.asarray(P) / lay.scale3d + center) / scale)
     from .flatten import distortion_metrics
 
     dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
@@ -333,4 +352,5 @@ def _write_json(path: Path, data: dict):
     os.replace(tmp, path)
 
 
-__all__ = ["run_design", "design_layout", "write_design_tables", "FLATTENINGS"]
+__all__ = ["run_design", "check_design_options", "design_layout", "write_design_tables",
+           "FLATTENINGS"]

@@ -14,6 +14,7 @@ are implausible in millimetres.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,8 +24,18 @@ import numpy as np
 from .errors import InputError
 
 SUPPORTED = (".obj", ".stl", ".ply", ".off")
-# a shell smaller or larger than this (bounding-box diagonal, mm) is probably in other units
+# a shell smaller or larger than this (bounding-box diagonal, mm) is probably in other units:
+# refused (the remeshing would pick a nonsense vertex count from the area) ...
 MIN_SIZE_MM, MAX_SIZE_MM = 20.0, 2000.0
+# ... and outside this band it is suspicious: a warning (SizeWarning) offers --scale
+WARN_MIN_SIZE_MM, WARN_MAX_SIZE_MM = 40.0, 600.0
+# (factor, unit) a mesh exported in another unit needs to become millimetres
+_UNITS = ((1000.0, "metres"), (25.4, "inches"), (10.0, "centimetres"), (0.1, "tenths of a mm"),
+          (0.001, "micrometres"))
+
+
+class SizeWarning(UserWarning):
+    """The input surface's size is unusual for millimetres (possibly another unit)."""
 _PLY_STANDARD = {"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha", "s", "t",
                  "u", "v", "texture_u", "texture_v"}
 
@@ -73,14 +84,26 @@ def _read_trimesh(path: Path):
 
     ext = path.suffix.lower()
     try:
-        m = trimesh.load(str(path), force="mesh", process=(ext == ".stl"))
+        # process=False everywhere: trimesh's processing would silently drop the triangles
+        # of NaN/inf vertices (an STL then shows up as a "hole"); STL corners are merged below
+        m = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:  # noqa: BLE001 - any parser failure is a corrupt file
-        raise InputError(f"{path}: cannot read the {ext[1:].upper()} file ({type(e).__name__}: "
-                         f"{e})", fix="check that the file is a valid, complete mesh export") \
-            from None
+        raise InputError(f"{path}: cannot read the {ext[1:].upper()} file, it is corrupt or "
+                         f"truncated ({type(e).__name__}: {e})",
+                         fix="check that the file is a valid, complete mesh export") from None
     if not hasattr(m, "faces") or m.faces is None or len(m.faces) == 0:
-        raise InputError(f"{path}: no triangles found (empty or point-cloud file)",
-                         fix="export the surface as a triangle mesh")
+        raise InputError(f"{path}: no triangles found: the file is empty, truncated or corrupt, "
+                         "or holds only points",
+                         fix="export the surface as a triangle mesh (and check the export "
+                             "finished)")
+    if ext == ".stl":
+        bad = np.flatnonzero(~np.all(np.isfinite(np.asarray(m.vertices)), axis=1))
+        if len(bad):
+            tri = np.flatnonzero(np.isin(np.asarray(m.faces), bad).any(axis=1))
+            raise InputError(f"{path}: {len(tri)} triangle(s) with NaN or infinite vertex "
+                             f"coordinates (first: triangle {tri[0] if len(tri) else '?'})",
+                             fix="repair or re-export the mesh")
+        m.merge_vertices()  # STL stores every triangle corner separately
     return m
 
 
@@ -101,7 +124,11 @@ def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
     """
     path = Path(path)
     if not path.exists():
-        raise InputError(f"{path}: file not found")
+        raise InputError(f"{path}: file not found",
+                         fix="check the path, or use a built-in shape (morphshell shapes)")
+    if not path.is_file():
+        raise InputError(f"{path}: is a directory, not a mesh file",
+                         fix="give the path of a mesh file (OBJ, STL, PLY, OFF)")
     ext = path.suffix.lower()
     if ext not in SUPPORTED:
         raise InputError(f"{path}: unsupported format {ext or '(no extension)'!r}",
@@ -182,6 +209,57 @@ def _fmt_pt(p) -> str:
     return f"({p[0]:.1f}, {p[1]:.1f}, {p[2]:.1f})"
 
 
+def _unit_candidates(diag: float, lo: float, hi: float) -> list[tuple[float, str]]:
+    """Units (factor, name) that would bring a diagonal ``diag`` into ``[lo, hi]`` mm."""
+    return [(k, u) for k, u in _UNITS if lo <= diag * k <= hi]
+
+
+def _scale_fix(diag: float, cands) -> str:
+    """``re-run with --scale K (Python: scale=K) if the mesh is in <unit> (D mm across), ...``"""
+    opts = [f"--scale {k:g} (Python: scale={k:g}) if the mesh is in {u} (it would be "
+            f"{diag * k:.0f} mm across)" for k, u in cands]
+    return "re-run with " + "; or ".join(opts) + ", or scale it in your modeller"
+
+
+def check_size(V, name: str = "surface") -> float:
+    """Refuse sizes that cannot be millimetres, warn about suspicious ones.
+
+    A surface whose bounding-box diagonal is outside ``[MIN_SIZE_MM, MAX_SIZE_MM]`` is
+    refused; outside ``[WARN_MIN_SIZE_MM, WARN_MAX_SIZE_MM]`` a :class:`SizeWarning` is
+    issued.  Both name the size and the ``--scale`` factor of the probable unit(s).
+
+    Returns
+    -------
+    diag : float, mm
+    """
+    diag = float(np.linalg.norm(np.ptp(np.asarray(V, float), axis=0)))
+    if MIN_SIZE_MM <= diag <= MAX_SIZE_MM:
+        if not WARN_MIN_SIZE_MM <= diag <= WARN_MAX_SIZE_MM:
+            small = diag < WARN_MIN_SIZE_MM
+            cands = [c for c in _unit_candidates(diag, WARN_MIN_SIZE_MM, WARN_MAX_SIZE_MM)
+                     if (c[0] > 1) == small]
+            if cands:
+                warnings.warn(
+                    f"{name}: the surface is {diag:.3g} mm across (bounding-box diagonal), "
+                    f"{'small' if small else 'large'} for a printed shell if the coordinates "
+                    "are millimetres; " + _scale_fix(diag, cands), SizeWarning, stacklevel=3)
+        return diag
+    if diag < MIN_SIZE_MM:
+        cands = (_unit_candidates(diag, WARN_MIN_SIZE_MM, WARN_MAX_SIZE_MM)
+                 or _unit_candidates(diag, MIN_SIZE_MM, MAX_SIZE_MM)
+                 or [max(_UNITS[:3], key=lambda ku: min(diag * ku[0], MAX_SIZE_MM))])
+        raise InputError(f"{name}: the surface is only {diag:.3g} mm across (bounding-box "
+                         "diagonal): coordinates must be millimetres and a shell of 7 mm unit "
+                         f"cells needs at least {MIN_SIZE_MM:g} mm; the mesh is probably in "
+                         + " or ".join(u for _, u in cands),
+                         fix=_scale_fix(diag, cands))
+    cands = [c for c in _unit_candidates(diag, WARN_MIN_SIZE_MM, WARN_MAX_SIZE_MM) if c[0] < 1] \
+        or [(0.001, "micrometres")]
+    raise InputError(f"{name}: the surface is {diag:.4g} mm across; that is implausibly "
+                     "large for a printed shell (coordinates must be millimetres)",
+                     fix=_scale_fix(diag, cands))
+
+
 def validate_surface(V, F, name: str = "surface") -> None:
     """Check that (V, F) is one connected, oriented, manifold topological disk in mm.
 
@@ -205,18 +283,7 @@ def validate_surface(V, F, name: str = "surface") -> None:
     if len(bad):
         raise InputError(f"{name}: {len(bad)} vertex coordinate(s) are NaN or infinite "
                          f"(first: vertex {bad[0]})", fix="repair or re-export the mesh")
-    diag = float(np.linalg.norm(np.ptp(V, axis=0)))
-    if diag < MIN_SIZE_MM:
-        k = 10.0 if diag * 10 >= MIN_SIZE_MM else 1000.0
-        raise InputError(f"{name}: the surface is only {diag:.3g} mm across (bounding-box "
-                         "diagonal); coordinates must be millimetres",
-                         fix=f"give scale={k:g} (the mesh is probably in "
-                             f"{'cm' if k == 10 else 'm'}) or scale it in your modeller")
-    if diag > MAX_SIZE_MM:
-        raise InputError(f"{name}: the surface is {diag:.4g} mm across; that is implausibly "
-                         "large for a printed shell (coordinates must be millimetres)",
-                         fix="give scale=0.1 or 0.001 if the mesh is in 0.1 mm or micrometres, "
-                             "or scale it down")
+    diag = check_size(V, name)
     dup = np.any(F[:, [0, 1, 2]] == F[:, [1, 2, 0]], axis=1)
     area2 = igl.doublearea(V, F)
     degenerate = np.flatnonzero(dup | (area2 <= 1e-10 * diag**2))
@@ -233,7 +300,8 @@ def validate_surface(V, F, name: str = "surface") -> None:
                          f"{sorted(sizes.tolist(), reverse=True)[:6]})",
                          fix="keep one connected surface (delete the small pieces) or design "
                              "each piece separately")
-    ff = face_adjacency(F)  # raises on non-manifold edges / inconsistent orientation
+    _check_edges(V, F, name)
+    ff = face_adjacency(F)  # (after _check_edges: cannot raise any more)
     # non-manifold vertices (bow-ties): a vertex whose faces form several fans
     nm = _nonmanifold_vertices(F, ff, len(V))
     if len(nm):
@@ -266,11 +334,38 @@ def validate_surface(V, F, name: str = "surface") -> None:
         for lp in loops[1:4]:
             c = V[lp].mean(0)
             j = outer[np.argmin(np.linalg.norm(V[outer] - c, axis=1))]
-            msgs.append(f"hole around {_fmt_pt(c)} (cut from it to the rim near "
-                        f"{_fmt_pt(V[j])})")
+            msgs.append(f"hole around {_fmt_pt(c)} mm (cut from it to the rim near "
+                        f"{_fmt_pt(V[j])} mm)")
         raise InputError(f"{name}: the surface has {b - 1} hole(s): " + "; ".join(msgs),
                          fix="fill the holes, or cut from each hole to the outer boundary so "
                              "the surface becomes a disk")
+
+
+def _check_edges(V, F, name: str) -> None:
+    """Refuse edges shared by more than two triangles, and edges traversed twice in the same
+    direction (inconsistent orientation), naming how many and where (mm)."""
+    a = F[:, [1, 2, 0]].ravel()
+    b = F[:, [2, 0, 1]].ravel()
+    und = np.sort(np.c_[a, b], axis=1)
+    uniq, cnt = np.unique(und, axis=0, return_counts=True)
+    bad = np.flatnonzero(cnt > 2)
+    if len(bad):
+        e = uniq[bad[0]]
+        raise InputError(f"{name}: {len(bad)} non-manifold edge(s) (shared by more than two "
+                         f"triangles), e.g. edge ({e[0]}, {e[1]}) used by {cnt[bad[0]]} "
+                         f"triangles at {_fmt_pt(V[e].mean(0))} mm",
+                         fix="remove the extra (fin or overlapping) triangles so every edge "
+                             "has at most two (MeshLab: Cleaning and Repairing > Repair non "
+                             "Manifold Edges)")
+    d_uniq, d_cnt = np.unique(np.c_[a, b], axis=0, return_counts=True)
+    same = d_uniq[d_cnt > 1]
+    if len(same):
+        e = same[0]
+        raise InputError(f"{name}: the faces are not consistently oriented (or the surface is "
+                         f"non-orientable): {len(same)} edge(s) traversed twice in the same "
+                         f"direction, e.g. edge ({e[0]}, {e[1]}) at {_fmt_pt(V[e].mean(0))} mm",
+                         fix="re-orient the faces consistently (MeshLab: Normals, Curvatures "
+                             "and Orientation > Re-Orient all faces coherently)")
 
 
 def _nonmanifold_vertices(F, ff, n) -> np.ndarray:
@@ -305,4 +400,5 @@ def _nonmanifold_vertices(F, ff, n) -> np.ndarray:
     return np.flatnonzero(fans > 1)
 
 
-__all__ = ["InputMesh", "load_input", "validate_surface", "boundary_loops", "SUPPORTED"]
+__all__ = ["InputMesh", "load_input", "validate_surface", "check_size", "boundary_loops",
+           "SizeWarning", "SUPPORTED"]

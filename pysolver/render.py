@@ -130,6 +130,7 @@ def part_key(part_text: bytes, lib_digest: str, version: str) -> str:
 def _run_openscad(exe: str, scad: Path, out_stl: Path) -> tuple[bool, float, str]:
     """Render one file; returns (ok, seconds, stderr)."""
     t0 = time.perf_counter()
+    scad, out_stl = Path(scad).resolve(), Path(out_stl).resolve()  # OpenSCAD runs in scad.parent
     cmd = [exe, "--export-format", "binstl", "-o", str(out_stl), str(scad)]
     try:
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=OPENSCAD_TIMEOUT_S,
@@ -370,7 +371,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     from .frames import print_transform, rotvec_to_matrix
 
     t_start = time.perf_counter()
-    design_dir = Path(design_dir)
+    design_dir = Path(design_dir).resolve()
     scad_dir = check_library(Path(scad_dir).resolve() if scad_dir else SCAD_DIR)
     cache_dir = Path(cache_dir) if cache_dir else default_cache_dir(design_dir)
     exe = find_openscad()

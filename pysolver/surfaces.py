@@ -89,7 +89,9 @@ def _parse_options(spec: str) -> tuple[str, dict]:
         if "=" in tok:
             k, v = tok.split("=", 1)
             try:
-                vals = [float(x) for x in v.strip("()[] ").split(";")]
+                # integers stay integers: counts such as regular:rows=2 or petal:petals=6
+                vals = [int(x) if x.strip().lstrip("+-").isdigit() else float(x)
+                        for x in v.strip("()[] ").split(";")]
             except ValueError:
                 raise InputError(f"shape option {tok!r}: value must be a number "
                                  "(or numbers separated by ';')") from None
@@ -157,8 +159,7 @@ def regular(rows: int = 6, cols: int = 5, central_length: float = 7.0) -> Surfac
 
 
 __all__ = ["Surface", "regular", "petal", "saddle", "dome", "weave", "spiral", "BUILTIN",
-           "BUILTIN_SHAPES",
-           "builtin", "is_builtin"]
+           "BUILTIN_SHAPES", "builtin", "check_spec", "is_builtin"]
 
 
 # --------------------------------------------------------------------------------------
@@ -399,11 +400,35 @@ def is_builtin(spec: str) -> bool:
     return _parse_options(str(spec))[0] in BUILTIN
 
 
-def builtin(spec: str) -> Surface:
-    """Make a built-in shape from ``"name"`` or ``"name:opt,key=value"``."""
-    name, opts = _parse_options(spec)
+def check_spec(spec: str) -> tuple[str, dict]:
+    """Parse and check a built-in shape spec without building it (cheap, for early errors).
+
+    Returns
+    -------
+    name : str
+    options : dict
+
+    Raises
+    ------
+    InputError
+        Unknown shape, unknown option name, or a non-numeric value.
+    """
+    import inspect
+
+    name, opts = _parse_options(str(spec))
     if name not in BUILTIN:
         raise InputError(f"unknown shape {name!r}", fix=f"use one of {', '.join(BUILTIN)}")
+    known = list(inspect.signature(BUILTIN[name]).parameters)
+    unknown = [k for k in opts if k not in known]
+    if unknown:
+        raise InputError(f"shape {spec!r}: bad option: unknown option(s) {unknown} for {name!r}",
+                         fix=f"{name} takes: {', '.join(known)} (e.g. '{name}:{known[0]}=...')")
+    return name, opts
+
+
+def builtin(spec: str) -> Surface:
+    """Make a built-in shape from ``"name"`` or ``"name:opt,key=value"``."""
+    name, opts = check_spec(spec)
     try:
         surf = BUILTIN[name](**opts)
     except TypeError as e:

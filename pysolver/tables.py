@@ -141,10 +141,15 @@ def read_table(path, kind: str) -> dict[str, np.ndarray]:
     if path.is_dir():
         path = path / FILENAMES[kind]
     if not path.exists():
-        raise InputError(f"{path}: file not found",
-                         fix="run the design stage first (morphshell design <shape>)")
-    with open(path) as fh:
-        text = fh.read()
+        where = (f"{path.parent}: no such design folder" if not path.parent.exists()
+                 else f"{path}: file not found")
+        raise InputError(where, fix="run the design stage first (morphshell design <shape>)")
+    try:
+        with open(path) as fh:
+            text = fh.read()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text (CSV) file",
+                         fix="re-run the stage that writes it") from None
     rows = [ln for ln in text.split("\n") if ln.strip() != ""]
     if not rows:
         raise InputError(f"{path}: empty file, expected header {','.join(schema)}",
@@ -307,7 +312,8 @@ def read_stencil(path):
     if path.is_dir():
         path = path / "stencil.obj"
     if not path.exists():
-        raise InputError(f"{path}: file not found")
+        raise InputError(f"{path}: file not found",
+                         fix="run the design stage first (morphshell design <shape>)")
     V, T, F, FT = [], [], [], []
     with open(path, errors="replace") as fh:
         for ln, line in enumerate(fh, start=1):
@@ -446,9 +452,42 @@ def read_design(folder, check: bool = True) -> Design:
 def check_design(d: Design) -> None:
     """Cross-check a loaded design; raises InputError naming the first inconsistency."""
     from .layout import unit_cells  # local: layout imports nothing from here
+    from .params import UNIT_CELL
 
     f = d.folder
     m, n = len(d.F), len(d.V)
+    c = d.cells
+    # references to bases / vertices that do not exist (hand edits), named row by row
+    for col, count, what in (("base_a", m, "base"), ("base_b", m, "base"),
+                             ("vertex_a", n, "stencil vertex"), ("vertex_b", n, "stencil vertex")):
+        bad = np.flatnonzero((c[col] < 0) | (c[col] >= count))
+        if len(bad):
+            i = int(bad[0])
+            raise InputError(f"{f}/cells.csv:{i + 2} (cell {int(c['cell_id'][i])}): {col} = "
+                             f"{int(c[col][i])} refers to a {what} that does not exist (the design "
+                             f"has {count}, ids 0..{count - 1})",
+                             fix="undo the hand edit of cells.csv, or re-run the design stage")
+    for col, count in (("base_id", m), ("neighbour", m), ("cell_id", len(c["cell_id"]))):
+        v = d.bumpers[col]
+        bad = np.flatnonzero((v < 0) | (v >= count))
+        if len(bad):
+            i = int(bad[0])
+            raise InputError(f"{f}/bumpers.csv:{i + 2}: {col} = {int(v[i])} does not exist "
+                             f"(ids 0..{count - 1})",
+                             fix="undo the hand edit of bumpers.csv, or re-run the design stage")
+    # bracket thickness: printable and inside the measured material model
+    lo, hi = UNIT_CELL.thickness_min, UNIT_CELL.thickness_max
+    for col in ("thickness_top_mm", "thickness_bottom_mm"):
+        h = c[col]
+        bad = np.flatnonzero((h < lo - 1e-6) | (h > hi + 1e-6))
+        if len(bad):
+            i = int(bad[0])
+            raise InputError(f"{f}/cells.csv:{i + 2} (cell {int(c['cell_id'][i])}): {col} = "
+                             f"{h[i]:g} mm is outside the bracket thickness range {lo}-{hi} mm "
+                             f"({len(bad)} cell(s) in all)",
+                             fix="use thicknesses in range (thinner brackets do not print, "
+                                 "thicker ones are outside the material model), or re-run "
+                                 "'morphshell program DIR'")
     if len(d.bases["base_id"]) != m:
         raise InputError(f"{f}/bases.csv: {len(d.bases['base_id'])} rows for {m} stencil faces",
                          fix="re-run the design stage")

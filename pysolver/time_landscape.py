@@ -39,6 +39,65 @@ _ALLOWED_NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Compare, ast.BoolO
                   ast.cmpop, ast.boolop, ast.keyword)
 
 
+_NAMES = {"x", "y", "z", "r", *(a + m for a in "xyz" for m in ("min", "max")), *_CONSTS,
+          *_FUNCS}
+
+
+def parse_expression(expr: str) -> ast.Expression:
+    """Parse a time expression and check it is safe (names, calls, constants), without
+    evaluating it: cheap, so options can be checked before any stage runs.
+
+    Raises
+    ------
+    InputError
+        Syntax error, unknown name, or a construct other than arithmetic, comparisons and
+        whitelisted numpy functions.
+    """
+    try:
+        tree = ast.parse(expr, mode="eval")
+    except SyntaxError as e:
+        raise InputError(f"time expression {expr!r}: syntax error ({e.msg})",
+                         fix='write a numpy expression of x, y, z, r, e.g. "30 + 0.5*z"') from None
+    for node in ast.walk(tree):
+        if not isinstance(node, _ALLOWED_NODES):
+            raise InputError(f"time expression {expr!r}: {type(node).__name__} is not allowed",
+                             fix="use arithmetic, comparisons and numpy functions only")
+        if isinstance(node, ast.Name) and node.id not in _NAMES:
+            raise InputError(f"time expression {expr!r}: unknown name {node.id!r}",
+                             fix=f"allowed names: x, y, z, r, pi, {', '.join(sorted(_FUNCS))}")
+        if isinstance(node, ast.Call) and not (isinstance(node.func, ast.Name)
+                                               and node.func.id in _FUNCS):
+            raise InputError(f"time expression {expr!r}: only numpy functions may be called")
+        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
+            raise InputError(f"time expression {expr!r}: only numeric constants are allowed")
+    return tree
+
+
+def check_time_option(time) -> None:
+    """Check the ``time`` option before any stage runs: a constant must be a finite,
+    non-negative number of seconds; an expression must parse (see :func:`parse_expression`).
+    Arrays and per-vertex sources are checked when they are resolved."""
+    if isinstance(time, bool):
+        raise InputError(f"time={time!r}: expected seconds, an expression or an array")
+    if isinstance(time, str):
+        s = time.strip()
+        try:
+            c = float(s)
+        except ValueError:
+            if not s.startswith(("vertex", "color")):
+                parse_expression(s)
+            return
+    elif isinstance(time, (int, float, np.integer, np.floating)):
+        s, c = repr(time), float(time)
+    else:
+        return
+    if not np.isfinite(c):
+        raise InputError(f"time {s!r}: NaN/inf is not a time", fix="give finite times in seconds")
+    if c < 0:
+        raise InputError(f"time {s!r}: negative time {c:g} s",
+                         fix="times are seconds under water, >= 0")
+
+
 def evaluate_expression(expr: str, V: np.ndarray) -> np.ndarray:
     """Evaluate a time expression on target coordinates, safely.
 
@@ -53,31 +112,31 @@ def evaluate_expression(expr: str, V: np.ndarray) -> np.ndarray:
     -------
     t : (n,) float, s
     """
-    try:
-        tree = ast.parse(expr, mode="eval")
-    except SyntaxError as e:
-        raise InputError(f"time expression {expr!r}: syntax error ({e.msg})",
-                         fix='write a numpy expression of x, y, z, r, e.g. "30 + 0.5*z"') from None
+    tree = parse_expression(expr)
     x, y, z = V[:, 0], V[:, 1], V[:, 2]
     names = {"x": x, "y": y, "z": z, "r": np.hypot(x, y), **_CONSTS, **_FUNCS}
     for a, col in zip("xyz", (x, y, z), strict=True):
         names[a + "min"], names[a + "max"] = float(col.min()), float(col.max())
-    for node in ast.walk(tree):
-        if not isinstance(node, _ALLOWED_NODES):
-            raise InputError(f"time expression {expr!r}: {type(node).__name__} is not allowed",
-                             fix="use arithmetic, comparisons and numpy functions only")
-        if isinstance(node, ast.Name) and node.id not in names:
-            raise InputError(f"time expression {expr!r}: unknown name {node.id!r}",
-                             fix=f"allowed names: x, y, z, r, pi, {', '.join(sorted(_FUNCS))}")
-        if isinstance(node, ast.Call) and not (isinstance(node.func, ast.Name)
-                                               and node.func.id in _FUNCS):
-            raise InputError(f"time expression {expr!r}: only numpy functions may be called")
-        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
-            raise InputError(f"time expression {expr!r}: only numeric constants are allowed")
+    # integer literals become floats: Python ints have unbounded size, so "9**9**9" would run
+    # for minutes; float arithmetic overflows at once (and 1/0 raises ZeroDivisionError)
+    tree = ast.fix_missing_locations(_FloatConstants().visit(tree))
     code = compile(tree, "<time>", "eval")
-    with np.errstate(all="ignore"):
-        val = eval(code, {"__builtins__": {}}, names)  # noqa: S307 - AST checked above
-    return np.broadcast_to(np.asarray(val, dtype=float), (len(V),)).copy()
+    try:
+        with np.errstate(all="ignore"):
+            val = eval(code, {"__builtins__": {}}, names)  # noqa: S307 - AST checked above
+        return np.broadcast_to(np.asarray(val, dtype=float), (len(V),)).copy()
+    except (ArithmeticError, TypeError, ValueError) as e:
+        raise InputError(f"time expression {expr!r} cannot be evaluated: "
+                         f"{type(e).__name__}: {e}",
+                         fix='write a numpy expression of x, y, z, r giving seconds, e.g. '
+                             '"30 + 0.5*z"') from None
+
+
+class _FloatConstants(ast.NodeTransformer):
+    def visit_Constant(self, node):
+        if isinstance(node.value, int) and not isinstance(node.value, bool):
+            return ast.copy_location(ast.Constant(float(node.value)), node)
+        return node
 
 
 def interpolate_to_stencil(values, V_src, F_src, V_stencil) -> np.ndarray:
@@ -146,9 +205,11 @@ def resolve_time(time, V_stencil, *, default=None, source_mesh=None) -> tuple[np
     if isinstance(time, str):
         s = time.strip()
         try:
-            return validate_time(np.full(n, float(s)), n), f"constant {float(s):g} s"
+            const = float(s)
         except ValueError:
-            pass
+            const = None
+        if const is not None:  # (validated outside the try: InputError is a ValueError)
+            return validate_time(np.full(n, const), n, f"time {s!r}"), f"constant {const:g} s"
         if s.startswith("vertex") or s.startswith("color"):
             if source_mesh is None:
                 raise InputError(f"time={s!r} needs an input mesh with per-vertex data",
@@ -218,5 +279,6 @@ def cell_times(t_vertex, cell_verts) -> np.ndarray:
     return 0.5 * (t[cell_verts[:, 0]] + t[cell_verts[:, 1]])
 
 
-__all__ = ["DEFAULT_TIME_S", "check_time_source", "evaluate_expression",
+__all__ = ["DEFAULT_TIME_S", "check_time_source", "check_time_option", "parse_expression",
+           "evaluate_expression",
            "interpolate_to_stencil", "validate_time", "resolve_time", "cell_times"]
