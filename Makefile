@@ -55,7 +55,7 @@ shapes: $(STAMP)
 	$(PY) -m pysolver.cli shapes
 
 material: $(STAMP)
-	$(PY) -m pysolver.cli fit-material $(if $(DATA),--data $(DATA)) $(if $(OUT),--out $(OUT))
+	$(PY) -m pysolver.cli fit-material $(if $(DATA),--data $(DATA)) $(if $(OUT),--out $(OUT)) $(ARGS)
 
 membrane-model: $(STAMP)
 	$(PY) -m pysolver.cli fit-membrane

@@ -112,8 +112,11 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fit-material", help="fit the bracket model from measurements")
     p.add_argument("--data", default=None,
                    help="measurement folder (default: ../shared/material-data)")
-    p.add_argument("--out", default=None, help="model file to write (default: the committed one)")
-    p.add_argument("--report", default=None, help="fit report folder (default: build/material)")
+    p.add_argument("--out", default=None,
+                   help="model file to write (default: the committed model when fitting the "
+                        "shipped data, else build/material/<data folder>.json)")
+    p.add_argument("--report", default=None,
+                   help="fit report folder (default: build/material[/<data folder>])")
     p.add_argument("--compare-to", default=None,
                    help="plot the new model against this one (default: the committed model)")
 
@@ -182,8 +185,17 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if cmd == "fit-material":
         from .material.fit import fit_material
-        fit_material(data_dir=args.data, out_path=args.out, report_dir=args.report,
-                     compare_to=args.compare_to)
+        out, report = args.out, args.report
+        if args.data is not None:  # a user's data never overwrites the committed default model
+            stem = Path(args.data).resolve().name or "material"
+            out = out or str(Path("build/material") / f"{stem}.json")
+            report = report or str(Path("build/material") / stem)
+        res = fit_material(data_dir=args.data, out_path=out, report_dir=report,
+                           compare_to=args.compare_to, progress=progress)
+        missing = {k: v for k, v in (res.get("missing_specimens") or {}).items() if v}
+        if missing:
+            print(f"note: missing from the standard design (h mm, l mm[, F N]): {missing}")
+        print(f"material model: {res['model_file']} (use it with MATERIAL={res['model_file']})")
         return EXIT_OK
     if cmd == "fit-membrane":
         from .membrane_model import fit_membrane_model

@@ -1,0 +1,198 @@
+"""Benchmark of the morphing simulator (not a test).
+
+A ~549-base, ~8000-triangle shell (the design stage's ``weave:large``, the size of the paper's
+largest example: 549 rigid bodies, 7942 membrane elements), programmed with the fitted bracket
+model, simulated for 240 steps of 0.5 s (plus the dry step).  Writes
+
+* ``build/bench/sim.json`` -- ``wall_s`` (total simulation wall time), CPU time, per-step wall
+  and Newton iterations (mean / median / max), peak memory, model sizes, machine load;
+* ``build/bench/sim_profile.txt`` -- cProfile, top entries by internal time.
+
+Usage::
+
+    .venv/bin/python bench/bench_sim.py [--shape weave:large] [--t-end 120] [--out build/bench]
+
+Fallbacks: if the design stage cannot build the shape, a synthetic 546-base regular patch on a
+spherical cap is used; if the fitted bracket model is missing, a stand-in force law (recorded
+in the JSON).  The machine may be shared: the JSON records the load average and CPU time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import os
+import pstats
+import resource
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_THREAD_LIMIT", "1")  # before anything loads CHOLMOD / OpenMP
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _design(shape: str, folder: Path, log) -> str:
+    """Create the design folder (cached); returns a description of what was built."""
+    from pysolver.errors import InputError
+
+    if (folder / "cells.csv").exists() and (folder / ".bench_source").exists():
+        return (folder / ".bench_source").read_text()
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        from pysolver.design import run_design
+
+        run_design(shape, folder, progress=False, plots=False)
+        desc = f"design stage: {shape}"
+    except (ImportError, InputError) as e:
+        log(f"design of {shape!r} failed ({e}); using a synthetic regular patch")
+        from sim.synthetic import regular_stencil, write_design
+
+        write_design(folder, regular_stencil(22, 14, central_length=7.0, radius=90.0), 0.45)
+        desc = "synthetic regular patch 22x14 on a spherical cap (R = 90 mm)"
+    (folder / ".bench_source").write_text(desc)
+    return desc
+
+
+def _load_material(log):
+    from pysolver.errors import InputError
+
+    try:
+        from pysolver.material.model import load_bracket_model
+
+        mat = load_bracket_model()
+        return mat, str(mat.path)
+    except (ImportError, InputError) as e:
+        from sim.synthetic import StandInBracketModel
+
+        log(f"no fitted bracket model ({e}); using the stand-in force law")
+        return StandInBracketModel(t_soft=20.0), "stand-in (sim.synthetic)"
+
+
+def _material(folder: Path, log):
+    from pysolver.errors import InputError
+
+    try:
+        from pysolver.material.model import load_bracket_model
+
+        mat = load_bracket_model()
+    except (ImportError, InputError) as e:
+        from sim.synthetic import StandInBracketModel
+
+        log(f"no fitted bracket model ({e}); using the stand-in force law")
+        return StandInBracketModel(t_soft=20.0), "stand-in (sim.synthetic)", "design default"
+    try:
+        from pysolver.temporal import program_design
+
+        program_design(folder, material=mat, progress=False, picture=False)
+        prog = "programmed (pysolver.temporal)"
+    except (ImportError, InputError) as e:
+        log(f"programming failed ({e}); keeping the design thicknesses")
+        prog = "design default"
+    return mat, str(getattr(mat, "path", type(mat).__name__)), prog
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--shape", default="weave:large")
+    ap.add_argument("--t-end", type=float, default=120.0)
+    ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
+    ap.add_argument("--top", type=int, default=30, help="profile entries to keep")
+    ap.add_argument("--prepare-only", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def log(msg):
+        print(f"[bench_sim] {msg}", file=sys.stderr, flush=True)
+
+    folder = out / f"sim_{args.shape.replace(':', '_').replace('=', '')}"
+    t0 = time.perf_counter()
+    if args.prepare_only:  # child process: design + programming (their memory is not ours)
+        _design(args.shape, folder, log)
+        _, mat_desc, prog = _material(folder, log)
+        (folder / ".bench_program").write_text(prog)
+        return 0
+    import subprocess
+
+    subprocess.run([sys.executable, __file__, "--prepare-only", "--shape", args.shape,
+                    "--out", str(out)], check=True)
+    source = (folder / ".bench_source").read_text()
+    prog = (folder / ".bench_program").read_text()
+    mat, mat_desc = _load_material(log)
+    t_prep = time.perf_counter() - t0
+
+    from sim import kernels
+    from sim.model import load_model
+    from sim.simulate import completion_times, simulate_design
+
+    t0 = time.perf_counter()
+    kernels.warm_up()  # numba compilation (cached on disk after the first run)
+    t_compile = time.perf_counter() - t0
+    model = load_model(folder)
+    log(f"{source}: {model.summary()}; material {mat_desc}; thickness {prog}")
+    load0 = os.getloadavg()
+    prof = cProfile.Profile()
+    c0, w0 = time.process_time(), time.perf_counter()
+    prof.enable()
+    summary = simulate_design(folder, t_end=args.t_end, material=mat, progress=True,
+                              resume=False, checkpoint_every=0)
+    prof.disable()
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    load1 = os.getloadavg()
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    with np.load(folder / "sim" / "frames.npz") as z:
+        it = z["newton_iterations"]
+        ws = z["wall_s"]
+        conv = z["converged"]
+        tc = completion_times({"t": z["t"], "collided": z["collided"]})
+    steps = len(it) - 1
+    res = {
+        "wall_s": round(wall, 2),
+        "cpu_s": round(cpu, 2),
+        "steps": int(steps),
+        "frames": int(len(it)),
+        "t_end_s": args.t_end,
+        "per_step_wall_s": {"mean": round(float(ws.mean()), 4),
+                            "median": round(float(np.median(ws)), 4),
+                            "max": round(float(ws.max()), 4), "dry": round(float(ws[0]), 4)},
+        "newton_iterations": {"total": int(it.sum()), "mean": round(float(it.mean()), 3),
+                              "median": float(np.median(it)), "max": int(it.max()),
+                              "dry": int(it[0]),
+                              "histogram": np.bincount(it).tolist()},
+        "converged_steps": int(conv.sum()),
+        "completed_cells": int(np.isfinite(tc).sum()),
+        "peak_memory_mb": round(peak_mb, 1),
+        "peak_memory_note": "max RSS of the simulating process (design and programming run "
+                            "in a child process)",
+        "model": model.summary(),
+        "source": source,
+        "material": mat_desc,
+        "thickness": prog,
+        "numba": kernels.HAVE_NUMBA,
+        "numba_compile_s": round(t_compile, 2),
+        "prepare_s": round(t_prep, 2),
+        "loadavg_start": [round(v, 2) for v in load0],
+        "loadavg_end": [round(v, 2) for v in load1],
+        "cpu_count": os.cpu_count(),
+        "omp_thread_limit": os.environ.get("OMP_THREAD_LIMIT"),
+        "summary": summary,
+        "target_wall_s": 120.0,
+    }
+    (out / "sim.json").write_text(json.dumps(res, indent=2, default=float) + "\n")
+    s = io.StringIO()
+    pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(args.top)
+    (out / "sim_profile.txt").write_text(s.getvalue())
+    log(f"wall {wall:.1f} s (cpu {cpu:.1f} s), {steps} steps, {it.sum()} Newton iterations, "
+        f"peak {peak_mb:.0f} MB -> {out / 'sim.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,224 @@
+"""Compiled (numba) kernels for the two hot loops of the Hessian assembly.
+
+Profiling the benchmark shell (~460 bases, ~8000 membrane triangles, ~9800 DOFs) showed the
+numpy assembly at ~80 ms per Newton iteration, most of it in many small array operations on
+(n, 3, 3) stacks (membrane element Hessians, rigid-body reduction of every 3x3 block, scatter).
+These two loops are written here once, element by element, and compiled with numba:
+
+* :func:`membrane_kernel` -- energy, gradient (accumulated per point) and the 9x9 point-space
+  Hessian of every incompressible neo-Hookean triangle (same formulas as
+  :func:`sim.energies.membrane_terms`, which stays the reference implementation);
+* :func:`reduce_scatter` -- rigid-body reduction ``J_p^T K J_q`` (``J = [I, -[v]x]``) of every
+  3x3 point block of a batch of elements and summation into the CSC data array of the reduced
+  Hessian through precomputed positions (-1 = not stored: upper triangle or the rotation
+  columns of a free vertex).
+
+Both are optional: without numba, :class:`sim.energies.ShellEnergy` uses the vectorised numpy
+path (same results to round-off; tested).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+try:  # soft dependency
+    from numba import njit
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - depends on the installation
+    HAVE_NUMBA = False
+
+    def njit(*args, **kwargs):
+        def wrap(f):
+            return f
+        return wrap if not (len(args) == 1 and callable(args[0])) else args[0]
+
+
+@njit(cache=True, fastmath=False)
+def membrane_kernel(X, tri, dm_inv, rest_area, mu, h, G, H, want_hessian):  # pragma: no cover
+    """Incompressible neo-Hookean CST: energy, gradient into ``G``, Hessians into ``H``.
+
+    Parameters
+    ----------
+    X : (p, 3) float -- point positions
+    tri : (t, 3) int -- point ids of each triangle
+    dm_inv : (t, 2, 2) float
+    rest_area : (t,) float
+    mu, h : float
+    G : (p, 3) float -- gradient accumulator (added to)
+    H : (t, 9, 9) float -- point-space Hessians (written when ``want_hessian``)
+    want_hessian : bool
+
+    Returns
+    -------
+    E : float -- total membrane energy
+    """
+    E = 0.0
+    nt = tri.shape[0]
+    f0 = np.empty(3)
+    f1 = np.empty(3)
+    A = np.empty((2, 3))
+    B = np.empty((3, 2))
+    HF = np.empty((2, 2, 3, 3))
+    Pm = np.empty((3, 3))
+    for t in range(nt):
+        i0, i1, i2 = tri[t, 0], tri[t, 1], tri[t, 2]
+        d00, d01 = dm_inv[t, 0, 0], dm_inv[t, 0, 1]
+        d10, d11 = dm_inv[t, 1, 0], dm_inv[t, 1, 1]
+        for k in range(3):
+            e1 = X[i1, k] - X[i0, k]
+            e2 = X[i2, k] - X[i0, k]
+            f0[k] = e1 * d00 + e2 * d10
+            f1[k] = e1 * d01 + e2 * d11
+        C00 = f0[0] * f0[0] + f0[1] * f0[1] + f0[2] * f0[2]
+        C01 = f0[0] * f1[0] + f0[1] * f1[1] + f0[2] * f1[2]
+        C11 = f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2]
+        det = C00 * C11 - C01 * C01
+        gi = 1.0 / det
+        Y00 = C11 * gi
+        Y01 = -C01 * gi
+        Y11 = C00 * gi
+        ha = h * rest_area[t]
+        E += ha * 0.5 * mu * (C00 + C11 + gi - 3.0)
+        for k in range(3):
+            A[0, k] = f0[k] * Y00 + f1[k] * Y01
+            A[1, k] = f0[k] * Y01 + f1[k] * Y11
+        B[0, 0] = -(d00 + d10)
+        B[0, 1] = -(d01 + d11)
+        B[1, 0] = d00
+        B[1, 1] = d01
+        B[2, 0] = d10
+        B[2, 1] = d11
+        for v in range(3):
+            p = tri[t, v]
+            for k in range(3):
+                P0 = mu * (f0[k] - gi * A[0, k])
+                P1 = mu * (f1[k] - gi * A[1, k])
+                G[p, k] += ha * (B[v, 0] * P0 + B[v, 1] * P1)
+        if not want_hessian:
+            continue
+        for i in range(3):
+            for j in range(3):
+                Pm[i, j] = A[0, i] * f0[j] + A[1, i] * f1[j]
+        for a in range(2):
+            for c in range(2):
+                if a == 0 and c == 0:
+                    y = Y00
+                elif a == 1 and c == 1:
+                    y = Y11
+                else:
+                    y = Y01
+                dac = 1.0 if a == c else 0.0
+                for i in range(3):
+                    for j in range(3):
+                        val = gi * y * Pm[i, j] + gi * (2.0 * A[a, i] * A[c, j]
+                                                        + A[c, i] * A[a, j])
+                        if i == j:
+                            val += dac - gi * y
+                        HF[a, c, i, j] = mu * val
+        for v in range(3):
+            for w in range(3):
+                b00 = B[v, 0] * B[w, 0] * ha
+                b01 = B[v, 0] * B[w, 1] * ha
+                b10 = B[v, 1] * B[w, 0] * ha
+                b11 = B[v, 1] * B[w, 1] * ha
+                for i in range(3):
+                    for j in range(3):
+                        H[t, 3 * v + i, 3 * w + j] = (b00 * HF[0, 0, i, j] + b01 * HF[0, 1, i, j]
+                                                      + b10 * HF[1, 0, i, j]
+                                                      + b11 * HF[1, 1, i, j])
+    return E
+
+
+@njit(cache=True, fastmath=False)
+def reduce_scatter(Hp, pts, V, pos, data):  # pragma: no cover
+    """Rigid-body reduction of element point Hessians and summation into CSC data.
+
+    Parameters
+    ----------
+    Hp : (n, 3k, 3k) float -- point-space element Hessians
+    pts : (n, k) int -- point ids
+    V : (p, 3) float -- rotated local offsets ``v = R t`` (0 for free points)
+    pos : (n, 6k, 6k) int -- CSC data position of each reduced entry, -1 = dropped
+    data : (nnz,) float -- accumulator
+    """
+    n, k = pts.shape
+    R = np.empty((6, 6))
+    TR = np.empty((3, 3))
+    for e in range(n):
+        for a in range(k):
+            va0, va1, va2 = V[pts[e, a], 0], V[pts[e, a], 1], V[pts[e, a], 2]
+            for b in range(k):
+                vb0, vb1, vb2 = V[pts[e, b], 0], V[pts[e, b], 1], V[pts[e, b], 2]
+                ra, rb = 3 * a, 3 * b
+                # K = Hp block; TT = K, TR = -K [vb]x, RT = [va]x K, RR = [va]x TR
+                for i in range(3):
+                    K0 = Hp[e, ra + i, rb + 0]
+                    K1 = Hp[e, ra + i, rb + 1]
+                    K2 = Hp[e, ra + i, rb + 2]
+                    R[i, 0] = K0
+                    R[i, 1] = K1
+                    R[i, 2] = K2
+                    TR[i, 0] = -(vb2 * K1 - vb1 * K2)
+                    TR[i, 1] = -(vb0 * K2 - vb2 * K0)
+                    TR[i, 2] = -(vb1 * K0 - vb0 * K1)
+                    R[i, 3] = TR[i, 0]
+                    R[i, 4] = TR[i, 1]
+                    R[i, 5] = TR[i, 2]
+                for j in range(3):
+                    K0 = Hp[e, ra + 0, rb + j]
+                    K1 = Hp[e, ra + 1, rb + j]
+                    K2 = Hp[e, ra + 2, rb + j]
+                    R[3, j] = va1 * K2 - va2 * K1
+                    R[4, j] = va2 * K0 - va0 * K2
+                    R[5, j] = va0 * K1 - va1 * K0
+                    T0, T1, T2 = TR[0, j], TR[1, j], TR[2, j]
+                    R[3, 3 + j] = va1 * T2 - va2 * T1
+                    R[4, 3 + j] = va2 * T0 - va0 * T2
+                    R[5, 3 + j] = va0 * T1 - va1 * T0
+                oa, ob = 6 * a, 6 * b
+                for r in range(6):
+                    for c in range(6):
+                        p = pos[e, oa + r, ob + c]
+                        if p >= 0:
+                            data[p] += R[r, c]
+
+
+@njit(cache=True, fastmath=False)
+def cross_point_hessian(weight, G, Ka, Kb, out):  # pragma: no cover
+    """Point-space Hessians (n, 12, 12) of cross pairs: ``w G G^T`` plus ``[[K,-K],[-K,K]]``
+    with ``Ka`` on points (0, 1) and ``Kb`` on points (2, 3) (see ``sim.energies.cross_terms``).
+    """
+    n = G.shape[0]
+    for e in range(n):
+        w = weight[e]
+        for a in range(4):
+            for i in range(3):
+                gi = w * G[e, a, i]
+                for b in range(4):
+                    for j in range(3):
+                        out[e, 3 * a + i, 3 * b + j] = gi * G[e, b, j]
+        for a in range(2):
+            for b in range(2):
+                sgn = 1.0 if a == b else -1.0
+                for i in range(3):
+                    for j in range(3):
+                        out[e, 3 * a + i, 3 * b + j] += sgn * Ka[e, i, j]
+                        out[e, 6 + 3 * a + i, 6 + 3 * b + j] += sgn * Kb[e, i, j]
+
+
+def warm_up() -> None:
+    """Compile the kernels on a tiny input (numba caches them on disk)."""
+    if not HAVE_NUMBA:
+        return
+    X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    tri = np.array([[0, 1, 2]])
+    dmi = np.eye(2)[None] * 3.0
+    G = np.zeros((3, 3))
+    H = np.zeros((1, 9, 9))
+    membrane_kernel(X, tri, dmi, np.ones(1), 0.72, 0.5, G, H, True)
+    pos = -np.ones((1, 18, 18), dtype=np.int32)
+    reduce_scatter(H, tri, X, pos, np.zeros(1))
+
+
+__all__ = ["HAVE_NUMBA", "membrane_kernel", "reduce_scatter", "cross_point_hessian", "warm_up"]

@@ -1,0 +1,481 @@
+"""Simulation model of a shell: rigid bases, bracket springs, cross pairs and the membrane.
+
+Facts restated from ``shared/design/simulator.md`` §3-§6 (no reference code):
+
+* every stencil face is a rigid **base** with 6 DOF (centre + rotation vector); its 12
+  bracket nodes (slot j, arm k, layer s) come from :func:`pysolver.cellnodes.bracket_nodes`;
+* every unit cell has 4 **bracket springs** (index ``4c + 2s + q``: base a's arm q to base b's
+  arm 1 - q in layer s) whose bumper (collision) length is the target-pose distance of the
+  node pair, and 4 **cross pairs** (an in-plane X per layer, a through-thickness X per end);
+* the **membrane** is a Triangle mesh (switches ``pzq20a5Q``) of the flat mid-plane between
+  the base outlines (§6.6); vertices on a base outline are rigidly attached to that base, the
+  others are free 3-DOF nodes.
+
+Conventions.  A base's pose maps its flat position ``p`` to ``c + R (p - (x, y, 0))``:
+``c`` is the current position of the base centre (flat face centroid) and ``R`` the
+accumulated rotation (identity in the flat layout).  Each *point* of the model (bracket
+node or membrane vertex) is either attached to a base (``point_body >= 0``, local offset
+``point_local`` from the base centre in the flat frame) or free (its own 3 DOF).
+
+Reduced DOF vector: ``[c_0, theta_0, c_1, theta_1, ..., f_0, f_1, ...]`` -- 6 per base
+(centre mm, rotation vector rad, applied on the left of the accumulated rotation) and 3 per
+free membrane vertex (mm).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pysolver.errors import InputError
+from pysolver.params import SIM, UNIT_CELL, SimConstants, UnitCell
+
+CROSS_REST_MODES = ("flat", "zero")
+
+
+@dataclass
+class ShellModel:
+    """Everything the energies need, precomputed once (mm, N, s).
+
+    Attributes
+    ----------
+    V : (n, 3) float, mm -- target stencil vertices
+    UV : (n, 2) float, mm -- flat stencil vertices
+    F : (m, 3) int -- stencil faces = bases
+    base_flat : (m, 3) float, mm -- flat base centres (x, y, 0)
+    base_target : (m, 3) float, mm -- target base centres
+    base_target_rotation : (m, 3, 3) float -- flat pose -> target pose rotation
+    cell_bases, cell_slots : (c, 2) int
+    cell_boundary : (c,) bool -- boundary cell (FFb)
+    cell_bracket_length : (c,) float, mm -- flat bracket length b (material model axis)
+    cell_thickness : (c, 2) float, mm -- bracket thickness (top, bottom)
+    point_body : (p,) int -- base of each point, -1 = free
+    point_free : (p,) int -- free index of each point, -1 = attached
+    point_local : (p, 3) float, mm -- offset from the base centre (attached) or flat position
+    spring_points : (4c, 2) int -- bracket springs (point on base a, point on base b)
+    spring_rest0 : (4c,) float, mm -- flat length (initial rest length)
+    spring_collision : (4c,) float, mm -- bumper contact length L_c
+    cross_points : (4c, 4) int -- (a0, a1, b0, b1): segments a0-a1 and b0-b1
+    cross_weight : (4c,) float, N/mm -- kappa_s * (flat La + flat Lb)
+    cross_rest : (4c,) float, mm -- R0
+    mem_point : (v,) int -- point id of each membrane vertex
+    mem_flat : (v, 3) float, mm -- flat membrane vertices (z = 0)
+    mem_body : (v,) int -- base a membrane vertex is attached to, -1 = free
+    mem_triangles : (t, 3) int -- membrane triangles (membrane vertex ids, CCW in flat)
+    tri_points : (t, 3) int -- same triangles as point ids
+    tri_dm_inv : (t, 2, 2) float, 1/mm -- inverse rest edge matrix (flat / tau)
+    tri_rest_area : (t,) float, mm^2 -- rest area (flat area / tau^2)
+    node_point : (m, 3, 2, 2) int -- point id of bracket node [base, slot, k, layer], -1 unused
+    consts : SimConstants
+    unit : UnitCell
+    """
+
+    V: np.ndarray
+    UV: np.ndarray
+    F: np.ndarray
+    base_flat: np.ndarray
+    base_target: np.ndarray
+    base_target_rotation: np.ndarray
+    cell_bases: np.ndarray
+    cell_slots: np.ndarray
+    cell_boundary: np.ndarray
+    cell_bracket_length: np.ndarray
+    cell_thickness: np.ndarray
+    point_body: np.ndarray
+    point_free: np.ndarray
+    point_local: np.ndarray
+    spring_points: np.ndarray
+    spring_rest0: np.ndarray
+    spring_collision: np.ndarray
+    cross_points: np.ndarray
+    cross_weight: np.ndarray
+    cross_rest: np.ndarray
+    mem_point: np.ndarray
+    mem_flat: np.ndarray
+    mem_body: np.ndarray
+    mem_triangles: np.ndarray
+    tri_points: np.ndarray
+    tri_dm_inv: np.ndarray
+    tri_rest_area: np.ndarray
+    node_point: np.ndarray
+    consts: SimConstants = SIM
+    unit: UnitCell = UNIT_CELL
+    source: str = ""
+    info: dict = field(default_factory=dict)
+
+    # -- sizes ------------------------------------------------------------------------------------
+    @property
+    def n_bases(self) -> int:
+        return len(self.F)
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cell_bases)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.point_body)
+
+    @property
+    def n_free(self) -> int:
+        return int((self.point_body < 0).sum())
+
+    @property
+    def n_dof(self) -> int:
+        return 6 * self.n_bases + 3 * self.n_free
+
+    @property
+    def free_points(self) -> np.ndarray:
+        """(n_free,) int: point id of each free vertex, in free-index order."""
+        idx = np.flatnonzero(self.point_body < 0)
+        return idx[np.argsort(self.point_free[idx])]
+
+    @property
+    def spring_cell(self) -> np.ndarray:
+        return np.repeat(np.arange(self.n_cells), 4)
+
+    @property
+    def spring_layer(self) -> np.ndarray:
+        """(4c,) int: layer of each spring (0 top, 1 bottom)."""
+        return np.tile([0, 0, 1, 1], self.n_cells)
+
+    @property
+    def spring_thickness(self) -> np.ndarray:
+        return self.cell_thickness[self.spring_cell, self.spring_layer]
+
+    @property
+    def spring_bracket_length(self) -> np.ndarray:
+        return self.cell_bracket_length[self.spring_cell]
+
+    def dof_slices(self):
+        """Index arrays ``(translation dofs, rotation dofs)`` of the reduced vector."""
+        m = self.n_bases
+        body = (6 * np.arange(m))[:, None]
+        trans = np.r_[(body + np.arange(3)).ravel(), 6 * m + np.arange(3 * self.n_free)]
+        rot = (body + 3 + np.arange(3)).ravel()
+        return np.sort(trans), rot
+
+    def point_dofs(self) -> np.ndarray:
+        """(p, 6) int: reduced DOFs a point depends on; free points use -1 for columns 3..5."""
+        out = -np.ones((self.n_points, 6), dtype=np.int64)
+        att = self.point_body >= 0
+        out[att] = 6 * self.point_body[att, None] + np.arange(6)
+        fr = ~att
+        out[fr, :3] = 6 * self.n_bases + 3 * self.point_free[fr, None] + np.arange(3)
+        return out
+
+    def fingerprint(self) -> str:
+        """SHA-256 of every array that defines the model (for checkpoints)."""
+        h = hashlib.sha256()
+        for name in ("F", "point_body", "point_local", "spring_points", "spring_rest0",
+                     "spring_collision", "cross_points", "cross_weight", "cross_rest",
+                     "tri_points", "tri_dm_inv", "cell_thickness", "cell_bracket_length",
+                     "base_flat"):
+            a = np.ascontiguousarray(getattr(self, name))
+            h.update(name.encode())
+            h.update(str(a.dtype).encode() + str(a.shape).encode())
+            h.update(a.tobytes())
+        h.update(repr(self.consts).encode())
+        return h.hexdigest()
+
+    def summary(self) -> dict:
+        return {"bases": self.n_bases, "cells": self.n_cells, "membrane_vertices":
+                len(self.mem_point), "membrane_free_vertices": self.n_free,
+                "membrane_triangles": len(self.mem_triangles), "dofs": self.n_dof,
+                "springs": len(self.spring_points), "cross_pairs": len(self.cross_points)}
+
+
+# ------------------------------------------------------------------------------------------------
+# membrane mesh (simulator.md §6.6)
+
+
+def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.membrane_max_area,
+                  min_angle=SIM.membrane_min_angle):
+    """Triangulate the flat membrane between the base outlines.
+
+    The PSLG is built from the flat corner nodes ``corner_xy[f, j, k]`` of every interior
+    side: per cell and per side (f, j) the base side segment (f,j,0)-(f,j,1); then at the
+    corner by vertex ``F[f,(j+2)%3]`` either the base's corner edge (f,j,1)-(f,(j+1)%3,0)
+    (interior vertex) or, at a boundary vertex, an open segment across the cell to the
+    partner's facing node (free membrane edge).  Holes at the base centres remove the bases.
+
+    Parameters
+    ----------
+    corner_xy : (m, 3, 2, 2) float, mm
+        Flat xy of the bracket nodes ``[base, slot, k, xy]``.
+    F : (m, 3) int
+    ff : (m, 3) int
+        Face adjacency (``pysolver.layout.face_adjacency``).
+    cells : pysolver.layout.Cells
+    vertex_boundary : (n,) bool
+        Stencil vertex lies on the boundary.
+    max_area : float, mm^2
+    min_angle : float, deg
+
+    Returns
+    -------
+    xy : (v, 2) float, mm
+    tris : (t, 3) int, CCW
+    body : (v,) int
+        Base a vertex lies on (outline), -1 for free vertices.
+    """
+    import triangle
+
+    F = np.asarray(F)
+    a, b = cells.faces[:, 0], cells.faces[:, 1]
+    ja, jb = cells.slots[:, 0], cells.slots[:, 1]
+    f = np.r_[a, b]
+    j = np.r_[ja, jb]
+    fo = np.r_[b, a]
+    jo = np.r_[jb, ja]
+    cid = lambda ff_, jj, kk: 6 * ff_ + 2 * jj + kk  # noqa: E731
+    side = np.c_[cid(f, j, 0), cid(f, j, 1)]
+    corner_vertex = F[f, (j + 2) % 3]
+    open_ = vertex_boundary[corner_vertex]
+    corner = np.c_[cid(f, j, 1), np.where(open_, cid(fo, jo, 0), cid(f, (j + 1) % 3, 0))]
+    seg = np.r_[side, corner]
+    mark = np.r_[f + 2, np.where(open_, 1, f + 2)]
+    used = np.unique(seg)
+    xy_all = np.asarray(corner_xy, float).reshape(-1, 2)
+    renum = -np.ones(6 * len(F), dtype=np.int64)
+    renum[used] = np.arange(len(used))
+    pslg = {"vertices": xy_all[used], "segments": renum[seg],
+            "segment_markers": mark[:, None].astype(np.int32),
+            "vertex_markers": (used // 6 + 2)[:, None].astype(np.int32)}
+    C2 = xy_all.reshape(len(F), 6, 2).mean(axis=1)
+    pslg["holes"] = C2
+    opts = f"pzq{min_angle:g}a{max_area:g}Q"
+    out = triangle.triangulate(pslg, opts)
+    xy = np.asarray(out["vertices"], float)
+    tris = np.asarray(out["triangles"], dtype=np.int64)
+    vm = np.asarray(out["vertex_markers"]).ravel()
+    body = np.where(vm >= 2, vm - 2, -1).astype(np.int64)
+    if len(tris) == 0:
+        raise InputError("membrane meshing produced no triangle", fix="check the flat layout")
+    # keep only vertices used by triangles (Triangle keeps eaten input vertices)
+    used_v = np.unique(tris)
+    if len(used_v) != len(xy):
+        keep = -np.ones(len(xy), dtype=np.int64)
+        keep[used_v] = np.arange(len(used_v))
+        xy, body, tris = xy[used_v], body[used_v], keep[tris]
+    e1 = xy[tris[:, 1]] - xy[tris[:, 0]]
+    e2 = xy[tris[:, 2]] - xy[tris[:, 0]]
+    area = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    flip = area < 0
+    tris[flip] = tris[flip][:, [0, 2, 1]]
+    if np.any(np.abs(area) < 1e-12):
+        raise InputError("membrane meshing produced a degenerate triangle",
+                         fix="check the flat layout for overlapping bases")
+    return xy, tris, body
+
+
+# ------------------------------------------------------------------------------------------------
+# assembly
+
+
+def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collision=None,
+                consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
+                cross_rest: str = "flat", source: str = "") -> ShellModel:
+    """Assemble a :class:`ShellModel` from a scaled stencil.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+        Target stencil vertices (scaled, as in ``stencil.obj``).
+    UV : (n, 2) float, mm
+        Flat stencil vertices (scaled), faces CCW.
+    F : (m, 3) int
+    thickness : (c, 2) float, mm
+        Bracket thickness per cell (face-major order) and layer (top, bottom).
+    rotvec : (m, 3) float, rad, optional
+        Base rotations flat -> target (``bases.csv``); recomputed if omitted.
+    bracket_length : (c,) float, mm, optional
+        Flat bracket length b per cell for the material model (``cells.csv``); default
+        flat central length minus ``unit.bracket_offset``.
+    collision : (c, 2) float, mm, optional
+        Per-layer collision lengths (``cells.csv``).  The per-spring lengths are the target
+        distances of each node pair, shifted per cell and layer so that their mean equals
+        this value (a no-op for an unedited design).
+    consts : SimConstants
+    unit : UnitCell
+    cross_rest : {"flat", "zero"}
+        Cross-pair rest difference R0: ``"flat"`` (SI Note 2: the difference in the initial
+        configuration, zero force at rest) or ``"zero"`` (the reference code).
+    source : str
+        Description for messages.
+
+    Returns
+    -------
+    ShellModel
+    """
+    from pysolver.cellnodes import bracket_nodes
+    from pysolver.layout import (
+        boundary_vertex_mask,
+        face_adjacency,
+        face_centroids,
+        unit_cells,
+    )
+
+    V = np.asarray(V, float)
+    UV = np.asarray(UV, float)
+    F = np.asarray(F, dtype=np.int64)
+    if cross_rest not in CROSS_REST_MODES:
+        raise InputError(f"cross_rest must be one of {CROSS_REST_MODES}, got {cross_rest!r}")
+    ff = face_adjacency(F)
+    cells = unit_cells(F, ff)
+    c = len(cells.faces)
+    if c == 0:
+        raise InputError(f"{source or 'stencil'}: no unit cell (interior edge)",
+                         fix="use a stencil with at least two adjacent triangles")
+    thickness = np.asarray(thickness, float)
+    if thickness.shape != (c, 2):
+        raise InputError(f"{source or 'model'}: thickness has shape {thickness.shape}, "
+                         f"expected ({c}, 2) (cells x layers)")
+    if not np.all(np.isfinite(thickness)) or np.any(thickness <= 0):
+        k = int(np.flatnonzero(~(np.isfinite(thickness) & (thickness > 0)).any(1))[0])
+        raise InputError(f"{source or 'model'}: cell {k} has thickness {thickness[k].tolist()}",
+                         fix="bracket thicknesses must be positive (0.30-0.65 mm); run the "
+                             "temporal (program) stage")
+    nodes_t, nodes_f = bracket_nodes(V, UV, F, unit, ff=ff, rotvec=rotvec)
+    m = len(F)
+    C2 = face_centroids(UV, F)
+    base_flat = np.c_[C2, np.zeros(m)]
+    base_target = face_centroids(V, F)
+    if rotvec is None:
+        from pysolver.layout import base_rotations
+
+        Rt, _ = base_rotations(V, UV, F, ff)
+    else:
+        from pysolver.frames import rotvec_to_matrix
+
+        Rt = rotvec_to_matrix(np.asarray(rotvec, float).reshape(-1, 3))
+
+    # --- bracket node points (only nodes of interior slots)
+    interior = ff >= 0  # (m, 3)
+    node_point = -np.ones((m, 3, 2, 2), dtype=np.int64)
+    mask = np.broadcast_to(interior[:, :, None, None], node_point.shape)
+    n_nodes = int(mask.sum())
+    node_point[mask] = np.arange(n_nodes)
+    bi = np.broadcast_to(np.arange(m)[:, None, None, None], node_point.shape)[mask]
+    node_local = (nodes_f - base_flat[:, None, None, None, :])[mask]
+
+    # --- springs and cross pairs (simulator.md §5)
+    fa, fb = cells.faces[:, 0], cells.faces[:, 1]
+    ja, jb = cells.slots[:, 0], cells.slots[:, 1]
+
+    def node(f, j, k, s):
+        return node_point[f, j, k, s]
+
+    sp, xp = [], []
+    for s in (0, 1):
+        for q in (0, 1):
+            sp.append(np.c_[node(fa, ja, q, s), node(fb, jb, 1 - q, s)])
+        xp.append(np.c_[node(fa, ja, 0, s), node(fb, jb, 0, s),
+                        node(fa, ja, 1, s), node(fb, jb, 1, s)])
+        xp.append(np.c_[node(fa, ja, s, 0), node(fb, jb, 1 - s, 1),
+                        node(fa, ja, s, 1), node(fb, jb, 1 - s, 0)])
+    spring_points = np.stack(sp, axis=1).reshape(-1, 2)  # cell-major, index 4c + 2s + q
+    cross_points = np.stack(xp, axis=1).reshape(-1, 4)
+    assert np.all(spring_points >= 0) and np.all(cross_points >= 0)
+    flat_nodes = nodes_f[mask]
+    targ_nodes = nodes_t[mask]
+    seg_len = lambda P, i, k: np.linalg.norm(P[i[:, k]] - P[i[:, k - 1]], axis=1)  # noqa: E731
+    rest0 = seg_len(flat_nodes, spring_points, 1)
+    Lc = seg_len(targ_nodes, spring_points, 1)
+    if collision is not None:
+        collision = np.asarray(collision, float)
+        if collision.shape != (c, 2):
+            raise InputError(f"{source}: collision lengths have shape {collision.shape}, "
+                             f"expected ({c}, 2)")
+        mean = Lc.reshape(c, 2, 2).mean(axis=2)
+        Lc = (Lc.reshape(c, 2, 2) + (collision - mean)[:, :, None]).ravel()
+    if np.any(Lc <= 0):
+        k = int(np.flatnonzero(Lc <= 0)[0]) // 4
+        raise InputError(f"{source}: cell {k} has a non-positive collision length",
+                         fix="check cells.csv collision_length_* columns")
+    La = seg_len(flat_nodes, cross_points, 1)
+    Lb = np.linalg.norm(flat_nodes[cross_points[:, 3]] - flat_nodes[cross_points[:, 2]], axis=1)
+    cross_weight = consts.kappa_s * (La + Lb)
+    cross_rest_v = (La - Lb) if cross_rest == "flat" else np.zeros_like(La)
+    if bracket_length is None:
+        bracket_length = np.linalg.norm(C2[fb] - C2[fa], axis=1) - unit.bracket_offset
+    bracket_length = np.asarray(bracket_length, float)
+    if bracket_length.shape != (c,) or np.any(bracket_length <= 0):
+        raise InputError(f"{source}: bracket lengths must be ({c},) positive values",
+                         fix="check cells.csv bracket_length_mm")
+
+    # --- membrane
+    vb = boundary_vertex_mask(F, ff, len(V))
+    xy, tris, mbody = membrane_mesh(nodes_f[:, :, :, 0, :2], F, ff, cells, vb,
+                                    max_area=consts.membrane_max_area,
+                                    min_angle=consts.membrane_min_angle)
+    nm = len(xy)
+    mem_flat = np.c_[xy, np.zeros(nm)]
+    mem_point = n_nodes + np.arange(nm)
+    point_body = np.r_[bi, mbody]
+    point_local = np.r_[node_local, np.where((mbody >= 0)[:, None],
+                                             mem_flat - base_flat[np.maximum(mbody, 0)],
+                                             mem_flat)]
+    point_free = -np.ones(len(point_body), dtype=np.int64)
+    fr = point_body < 0
+    point_free[fr] = np.arange(int(fr.sum()))
+    tau = consts.tau
+    P = xy[tris]
+    Dm = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2) / tau  # columns = edges
+    det = Dm[:, 0, 0] * Dm[:, 1, 1] - Dm[:, 0, 1] * Dm[:, 1, 0]
+    dm_inv = np.stack([np.stack([Dm[:, 1, 1], -Dm[:, 0, 1]], 1),
+                       np.stack([-Dm[:, 1, 0], Dm[:, 0, 0]], 1)], 1) / det[:, None, None]
+    return ShellModel(
+        V=V, UV=UV, F=F, base_flat=base_flat, base_target=base_target, base_target_rotation=Rt,
+        cell_bases=cells.faces.copy(), cell_slots=cells.slots.copy(),
+        cell_boundary=cells.boundary.copy(), cell_bracket_length=bracket_length,
+        cell_thickness=thickness, point_body=point_body, point_free=point_free,
+        point_local=point_local, spring_points=spring_points, spring_rest0=rest0,
+        spring_collision=Lc, cross_points=cross_points, cross_weight=cross_weight,
+        cross_rest=cross_rest_v, mem_point=mem_point, mem_flat=mem_flat, mem_body=mbody,
+        mem_triangles=tris, tri_points=mem_point[tris], tri_dm_inv=dm_inv,
+        tri_rest_area=0.5 * np.abs(det), node_point=node_point, consts=consts, unit=unit,
+        source=source)
+
+
+def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
+               cross_rest: str = "flat") -> ShellModel:
+    """Assemble the model of a design folder (``stencil.obj``, ``bases.csv``, ``cells.csv``).
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder (``docs/design-folder.md``).
+
+    Returns
+    -------
+    ShellModel
+
+    Raises
+    ------
+    InputError
+        Missing files, inconsistent tables or missing thicknesses, naming the file and row.
+    """
+    from pysolver.tables import read_design
+
+    folder = Path(design_dir)
+    d = read_design(folder)
+    c = d.cells
+    th = np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]]
+    bad = np.flatnonzero(~np.all(np.isfinite(th) & (th > 0), axis=1))
+    if len(bad):
+        k = int(bad[0])
+        raise InputError(f"{folder / 'cells.csv'}:{k + 2}: cell {k} has bracket thickness "
+                         f"{th[k].tolist()} mm", fix="run the program (temporal) stage so every "
+                         "cell has a thickness in 0.30-0.65 mm")
+    rot = np.c_[d.bases["rot_x_rad"], d.bases["rot_y_rad"], d.bases["rot_z_rad"]]
+    coll = np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
+    return build_model(d.V, d.UV, d.F, th, rotvec=rot, bracket_length=c["bracket_length_mm"],
+                       collision=coll, consts=consts, unit=unit, cross_rest=cross_rest,
+                       source=str(folder))
+
+
+__all__ = ["ShellModel", "build_model", "load_model", "membrane_mesh", "CROSS_REST_MODES"]

@@ -1,0 +1,97 @@
+"""Calibration loop (issue 9): re-fit from a user's measurement folder, design with that model."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pysolver.material import load_bracket_model
+from pysolver.material.measurements import DEFAULT_DATA_DIR
+
+REPO = Path(__file__).resolve().parent.parent
+REMOVED = "0.50_6"  # dry specimen h = 0.5 mm, l = 6 mm (and its wet series 0.5_6_*)
+
+
+def _copy_without_specimen(dst: Path) -> None:
+    """Copy the shipped dry and wet CSVs, dropping every row of one (h, l) specimen."""
+    dst.mkdir()
+    for src in sorted(DEFAULT_DATA_DIR.glob("unit_cell_*.csv")):
+        if "speed" in src.name:
+            continue
+        with open(src, newline="") as fi, open(dst / src.name, "w", newline="") as fo:
+            r, w = csv.reader(fi), csv.writer(fo, lineterminator="\n")
+            header = next(r)
+            w.writerow(header)
+            h_col, l_col = header.index("thickness_mm"), header.index("central_length_mm")
+            for row in r:
+                if abs(float(row[h_col]) - 0.5) < 1e-9 and abs(float(row[l_col]) - 6) < 1e-9:
+                    continue
+                w.writerow(row)
+
+
+@pytest.fixture(scope="module")
+def user_fit(tmp_path_factory):
+    """Fit, through the CLI, from a copy of the shipped data with one specimen removed."""
+    tmp = tmp_path_factory.mktemp("calib")
+    data = tmp / "my_data"
+    _copy_without_specimen(data)
+    out = tmp / "my_model.json"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    r = subprocess.run([sys.executable, "-m", "pysolver.cli", "--quiet", "fit-material",
+                        "--data", str(data), "--out", str(out), "--report", str(tmp / "report")],
+                       capture_output=True, text=True, env=env, cwd=REPO, timeout=1200)
+    assert r.returncode == 0, r.stderr
+    return tmp, out, r.stdout
+
+
+def test_fit_without_one_specimen_reports_it(user_fit):
+    tmp, out, stdout = user_fit
+    assert out.is_file()
+    assert "missing from the standard design" in stdout and "[0.5, 6" in stdout
+    report = json.loads((tmp / "report" / "fit_report.json").read_text())
+    assert [0.5, 6.0] in [list(map(float, x)) for x in report["missing_specimens"]["dry"]]
+    assert (tmp / "report" / "compare_models.png").is_file()
+
+
+def test_user_model_differs_from_default_but_is_close(user_fit):
+    """One specimen fewer changes the fit a little, not wholesale (force at a typical point)."""
+    _, out, _ = user_fit
+    a, b = load_bracket_model(), load_bracket_model(out)
+    h, bl, t, x = 0.5, 2.8, 30.0, 0.5
+    fa, fb = float(a.force(h, bl, t, x)), float(b.force(h, bl, t, x))
+    assert fa != fb
+    assert abs(fa - fb) / fa < 0.5
+
+
+def test_committed_model_untouched(user_fit):
+    from pysolver.material.model import DEFAULT_MODEL_PATH
+
+    before = Path(DEFAULT_MODEL_PATH).read_bytes()
+    assert load_bracket_model().force(0.5, 2.8, 30.0, 0.5) == pytest.approx(
+        load_bracket_model(DEFAULT_MODEL_PATH).force(0.5, 2.8, 30.0, 0.5))
+    assert Path(DEFAULT_MODEL_PATH).read_bytes() == before
+
+
+def test_material_option_changes_thicknesses(user_fit, tmp_path):
+    """MATERIAL= is honoured end to end: another model gives other thicknesses."""
+    temporal = pytest.importorskip("pysolver.temporal")
+    from pysolver.design import run_design
+    from pysolver.tables import read_cells
+
+    _, out, _ = user_fit
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d in (a, b):
+        run_design("dome", d, progress=False, plots=False)
+        shutil.copy(d / "cells.csv", d / "cells.orig.csv")
+    temporal.program_design(a, progress=False)
+    temporal.program_design(b, material=str(out), progress=False)
+    ca, cb = read_cells(a / "cells.csv"), read_cells(b / "cells.csv")
+    assert not np.allclose(ca["thickness_top_mm"], cb["thickness_top_mm"])

@@ -1,0 +1,55 @@
+"""A designed dome morphs into its target shape (design -> program -> simulate).
+
+Tolerances: every step converges (1e-6 N); at least 95 % of the cells reach their bumpers in
+both layers by t = 120 s; the final base centres are within 1 % of the target size (bounding
+box diagonal, ~100 mm) RMS of the designed 3D centres after a rigid (Kabsch) alignment.  The
+residual (~0.4 % with the fitted model) comes from the two brackets of a layer having slightly
+different contact lengths and from the contact springs' compliance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.simulate import completion_times, simulate_design
+
+
+def _kabsch_rms(A, B):
+    a0, b0 = A.mean(0), B.mean(0)
+    U, _, Vt = np.linalg.svd((A - a0).T @ (B - b0))
+    d = np.sign(np.linalg.det(U @ Vt))
+    Q = (U @ np.diag([1, 1, d]) @ Vt).T
+    err = np.linalg.norm((A - a0) @ Q.T + b0 - B, axis=1)
+    return float(np.sqrt(np.mean(err**2))), float(err.max())
+
+
+def test_dome_reaches_target(tmp_path):
+    design = pytest.importorskip("pysolver.design")
+    from pysolver.errors import InputError
+
+    d = tmp_path / "dome"
+    design.run_design("dome", d, progress=False, plots=False)
+    try:
+        from pysolver.material.model import load_bracket_model
+        from pysolver.temporal import program_design
+
+        material = load_bracket_model()
+        program_design(d, material=material, progress=False, picture=False)
+    except (ImportError, InputError):  # no fitted model yet: design thickness + stand-in law
+        from sim.synthetic import StandInBracketModel
+
+        material = StandInBracketModel(t_soft=20.0)
+    summary = simulate_design(d, material=material, progress=False)
+    assert summary["nonconverged_steps"] == []
+    with np.load(d / "sim" / "frames.npz") as z:
+        C = z["base_center"][-1]
+        tc = completion_times({"t": z["t"], "collided": z["collided"]})
+    from pysolver.tables import read_table
+
+    b = read_table(d, "bases")
+    T = np.c_[b["target_x_mm"], b["target_y_mm"], b["target_z_mm"]]
+    rms, _ = _kabsch_rms(C, T)
+    size = np.linalg.norm(np.ptp(T, axis=0))
+    assert np.isfinite(tc).mean() >= 0.95
+    assert rms < 0.01 * size

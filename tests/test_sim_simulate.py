@@ -1,0 +1,135 @@
+"""simulate_design: output contract, checkpoint/resume, divergence, completion times, input errors.
+
+Tolerances: a resumed run reproduces the uninterrupted one to 1e-9 mm.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pysolver.errors import InputError, MorphshellError
+from sim import simulate as S
+from sim.synthetic import StandInBracketModel, regular_stencil, write_design
+
+
+@pytest.fixture()
+def design(tmp_path):
+    return write_design(tmp_path / "patch", regular_stencil(4, 3), thickness=0.4)
+
+
+def test_frames_contract(design):
+    summary = S.simulate_design(design, t_end=10.0, material=StandInBracketModel(),
+                                progress=False)
+    p = design / "sim" / "frames.npz"
+    assert p.exists() and not (design / "sim" / "checkpoint.npz").exists()
+    with np.load(p) as z:
+        fr = {k: z[k] for k in z.files}
+    nf = 21
+    m, c = 12, 13
+    nv, nt = len(fr["flat_membrane_vertices"]), len(fr["membrane_triangles"])
+    shapes = {"t": (nf,), "base_center": (nf, m, 3), "base_rotation": (nf, m, 3, 3),
+              "membrane_vertices": (nf, nv, 3), "membrane_triangles": (nt, 3),
+              "bracket_length": (nf, c, 4), "collided": (nf, c, 4), "newton_iterations": (nf,),
+              "residual": (nf,), "wall_s": (nf,), "converged": (nf,), "marker_top": (nf, m, 3),
+              "marker_bottom": (nf, m, 3)}
+    for k, s in shapes.items():
+        assert fr[k].shape == s, k
+    assert np.allclose(fr["t"], np.arange(nf) * 0.5)
+    assert fr["collided"].dtype == bool and fr["converged"].all()
+    R = fr["base_rotation"]
+    assert np.allclose(R @ np.transpose(R, (0, 1, 3, 2)), np.eye(3), atol=1e-12)
+    # marker tips: far-face centres, 2.3 mm from the base centre along the base normal
+    d = fr["marker_top"] - fr["base_center"]
+    assert np.allclose(np.linalg.norm(d, axis=2), 2.3)
+    assert np.allclose(fr["marker_bottom"] - fr["base_center"], -d)
+    assert summary["steps"] == nf and summary["converged_steps"] == nf
+    js = json.loads((design / "sim" / "summary.json").read_text())
+    assert js["steps"] == nf
+
+
+def test_resume_from_checkpoint(design, monkeypatch, tmp_path):
+    kw = dict(t_end=15.0, material=StandInBracketModel(), progress=False)
+    ref_dir = write_design(tmp_path / "ref", regular_stencil(4, 3), thickness=0.4)
+    S.simulate_design(ref_dir, **kw)
+    with np.load(ref_dir / "sim" / "frames.npz") as z:
+        ref = {k: z[k] for k in z.files}
+
+    real_step = S.Simulation.step
+    calls = {"n": 0}
+
+    def interrupted(self):
+        calls["n"] += 1
+        if calls["n"] > 17:
+            raise KeyboardInterrupt
+        return real_step(self)
+
+    monkeypatch.setattr(S.Simulation, "step", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        S.simulate_design(design, checkpoint_every=5, **kw)
+    assert (design / "sim" / "checkpoint.npz").exists()
+    assert not (design / "sim" / "frames.npz").exists()
+    monkeypatch.setattr(S.Simulation, "step", real_step)
+    calls["n"] = 0
+    counted = {"n": 0}
+
+    def counting(self):
+        counted["n"] += 1
+        return real_step(self)
+
+    monkeypatch.setattr(S.Simulation, "step", counting)
+    S.simulate_design(design, checkpoint_every=5, **kw)
+    assert counted["n"] == 31 - 15  # resumed at the last checkpoint (step 15)
+    with np.load(design / "sim" / "frames.npz") as z:
+        for k in ("base_center", "membrane_vertices", "bracket_length", "collided"):
+            assert np.allclose(z[k], ref[k], atol=1e-9, rtol=0), k
+
+
+class _Breaking(StandInBracketModel):
+    """Brackets that turn NaN after 3 s (a broken material file)."""
+
+    def coefficients(self, h, b, t, eta=0.0):
+        c = super().coefficients(h, b, t, eta=eta)
+        return c * np.nan if np.max(t) > 3.0 else c
+
+
+def test_divergence_keeps_frames_and_names_the_step(design):
+    with pytest.raises(MorphshellError, match=r"step 7 \(t = 3.5 s\)"):
+        S.simulate_design(design, t_end=10.0, material=_Breaking(), progress=False)
+    with np.load(design / "sim" / "frames.npz") as z:
+        assert len(z["t"]) == 7 and np.all(np.isfinite(z["base_center"]))
+
+
+def test_missing_thickness_is_an_input_error(tmp_path):
+    d = write_design(tmp_path / "x", regular_stencil(4, 3), thickness=0.4)
+    txt = (d / "cells.csv").read_text().splitlines()
+    head = txt[0].split(",")
+    k = head.index("thickness_top_mm")
+    row = txt[3].split(",")
+    row[k] = "0"
+    txt[3] = ",".join(row)
+    (d / "cells.csv").write_text("\n".join(txt) + "\n")
+    with pytest.raises(InputError, match=r"cells.csv:4"):
+        S.simulate_design(d, t_end=1.0, material=StandInBracketModel(), progress=False)
+
+
+def test_bad_time_step():
+    with pytest.raises(InputError):
+        S.SimSettings(t_end=10.2, dt=0.5).times()
+
+
+def test_completion_times():
+    t = np.arange(5) * 0.5
+    col = np.zeros((5, 3, 4), dtype=bool)
+    col[2:, 0] = True  # cell 0 complete at t = 1.0
+    col[3:, 1, :2] = True  # cell 1: only the top layer
+    col[4, 2, [1, 2]] = True  # cell 2 at t = 2.0: one spring per layer
+    tc = S.completion_times({"t": t, "collided": col})
+    assert tc[0] == 1.0 and np.isnan(tc[1]) and tc[2] == 2.0
+    assert np.array_equal(S.completion_times(t, col), tc, equal_nan=True)
+    ta = S.completion_times(t, col, rule="all")
+    assert ta[0] == 1.0 and np.isnan(ta[1]) and np.isnan(ta[2])
+    with pytest.raises(InputError):
+        S.completion_times(t[:3], col)
