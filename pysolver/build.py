@@ -1,4 +1,4 @@
-"""The whole pipeline for one shape: design -> program -> render -> simulate -> report.
+"""The whole pipeline for one shape: design -> program -> simulate [-> refine] -> render -> report.
 
 ``build(shape)`` runs every stage in a staging folder ``build/.staging/<name>``
 and moves it to ``build/<name>`` only when all stages have finished, so an
@@ -133,7 +133,7 @@ def design_only(source: str, *, out=None, progress: bool = True, **options) -> d
 
 
 def check_build_options(*, jobs=None, t_end=None, dt=None, render: bool = True,
-                        simulate: bool = True) -> None:
+                        simulate: bool = True, renderer=None) -> None:
     """Refuse bad build options before any stage runs (even options of skipped stages:
     a typo should not wait for the next full build to show).
 
@@ -159,16 +159,17 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, render: bool = True,
         kw = {k: float(v) for k, v in (("t_end", t_end), ("dt", dt)) if v is not None}
         SimSettings(**kw).times()  # t_end must be a multiple of dt
     if render:
-        from .render import find_openscad
+        from .render import DEFAULT_RENDERER, check_renderer, find_openscad
 
-        find_openscad()  # missing OpenSCAD: say so now, not after the design stage
+        if check_renderer(renderer or DEFAULT_RENDERER) != "fast":
+            find_openscad()  # missing OpenSCAD: say so now, not after the design stage
 
 
 def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0,
           flattening: str = "cetm", stencil_order: bool = False, material=None,
           refine: int = 0, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
-          progress: bool = True) -> dict:
+          progress: bool = True, renderer=None) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -192,6 +193,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         Simulation time step (default 0.5 s).
     jobs : int, optional
         Parallel OpenSCAD processes.
+    renderer : {"openscad", "fast", "auto"}, optional
+        Part renderer of the render stage (default
+        :data:`pysolver.render.DEFAULT_RENDERER`), see :func:`pysolver.render.render_parts`.
 
     Returns
     -------
@@ -207,7 +211,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     from .design import check_design_options
 
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening)
-    check_build_options(jobs=jobs, t_end=t_end, dt=dt, render=render, simulate=simulate)
+    check_build_options(jobs=jobs, t_end=t_end, dt=dt, render=render, simulate=simulate,
+                        renderer=renderer)
     name = shape_name(source)
     # absolute: stages may run external tools in other working directories (OpenSCAD)
     out = (Path(out) if out else BUILD_ROOT / name).absolute()
@@ -246,10 +251,10 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         stage("design", run_design, source, staging, progress=progress, **design_opts)
         if program and _has_module("pysolver.temporal"):
             from .temporal import program_design
-            stage("program", program_design, staging, material=material, progress=progress)
-        if render:
-            from .render import render_design
-            stage("render", render_design, staging, jobs=jobs, progress=progress)
+            # A shape's own landscape gives the order of completion; its seconds are mapped
+            # onto what the material can achieve.  A user's landscape is only checked.
+            stage("program", program_design, staging, material=material, progress=progress,
+                  fit_landscape=time is None)
         if simulate:
             from sim.simulate import simulate_design
             kw = {} if t_end is None else {"t_end": t_end}
@@ -264,6 +269,11 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
                     "simulate": functools.partial(simulate_design, dt=dt)}
                 stage("refine", refine_design, staging, iterations=refine, material=material,
                       progress=progress, **kw, **hook)
+        if render:  # after refinement, so the STLs carry the final thicknesses
+            from .render import render_design
+            stage("render", render_design, staging, jobs=jobs, progress=progress,
+                  renderer=renderer)
+        if simulate:
             from sim.report import make_report
             stage("report", make_report, staging, progress=progress)
         summary["timings_s"]["total"] = round(_now() - t_build, 3)

@@ -91,7 +91,8 @@ def test_material_option_changes_thicknesses(user_fit, tmp_path):
     for d in (a, b):
         run_design("dome", d, progress=False, plots=False)
         shutil.copy(d / "cells.csv", d / "cells.orig.csv")
-    temporal.program_design(a, progress=False)
-    temporal.program_design(b, material=str(out), progress=False)
+    temporal.program_design(a, progress=False, fit_landscape=True, picture=False)
+    temporal.program_design(b, material=str(out), progress=False, fit_landscape=True,
+                            picture=False)
     ca, cb = read_cells(a / "cells.csv"), read_cells(b / "cells.csv")
     assert not np.allclose(ca["thickness_top_mm"], cb["thickness_top_mm"])

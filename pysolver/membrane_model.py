@@ -1,0 +1,958 @@
+"""Linearised membrane model F_mem(b, d): the membrane's pull on one unit cell.
+
+Temporal programming (Supplementary Note 4) needs, for every unit cell, the force
+with which the pre-stretched membrane compresses the cell's brackets when the
+cell reaches its target shape.  The paper models the membrane of a cell as one
+linear spring between the centroids of the bracket end points (the two
+"mid-side" points of the cell, whose distance is the bracket length ``b``) and
+sets ``F_mem(b, d)`` to a first-order polynomial in each variable, fitted by
+sampling FEM membrane simulations over initial bracket lengths and deformations.
+
+This module does that sampling itself (the reference's fit is not available):
+
+* **Patch.** A hexagonal patch of a regular (equilateral) stencil with flat
+  central length ``l0`` between neighbouring base centres; bracket length
+  ``b0 = l0 - 4 cos 37 deg``.  Bases are rigid hexagons with their corners at
+  radius ``base_r`` and +-37 deg around each neighbour direction, the membrane
+  mesh follows the simulator's construction (``simulator.md`` §6.6: corners
+  attached to their base, free boundary segments between the corners of
+  neighbouring bases at boundary vertices).  The mesh also conforms to the
+  stencil edges (clipped at the free boundary) so the force across each cell
+  can be read exactly element by element.
+* **Loading.** The patch contracts uniformly: every base centre is moved to
+  ``s * c`` with ``s = (l0 - d) / l0`` (bases translate, do not rotate, do not
+  shrink), so every cell's bracket length goes from ``b0`` to ``b0 - d``.  The
+  free membrane nodes are relaxed (incompressible neo-Hookean CST, rest state
+  = flat / tau, as the simulator's ``MEM_FINE`` membrane).
+* **Traction of a cell.** The force that the membrane of one face (base) exerts
+  across the shared stencil edge on the membrane of the other face, projected
+  on the cell axis (positive = pulls the bases together = compresses the
+  brackets): ``T = u . sum_seg h P N dS`` with the first Piola-Kirchhoff stress
+  ``P`` averaged over the two elements at each edge segment.  This is the force
+  the cell's four brackets must carry: summed over all cells it satisfies the
+  virtual-work identity ``dE_mem/ds = l0 * sum_c T_c`` (tested).
+* **Fit.** Interior cells (two stencil rings away from the patch boundary)
+  give the samples; ``F_mem(b, d) = c0 + c1 b + c2 d + c3 b d`` (first order in
+  each variable, SI Note 4) by least squares.  Boundary cells (an end of the
+  shared edge on the boundary, the ``boundary`` column of ``cells.csv``) are
+  compared with the model to measure the boundary weakening factor.
+
+``F_mem`` is the **total** force of the cell (all four brackets, two per
+layer); the per-bracket target used for the thickness design is ``F_mem / 4``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .errors import InputError
+from .params import SIM, UNIT_CELL
+
+MODEL_PATH = Path(__file__).resolve().parent / "data" / "membrane_model.json"
+"""The committed membrane model (written by :func:`fit_membrane_model`)."""
+
+DEFAULT_REPORT_DIR = Path("build") / "membrane"
+
+# Sampling grid of the committed fit.  l0 = flat central length of the cells (mm):
+# the material model covers l = 4..9 mm and the layout allows up to 9.5 mm.
+# d = bracket shortening (mm): collision lengths in the built-in shapes need up to
+# about 2.3 mm; cells are sampled while the bracket stays longer than MIN_BRACKET.
+SAMPLE_L0 = tuple(np.round(np.arange(4.0, 9.51, 0.5), 6))
+SAMPLE_D = tuple(np.round(np.arange(0.0, 3.01, 0.25), 6))
+MIN_BRACKET = 0.8            # mm, shortest sampled bracket ...
+MIN_BRACKET_FRACTION = 0.35  # ... and at most 65 % shortening (the gap membrane stays stretched)
+PATCH_RINGS = 3
+MESH_MAX_AREA = 0.5          # mm^2, flat; converged to ~0.3 % (the simulator uses 5)
+NEWTON_TOL = 1e-9            # N, infinity norm of the free-node gradient
+FACTOR_MESH_AREA = 1.0       # mm^2, mesh of a design's own stencil (per-cell factors)
+
+TERMS = {
+    "1": lambda b, d: np.ones_like(b),
+    "b": lambda b, d: b,
+    "d": lambda b, d: d,
+    "b*d": lambda b, d: b * d,
+    "d/b": lambda b, d: d / b,
+}
+"""Monomials a membrane model may use (b = flat bracket length b0, d = shortening, mm)."""
+
+MODEL_TERMS = ("1", "b", "d", "d/b")
+"""Chosen form: F = c0 + c1 b + (c2 + c3 / b) d -- linear in d (a linear spring per cell, as in
+SI Note 4) whose offset is linear in b and whose stiffness has a 1/b part (the membrane strip in
+the bracket gap is a spring of length ~b).  The SI's strictly bilinear form (``b*d`` instead of
+``d/b``) leaves 2.5x the rms residual and up to 10 % error on short cells (b0 < 2.5 mm); both
+fits are recorded in the model file."""
+
+SI_TERMS = ("1", "b", "d", "b*d")
+"""First order in each variable (SI Note 4's wording), fitted for comparison."""
+
+
+def form_string(terms) -> str:
+    return " + ".join(f"c{i}" + ("" if t == "1" else f"*{t}") for i, t in enumerate(terms))
+
+
+FORM = form_string(MODEL_TERMS)
+
+
+# ----------------------------------------------------------------------------------------------
+# the model
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MembraneModel:
+    """Linearised membrane traction of one unit cell.
+
+    Attributes
+    ----------
+    coef : (k,) float
+        Coefficients of ``terms`` (N, N/mm, ...).
+    terms : tuple of str
+        Monomials (keys of :data:`TERMS`), default :data:`MODEL_TERMS`:
+        ``F_mem(b, d) = c0 + c1 b + c2 d + c3 d / b``.
+    boundary_factor : float
+        Factor on ``F_mem`` of boundary cells used for the thickness design.
+    residual_rms_N, residual_max_N : float, N
+        Fit residual on the FEM samples (interior cells).
+    samples : dict
+        The FEM samples (``b0_mm``, ``d_mm``, ``force_N``) the model was fitted to.
+    meta : dict
+        Everything else in the model file (provenance).
+    """
+
+    coef: np.ndarray
+    terms: tuple = MODEL_TERMS
+    boundary_factor: float = SIM.boundary_weakening
+    residual_rms_N: float = float("nan")
+    residual_max_N: float = float("nan")
+    samples: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    def force(self, b_mm, d_mm, boundary=None):
+        """Membrane pull on a whole unit cell (all 4 brackets), N.
+
+        Parameters
+        ----------
+        b_mm : (n,) float, mm
+            Initial (flat) bracket length ``b0`` of the cell.
+        d_mm : (n,) float, mm
+            Shortening of the cell's membrane spring, ``b0 - b`` (compression positive).
+        boundary : (n,) bool, optional
+            Boundary cells; their force is multiplied by :attr:`boundary_factor`.
+
+        Returns
+        -------
+        F : (n,) float, N
+            Total membrane traction carried by the cell's 4 brackets.
+        """
+        b, d = np.broadcast_arrays(np.asarray(b_mm, dtype=float), np.asarray(d_mm, dtype=float))
+        f = _design_matrix(b.ravel(), d.ravel(), self.terms) @ self.coef
+        f = f.reshape(b.shape)
+        if boundary is not None:
+            f = np.where(np.asarray(boundary, dtype=bool), self.boundary_factor * f, f)
+        return f
+
+    def force_per_bracket(self, b_mm, d_mm, boundary=None):
+        """Target force of one single bracket: ``force(...) / 4`` (N)."""
+        return self.force(b_mm, d_mm, boundary) / 4.0
+
+
+def load_membrane_model(path=None) -> MembraneModel:
+    """Load a membrane model file (default: the committed ``pysolver/data/membrane_model.json``).
+
+    Raises
+    ------
+    InputError
+        If the file is missing or is not a membrane model.
+    """
+    if isinstance(path, MembraneModel):
+        return path
+    p = Path(path) if path is not None else MODEL_PATH
+    if not p.is_file():
+        raise InputError(f"membrane model file {str(p)!r} does not exist.",
+                         fix="run 'make membrane-model' (morphshell fit-membrane) to fit it, "
+                             "or give an existing file.")
+    try:
+        data = json.loads(p.read_text())
+        coef = np.asarray(data["coefficients"], dtype=float)
+        terms = tuple(data["terms"])
+        unknown = [t for t in terms if t not in TERMS]
+        if unknown or coef.shape != (len(terms),) or not np.all(np.isfinite(coef)):
+            raise ValueError(f"terms {terms} with {coef.size} coefficients")
+    except (ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{p} is not a membrane model file ({e}).",
+                         fix="re-fit it with 'make membrane-model'.") from None
+    s = data.get("samples", {})
+    samples = {k: np.asarray(s[k], dtype=float) for k in ("b0_mm", "d_mm", "force_N") if k in s}
+    return MembraneModel(coef=coef, terms=terms,
+                         boundary_factor=float(data.get("boundary_factor",
+                                                        SIM.boundary_weakening)),
+                         residual_rms_N=float(data["fit"]["residual_rms_N"]),
+                         residual_max_N=float(data["fit"]["residual_max_N"]),
+                         samples=samples, meta=data)
+
+
+# ----------------------------------------------------------------------------------------------
+# regular patch and its membrane mesh
+# ----------------------------------------------------------------------------------------------
+
+
+def regular_patch(l0: float, rings: int = PATCH_RINGS):
+    """Hexagonal patch of an equilateral stencil with central length ``l0``.
+
+    Parameters
+    ----------
+    l0 : float, mm
+        Distance between neighbouring face centroids (the cell's central length).
+    rings : int
+        Hexagon radius in stencil edges.
+
+    Returns
+    -------
+    V : (nv, 2) float, mm
+        Stencil vertices (flat).
+    F : (nf, 3) int
+        Faces, counter-clockwise.
+    vdist : (nv,) int
+        Hexagonal distance of each vertex from the central vertex.
+    """
+    a = math.sqrt(3.0) * l0
+    e1 = np.array([a, 0.0])
+    e2 = np.array([a / 2, a * math.sqrt(3.0) / 2])
+    idx = {}
+    V, dist = [], []
+    for j in range(-rings, rings + 1):
+        for i in range(-rings, rings + 1):
+            h = (abs(i) + abs(j) + abs(i + j)) // 2       # hex distance, 60 deg basis
+            if h <= rings:
+                idx[(i, j)] = len(V)
+                V.append(i * e1 + j * e2)
+                dist.append(h)
+    F = []
+    for j in range(-rings - 1, rings + 1):
+        for i in range(-rings - 1, rings + 1):
+            _add_faces(i, j, idx, F)
+    return np.array(V), np.array(F, dtype=int), np.array(dist, dtype=int)
+
+
+def _add_faces(i, j, idx, F):
+    """The up and down triangles of lattice rhombus (i, j) whose corners are all in ``idx``."""
+    up = [(i, j), (i + 1, j), (i, j + 1)]
+    down = [(i + 1, j), (i + 1, j + 1), (i, j + 1)]
+    for tri in (up, down):
+        if all(t in idx for t in tri):
+            F.append([idx[t] for t in tri])
+
+
+def _stencil_cells(F):
+    """Unit cells of a stencil in the design-folder order (face-major, neighbour > face).
+
+    Returns
+    -------
+    cells : (nc, 6) int
+        ``base_a, base_b, slot_a, slot_b, vertex_a, vertex_b``.
+    boundary_vertex : (nv,) bool
+    """
+    edge_faces: dict = {}
+    for f, tri in enumerate(F):
+        for j in range(3):
+            e = (int(tri[(j + 1) % 3]), int(tri[(j + 2) % 3]))
+            edge_faces.setdefault(tuple(sorted(e)), []).append((f, j))
+    nv = int(F.max()) + 1
+    bnd = np.zeros(nv, dtype=bool)
+    for e, fs in edge_faces.items():
+        if len(fs) == 1:
+            bnd[list(e)] = True
+    cells = []
+    for f, tri in enumerate(F):
+        for j in range(3):
+            e = (int(tri[(j + 1) % 3]), int(tri[(j + 2) % 3]))
+            fs = edge_faces[tuple(sorted(e))]
+            if len(fs) == 2:
+                (g, k) = fs[0] if fs[0][0] != f else fs[1]
+                if g > f:
+                    cells.append((f, g, j, k, e[0], e[1]))
+    return np.array(cells, dtype=int), bnd
+
+
+@dataclass
+class PatchMesh:
+    """Membrane mesh of a regular patch (flat, mm) and its bookkeeping."""
+
+    l0: float
+    X: np.ndarray                 # (n, 2) flat node positions
+    tri: np.ndarray               # (m, 3) membrane triangles
+    body: np.ndarray              # (n,) base of an attached node, -1 = free
+    centers: np.ndarray           # (nf, 2) flat base centres
+    cells: np.ndarray             # (nc, 6) as _stencil_cells
+    cell_boundary: np.ndarray     # (nc,) bool, an end of the shared edge is a boundary vertex
+    cell_boundary_faces: np.ndarray  # (nc,) int, fewest faces at a boundary end (0 = interior)
+    cell_depth: np.ndarray        # (nc,) int, min graph distance of the edge ends from the boundary
+    edge_segments: list           # per cell: (k, 2) node pairs along its (clipped) stencil edge
+    tri_face: np.ndarray          # (m,) stencil face containing each triangle
+
+
+def _subdivide(p, q, h):
+    n = max(1, int(math.ceil(np.linalg.norm(q - p) / h)))
+    return [p + (q - p) * (i / n) for i in range(1, n)]
+
+
+def patch_mesh(l0: float, rings: int = PATCH_RINGS, max_area: float = MESH_MAX_AREA,
+               uc=UNIT_CELL) -> PatchMesh:
+    """Membrane mesh of :func:`regular_patch` (see :func:`stencil_membrane_mesh`)."""
+    V, F, _ = regular_patch(l0, rings)
+    return stencil_membrane_mesh(V, F, max_area, uc, l0=l0)
+
+
+def _vertex_depth(F, bnd):
+    """Graph distance (edges) of every stencil vertex from the boundary."""
+    nv = len(bnd)
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    A = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(nv, nv)).tocsr()
+    A = ((A + A.T) > 0).astype(float)
+    depth = np.where(bnd, 0, -1)
+    frontier = bnd.astype(float)
+    k = 0
+    while (depth < 0).any() and frontier.any():
+        k += 1
+        nxt = (A @ frontier > 0) & (depth < 0)
+        depth[nxt] = k
+        frontier = nxt.astype(float)
+    return depth
+
+
+def stencil_membrane_mesh(V, F, max_area: float = MESH_MAX_AREA, uc=UNIT_CELL,
+                          l0: float = float("nan")) -> PatchMesh:
+    """Membrane mesh of a flat stencil following the simulator's construction.
+
+    Each base is a rigid polygon through its bracket corner points (radius
+    ``base_r``, +-alpha around each neighbour direction).  Around an interior
+    stencil vertex the membrane is bounded by the bases' corner edges; at a
+    boundary vertex a free boundary segment joins the two facing corners of
+    the cell.  The mesh conforms to the stencil edges (cells), clipped at the
+    free boundary, so cell tractions can be integrated exactly.
+
+    Parameters
+    ----------
+    V : (nv, 2) float, mm -- flat stencil vertices
+    F : (nf, 3) int -- faces (counter-clockwise)
+    max_area : float, mm^2 -- Triangle's maximum element area (flat)
+    """
+    import triangle
+
+    V = np.asarray(V, float)[:, :2]
+    F = np.asarray(F, int)
+    cells, bnd = _stencil_cells(F)
+    vdepth = _vertex_depth(F, bnd)
+    C = V[F].mean(axis=1)
+    r, al = uc.base_r, uc.alpha_rad
+    seg_h = math.sqrt(4.0 * max_area / math.sqrt(3.0))
+
+    pts: list = []
+    mark: list = []           # attached body (face) or -1
+
+    def add(p, m):
+        pts.append(np.asarray(p, dtype=float))
+        mark.append(m)
+        return len(pts) - 1
+
+    # corners per (face, slot, k): k = 0 next to F[f, slot+1], k = 1 next to F[f, slot+2]
+    corner = {}
+    nb = {}
+    for c in cells:
+        nb[(c[0], c[2])] = c[1]
+        nb[(c[1], c[3])] = c[0]
+    for (f, j), g in sorted(nb.items()):
+        dvec = C[g] - C[f]
+        dvec /= np.linalg.norm(dvec)
+        pvec = np.array([dvec[1], -dvec[0]])
+        if pvec @ (V[F[f, (j + 1) % 3]] - C[f]) < 0:
+            pvec = -pvec
+        for k, sgn in ((0, 1.0), (1, -1.0)):
+            corner[(f, j, k)] = add(C[f] + r * (math.cos(al) * dvec + sgn * math.sin(al) * pvec), f)
+    vnode = {}
+    for v in range(len(V)):
+        if not bnd[v]:
+            vnode[v] = add(V[v], -1)
+
+    segs: list = []
+
+    def chain(i0, i1, h=None):
+        """Segments from node i0 to i1, subdivided to length h (free nodes in between)."""
+        ids = [i0] + ([add(p, -1) for p in _subdivide(pts[i0], pts[i1], h)] if h else []) + [i1]
+        segs.extend(zip(ids[:-1], ids[1:], strict=True))
+        return ids
+
+    edge_nodes = []
+    for fa, fb, ja, jb, va, vb in cells:
+        for f, j in ((fa, ja), (fb, jb)):
+            chain(corner[(f, j, 0)], corner[(f, j, 1)])          # base side edge (attached)
+            w = F[f, (j + 2) % 3]                                 # vertex next to corner k=1
+            if not bnd[w]:
+                chain(corner[(f, j, 1)], corner[(f, (j + 1) % 3, 0)])   # base corner edge
+        # stencil edge va -> vb, clipped by the free segments at boundary ends
+        ends = []
+        for v in (va, vb):
+            if not bnd[v]:
+                ends.append((vnode[v], None))
+                continue
+            # free segment at v: corner of fa next to v -> corner of fb next to v
+            ka = 0 if F[fa, (ja + 1) % 3] == v else 1
+            kb = 0 if F[fb, (jb + 1) % 3] == v else 1
+            p0, p1 = pts[corner[(fa, ja, ka)]], pts[corner[(fb, jb, kb)]]
+            # the cut ends where the stencil edge line crosses the free segment; on very
+            # skewed boundary faces it may miss it: then end at the nearest point of the
+            # free segment (any cut from the inner vertex to the free boundary between the
+            # two bases separates the same two membrane pieces)
+            A = np.column_stack([V[vb] - V[va], p0 - p1])
+            try:
+                _, u_ = np.linalg.solve(A, p0 - V[va])
+            except np.linalg.LinAlgError:
+                u_ = 0.5
+            u_ = min(max(u_, 0.1), 0.9)
+            cross = add(p0 + u_ * (p1 - p0), -1)
+            ends.append((cross, (corner[(fa, ja, ka)], corner[(fb, jb, kb)])))
+        for node, free in ends:
+            if free is not None:
+                chain(free[0], node, seg_h)
+                chain(node, free[1], seg_h)
+        edge_nodes.append(chain(ends[0][0], ends[1][0], seg_h))
+
+    P = np.array(pts)
+    S = np.array(segs, dtype=int)
+    out = triangle.triangulate({"vertices": P, "segments": S, "holes": C},
+                               f"pq{SIM.membrane_min_angle:g}a{max_area:.6g}YYQ")
+    X = np.asarray(out["vertices"], dtype=float)
+    tri = np.asarray(out["triangles"], dtype=int)
+    if not np.allclose(X[:len(P)], P):
+        raise RuntimeError("Triangle reordered the input vertices")  # pragma: no cover
+    body = np.full(len(X), -1, dtype=int)
+    body[:len(P)] = mark
+    # orient counter-clockwise
+    d1, d2 = X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]]
+    neg = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0] < 0
+    tri[neg] = tri[neg][:, [0, 2, 1]]
+    # stencil face of each triangle (its centroid lies inside exactly one face)
+    g = X[tri].mean(axis=1)
+    tri_face = _locate(g, V, F)
+    depth = np.minimum(vdepth[cells[:, 4]], vdepth[cells[:, 5]])
+    seg_pairs = [np.column_stack([n[:-1], n[1:]]) for n in edge_nodes]
+    return PatchMesh(l0=l0, X=X, tri=tri, body=body, centers=C, cells=cells,
+                     cell_boundary=bnd[cells[:, 4]] | bnd[cells[:, 5]],
+                     cell_boundary_faces=_boundary_faces(F, bnd, cells), cell_depth=depth,
+                     edge_segments=seg_pairs, tri_face=tri_face)
+
+
+def _boundary_faces(F, bnd, cells):
+    """Per cell, the fewest stencil faces around a boundary end of its edge (0 = interior cell)."""
+    nfaces = np.bincount(F.ravel(), minlength=len(bnd))
+    big = np.iinfo(np.int64).max
+    fa = np.where(bnd[cells[:, 4]], nfaces[cells[:, 4]], big)
+    fb = np.where(bnd[cells[:, 5]], nfaces[cells[:, 5]], big)
+    out = np.minimum(fa, fb)
+    return np.where(out == big, 0, out)
+
+
+def _locate(p, V, F):
+    """Index of the stencil face containing each point (barycentric test), -1 if none."""
+    A, B, Cc = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    v0, v1 = B - A, Cc - A
+    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    w = p[:, None, :] - A[None]
+    l1 = (w[..., 0] * v1[None, :, 1] - w[..., 1] * v1[None, :, 0]) / det
+    l2 = (v0[None, :, 0] * w[..., 1] - v0[None, :, 1] * w[..., 0]) / det
+    inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
+    return np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
+
+
+# ----------------------------------------------------------------------------------------------
+# 2D incompressible neo-Hookean CST membrane (the simulator's MEM_FINE energy, in the plane)
+# ----------------------------------------------------------------------------------------------
+
+
+class PlaneMembrane:
+    """Energy, gradient and Hessian of a flat pre-stretched membrane patch.
+
+    ``Psi = mu/2 (tr C + 1/det C - 3)`` per unit rest volume, rest state = flat
+    mesh / tau, thickness ``h`` (``simulator.md`` §6.5).  In-plane only: the
+    sampling patches stay flat.  Hand-written (rather than the 3D simulator's
+    energy) because the sampler must run before/without the simulator and a
+    2x2 deformation gradient keeps it small and exact.
+    """
+
+    def __init__(self, X, tri, tau=SIM.tau, mu=SIM.mu, h=SIM.membrane_h):
+        self.tri = np.asarray(tri)
+        Xr = np.asarray(X, dtype=float) / tau
+        Dm = np.stack([Xr[self.tri[:, 1]] - Xr[self.tri[:, 0]],
+                       Xr[self.tri[:, 2]] - Xr[self.tri[:, 0]]], axis=-1)      # (m, 2, 2)
+        self.Dm_inv = np.linalg.inv(Dm)
+        self.area = 0.5 * np.abs(np.linalg.det(Dm))                            # rest area
+        self.mu, self.h = mu, h
+        Di = self.Dm_inv
+        # D[n, b]: dF_ab / dx_{n,a}
+        self.D = np.stack([-Di[:, 0, :] - Di[:, 1, :], Di[:, 0, :], Di[:, 1, :]], axis=1)
+        n = len(X)
+        dofs = np.stack([2 * self.tri, 2 * self.tri + 1], axis=-1).reshape(len(tri), 6)
+        self.rows = np.repeat(dofs, 6, axis=1).ravel()
+        self.cols = np.tile(dofs, (1, 6)).ravel()
+        self.ndof = 2 * n
+
+    def deformation(self, x):
+        Ds = np.stack([x[self.tri[:, 1]] - x[self.tri[:, 0]],
+                       x[self.tri[:, 2]] - x[self.tri[:, 0]]], axis=-1)
+        return Ds @ self.Dm_inv
+
+    def stress(self, x):
+        """First Piola-Kirchhoff stress per element, (m, 2, 2) MPa."""
+        Fm = self.deformation(x)
+        J = np.linalg.det(Fm)
+        cof = np.stack([np.stack([Fm[:, 1, 1], -Fm[:, 1, 0]], -1),
+                        np.stack([-Fm[:, 0, 1], Fm[:, 0, 0]], -1)], axis=1)
+        return self.mu * (Fm - cof / J[:, None, None] ** 3)
+
+    def energy(self, x):
+        Fm = self.deformation(x)
+        J = np.linalg.det(Fm)
+        if np.any(J <= 0):
+            return np.inf
+        psi = 0.5 * self.mu * (np.einsum("mab,mab->m", Fm, Fm) + J ** -2.0 - 3.0)
+        return float(np.sum(psi * self.h * self.area))
+
+    def gradient(self, x):
+        P = self.stress(x) * (self.h * self.area)[:, None, None]
+        # dE/dx_{n,a} = sum_b P_ab D[n, b]
+        g_el = np.einsum("mab,mnb->mna", P, self.D)
+        g = np.zeros_like(x)
+        np.add.at(g, self.tri, g_el)
+        return g
+
+    def hessian(self, x):
+        Fm = self.deformation(x)
+        J = np.linalg.det(Fm)
+        c = np.stack([Fm[:, 1, 1], -Fm[:, 1, 0], -Fm[:, 0, 1], Fm[:, 0, 0]], axis=-1)
+        K = np.array([[0, 0, 0, 1], [0, 0, -1, 0], [0, -1, 0, 0], [1, 0, 0, 0]], dtype=float)
+        H = (np.eye(4)[None] + 3.0 * J[:, None, None] ** -4 * c[:, :, None] * c[:, None, :]
+             - J[:, None, None] ** -3 * K[None])
+        H *= (self.mu * self.h * self.area)[:, None, None]
+        # B[(a,b), (n,c)] = delta_ac D[n, b]; F index (a, b) -> 2a + b, dof (n, c) -> 2n + c
+        m = len(Fm)
+        B = np.zeros((m, 4, 6))
+        for a in range(2):
+            for b in range(2):
+                B[:, 2 * a + b, a::2] = self.D[:, :, b]
+        He = np.einsum("mia,mij,mjb->mab", B, H, B)
+        return sp.csr_matrix((He.ravel(), (self.rows, self.cols)), shape=(self.ndof,) * 2)
+
+
+def _relax(mem: PlaneMembrane, x, free, tol=NEWTON_TOL, max_iter=60):
+    """Newton with backtracking on the free nodes (the energy is convex here).
+
+    Hand-written: a few dozen lines on a small, convex, well-scaled problem.
+    """
+    fdof = np.stack([2 * free, 2 * free + 1], axis=-1).ravel()
+    x = x.copy()
+    E = mem.energy(x)
+    if not np.isfinite(E):
+        raise RuntimeError("membrane start state has inverted triangles")
+    for _ in range(max_iter):
+        g = mem.gradient(x).ravel()[fdof]
+        if np.max(np.abs(g)) < tol:
+            return x
+        H = mem.hessian(x)[fdof][:, fdof].tocsc()
+        dx = -spla.spsolve(H, g)
+        step = 1.0
+        for _ in range(40):
+            xt = x.copy()
+            xt.reshape(-1)[fdof] += step * dx
+            Et = mem.energy(xt)
+            if Et <= E:
+                break
+            step *= 0.5
+        else:
+            break
+        x, E = xt, Et
+    g = mem.gradient(x).ravel()[fdof]
+    if np.max(np.abs(g)) > 1e3 * tol:
+        raise RuntimeError(f"membrane relaxation did not converge (|g| = {np.abs(g).max():.2e} N)")
+    return x
+
+
+def _move_bodies(mem: PlaneMembrane, x, free, att, x_att_new):
+    """Move the attached nodes and predict the free nodes with one linear (tangent) solve.
+
+    The load step is halved until the predicted state has no inverted triangle.
+    """
+    fdof = np.stack([2 * free, 2 * free + 1], axis=-1).ravel()
+    adof = np.stack([2 * att, 2 * att + 1], axis=-1).ravel()
+    H = mem.hessian(x)
+    Hff = H[fdof][:, fdof].tocsc()
+    Hfa = H[fdof][:, adof]
+    delta = (x_att_new - x[att]).ravel()
+    pred = -spla.spsolve(Hff, Hfa @ delta)
+    for frac in (1.0, 0.5, 0.25, 0.125, 0.0625):
+        xt = x.copy()
+        xt[att] += frac * delta.reshape(-1, 2)
+        xt.reshape(-1)[fdof] += frac * pred
+        if np.isfinite(mem.energy(xt)):
+            if frac == 1.0:
+                return xt
+            xt = _relax(mem, xt, free)
+            return _move_bodies(mem, xt, free, att, x_att_new)
+    raise RuntimeError("membrane load step failed")  # pragma: no cover
+
+
+def cell_tractions(mesh: PatchMesh, mem: PlaneMembrane, x) -> np.ndarray:
+    """Force the membrane transmits across each cell's stencil edge, along the cell axis (N).
+
+    Positive = tension = the membrane pulls the cell's two bases together.
+    """
+    P = mem.stress(x) * mem.h
+    Xr = mesh.X / SIM.tau
+    # edge -> the (up to two) triangles containing it
+    m = len(mesh.tri)
+    e = np.concatenate([mesh.tri[:, [0, 1]], mesh.tri[:, [1, 2]], mesh.tri[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    tid = np.tile(np.arange(m), 3)
+    lookup: dict = {}
+    for (i, j), t in zip(map(tuple, key), tid, strict=True):
+        lookup.setdefault((i, j), []).append(t)
+    T = np.zeros(len(mesh.cells))
+    for ci, (fa, fb, *_rest) in enumerate(mesh.cells):
+        u = mesh.centers[fa] - mesh.centers[fb]
+        u /= np.linalg.norm(u)                 # from b towards a (same direction after scaling)
+        total = np.zeros(2)
+        for i, j in mesh.edge_segments[ci]:
+            ts = lookup[(min(i, j), max(i, j))]
+            E_rest = Xr[j] - Xr[i]
+            N = np.array([E_rest[1], -E_rest[0]])          # rest normal * rest length
+            if N @ u < 0:
+                N = -N                                     # outward from face b, towards a
+            total += np.mean([P[t] @ N for t in ts], axis=0)
+        T[ci] = total @ u
+    return T
+
+
+def sample_patch(l0: float, d_values, rings: int = PATCH_RINGS,
+                 max_area: float = MESH_MAX_AREA, return_energy: bool = False, mesh=None):
+    """FEM tractions of every cell of a regular patch contracted by each ``d``.
+
+    Parameters
+    ----------
+    l0 : float, mm
+        Flat central length of the cells.
+    d_values : (k,) float, mm
+        Bracket shortenings to sample, ascending from 0.
+
+    Returns
+    -------
+    out : dict
+        ``T`` (k, nc) N per cell, ``mesh`` (:class:`PatchMesh`), ``d`` (k,) mm,
+        and with ``return_energy`` the relaxed energy ``E`` (k,) N mm.
+    """
+    mesh = patch_mesh(l0, rings, max_area) if mesh is None else mesh
+    mem = PlaneMembrane(mesh.X, mesh.tri)
+    free = np.flatnonzero(mesh.body < 0)
+    att = np.flatnonzero(mesh.body >= 0)
+    cb = mesh.centers[mesh.body[att]]
+    x = mesh.X.copy()
+    T, E = [], []
+    for d in d_values:
+        s = (l0 - d) / l0         # uniform contraction: every cell shortens by d * l / l0
+        # bases translate with the lattice; free nodes follow by a tangent predictor
+        x = _move_bodies(mem, x, free, att, s * cb + (mesh.X[att] - cb))
+        x = _relax(mem, x, free)
+        T.append(cell_tractions(mesh, mem, x))
+        E.append(mem.energy(x))
+    out = {"T": np.array(T), "mesh": mesh, "d": np.asarray(d_values, dtype=float)}
+    if return_energy:
+        out["E"] = np.array(E)
+    return out
+
+
+def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = None,
+                          max_area: float = FACTOR_MESH_AREA) -> dict:
+    """Per-cell correction of ``F_mem`` from an FEM membrane on the design's own flat stencil.
+
+    The linear model describes an interior cell of a regular lattice.  Here the
+    design's flat stencil is meshed like the sampling patches and contracted
+    uniformly by the factor ``s`` that gives its cells their median target
+    shortening; each cell's FEM traction divided by ``F_mem(b0, (1 - s) l)`` is its
+    factor: about 1 inside, about 0.6 at a straight boundary, much less for a cell
+    whose stencil edge has both ends on the boundary, and above/below 1 where the
+    stencil edge is longer/shorter than in a regular lattice.
+
+    Parameters
+    ----------
+    UV : (nv, 2) float, mm -- flat stencil vertices
+    F : (nf, 3) int -- stencil faces
+    cells : dict -- ``cells.csv`` columns (``base_a``, ``base_b``, ``vertex_a``,
+        ``vertex_b``, ``central_length_mm``)
+    b0, d1 : (n_cells,) float, mm -- flat bracket length, target shortening
+    model : MembraneModel, optional (default: the committed model)
+
+    Returns
+    -------
+    dict
+        ``factor`` (n_cells,), ``s`` (contraction), ``d_mm`` (n_cells,), ``force_N``
+        (n_cells,) FEM tractions, ``n_triangles``.
+    """
+    model = load_membrane_model() if model is None else model
+    UV = np.asarray(UV, float)[:, :2]
+    F = np.asarray(F, int)
+    # Triangle and the corner construction want counter-clockwise faces
+    e1, e2 = UV[F[:, 1]] - UV[F[:, 0]], UV[F[:, 2]] - UV[F[:, 0]]
+    if np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0:
+        UV = UV * np.array([1.0, -1.0])
+    mesh = stencil_membrane_mesh(UV, F, max_area)
+    mine = mesh.cells
+    theirs = np.column_stack([cells["base_a"], cells["base_b"], cells["vertex_a"],
+                              cells["vertex_b"]])
+    if mine.shape[0] != len(theirs) or not np.array_equal(mine[:, [0, 1, 4, 5]], theirs):
+        raise InputError("cells.csv does not list the stencil's interior edges in the "
+                         "design-folder order.", fix="re-run the design stage.")
+    lc = np.asarray(cells["central_length_mm"], float)
+    s = 1.0 - float(np.median(np.asarray(d1, float) / lc))
+    s = min(max(s, 0.5), 1.0)
+    mem = PlaneMembrane(mesh.X, mesh.tri)
+    free = np.flatnonzero(mesh.body < 0)
+    att = np.flatnonzero(mesh.body >= 0)
+    cb = mesh.centers[mesh.body[att]]
+    x = _move_bodies(mem, mesh.X.copy(), free, att, s * cb + (mesh.X[att] - cb))
+    x = _relax(mem, x, free)
+    T = cell_tractions(mesh, mem, x)
+    d = (1.0 - s) * lc
+    ref = model.force(np.asarray(b0, float), d)
+    return {"factor": T / ref, "s": s, "d_mm": d, "force_N": T,
+            "n_triangles": int(len(mesh.tri))}
+
+
+# ----------------------------------------------------------------------------------------------
+# fit
+# ----------------------------------------------------------------------------------------------
+
+
+def _design_matrix(b, d, terms=MODEL_TERMS):
+    b, d = np.asarray(b, dtype=float), np.asarray(d, dtype=float)
+    return np.column_stack([TERMS[t](b, d) for t in terms])
+
+
+def _lstsq(b, d, T, terms):
+    A = _design_matrix(b, d, terms)
+    coef, *_ = np.linalg.lstsq(A, T, rcond=None)
+    r = T - A @ coef
+    return coef, {"terms": list(terms), "form": form_string(terms),
+                  "coefficients": [float(c) for c in coef],
+                  "residual_rms_N": float(np.sqrt(np.mean(r ** 2))),
+                  "residual_max_N": float(np.max(np.abs(r))),
+                  "relative_rms": float(np.sqrt(np.mean((r / T) ** 2))),
+                  "relative_max": float(np.max(np.abs(r / T)))}
+
+
+def _code_version() -> dict:
+    src = Path(__file__).read_bytes()
+    v = {"module_sha256": hashlib.sha256(src).hexdigest()[:16]}
+    try:
+        import importlib.metadata
+
+        v["morphshell"] = importlib.metadata.version("morphshell")
+    except Exception:  # noqa: BLE001 - provenance only
+        v["morphshell"] = "unknown"
+    try:
+        import subprocess
+
+        r = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                           text=True, cwd=Path(__file__).resolve().parent, timeout=10)
+        v["git_head"] = r.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        v["git_head"] = "unknown"
+    return v
+
+
+def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
+                       d_values=SAMPLE_D, rings: int = PATCH_RINGS,
+                       max_area: float = MESH_MAX_AREA, progress: bool = True) -> dict:
+    """Re-fit the linearised membrane model from FEM samples of regular patches.
+
+    Parameters
+    ----------
+    out_path : path-like, optional
+        Model file to write (default: the committed ``pysolver/data/membrane_model.json``).
+    report_dir : path-like, optional
+        Folder for the fit picture ``membrane_fit.png`` (default ``build/membrane``).
+    l0_values, d_values : sequence of float, mm
+        Sampling grid: flat central lengths and bracket shortenings.
+    rings, max_area
+        Patch size (stencil rings) and membrane mesh size (flat mm^2).
+
+    Returns
+    -------
+    model : dict
+        The content written to ``out_path``: ``form``, ``coefficients``, ``fit``
+        (residuals), ``boundary`` (measured weakening of boundary cells),
+        ``samples``, ``sampling`` and ``provenance``.
+    """
+    t0 = time.perf_counter()
+    out_path = Path(out_path) if out_path is not None else MODEL_PATH
+    report_dir = Path(report_dir) if report_dir is not None else DEFAULT_REPORT_DIR
+    b_all, d_all, T_all, ratio_rows = [], [], [], []
+    per_l0 = []
+    for k, l0 in enumerate(l0_values):
+        b0 = UNIT_CELL.bracket_length(l0)
+        ds = [d for d in d_values
+              if b0 - d >= max(MIN_BRACKET, MIN_BRACKET_FRACTION * b0) - 1e-12]
+        res = sample_patch(l0, ds, rings, max_area)
+        mesh = res["mesh"]
+        inner = (mesh.cell_depth >= 2) & ~mesh.cell_boundary
+        Tin = res["T"][:, inner].mean(axis=1)
+        spread = np.ptp(res["T"][:, inner], axis=1).max() if inner.sum() > 1 else 0.0
+        b_all += [b0] * len(ds)
+        d_all += list(ds)
+        T_all += list(Tin)
+        for i, d in enumerate(ds):
+            for nf in np.unique(mesh.cell_boundary_faces[mesh.cell_boundary]):
+                sel = mesh.cell_boundary_faces == nf
+                ratio_rows.append((b0, d, nf, res["T"][i, sel].mean() / Tin[i]))
+        per_l0.append({"l0_mm": float(l0), "b0_mm": float(b0), "n_nodes": int(len(mesh.X)),
+                       "n_triangles": int(len(mesh.tri)), "n_interior_cells": int(inner.sum()),
+                       "n_boundary_cells": int(mesh.cell_boundary.sum()),
+                       "interior_spread_N": float(spread)})
+        if progress:
+            el = time.perf_counter() - t0
+            eta = el / (k + 1) * (len(l0_values) - k - 1)
+            print(f"[membrane] l0 = {l0:.2f} mm: {len(ds)} samples, {len(mesh.tri)} triangles, "
+                  f"T(d=0) = {Tin[0]:.3f} N  ({el:.0f} s, ETA {eta:.0f} s)",
+                  file=sys.stderr, flush=True)
+    b_all, d_all, T_all = map(np.asarray, (b_all, d_all, T_all))
+    coef, fit = _lstsq(b_all, d_all, T_all, MODEL_TERMS)
+    alternatives = [_lstsq(b_all, d_all, T_all, t)[1] for t in (SI_TERMS, ("1", "b", "d"))]
+    ratio = np.array(ratio_rows)
+    # mesh check at one length: the fit's mesh, a finer one and the simulator's coarser one
+    check_d = [0.0, 1.0, 2.0]
+    mesh_check = {"l0_mm": 7.0, "d_mm": check_d}
+    for key, area in (("fit_mesh", max_area), ("fine_mesh", max_area / 2.5),
+                      ("simulator_mesh", SIM.membrane_max_area)):
+        r = sample_patch(7.0, check_d, rings, area)
+        ms = r["mesh"]
+        inner = (ms.cell_depth >= 2) & ~ms.cell_boundary
+        mesh_check[key] = {"max_area_mm2": area, "n_triangles": int(len(ms.tri)),
+                           "force_N": [float(v) for v in r["T"][:, inner].mean(axis=1)]}
+    by_faces = {str(int(k)): {"mean": float(ratio[ratio[:, 2] == k, 3].mean()),
+                              "min": float(ratio[ratio[:, 2] == k, 3].min()),
+                              "max": float(ratio[ratio[:, 2] == k, 3].max())}
+                for k in np.unique(ratio[:, 2])}
+    model = {
+        "form": FORM,
+        "description": "Membrane traction pulling a unit cell's two bases together (N, total "
+                       "over the cell's 4 brackets); b = flat bracket length b0 (mm), d = "
+                       "shortening b0 - b (mm). Per-bracket target = F_mem / 4.",
+        "terms": list(MODEL_TERMS),
+        "coefficients": [float(c) for c in coef],
+        "units": "N for F; b, d in mm",
+        "boundary_factor": float(SIM.boundary_weakening),
+        "fit": dict(fit, n_samples=int(len(T_all)), alternatives=alternatives),
+        "boundary": {
+            "ratio_by_faces_at_boundary_vertex": by_faces,
+            "note": "FEM traction of boundary cells / interior traction at the same (b0, d) in "
+                    "the uniformly contracted patch, grouped by the number of stencil faces "
+                    "around the cell's boundary end (3 = straight boundary, 2 = convex corner). "
+                    "The design uses boundary_factor (the paper's 0.6) for every boundary cell.",
+            "rows_b0_d_faces_ratio": np.round(ratio, 6).tolist(),
+        },
+        "samples": {"b0_mm": b_all.tolist(), "d_mm": d_all.tolist(),
+                    "force_N": [float(t) for t in T_all]},
+        "sampling": {
+            "method": "hexagonal patch of an equilateral stencil, uniform contraction of the "
+                      "base centres (bases rigid, not rotating), free membrane relaxed "
+                      "(incompressible neo-Hookean CST, rest = flat / tau); force across the "
+                      "stencil edge of interior cells (>= 2 rings from the boundary), averaged",
+            "l0_mm": [float(v) for v in l0_values],
+            "d_mm": [float(v) for v in d_values],
+            "min_bracket_mm": MIN_BRACKET,
+            "min_bracket_fraction": MIN_BRACKET_FRACTION, "patch_rings": rings,
+            "mesh_max_area_mm2": max_area, "mesh_min_angle_deg": SIM.membrane_min_angle,
+            "tau": SIM.tau, "mu_MPa": SIM.mu, "membrane_h_mm": SIM.membrane_h,
+            "base_r_mm": UNIT_CELL.base_r, "alpha_deg": UNIT_CELL.alpha_deg,
+            "per_l0": per_l0,
+            "mesh_check": mesh_check,
+        },
+        "provenance": dict(_code_version(), command="morphshell fit-membrane",
+                           fit_seconds=round(time.perf_counter() - t0, 2)),
+    }
+    from .atomic import atomic_write_text
+
+    atomic_write_text(out_path, json.dumps(model, indent=1) + "\n")
+    out_path.chmod(0o644)
+    png = plot_membrane_fit(model, report_dir / "membrane_fit.png")
+    model["picture"] = str(png)
+    if progress:
+        f = model["fit"]
+        print(f"[membrane] F_mem = {FORM}, c = {np.round(coef, 4).tolist()}  "
+              f"(rms {f['residual_rms_N']:.4f} N, max "
+              f"{f['residual_max_N']:.4f} N) -> {out_path}, {png}", file=sys.stderr, flush=True)
+    return model
+
+
+def plot_membrane_fit(model: dict, png) -> Path:
+    """Linear model (dashed) against the FEM samples (solid) per initial length, like SI Fig. 8a."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png = Path(png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    s = model["samples"]
+    b, d, T = (np.asarray(s[k]) for k in ("b0_mm", "d_mm", "force_N"))
+    coef = np.asarray(model["coefficients"])
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw={"width_ratios": [3, 2]})
+    bs = np.unique(b)
+    cmap = plt.get_cmap("viridis")
+    for i, bb in enumerate(bs):
+        m = b == bb
+        col = cmap(i / max(1, len(bs) - 1))
+        ax.plot(d[m], T[m], "-", color=col, lw=1.6, label=f"b0 = {bb:.2f} mm")
+        dd = np.linspace(0, d[m].max(), 20)
+        ax.plot(dd, _design_matrix(np.full_like(dd, bb), dd, model["terms"]) @ coef, "--",
+                color=col, lw=1.2)
+    ax.set_xlabel("membrane spring shortening d = b0 - b (mm)")
+    ax.set_ylabel("membrane traction on a unit cell F_mem (N, 4 brackets)")
+    f = model["fit"]
+    ax.set_title(f"FEM patch samples (solid) vs {model['form']} (dashed)\n"
+                 f"rms {f['residual_rms_N']:.3f} N, max {f['residual_max_N']:.3f} N, "
+                 f"{f['n_samples']} samples", fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(alpha=0.3)
+    rows = np.asarray(model["boundary"]["rows_b0_d_faces_ratio"])
+    styles = {2: ":", 3: "-", 4: "-."}
+    for nf in np.unique(rows[:, 2]):
+        for i, bb in enumerate(bs):
+            m = np.isclose(rows[:, 0], bb) & (rows[:, 2] == nf)
+            ax2.plot(rows[m, 1], rows[m, 3], styles.get(int(nf), "--"),
+                     color=cmap(i / max(1, len(bs) - 1)), lw=1.2,
+                     label=f"{int(nf)} faces at the boundary end" if i == len(bs) - 1 else None)
+    ax2.axhline(model["boundary_factor"], color="k", ls="--", lw=1,
+                label=f"design factor {model['boundary_factor']:.2f}")
+    ax2.set_xlabel("d (mm)")
+    ax2.set_ylabel("boundary / interior traction")
+    ax2.set_title("boundary cells of the patch (colour = b0)", fontsize=9)
+    ax2.legend(fontsize=8)
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    return png
+
+
+__all__ = ["TERMS", "MODEL_TERMS", "SI_TERMS", "FORM", "MODEL_PATH", "MembraneModel",
+           "load_membrane_model", "fit_membrane_model", "plot_membrane_fit", "regular_patch",
+           "patch_mesh", "stencil_membrane_mesh", "PlaneMembrane", "cell_tractions",
+           "sample_patch", "cell_membrane_factors"]

@@ -1,0 +1,811 @@
+"""Temporal programming: bracket thicknesses from the time landscape (SI Note 4).
+
+Every unit cell should finish morphing (its bumpers collide) at its programmed time
+``t*`` = mean of the time landscape at the two ends of its stencil edge.  A cell
+finishes when its brackets have softened enough that the membrane's pull can
+compress them to the bumpers.  The thickness of each layer's brackets is chosen so
+that this happens at ``t*`` (SI eq. 15)::
+
+    F(b0, h_s, t*, x_s) = F_mem(b0, d1) / 4          for each layer s in (top, bottom)
+
+* ``F(b, h, t, x)`` -- the bracket model (:mod:`pysolver.material`), force of **one
+  single bracket** (N, compression positive) of flat length ``b`` and thickness ``h``
+  after ``t`` s in hot water, compressed by ``x``.  Plasticity is ignored: on
+  monotonic loading the simulator's plastic spring follows the same envelope.
+* ``x_s = b0 - b1_s`` -- target compression of layer ``s``: ``b0`` =
+  ``bracket_length_mm``, ``b1_s`` = ``collision_length_<layer>_mm`` (bumper contact).
+* ``F_mem(b0, d1)`` -- the linearised membrane model
+  (:mod:`pysolver.membrane_model`): the **whole cell's** membrane traction, carried by
+  its **four** brackets (two per layer), evaluated at the actuated state
+  ``d1 = b0 - (b1_top + b1_bottom) / 2`` (the membrane lies on the mid-plane).
+  The per-bracket target is ``F_mem / 4`` for every bracket of the cell, so the layer
+  that must compress more gets the thinner bracket (SI Fig. 8b).
+* Per-cell correction ``k`` (``F_mem -> k F_mem``, :data:`CORRECTIONS`).  The paper
+  multiplies boundary cells (an end of the shared edge on the stencil boundary) by 0.6
+  (``correction="boundary"``).  The default ``"fem"`` meshes the design's own flat
+  stencil, contracts it uniformly and reads each cell's FEM traction: interior cells get
+  ``k`` = FEM / model (irregular stencils: 0.65-1.8, the stencil edge is longer or shorter
+  than in the regular lattice the model was fitted on), boundary cells
+  ``min(0.6, FEM / model)`` (cells whose edge has both ends on the boundary pull only
+  ~0.1-0.2: with 0.6 they never close).  In simulations (tolerance 0.05 mm, achievable
+  cells) this lowered the RMS timing error from 10.6 to 10.4 s (petal), 11.2 to 9.9 s
+  (petal at size 0.7), 11.9 to 8.7 s (dome, landscape rescaled to 0-51 s) and 5.2 to
+  2.0 s (regular), and raised the petal's rank correlation from 0.76 to 0.80.
+
+Feasibility.  Thickness is printable in ``[0.30, 0.65]`` mm.  The thinnest bracket
+gives the earliest completion time ``t_min`` of a layer, the thickest the latest
+``t_max`` (found by bisection in time on the bracket model, within the model's time
+range, 0-120 s); a cell's achievable range is the intersection of its two layers'
+ranges.  A cell whose ``t*`` is outside is **clamped**: both layers are programmed
+for the nearest achievable time, the cell is flagged in ``cells.csv`` (``clamped``)
+and listed in the summary.  If more than half of the cells are clamped the
+landscape is refused with the achievable range in the message.
+
+Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
+within :data:`COMPLETION_TOL_MM` (the 0.05 mm printing clearance, see
+:func:`simulated_completion`).
+
+Closing the loop (beyond the paper).  :func:`refine_design` compares simulated
+completion times with ``t*`` and corrects the requested times of the thickness
+solve, ``t_req <- clip(t_req + damping (t* - t_sim), t_min, t_max)``, re-solving and
+re-simulating ``iterations`` times; the best iteration (lowest RMS timing error)
+is kept.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .params import SIM, UNIT_CELL
+
+PICTURE = "temporal_feasibility.png"
+"""Time landscape picture with the clamped cells marked (in the design folder)."""
+STAGE_FILE = "temporal.json"
+"""Programming record (correction rule, per-cell membrane factors, summary), design folder."""
+REFINE_LOG = "refine.json"
+"""History of :func:`refine_design` (in ``<design>/sim/``)."""
+
+CORRECTIONS = ("boundary", "fem")
+"""How ``F_mem`` is adapted per cell.  ``"boundary"``: the paper's rule, x 0.6 on boundary
+cells.  ``"fem"``: an FEM membrane on the design's own flat stencil
+(:func:`pysolver.membrane_model.cell_membrane_factors`) gives every interior cell its
+factor (irregular stencils: 0.65-1.8), and boundary cells get ``min(0.6, FEM factor)``
+(cells whose edge has both ends on the boundary pull only ~0.1-0.2 and never close with
+0.6)."""
+DEFAULT_CORRECTION = "fem"
+MAX_CLAMPED_FRACTION = 0.5
+BISECTION_STEPS = 50
+REFINE_DAMPING = 0.8
+TIME_TOL_S = 1e-6
+FORCE_RTOL = 1e-9
+COMPLETION_TOL_MM = UNIT_CELL.clearance
+"""A bracket within this distance of its bumper counts as closed (timing metrics)."""
+
+
+def _log(msg: str, progress: bool) -> None:
+    if progress:
+        print(f"[temporal] {msg}", file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------------------------
+# models
+# ----------------------------------------------------------------------------------------------
+
+
+def _material(material):
+    """A bracket model object (has ``force``), loaded from a path or the committed default."""
+    if material is not None and hasattr(material, "force"):
+        return material
+    from .material import load_bracket_model
+
+    return load_bracket_model(material)
+
+
+def _membrane(membrane):
+    from .membrane_model import load_membrane_model
+
+    return load_membrane_model(membrane)
+
+
+def time_limit(material) -> float:
+    """Latest time (s) the bracket model covers (its grid end; else the simulated 120 s)."""
+    gm = getattr(material, "grid_max", None)
+    if gm is not None:
+        try:
+            return float(np.asarray(gm, float)[2])
+        except (IndexError, TypeError, ValueError):
+            pass
+    return float(SIM.t_end)
+
+
+# ----------------------------------------------------------------------------------------------
+# per-cell quantities
+# ----------------------------------------------------------------------------------------------
+
+
+def cell_target_times(t_vertex, vertex_a, vertex_b) -> np.ndarray:
+    """``t*`` per cell: mean of the landscape at the two ends of the stencil edge (s).
+
+    Parameters
+    ----------
+    t_vertex : (n_vertices,) float, s
+    vertex_a, vertex_b : (n_cells,) int
+
+    Returns
+    -------
+    (n_cells,) float, s
+    """
+    t = np.asarray(t_vertex, float)
+    a, b = np.asarray(vertex_a, int), np.asarray(vertex_b, int)
+    if len(a) and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= len(t)):
+        raise InputError(f"cell vertices reference {max(a.max(), b.max())} but the time "
+                         f"landscape has {len(t)} vertices.",
+                         fix="re-run the design stage so time_landscape.csv matches the stencil.")
+    return 0.5 * (t[a] + t[b])
+
+
+def target_compressions(b0, b1_top, b1_bottom):
+    """Per-layer target compression ``x_s = b0 - b1_s`` and membrane shortening ``d1`` (mm).
+
+    Returns
+    -------
+    x : (n, 2) float, mm
+        Columns (top, bottom).
+    d1 : (n,) float, mm
+        ``b0 - (b1_top + b1_bottom) / 2``.
+    """
+    b0 = np.asarray(b0, float)
+    b1 = np.column_stack([np.asarray(b1_top, float), np.asarray(b1_bottom, float)])
+    return b0[:, None] - b1, b0 - b1.mean(axis=1)
+
+
+def bracket_target_force(membrane, b0, d1, boundary, boundary_factor=None, factor=None):
+    """Target force of each single bracket (N): ``F_mem(b0, d1) * k / 4``.
+
+    ``k`` = ``factor`` per cell when given (:data:`CORRECTIONS`), else
+    ``boundary_factor`` (default the model's, 0.6) on boundary cells and 1 elsewhere.
+
+    Returns
+    -------
+    f_cell : (n,) float, N
+        Membrane traction on the whole cell (4 brackets), after the correction.
+    f_bracket : (n,) float, N
+        ``f_cell / 4``.
+    """
+    f = np.asarray(membrane.force(b0, d1), float)
+    if factor is not None:
+        f = f * np.asarray(factor, float)
+    else:
+        fac = membrane.boundary_factor if boundary_factor is None else float(boundary_factor)
+        f = np.where(np.asarray(boundary, bool), fac * f, f)
+    return f, f / 4.0
+
+
+def solve_thickness(material, b0, x, t, f_bracket, steps: int = BISECTION_STEPS):
+    """Bracket thickness whose force at (t, x) equals the target (bisection on h).
+
+    The bracket force grows with thickness (thicker = stiffer), so a bisection on
+    ``[thickness_min, thickness_max]`` finds the root when it is bracketed.
+
+    Parameters
+    ----------
+    material : bracket model with ``force(h_mm, b_mm, t_s, x_mm)`` (single bracket, N)
+    b0, x, t, f_bracket : (n,) float -- mm, mm, s, N (broadcast)
+
+    Returns
+    -------
+    h : (n,) float, mm
+    side : (n,) int
+        0 = solved; -1 = even the thinnest bracket is too stiff at ``t`` (clamped to
+        0.30 mm, the cell finishes later); +1 = even the thickest is too soft
+        (clamped to 0.65 mm, the cell finishes earlier).
+    """
+    b0, x, t, f = np.broadcast_arrays(*(np.asarray(v, float) for v in (b0, x, t, f_bracket)))
+    shape = b0.shape
+    b0, x, t, f = (v.ravel() for v in (b0, x, t, f))
+    lo = np.full(b0.shape, UNIT_CELL.thickness_min)
+    hi = np.full(b0.shape, UNIT_CELL.thickness_max)
+    f_lo = np.asarray(material.force(lo, b0, t, x), float)
+    f_hi = np.asarray(material.force(hi, b0, t, x), float)
+    side = np.where(f_lo > f, -1, np.where(f_hi < f, 1, 0))
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        weak = np.asarray(material.force(mid, b0, t, x), float) < f
+        lo = np.where(weak, mid, lo)
+        hi = np.where(weak, hi, mid)
+    h = np.where(side < 0, UNIT_CELL.thickness_min,
+                 np.where(side > 0, UNIT_CELL.thickness_max, 0.5 * (lo + hi)))
+    return h.reshape(shape), side.reshape(shape)
+
+
+def completion_time(material, h, b0, x, f_bracket, t_max=None, steps: int = BISECTION_STEPS):
+    """Earliest time (s) at which a bracket's force at compression ``x`` drops to the target.
+
+    Bisection in time on the (softening) bracket model.
+
+    Returns
+    -------
+    t : (n,) float, s
+        0 if the dry bracket already yields; ``inf`` if it never does within ``t_max``
+        (default: the model's time range).
+    """
+    t_max = time_limit(material) if t_max is None else float(t_max)
+    h, b0, x, f = np.broadcast_arrays(*(np.asarray(v, float) for v in (h, b0, x, f_bracket)))
+    shape = h.shape
+    h, b0, x, f = (v.ravel() for v in (h, b0, x, f))
+    lo = np.zeros(h.shape)
+    hi = np.full(h.shape, t_max)
+    f = f * (1.0 + FORCE_RTOL)          # a thickness solved for t yields at t, not just after
+    at0 = np.asarray(material.force(h, b0, lo, x), float) <= f
+    never = np.asarray(material.force(h, b0, hi, x), float) > f
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        done = np.asarray(material.force(h, b0, mid, x), float) <= f
+        hi = np.where(done, mid, hi)
+        lo = np.where(done, lo, mid)
+    t = np.where(at0, 0.0, np.where(never, np.inf, hi))
+    return t.reshape(shape)
+
+
+def time_ranges(material, b0, x, f_bracket, t_max=None):
+    """Achievable completion times per cell and layer (thinnest -> earliest).
+
+    Parameters
+    ----------
+    b0 : (n,) float, mm
+    x : (n, 2) float, mm -- target compression per layer
+    f_bracket : (n,) float, N
+
+    Returns
+    -------
+    t_min, t_max : (n,) float, s
+        Intersection over the two layers of ``[t(thinnest), t(thickest)]``; ``t_max`` is
+        capped at the model's time range.  ``t_min = inf`` if even the thinnest bracket
+        never yields.
+    layer_min, layer_max : (n, 2) float, s
+    """
+    t_end = time_limit(material) if t_max is None else float(t_max)
+    b0 = np.asarray(b0, float)
+    x = np.asarray(x, float)
+    bb, ff = np.repeat(b0[:, None], 2, 1), np.repeat(np.asarray(f_bracket, float)[:, None], 2, 1)
+    lmin = completion_time(material, UNIT_CELL.thickness_min, bb, x, ff, t_end)
+    lmax = np.minimum(completion_time(material, UNIT_CELL.thickness_max, bb, x, ff, t_end), t_end)
+    return lmin.max(axis=1), lmax.min(axis=1), lmin, lmax
+
+
+# ----------------------------------------------------------------------------------------------
+# programming
+# ----------------------------------------------------------------------------------------------
+
+
+def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane,
+                  t_request=None, boundary_factor=None, factor=None) -> dict:
+    """Thicknesses, achievable ranges and clamping for a set of cells (no file I/O).
+
+    Parameters
+    ----------
+    b0, b1_top, b1_bottom : (n,) float, mm
+        Flat bracket length and per-layer collision lengths.
+    boundary : (n,) bool
+    t_star : (n,) float, s
+        Target completion times.
+    material, membrane
+        Bracket model object and :class:`~pysolver.membrane_model.MembraneModel`.
+    t_request : (n,) float, s, optional
+        Times to program instead of ``t_star`` (closing the loop); clamping is still
+        judged on ``t_star``.
+    boundary_factor : float, optional
+        Weakening of boundary cells (default: the membrane model's, 0.6).
+    factor : (n,) float, optional
+        Per-cell factor on ``F_mem`` replacing the boundary rule (see
+        :func:`membrane_factors`).
+
+    Returns
+    -------
+    dict of arrays: ``thickness`` (n, 2) mm (top, bottom), ``t_min``, ``t_max``,
+    ``t_program`` (n,) s (the time the thicknesses are solved for), ``clamped`` (n,)
+    bool, ``side`` (n,) int (-1 too early, +1 too late, 0 ok), ``x`` (n, 2) mm,
+    ``d1`` (n,) mm, ``f_cell``, ``f_bracket`` (n,) N.
+    """
+    t_star = np.asarray(t_star, float)
+    if not np.all(np.isfinite(t_star)) or np.any(t_star < 0):
+        bad = int(np.flatnonzero(~np.isfinite(t_star) | (t_star < 0))[0])
+        raise InputError(f"cell {bad}: programmed time t* = {t_star[bad]} s is not a "
+                         "non-negative number.", fix="give a time landscape of times >= 0 s.")
+    x, d1 = target_compressions(b0, b1_top, b1_bottom)
+    if np.any(x <= 0):
+        bad = int(np.flatnonzero((x <= 0).any(axis=1))[0])
+        raise InputError(f"cell {bad}: collision length >= bracket length "
+                         f"(b0 = {np.asarray(b0)[bad]:.4g} mm, b1 = {np.round(b0[bad] - x[bad], 4)}"
+                         " mm): the cell would not contract.",
+                         fix="re-run the design stage (collision lengths must be shorter than "
+                             "the flat bracket length).")
+    f_cell, f_br = bracket_target_force(membrane, b0, d1, boundary, boundary_factor, factor)
+    t_lo, t_hi, _, _ = time_ranges(material, b0, x, f_br)
+    want = t_star if t_request is None else np.asarray(t_request, float)
+    lo_ok = np.where(np.isfinite(t_lo), t_lo, time_limit(material))
+    t_prog = np.clip(want, lo_ok, np.maximum(lo_ok, t_hi))
+    side = np.where(t_star < t_lo - TIME_TOL_S, -1, np.where(t_star > t_hi + TIME_TOL_S, 1, 0))
+    side = np.where(np.isfinite(t_lo), side, 1)
+    bb = np.repeat(np.asarray(b0, float)[:, None], 2, 1)
+    h, _ = solve_thickness(material, bb, x, np.repeat(t_prog[:, None], 2, 1),
+                           np.repeat(f_br[:, None], 2, 1))
+    return {"thickness": h, "t_min": t_lo, "t_max": t_hi, "t_program": t_prog,
+            "clamped": side != 0, "side": side, "x": x, "d1": d1, "f_cell": f_cell,
+            "f_bracket": f_br}
+
+
+def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0) -> dict:
+    """Where the achievable times lie, and the order-preserving rescaling that clamps least.
+
+    Returns
+    -------
+    dict
+        ``common`` [a, b] s reachable by every cell (None if empty); ``earliest``,
+        ``latest`` s; ``best_constant`` (time s, fraction of cells that can reach it);
+        ``suggested_map`` {``t0``, ``t1``, ``a``, ``b``, ``fraction_clamped``}: mapping
+        the landscape's [t0, t1] linearly onto [a, b] s (a <= b, order kept) gives
+        the fewest clamped cells (ties: the widest [a, b]).
+    """
+    fin = np.isfinite(t_lo)
+    out: dict = {"common": None, "earliest": None, "latest": None, "best_constant": None,
+                 "suggested_map": None}
+    if not fin.any():
+        return out
+    lo, hi = t_lo[fin], t_hi[fin]
+    if lo.max() <= hi.min():
+        out["common"] = [float(lo.max()), float(hi.min())]
+    out["earliest"], out["latest"] = float(lo.min()), float(hi.max())
+    grid = np.arange(0.0, t_limit + 0.5 * step, step)
+    lo_all = np.where(fin, t_lo, np.inf)
+    cover = ((grid[:, None] >= lo_all - TIME_TOL_S) & (grid[:, None] <= t_hi + TIME_TOL_S))
+    frac = cover.mean(axis=1)
+    k = int(np.argmax(frac))
+    out["best_constant"] = [float(grid[k]), float(frac[k])]
+    t0, t1 = float(np.min(t_star)), float(np.max(t_star))
+    u = (t_star - t0) / (t1 - t0) if t1 > t0 else np.zeros_like(t_star)
+    best = None
+    for a in grid:
+        bs = grid[grid >= a]
+        tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
+        bad = ((tt < lo_all - TIME_TOL_S) | (tt > t_hi + TIME_TOL_S)).mean(axis=1)
+        j = np.lexsort((-(bs - a), bad))[0]
+        key = (round(float(bad[j]), 9), -float(bs[j] - a))
+        if best is None or key < best[0]:
+            best = (key, float(a), float(bs[j]))
+    out["suggested_map"] = {"t0": t0, "t1": t1, "a": best[1], "b": best[2],
+                            "fraction_clamped": best[0][0]}
+    return out
+
+
+def _fix_message(ach) -> str:
+    m = ach.get("suggested_map")
+    if m is None:
+        return ("no cell can finish within the bracket model's time range with 0.30-0.65 mm "
+                "brackets; check the material model.")
+    rng = ach["common"]
+    msg = ("shift or scale the time landscape into the achievable range: "
+           + (f"every cell can finish between {rng[0]:.1f} and {rng[1]:.1f} s; "
+              if rng is not None else "no single time suits every cell; ")
+           + f"cells can finish between {ach['earliest']:.1f} and {ach['latest']:.1f} s "
+           f"overall, and {100 * ach['best_constant'][1]:.0f} % of them at "
+           f"{ach['best_constant'][0]:.0f} s. ")
+    if m["t1"] > m["t0"]:
+        msg += (f"Mapping the landscape's {m['t0']:.1f}-{m['t1']:.1f} s linearly onto "
+                f"{m['a']:.0f}-{m['b']:.0f} s, t' = {m['a']:.0f} + "
+                f"{(m['b'] - m['a']) / (m['t1'] - m['t0']):.3g} * (t - {m['t0']:.1f}), "
+                f"clamps {100 * m['fraction_clamped']:.0f} % of the cells")
+    else:
+        msg += (f"A constant {m['a']:.0f} s clamps {100 * m['fraction_clamped']:.0f} % of the "
+                "cells")
+    return msg + "."
+
+
+def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORRECTION):
+    """Per-cell factors on ``F_mem`` for a correction rule (:data:`CORRECTIONS`).
+
+    Returns
+    -------
+    factor : (n_cells,) float
+    info : dict -- rule, FEM contraction and mesh size, factor ranges
+    """
+    if correction not in CORRECTIONS:
+        raise InputError(f"correction={correction!r} is not a membrane correction rule.",
+                         fix=f"use one of {', '.join(CORRECTIONS)}.")
+    bnd = np.asarray(cells["boundary"], bool)
+    info: dict = {"correction": correction}
+    if correction == "boundary":
+        f = np.where(bnd, membrane.boundary_factor, 1.0)
+        info["boundary_factor"] = float(membrane.boundary_factor)
+        return f, info
+    from .membrane_model import cell_membrane_factors
+    from .tables import read_stencil
+
+    _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")
+    b0 = np.asarray(cells["bracket_length_mm"], float)
+    _, d1 = target_compressions(b0, cells["collision_length_top_mm"],
+                                cells["collision_length_bottom_mm"])
+    try:
+        r = cell_membrane_factors(UV, F, cells, b0, d1, membrane)
+    except (InputError, RuntimeError, ValueError) as e:
+        # the FEM on this stencil failed (degenerate boundary geometry): the paper's rule
+        info.update({"fallback": "boundary", "reason": f"{type(e).__name__}: {e}",
+                     "boundary_factor": float(membrane.boundary_factor)})
+        return np.where(bnd, membrane.boundary_factor, 1.0), info
+    fem = r["factor"]
+    f = np.where(bnd, np.minimum(membrane.boundary_factor, fem), fem)
+    info.update({"fem_contraction": r["s"], "fem_triangles": r["n_triangles"],
+                 "factor_range_interior": [float(fem[~bnd].min()), float(fem[~bnd].max())]
+                 if (~bnd).any() else None,
+                 "factor_range_boundary": [float(fem[bnd].min()), float(fem[bnd].max())]
+                 if bnd.any() else None})
+    return f, info
+
+
+def program_design(design_dir, *, material=None, membrane=None, progress: bool = True,
+                   correction: str = DEFAULT_CORRECTION, t_request=None,
+                   picture: bool = True, fit_landscape: bool = False) -> dict:
+    """Set the bracket thicknesses of a design folder from its time landscape.
+
+    Reads ``cells.csv`` and ``time_landscape.csv``, writes ``thickness_top_mm``,
+    ``thickness_bottom_mm``, ``t_star_s``, ``t_min_s``, ``t_max_s``, ``clamped`` back
+    into ``cells.csv`` (atomic rewrite) and draws ``temporal_feasibility.png``.
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder (``docs/design-folder.md``).
+    material : path-like or bracket model, optional
+        Bracket model (default: the committed one).
+    membrane : path-like or MembraneModel, optional
+        Membrane model (default: the committed ``pysolver/data/membrane_model.json``).
+    correction : {"boundary", "fem-boundary", "fem"}
+        Per-cell adaptation of ``F_mem`` (:data:`CORRECTIONS`); recorded in
+        ``temporal.json`` and reused by :func:`refine_design`.
+    t_request : (n_cells,) float, s, optional
+        Program these times instead of ``t*`` (used by :func:`refine_design`).
+    picture : bool
+        Draw the feasibility picture.
+    fit_landscape : bool
+        Map the landscape linearly (order kept) onto the achievable range that clamps
+        the fewest cells before programming, and rewrite ``time_landscape.csv``.  The
+        build does this for a shape's *default* landscape only (the built-in landscapes
+        give the order in which regions finish; the achievable seconds depend on the
+        material model); a landscape the user gave is never changed, only checked.
+
+    Returns
+    -------
+    summary : dict
+        ``n_cells``, ``thickness_range_mm`` (per layer), ``fraction_clamped``,
+        ``clamped_cells``, ``too_early_cells``, ``too_late_cells``, ``feasible``,
+        ``achievable_range_s``, ``t_star_range_s``, ``membrane_model``,
+        ``boundary_factor``, ``picture``.
+
+    Raises
+    ------
+    InputError
+        More than half of the cells cannot reach their time (the message names the
+        achievable range); missing or inconsistent tables.
+    """
+    from . import tables
+
+    t0 = time.perf_counter()
+    design_dir = Path(design_dir)
+    cells = tables.read_table(design_dir, "cells")
+    land = tables.read_table(design_dir, "time_landscape")["time_s"]
+    mat = _material(material)
+    mem = _membrane(membrane)
+    t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
+    factor, finfo = membrane_factors(design_dir, cells, mem, correction)
+    res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
+                        cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+                        material=mat, membrane=mem, t_request=t_request, factor=factor)
+    n = len(t_star)
+    clamped = np.flatnonzero(res["clamped"])
+    frac = float(len(clamped) / n) if n else 0.0
+    ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat))
+    rescaled = None
+    m = ach.get("suggested_map")
+    if (fit_landscape and t_request is None and m is not None and len(clamped)
+            and m["fraction_clamped"] < frac):
+        t_old = (float(land.min()), float(land.max()))
+        span = m["t1"] - m["t0"]
+        u = (land - m["t0"]) / span if span > 0 else np.zeros_like(land)
+        land = np.maximum(m["a"] + u * (m["b"] - m["a"]), 0.0)
+        tables.write_table(design_dir / tables.FILENAMES["time_landscape"], "time_landscape",
+                           {"vertex_id": np.arange(len(land)), "time_s": land})
+        t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
+        res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
+                            cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+                            material=mat, membrane=mem, factor=factor)
+        clamped = np.flatnonzero(res["clamped"])
+        frac = float(len(clamped) / n) if n else 0.0
+        ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat))
+        rescaled = {"from_s": list(t_old), "to_s": [float(land.min()), float(land.max())]}
+        if progress:
+            print(f"[program] default time landscape {t_old[0]:.0f}-{t_old[1]:.0f} s mapped onto "
+                  f"the achievable {rescaled['to_s'][0]:.0f}-{rescaled['to_s'][1]:.0f} s "
+                  f"({100 * frac:.0f} % of cells clamped)", file=sys.stderr)
+    miss = np.where(res["side"] < 0, res["t_min"] - t_star,
+                    np.where(res["side"] > 0, t_star - res["t_max"], 0.0))
+    miss = np.where(np.isfinite(miss), miss, time_limit(mat))
+    h = res["thickness"]
+    summary = {
+        "n_cells": int(n),
+        "t_star_range_s": [float(t_star.min()), float(t_star.max())] if n else None,
+        "thickness_range_mm": {"top": [float(h[:, 0].min()), float(h[:, 0].max())],
+                               "bottom": [float(h[:, 1].min()), float(h[:, 1].max())]},
+        "thickness_mean_mm": float(h.mean()) if n else None,
+        "fraction_clamped": frac,
+        "n_clamped": int(len(clamped)),
+        "clamped_cells": clamped.tolist(),
+        "too_early_cells": np.flatnonzero(res["side"] < 0).tolist(),
+        "too_late_cells": np.flatnonzero(res["side"] > 0).tolist(),
+        "clamp_error_s": {"mean": float(miss[res["clamped"]].mean()) if len(clamped) else 0.0,
+                          "max": float(miss.max()) if n else 0.0},
+        "feasible": bool(frac <= MAX_CLAMPED_FRACTION),
+        "achievable_range_s": ach,
+        "membrane_model": {"terms": list(mem.terms), "coefficients": mem.coef.tolist(),
+                           "residual_rms_N": mem.residual_rms_N},
+        "boundary_factor": float(mem.boundary_factor),
+        "membrane_correction": finfo,
+        "n_boundary_cells": int(np.sum(cells["boundary"])),
+        "membrane_force_range_N": [float(res["f_cell"].min()), float(res["f_cell"].max())]
+        if n else None,
+        "material_model": str(getattr(mat, "path", None) or type(mat).__name__),
+        "refined_times": t_request is not None,
+        "landscape_rescaled": rescaled,
+    }
+    if picture and n:
+        from .temporal_plots import plot_feasibility
+
+        png = plot_feasibility(design_dir, land, cells, res, design_dir / PICTURE)
+        summary["picture"] = png.name
+    if not summary["feasible"]:
+        raise InputError(
+            f"{design_dir}: the time landscape is mostly infeasible: {len(clamped)} of {n} "
+            f"cells ({100 * frac:.0f} %) cannot finish at their time t* (t* spans "
+            f"{t_star.min():.1f}-{t_star.max():.1f} s; {len(summary['too_early_cells'])} too "
+            f"early, {len(summary['too_late_cells'])} too late for 0.30-0.65 mm brackets).",
+            fix=_fix_message(ach) + f" See {design_dir / PICTURE}.")
+    out = dict(cells)
+    out["t_star_s"] = t_star
+    out["thickness_top_mm"] = h[:, 0]
+    out["thickness_bottom_mm"] = h[:, 1]
+    out["t_min_s"] = np.where(np.isfinite(res["t_min"]), res["t_min"], np.nan)
+    out["t_max_s"] = np.where(np.isfinite(res["t_min"]), res["t_max"], np.nan)
+    out["clamped"] = res["clamped"]
+    tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+    summary["seconds"] = round(time.perf_counter() - t0, 3)
+    from .atomic import atomic_write_text
+
+    record = {"summary": summary, "membrane_factor": [float(v) for v in factor],
+              "t_program_s": [float(v) for v in res["t_program"]]}
+    atomic_write_text(design_dir / STAGE_FILE, json.dumps(record, indent=1) + "\n")
+    _log(f"{design_dir.name}: {n} cells, thickness {h.min():.3f}-{h.max():.3f} mm, "
+         f"{len(clamped)} clamped ({100 * frac:.1f} %)", progress)
+    return summary
+
+
+# ----------------------------------------------------------------------------------------------
+# closing the loop
+# ----------------------------------------------------------------------------------------------
+
+
+def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
+    """RMS / max timing error and Spearman rank correlation of simulated completion times.
+
+    Parameters
+    ----------
+    t_star : (n,) float, s -- targets
+    t_sim : (n,) float, s -- simulated completion (NaN = never)
+    exclude : (n,) bool, optional -- cells left out of the statistics (clamped ones)
+    t_end : float, s, optional -- also give ``rms_incl_never_s``, where cells that never
+        complete count as finishing at ``t_end`` (a lower bound of their error).
+
+    Returns
+    -------
+    dict
+        ``rms_s``, ``mean_s``, ``max_abs_s`` over completed cells, ``spearman`` (t* vs
+        t_sim over completed cells), ``n_used``, ``n_never``, ``n_cells`` and, with
+        ``t_end``, ``rms_incl_never_s``.
+    """
+    from scipy.stats import spearmanr
+
+    t_star = np.asarray(t_star, float)
+    t_sim = np.asarray(t_sim, float)
+    keep = np.ones(len(t_star), bool) if exclude is None else ~np.asarray(exclude, bool)
+    done = keep & np.isfinite(t_sim)
+    err = t_sim[done] - t_star[done]
+    rho = float("nan")
+    if done.sum() >= 3 and np.ptp(t_star[done]) > 0 and np.ptp(t_sim[done]) > 0:
+        rho = float(spearmanr(t_star[done], t_sim[done]).statistic)
+    out = {"rms_s": float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan"),
+           "mean_s": float(err.mean()) if err.size else float("nan"),
+           "max_abs_s": float(np.abs(err).max()) if err.size else float("nan"),
+           "spearman": rho, "n_used": int(done.sum()), "n_never": int((keep & ~done).sum()),
+           "n_cells": int(len(t_star))}
+    if t_end is not None:
+        e2 = np.where(np.isfinite(t_sim), t_sim, float(t_end))[keep] - t_star[keep]
+        out["rms_incl_never_s"] = float(np.sqrt(np.mean(e2 ** 2))) if e2.size else float("nan")
+    return out
+
+
+def simulated_completion(frames, tol_mm: float = COMPLETION_TOL_MM):
+    """Completion time of every cell in a simulation: all 4 brackets at their bumpers.
+
+    A cell is complete at the first frame where each of its 4 bracket springs is
+    collided or within ``tol_mm`` of its bumper length.  With ``tol_mm = 0`` this is
+    ``sim.simulate.completion_times``; the default tolerance is the printing
+    clearance (0.05 mm): in irregular stencils a cell often closes one end and stays
+    a few hundredths of a millimetre short at the other, which a print could not tell
+    apart from closed.
+
+    Parameters
+    ----------
+    frames : dict or path-like
+        ``frames.npz`` content (``t``, ``collided`` and, for ``tol_mm > 0``,
+        ``bracket_length``, ``collision_length``) or its path, or a design folder.
+    tol_mm : float, mm
+
+    Returns
+    -------
+    t_done : (n_cells,) float, s -- NaN for cells that never complete
+    t : (n_frames,) float, s -- frame times
+    """
+    if not isinstance(frames, dict):
+        p = Path(frames)
+        if p.is_dir():
+            p = p / "sim" / "frames.npz"
+        with np.load(p, allow_pickle=False) as z:
+            frames = {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
+                      if k in z.files}
+    t = np.asarray(frames["t"], float)
+    done = np.asarray(frames["collided"], bool)
+    if tol_mm > 0 and "bracket_length" in frames and "collision_length" in frames:
+        gap = (np.asarray(frames["bracket_length"], float)
+               - np.asarray(frames["collision_length"], float)[None])
+        done = done | (gap <= tol_mm)
+    done = done.all(axis=2)
+    first = np.argmax(done, axis=0)
+    return np.where(done.any(axis=0), t[first], np.nan), t
+
+
+def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
+                  progress: bool = True, t_end=None, damping: float = REFINE_DAMPING,
+                  tol_mm: float = COMPLETION_TOL_MM, simulate=None) -> dict:
+    """Correct the programmed times from simulated completion times and re-simulate.
+
+    Needs a programmed and simulated design folder (``sim/frames.npz``).  Each
+    iteration moves the requested time of every cell by ``damping * (t* - t_sim)``
+    (cells that never complete count as ``t_end``), clamps it to the cell's
+    achievable range, re-solves the thicknesses (``t_star_s`` stays the user's
+    target), and re-simulates.  After ``iterations`` rounds the iteration with the
+    lowest RMS timing error (clamped cells excluded, cells that never complete counted
+    as finishing at the last frame) is kept: its thicknesses in ``cells.csv`` and its
+    frames in ``sim/frames.npz``.
+
+    Parameters
+    ----------
+    design_dir : path-like
+    iterations : int
+        Number of correct + re-simulate rounds K.
+    material, membrane : optional
+        As :func:`program_design`; ``material`` is also passed to the simulator.
+    t_end : float, s, optional
+        Simulated time (default: the simulator's default).
+    damping : float
+        Fraction of the timing error corrected per round (0 < damping <= 1).
+    tol_mm : float, mm
+        Completion tolerance (:func:`simulated_completion`).
+    simulate : callable, optional
+        ``simulate(design_dir, **kw)`` replacing ``sim.simulate.simulate_design`` (tests).
+
+    Returns
+    -------
+    dict
+        ``history`` (per iteration: RMS/max error, Spearman, thickness range), ``best``
+        (iteration index, 0 = before refinement; chosen by ``rms_incl_never_s``),
+        ``before``/``after`` metrics.
+    """
+    from . import tables
+
+    design_dir = Path(design_dir)
+    if int(iterations) != iterations or iterations < 0:
+        raise InputError(f"iterations must be a non-negative integer, got {iterations!r}.")
+    if not 0 < damping <= 1:
+        raise InputError(f"damping must be in (0, 1], got {damping!r}.")
+    frames_path = design_dir / "sim" / "frames.npz"
+    if not frames_path.is_file():
+        raise InputError(f"{frames_path} does not exist: refine needs a simulated design.",
+                         fix="run the simulate stage first (morphshell simulate DIR).")
+    if simulate is None:
+        from sim.simulate import simulate_design as simulate
+    sim_kw = {"progress": progress}
+    if material is not None:
+        sim_kw["material"] = material
+    if t_end is not None:
+        sim_kw["t_end"] = t_end
+    mat = _material(material)
+    mem = _membrane(membrane)
+
+    cells = tables.read_table(design_dir, "cells")
+    t_star = cells["t_star_s"].copy()
+    factor = None
+    rec = design_dir / STAGE_FILE
+    if rec.is_file():
+        f = json.loads(rec.read_text()).get("membrane_factor")
+        if f is not None and len(f) == len(t_star):
+            factor = np.asarray(f, float)
+    clamped = cells["clamped"].astype(bool)
+    t_lo, t_hi = cells["t_min_s"], cells["t_max_s"]
+    t_sim, t_frames = simulated_completion(design_dir, tol_mm)
+    t_last = float(t_frames[-1]) if len(t_frames) else float(SIM.t_end)
+    keep_dir = design_dir / "sim" / "refine"
+    keep_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(frames_path, keep_dir / "frames_0.npz")
+    th0 = np.column_stack([cells["thickness_top_mm"], cells["thickness_bottom_mm"]])
+    hist = [dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=0,
+                 thickness_mm=[float(th0.min()), float(th0.max())])]
+    thick = [th0]
+    _log(f"{design_dir.name}: before refinement rms {hist[0]['rms_s']:.2f} s, spearman "
+         f"{hist[0]['spearman']:.3f}, {hist[0]['n_never']} never complete", progress)
+    lo_ok = np.where(np.isfinite(t_lo), t_lo, 0.0)
+    hi_ok = np.where(np.isfinite(t_hi), t_hi, time_limit(mat))
+    t_req = np.clip(t_star, lo_ok, np.maximum(lo_ok, hi_ok))
+    for k in range(1, int(iterations) + 1):
+        t0 = time.perf_counter()
+        ts = np.where(np.isfinite(t_sim), t_sim, t_last)
+        t_req = np.clip(t_req + damping * (t_star - ts), lo_ok, np.maximum(lo_ok, hi_ok))
+        res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
+                            cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+                            material=mat, membrane=mem, t_request=t_req, factor=factor)
+        out = dict(cells)
+        out["thickness_top_mm"] = res["thickness"][:, 0]
+        out["thickness_bottom_mm"] = res["thickness"][:, 1]
+        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        simulate(design_dir, **sim_kw)
+        t_sim, t_frames = simulated_completion(design_dir, tol_mm)
+        shutil.copy2(frames_path, keep_dir / f"frames_{k}.npz")
+        th = res["thickness"]
+        thick.append(th)
+        hist.append(dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=k,
+                         thickness_mm=[float(th.min()), float(th.max())],
+                         seconds=round(time.perf_counter() - t0, 1)))
+        _log(f"{design_dir.name}: refine {k}/{iterations}: rms {hist[-1]['rms_s']:.2f} s, "
+             f"spearman {hist[-1]['spearman']:.3f}, {hist[-1]['n_never']} never complete "
+             f"({hist[-1]['seconds']:.0f} s)", progress)
+    rms = np.array([h["rms_incl_never_s"] for h in hist])
+    best = int(np.nanargmin(np.where(np.isfinite(rms), rms, np.inf))) if len(rms) else 0
+    if best != len(hist) - 1:
+        out = dict(cells)
+        out["thickness_top_mm"] = thick[best][:, 0]
+        out["thickness_bottom_mm"] = thick[best][:, 1]
+        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        shutil.copy2(keep_dir / f"frames_{best}.npz", frames_path)
+    for f in keep_dir.glob("frames_*.npz"):
+        f.unlink()
+    keep_dir.rmdir()
+    result = {"iterations": int(iterations), "damping": damping, "history": hist,
+              "best": best, "before": hist[0], "after": hist[best],
+              "note": "rms_s: cells whose t* is achievable (clamped excluded) and that "
+                      "complete; rms_incl_never_s also counts cells that never complete as "
+                      "finishing at the last simulated time (used to pick the best)."}
+    from .atomic import atomic_write_text
+
+    atomic_write_text(design_dir / "sim" / REFINE_LOG, json.dumps(result, indent=1) + "\n")
+    return result
+
+
+__all__ = ["CORRECTIONS", "membrane_factors", "cell_target_times", "target_compressions",
+           "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
+           "program_cells", "program_design", "timing_errors", "refine_design", "time_limit",
+           "simulated_completion", "COMPLETION_TOL_MM",
+           "PICTURE", "STAGE_FILE"]

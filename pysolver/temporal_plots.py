@@ -1,0 +1,95 @@
+"""Pictures of the temporal programming stage (matplotlib, Agg)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
+    """Time landscape on the flat layout with the clamped cells marked, and the ranges.
+
+    Left: the landscape (s) interpolated on the flat stencil, base outlines, and the
+    cells whose ``t*`` is out of reach (too early: thinnest bracket still too stiff;
+    too late: thickest bracket already yields earlier).  Right: every cell's
+    achievable range (grey bar) and ``t*`` (dot), sorted by ``t*``.
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder (its ``stencil.obj`` gives the flat layout).
+    t_vertex : (n_vertices,) float, s
+    cells : dict of (n_cells,) arrays -- ``cells.csv`` columns
+    res : dict -- :func:`pysolver.temporal.program_cells` output
+    png : path-like
+
+    Returns
+    -------
+    Path of the PNG.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.tri import Triangulation
+
+    from .tables import read_stencil
+
+    png = Path(png)
+    _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")
+    t_vertex = np.asarray(t_vertex, float)
+    va, vb = np.asarray(cells["vertex_a"]), np.asarray(cells["vertex_b"])
+    mid = 0.5 * (UV[va] + UV[vb])
+    side = np.asarray(res["side"])
+    t_star = 0.5 * (t_vertex[va] + t_vertex[vb])
+    n = len(side)
+
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5.6),
+                                  gridspec_kw={"width_ratios": [1.15, 1]})
+    tri = Triangulation(UV[:, 0], UV[:, 1], F)
+    pc = ax.tripcolor(tri, t_vertex, shading="gouraud", cmap="viridis")
+    ax.triplot(tri, color="w", lw=0.3, alpha=0.6)
+    fig.colorbar(pc, ax=ax, label="time landscape (s)", shrink=0.85)
+    early, late = side < 0, side > 0
+    ax.plot(mid[early, 0], mid[early, 1], "v", ms=6, mfc="none", mec="tab:red", mew=1.4,
+            label=f"too early: t* < t_min ({early.sum()})")
+    ax.plot(mid[late, 0], mid[late, 1], "^", ms=6, mfc="none", mec="tab:orange", mew=1.4,
+            label=f"too late: t* > t_max ({late.sum()})")
+    ok = ~(early | late)
+    ax.plot(mid[ok, 0], mid[ok, 1], ".", ms=2, color="k", alpha=0.5,
+            label=f"achievable ({ok.sum()})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("flat x (mm)")
+    ax.set_ylabel("flat y (mm)")
+    ax.set_title(f"{Path(design_dir).name}: time landscape, clamped cells "
+                 f"{early.sum() + late.sum()} / {n} ({100 * (early.sum() + late.sum()) / n:.1f} %)",
+                 fontsize=10)
+    ax.legend(fontsize=8, loc="upper right", framealpha=0.8)
+
+    order = np.argsort(t_star, kind="stable")
+    k = np.arange(n)
+    lo, hi = np.asarray(res["t_min"])[order], np.asarray(res["t_max"])[order]
+    lo_f = np.where(np.isfinite(lo), lo, np.nan)
+    ax2.vlines(k, lo_f, hi, color="0.75", lw=max(0.3, min(2.0, 300 / max(n, 1))),
+               label="achievable range: 0.30 mm bracket (earliest) to 0.65 mm (latest)")
+    so = side[order]
+    ax2.plot(k[so == 0], t_star[order][so == 0], ".", ms=2.5, color="k", label="t* (achievable)")
+    ax2.plot(k[so < 0], t_star[order][so < 0], "v", ms=4, color="tab:red", label="t* too early")
+    ax2.plot(k[so > 0], t_star[order][so > 0], "^", ms=4, color="tab:orange",
+             label="t* too late")
+    ax2.set_xlabel("cells sorted by t*")
+    ax2.set_ylabel("completion time (s)")
+    ax2.set_title("achievable completion time per cell", fontsize=10)
+    ax2.legend(fontsize=8, loc="upper left")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    tmp = png.with_name(f".{png.stem}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(png)
+    return png
+
+
+__all__ = ["plot_feasibility"]
