@@ -642,11 +642,8 @@ def simulated_completion(frames, tol_mm: float = COMPLETION_TOL_MM):
     """Completion time of every cell in a simulation: all 4 brackets at their bumpers.
 
     A cell is complete at the first frame where each of its 4 bracket springs is
-    collided or within ``tol_mm`` of its bumper length.  With ``tol_mm = 0`` this is
-    ``sim.simulate.completion_times``; the default tolerance is the printing
-    clearance (0.05 mm): in irregular stencils a cell often closes one end and stays
-    a few hundredths of a millimetre short at the other, which a print could not tell
-    apart from closed.
+    collided or within ``tol_mm`` of its bumper length: the project's one definition,
+    ``sim.simulate.completion_times(rule="clearance")``, read from a folder or file.
 
     Parameters
     ----------
@@ -667,15 +664,10 @@ def simulated_completion(frames, tol_mm: float = COMPLETION_TOL_MM):
         with np.load(p, allow_pickle=False) as z:
             frames = {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
                       if k in z.files}
+    from sim.simulate import completion_times
+
     t = np.asarray(frames["t"], float)
-    done = np.asarray(frames["collided"], bool)
-    if tol_mm > 0 and "bracket_length" in frames and "collision_length" in frames:
-        gap = (np.asarray(frames["bracket_length"], float)
-               - np.asarray(frames["collision_length"], float)[None])
-        done = done | (gap <= tol_mm)
-    done = done.all(axis=2)
-    first = np.argmax(done, axis=0)
-    return np.where(done.any(axis=0), t[first], np.nan), t
+    return completion_times(frames, rule="clearance", tol_mm=tol_mm), t
 
 
 def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,

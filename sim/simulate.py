@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from pysolver.errors import InputError, MorphshellError
-from pysolver.params import SIM
+from pysolver.params import SIM, UNIT_CELL
 from pysolver.params import tol as TOL
 
 from .energies import ShellEnergy, State
@@ -573,15 +573,24 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     return summary
 
 
-def completion_times(frames, collided=None, *, rule: str = "layer") -> np.ndarray:
-    """Completion time of every unit cell: the first frame time at which both layers' brackets
-    are at their bumpers.
+def completion_times(frames, collided=None, *, rule: str = "clearance",
+                     bracket_length=None, collision_length=None,
+                     tol_mm: float = UNIT_CELL.clearance) -> np.ndarray:
+    """Completion time of every unit cell: the first frame at which its brackets reach
+    their bumpers.  This is the project's single definition (temporal programming, the
+    report and the benchmarks all use it).
 
-    A layer's bumper is reached when one of its two bracket springs is collided (``rule =
-    "layer"``, default): the bumper is one prism per layer, and the two springs of a layer
-    have slightly different contact lengths (target distances of skewed node pairs, up to a
-    few 0.01 mm), so once one side touches the other can stay a hair short.  ``rule = "all"``
-    requires all four springs.
+    Rules:
+
+    * ``"clearance"`` (default): each of the 4 bracket springs is collided or within
+      ``tol_mm`` (the 0.05 mm printing clearance) of its bumper contact length.  In
+      irregular stencils the two springs of a layer have contact lengths a few hundredths
+      of a millimetre apart, so a cell often closes one end and stays a hair short at the
+      other, which a printed part could not tell apart from closed.  Needs
+      ``bracket_length`` and ``collision_length`` (in ``frames.npz``); without them it is
+      ``"all"``.
+    * ``"all"``: all four springs collided (exact contact).
+    * ``"layer"``: in each layer, one of its two springs collided.
 
     Parameters
     ----------
@@ -590,7 +599,10 @@ def completion_times(frames, collided=None, *, rule: str = "layer") -> np.ndarra
         ``collided`` is given.
     collided : (n_frames, n_cells, 4) bool, optional
         Spring order ``2 * layer + q`` (layer 0 = top).
-    rule : {"layer", "all"}
+    rule : {"clearance", "all", "layer"}
+    bracket_length : (n_frames, n_cells, 4) float, mm, optional
+    collision_length : (n_cells, 4) float, mm, optional
+    tol_mm : float, mm
 
     Returns
     -------
@@ -598,11 +610,15 @@ def completion_times(frames, collided=None, *, rule: str = "layer") -> np.ndarra
         NaN for cells that never complete.
     """
     if collided is None:
+        keys = ("t", "collided", "bracket_length", "collision_length")
         if isinstance(frames, str | os.PathLike):
             with np.load(frames, allow_pickle=False) as z:
-                t, collided = np.asarray(z["t"], float), np.asarray(z["collided"])
-        else:
-            t, collided = np.asarray(frames["t"], float), np.asarray(frames["collided"])
+                frames = {k: z[k] for k in keys if k in z.files}
+        t, collided = np.asarray(frames["t"], float), np.asarray(frames["collided"])
+        if bracket_length is None and "bracket_length" in frames:
+            bracket_length = frames["bracket_length"]
+        if collision_length is None and "collision_length" in frames:
+            collision_length = frames["collision_length"]
     else:
         t = np.asarray(frames, float)
         collided = np.asarray(collided)
@@ -610,12 +626,18 @@ def completion_times(frames, collided=None, *, rule: str = "layer") -> np.ndarra
     if c.ndim != 3 or c.shape[2] != 4 or c.shape[0] != t.shape[0]:
         raise InputError(f"collided has shape {c.shape}, expected (n_frames={len(t)}, "
                          "n_cells, 4)", fix="pass frames.npz's 't' and 'collided'")
-    if rule == "layer":
-        done = (c[:, :, 0] | c[:, :, 1]) & (c[:, :, 2] | c[:, :, 3])
+    if rule == "clearance":
+        if bracket_length is not None and collision_length is not None:
+            gap = (np.asarray(bracket_length, float)[: len(t)]
+                   - np.asarray(collision_length, float)[None])
+            c = c | (gap <= tol_mm)
+        done = c.all(axis=2)
     elif rule == "all":
         done = c.all(axis=2)
+    elif rule == "layer":
+        done = (c[:, :, 0] | c[:, :, 1]) & (c[:, :, 2] | c[:, :, 3])
     else:
-        raise InputError(f"rule must be 'layer' or 'all', got {rule!r}")
+        raise InputError(f"rule must be 'clearance', 'all' or 'layer', got {rule!r}")
     first = np.argmax(done, axis=0)
     return np.where(done.any(axis=0), t[first], np.nan)
 
