@@ -126,10 +126,19 @@ def test_completion_times():
     col[2:, 0] = True  # cell 0 complete at t = 1.0
     col[3:, 1, :2] = True  # cell 1: only the top layer
     col[4, 2, [1, 2]] = True  # cell 2 at t = 2.0: one spring per layer
-    tc = S.completion_times({"t": t, "collided": col})
-    assert tc[0] == 1.0 and np.isnan(tc[1]) and tc[2] == 2.0
-    assert np.array_equal(S.completion_times(t, col), tc, equal_nan=True)
+    tl = S.completion_times({"t": t, "collided": col}, rule="layer")
+    assert tl[0] == 1.0 and np.isnan(tl[1]) and tl[2] == 2.0
     ta = S.completion_times(t, col, rule="all")
     assert ta[0] == 1.0 and np.isnan(ta[1]) and np.isnan(ta[2])
+    # default rule: all four springs collided or within the 0.05 mm printing clearance
+    Lc = np.full((3, 4), 2.0)
+    L = np.full((5, 3, 4), 3.0)
+    L[4, 2] = [2.04, 2.0, 2.0, 2.049]  # cell 2: the uncollided springs within 0.05 mm at t = 2
+    tc = S.completion_times({"t": t, "collided": col, "bracket_length": L,
+                             "collision_length": Lc})
+    assert tc[0] == 1.0 and np.isnan(tc[1]) and tc[2] == 2.0
+    L[4, 2, 3] = 2.06  # one spring 0.06 mm short: not complete
+    assert np.isnan(S.completion_times(t, col, bracket_length=L, collision_length=Lc)[2])
+    assert np.array_equal(S.completion_times(t, col), ta, equal_nan=True)  # no lengths: "all"
     with pytest.raises(InputError):
         S.completion_times(t[:3], col)
