@@ -90,7 +90,7 @@ def _material(folder: Path, log):
     try:
         from pysolver.temporal import program_design
 
-        program_design(folder, material=mat, progress=False, picture=False)
+        program_design(folder, material=mat, progress=False, picture=False, fit_landscape=True)
         prog = "programmed (pysolver.temporal)"
     except (ImportError, InputError) as e:
         log(f"programming failed ({e}); keeping the design thicknesses")
