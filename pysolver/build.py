@@ -96,7 +96,8 @@ def tool_versions() -> dict:
     """Versions of the project, OpenSCAD, Python and the key libraries."""
     v = {name: _version(name) for name in (
         "morphshell", "numpy", "scipy", "libigl", "trimesh", "manifold3d", "triangle",
-        "pymeshlab", "scikit-sparse", "qpsolvers", "matplotlib", "pyvista")}
+        "pymeshlab", "scikit-sparse", "qpsolvers", "matplotlib", "pyvista",
+        "openscad-evaluator")}
     v["python"] = sys.version.split()[0]
     try:
         out = subprocess.run(["openscad", "--version"], capture_output=True, text=True,

@@ -6,15 +6,21 @@ Pipeline (``render_design``)
    ``<design>/scad/`` (part = one base of one layer, plus its actuated-pose twin,
    the two support frames and one marker dot).  Each file ``use``s the OpenSCAD
    library ``scad/`` by path.
-2. Every part whose STL is not cached is rendered by its own OpenSCAD process
-   (``openscad --export-format binstl -o part.stl part.scad``); a pool of
-   ``jobs`` workers (default: CPU count) runs them.  OpenSCAD's implicit CGAL
-   union grows faster than linearly with the part size, so one small file per
-   part is much faster than one file per layer (``shared/design/dependencies.md``).
+2. Every part whose STL is not cached is rendered by the chosen renderer
+   (``renderer``, :data:`RENDERERS`): ``openscad`` runs one OpenSCAD process per part
+   (``openscad --export-format binstl -o part.stl part.scad``) in a pool of ``jobs``
+   workers (default: CPU count) -- OpenSCAD's implicit CGAL union grows faster than
+   linearly with the part size, so one small file per part is much faster than one
+   file per layer (``shared/design/dependencies.md``); ``fast`` evaluates the same
+   files with openscad-evaluator in ``jobs`` worker processes
+   (:mod:`pysolver.render_fast`, ~20x faster per part), and a part it fails on is
+   rendered by OpenSCAD instead; ``auto`` is ``fast`` once :func:`fast_self_check`
+   has found it to agree with OpenSCAD on reference parts of the library, else
+   ``openscad``.
 3. Part STLs are cached in ``cache_dir`` under a hash of the part file's text,
-   the text of every ``.scad`` file of the library and the OpenSCAD version: an
-   edit of any library file (e.g. a module default) re-renders every part with
-   no Python change; an unchanged re-render reads everything from the cache.
+   the text of every ``.scad`` file of the library and the renderer's name and
+   version: an edit of any library file (e.g. a module default) re-renders every
+   part with no Python change; an unchanged re-render reads everything from the cache.
 4. The parts of a layer are moved to the print frame
    (:func:`pysolver.frames.print_transform`: bed at z = 0, brackets down, top
    layer turned over about x) and united with manifold3d into one watertight
@@ -42,6 +48,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
@@ -57,6 +64,32 @@ OPENSCAD_ENV = "MORPHSHELL_OPENSCAD"
 
 OPENSCAD_TIMEOUT_S = 900.0
 """Seconds after which one part's OpenSCAD process is killed and reported as failed."""
+
+RENDERERS = ("openscad", "fast", "auto")
+"""Renderer backends of :func:`render_parts` (see there)."""
+
+DEFAULT_RENDERER = "openscad"
+"""Backend used when none is given.
+
+Not ``auto``, although the fast renderer agreed with OpenSCAD on every part of every
+built-in shape (``bench/bench_render_fast.py``: volumes within 4.1e-5, symmetric
+difference within 9.8e-5 of the part volume, no failure): the layer STLs united from
+its parts were more often not watertight once written (8 of 18 layers of the built-in
+shapes vs 2 of 18 with OpenSCAD's parts; 2-8 non-manifold edges each, at bracket
+apexes, where the union leaves vertices ~1e-5 mm apart that float32 merges)."""
+
+SELF_CHECK_VOLUME_RTOL = 1e-4
+"""Largest relative volume difference fast vs OpenSCAD on a reference part (auto mode)."""
+
+SELF_CHECK_SYMDIFF_RTOL = 1e-3
+"""Largest symmetric-difference volume fast vs OpenSCAD, relative to the part volume."""
+
+FAST_INSTALL_FIX = ("install it into the project's environment ('.venv/bin/pip install "
+                    "openscad-evaluator'), or use the renderer 'openscad'.")
+
+
+class RendererFallbackWarning(UserWarning):
+    """The fast renderer failed on some parts, which OpenSCAD rendered instead."""
 
 INSTALL_FIX = ("install OpenSCAD: 'sudo apt-get install openscad' (Debian/Ubuntu; any version "
                f">= 2019.05 works), or set {OPENSCAD_ENV}=/path/to/openscad.")
@@ -78,10 +111,16 @@ STL_FILES = {
     "actuated": "actuated.stl",
 }
 
+EXPORT_SIMPLIFY_MM = 0.0
+"""Tolerance (mm) of the manifold3d ``simplify`` run on every output before writing it:
+0 drops only zero-area triangles and doubled vertices.  (1e-4 mm was tried against the
+non-manifold edges that float32 STL rounding makes at a few bracket apexes of curved
+shells; it does not remove them: they come from faces of two parts that pass within
+~1e-5 mm of each other without sharing an edge.)"""
+
 
 # --------------------------------------------------------------------------------------------
 # OpenSCAD
-
 
 def find_openscad() -> str:
     """Path of the OpenSCAD executable.
@@ -155,8 +194,124 @@ def default_cache_dir(design_dir) -> Path:
     return design_dir.parent / ".cache" / "parts"
 
 
+def check_renderer(renderer) -> str:
+    """Validate a renderer name (one of :data:`RENDERERS`).
+
+    Raises
+    ------
+    InputError
+        Naming the value and the choices.
+    """
+    if renderer not in RENDERERS:
+        raise InputError(f"renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}.",
+                         fix="use --renderer openscad (Debian OpenSCAD), fast "
+                             "(openscad-evaluator) or auto.")
+    return renderer
+
+
+def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
+    """Render (Part, target STL) pairs with one OpenSCAD process per part.
+
+    Returns ``seconds`` {name: OpenSCAD wall time} and ``failures`` [(Part, stderr)].
+    """
+    seconds: dict[str, float] = {}
+    failures: list[tuple[Part, str]] = []
+    if not todo:
+        return seconds, failures
+    from tqdm import tqdm
+
+    def work(item):
+        part, target = item
+        fd, tmp = tempfile.mkstemp(prefix=f".{part.name}.", suffix=".stl", dir=cache_dir)
+        os.close(fd)
+        tmp = Path(tmp)
+        try:
+            ok, dt, err = _run_openscad(exe, part.path, tmp)
+            if ok:
+                os.replace(tmp, target)
+            return part, ok, dt, err
+        finally:
+            tmp.unlink(missing_ok=True)
+
+    bar = tqdm(total=len(todo), desc="OpenSCAD parts", unit="part", file=sys.stderr,
+               disable=not progress, dynamic_ncols=True)
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(work, item) for item in todo]
+        try:
+            for fut in as_completed(futures):
+                part, ok, dt, err = fut.result()
+                if ok:
+                    seconds[part.name] = dt
+                else:
+                    failures.append((part, err))
+                bar.update(1)
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+        finally:
+            bar.close()
+    return seconds, failures
+
+
+def _fast_pool(todo, *, cache_dir, jobs, progress):
+    """Render (Part, target STL) pairs with openscad-evaluator worker processes.
+
+    Returns ``seconds`` {name: evaluation wall time} and ``failures`` [(Part, message)].
+    """
+    import threading
+
+    from tqdm import tqdm
+
+    from . import render_fast
+
+    seconds: dict[str, float] = {}
+    failures: list[tuple[Part, str]] = []
+    if not todo:
+        return seconds, failures
+    tmps = []
+    for part, _target in todo:
+        fd, tmp = tempfile.mkstemp(prefix=f".{part.name}.", suffix=".stl", dir=cache_dir)
+        os.close(fd)
+        tmps.append(Path(tmp))
+    bar = tqdm(total=len(todo), desc="fast parts", unit="part", file=sys.stderr,
+               disable=not progress, dynamic_ncols=True)
+    lock = threading.Lock()
+
+    def done(i, ans):
+        with lock:
+            bar.update(1)
+
+    try:
+        answers = render_fast.render_files(
+            [(p.path, tmp) for (p, _t), tmp in zip(todo, tmps, strict=True)], jobs=jobs,
+            ast_dir=Path(cache_dir) / render_fast.AST_CACHE_DIRNAME, on_done=done)
+        for (part, target), tmp, ans in zip(todo, tmps, answers, strict=True):
+            ok = ans["ok"] and tmp.is_file() and tmp.stat().st_size > 84
+            if ok:
+                os.replace(tmp, target)
+                seconds[part.name] = float(ans["seconds"])
+            else:
+                failures.append((part, ans["error"] or "(no geometry written)"))
+    finally:
+        bar.close()
+        for tmp in tmps:
+            tmp.unlink(missing_ok=True)
+    return seconds, failures
+
+
+def _failure_lines(failures, limit: int = 10, tail: int = 12) -> str:
+    failures = sorted(failures, key=lambda pe: pe[0].name)
+    lines = []
+    for part, err in failures[:limit]:
+        text = "\n      ".join(err.strip().splitlines()[-tail:])
+        lines.append(f"  - {part.label()}: {part.path}\n      {text}")
+    more = f"\n  ... and {len(failures) - limit} more" if len(failures) > limit else ""
+    return "\n".join(lines) + more
+
+
 def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=True,
-                 exe=None) -> dict:
+                 exe=None, renderer=None) -> dict:
     """Render part files to STL through the cache, in parallel.
 
     Parameters
@@ -167,34 +322,73 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
     scad_dir : path-like
         OpenSCAD library (hashed into every key).
     jobs : int, optional
-        Parallel OpenSCAD processes (default: CPU count).
+        Parallel OpenSCAD processes / fast-renderer workers (default: CPU count).
     progress : bool
         tqdm bar with ETA on stderr.
     exe : str, optional
         OpenSCAD executable (default :func:`find_openscad`).
+    renderer : {"openscad", "fast", "auto"}, optional
+        Backend (default :data:`DEFAULT_RENDERER`).  ``openscad``: Debian OpenSCAD,
+        one process per part.  ``fast``: openscad-evaluator (:mod:`pysolver.render_fast`);
+        a part it fails on is rendered by OpenSCAD instead (a
+        :class:`RendererFallbackWarning` names it).  ``auto``: ``fast`` if it is
+        importable and :func:`fast_self_check` agrees with OpenSCAD on reference parts
+        of this library, else ``openscad``.  The cache key holds the renderer's name
+        and version, so the two never share an STL.
 
     Returns
     -------
     result : dict
         ``stl`` {part name: cached STL path}, ``rendered`` / ``cached`` (counts),
-        ``seconds`` {name: OpenSCAD wall time of the parts rendered now},
-        ``wall_s`` (pool wall time), ``cpu_s`` (CPU time of the OpenSCAD processes),
-        ``openscad`` (version), ``jobs``.
+        ``seconds`` {name: renderer wall time of the parts rendered now},
+        ``wall_s`` (pool wall time), ``cpu_s`` (CPU time of the renderer processes),
+        ``openscad`` (OpenSCAD version, None if it was not needed), ``jobs``,
+        ``renderer`` (the backend used), ``renderer_requested``, ``renderer_version``,
+        ``fallback`` {part name: why the fast renderer failed on it},
+        ``self_check`` (:func:`fast_self_check` result for ``auto``, else None),
+        ``self_check_s`` (its wall time, not in ``wall_s``).
 
     Raises
     ------
     ExternalToolError
-        OpenSCAD is missing, or failed on some parts (each named with its base id
-        and layer, and OpenSCAD's stderr).  The parts that succeeded stay cached.
+        The renderer is missing, or failed on some parts (each named with its base id
+        and layer, and the renderer's messages).  The parts that succeeded stay cached.
+    InputError
+        Bad ``jobs`` or ``renderer``.
     """
-    exe = exe or find_openscad()
-    version = openscad_version(exe)
+    requested = check_renderer(DEFAULT_RENDERER if renderer is None else renderer)
     digest = library_digest(scad_dir)
     cache_dir = Path(cache_dir)
     cache_dir.mkdir(parents=True, exist_ok=True)
     jobs = int(jobs) if jobs else (os.cpu_count() or 1)
     if jobs < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}.", fix="omit jobs to use every CPU.")
+    check = None
+    used = requested
+    t_check = time.perf_counter()
+    if requested == "auto":
+        exe = exe or find_openscad()
+        check = fast_self_check(scad_dir=scad_dir, cache_dir=cache_dir, exe=exe, jobs=jobs,
+                                progress=progress)
+        used = "fast" if check["ok"] else "openscad"
+        if progress:
+            print(f"[render] renderer auto -> {used}: {check['summary']}", file=sys.stderr,
+                  flush=True)
+    t_check = time.perf_counter() - t_check
+    t0 = time.perf_counter()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    oversion = None
+    if used == "openscad":
+        exe = exe or find_openscad()
+        oversion = version = openscad_version(exe)
+    else:
+        from . import render_fast
+
+        version = render_fast.version()
+        if version is None:
+            raise ExternalToolError("renderer 'fast' needs the Python package "
+                                    f"{render_fast.DIST}, which cannot be imported.",
+                                    fix=FAST_INSTALL_FIX)
     stl: dict[str, Path] = {}
     todo: list[tuple[Part, Path]] = []
     for p in parts:
@@ -202,62 +396,155 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
         stl[p.name] = target
         if not target.is_file():
             todo.append((p, target))
-    seconds: dict[str, float] = {}
-    failures: list[tuple[Part, str]] = []
-    t0 = time.perf_counter()
-    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if todo:
-        from tqdm import tqdm
-
-        def work(item):
-            part, target = item
-            fd, tmp = tempfile.mkstemp(prefix=f".{part.name}.", suffix=".stl", dir=cache_dir)
-            os.close(fd)
-            tmp = Path(tmp)
+    fallback: dict[str, str] = {}
+    if used == "openscad":
+        seconds, failures = _openscad_pool(todo, exe=exe, cache_dir=cache_dir, jobs=jobs,
+                                           progress=progress)
+    else:
+        seconds, fast_failures = _fast_pool(todo, cache_dir=cache_dir, jobs=jobs,
+                                            progress=progress)
+        failures = []
+        if fast_failures:
+            fallback = {p.name: err.strip() for p, err in fast_failures}
             try:
-                ok, dt, err = _run_openscad(exe, part.path, tmp)
-                if ok:
-                    os.replace(tmp, target)
-                return part, ok, dt, err
-            finally:
-                tmp.unlink(missing_ok=True)
-
-        bar = tqdm(total=len(todo), desc="OpenSCAD parts", unit="part", file=sys.stderr,
-                   disable=not progress, dynamic_ncols=True)
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(work, item) for item in todo]
-            try:
-                for fut in as_completed(futures):
-                    part, ok, dt, err = fut.result()
-                    if ok:
-                        seconds[part.name] = dt
-                    else:
-                        failures.append((part, err))
-                    bar.update(1)
-            except BaseException:
-                for f in futures:
-                    f.cancel()
-                raise
-            finally:
-                bar.close()
+                exe = exe or find_openscad()
+                oversion = openscad_version(exe)
+            except ExternalToolError:
+                raise ExternalToolError(
+                    f"the fast renderer failed on {len(fast_failures)} of {len(parts)} parts, "
+                    "and OpenSCAD, which would render them instead, is not installed:\n"
+                    + _failure_lines(fast_failures),
+                    fix=INSTALL_FIX + " Parts that rendered stay cached.") from None
+            names = sorted(fallback)
+            warnings.warn(
+                f"the fast renderer failed on {len(names)} of {len(parts)} parts "
+                f"({', '.join(names[:5])}{', ...' if len(names) > 5 else ''}; first error: "
+                f"{fallback[names[0]].splitlines()[-1] if fallback[names[0]] else '?'}); "
+                "OpenSCAD renders them instead.", RendererFallbackWarning, stacklevel=2)
+            redo = []
+            for p, _err in fast_failures:
+                target = cache_dir / f"{part_key(p.path.read_bytes(), digest, oversion)}.stl"
+                stl[p.name] = target
+                if not target.is_file():
+                    redo.append((p, target))
+            more, failures = _openscad_pool(redo, exe=exe, cache_dir=cache_dir, jobs=jobs,
+                                            progress=progress)
+            seconds.update(more)
     wall = time.perf_counter() - t0
     ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     if failures:
-        failures.sort(key=lambda pe: pe[0].name)
-        lines = []
-        for part, err in failures[:10]:
-            tail = "\n      ".join(err.strip().splitlines()[-12:])
-            lines.append(f"  - {part.label()}: {part.path}\n      {tail}")
-        more = f"\n  ... and {len(failures) - 10} more" if len(failures) > 10 else ""
+        first = " (the fast renderer had failed on them first)" if fallback else ""
         raise ExternalToolError(
-            f"OpenSCAD failed on {len(failures)} of {len(parts)} parts "
+            f"OpenSCAD failed on {len(failures)} of {len(parts)} parts{first} "
             f"({len(todo) - len(failures)} rendered and cached, {len(parts) - len(todo)} were "
-            "already cached):\n" + "\n".join(lines) + more,
+            "already cached):\n" + _failure_lines(failures),
             fix="open the named part file in OpenSCAD to see the error; if you edited the "
                 f"library ({scad_dir}), fix the edit. Parts that rendered stay cached.")
     return {"stl": stl, "rendered": len(todo), "cached": len(parts) - len(todo),
-            "seconds": seconds, "wall_s": wall, "cpu_s": cpu, "openscad": version, "jobs": jobs}
+            "seconds": seconds, "wall_s": wall, "cpu_s": cpu, "openscad": oversion,
+            "jobs": jobs, "renderer": used, "renderer_requested": requested,
+            "renderer_version": version, "fallback": fallback, "self_check": check,
+            "self_check_s": t_check}
+
+
+_SELF_CHECKS: dict[tuple, dict] = {}
+
+
+def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
+                    progress: bool = False) -> dict:
+    """Compare the fast renderer with OpenSCAD on reference parts of a library.
+
+    The reference parts (:func:`pysolver.render_fast.write_reference_parts`: top and
+    bottom nodes with tilted bumpers, three brackets, alignment hole and marker pocket,
+    an actuated node, both support frames, the marker dot and a specimen) are rendered by
+    both backends through the part cache in ``<cache_dir>/selfcheck``; a part agrees
+    when the volumes agree within :data:`SELF_CHECK_VOLUME_RTOL` and the volume of the
+    symmetric difference is below :data:`SELF_CHECK_SYMDIFF_RTOL` of the part volume.
+    Run once per process and (library, OpenSCAD, fast renderer) versions; later runs of
+    a new process read both renders from the cache.
+
+    Parameters
+    ----------
+    scad_dir : path-like
+        OpenSCAD library.
+    cache_dir : path-like
+        Part cache (the check uses its ``selfcheck`` subfolder).
+    exe : str, optional
+        OpenSCAD executable (default :func:`find_openscad`).
+    jobs : int, optional
+        Parallel processes.
+    progress : bool
+        Progress bars.
+
+    Returns
+    -------
+    check : dict
+        ``ok`` (bool), ``summary`` (one line), ``parts`` {name: {``volume_rel``,
+        ``symdiff_rel``}}, ``max_volume_rel``, ``max_symdiff_rel``, ``failures``
+        {name: message} (a backend failed on a reference part).
+
+    Raises
+    ------
+    ExternalToolError
+        OpenSCAD is missing.
+    """
+    from . import render_fast
+
+    fversion = render_fast.version()
+    if fversion is None:
+        return {"ok": False, "summary": f"{render_fast.DIST} is not importable", "parts": {},
+                "max_volume_rel": None, "max_symdiff_rel": None, "failures": {}}
+    exe = exe or find_openscad()
+    oversion = openscad_version(exe)
+    scad_dir = Path(scad_dir).resolve()
+    digest = library_digest(scad_dir)
+    memo = (digest, str(scad_dir), exe, oversion, fversion)
+    if memo in _SELF_CHECKS:
+        return dict(_SELF_CHECKS[memo])
+    folder = Path(cache_dir) / "selfcheck"
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = int(jobs) if jobs else (os.cpu_count() or 1)
+    parts = render_fast.write_reference_parts(folder / "parts", scad_dir)
+    sets = {}
+    failures: dict[str, str] = {}
+    for name, version in (("openscad", oversion), ("fast", fversion)):
+        targets = {p.name: folder / f"{part_key(p.path.read_bytes(), digest, version)}.stl"
+                   for p in parts}
+        todo = [(p, targets[p.name]) for p in parts if not targets[p.name].is_file()]
+        pool = _openscad_pool if name == "openscad" else _fast_pool
+        kw = {"exe": exe} if name == "openscad" else {}
+        _s, bad = pool(todo, cache_dir=folder, jobs=jobs, progress=progress, **kw)
+        failures.update({f"{p.name} ({name})": err.strip() for p, err in bad})
+        sets[name] = targets
+    per: dict[str, dict] = {}
+    if not failures:
+        for p in parts:
+            try:
+                a = to_manifold(load_stl(sets["openscad"][p.name]), f"{p.name} (openscad)")
+                b = to_manifold(load_stl(sets["fast"][p.name]), f"{p.name} (fast)")
+            except ExternalToolError as e:
+                failures[p.name] = str(e)
+                continue
+            va = a.volume()
+            per[p.name] = {"volume_rel": abs(b.volume() - va) / va,
+                           "symdiff_rel": ((a - b).volume() + (b - a).volume()) / va}
+    mv = max((v["volume_rel"] for v in per.values()), default=None)
+    ms = max((v["symdiff_rel"] for v in per.values()), default=None)
+    ok = (not failures and len(per) == len(parts) and mv <= SELF_CHECK_VOLUME_RTOL
+          and ms <= SELF_CHECK_SYMDIFF_RTOL)
+    if failures:
+        first = sorted(failures)[0]
+        summary = (f"self-check failed: a renderer failed on {len(failures)} reference part(s), "
+                   f"e.g. {first}: {failures[first].splitlines()[-1] if failures[first] else ''}")
+    else:
+        summary = (f"self-check on {len(per)} reference parts {'passed' if ok else 'FAILED'}: "
+                   f"volumes within {mv:.1e} (limit {SELF_CHECK_VOLUME_RTOL:g}), symmetric "
+                   f"difference <= {ms:.1e} of the volume (limit {SELF_CHECK_SYMDIFF_RTOL:g})")
+    check = {"ok": bool(ok), "summary": summary, "parts": per, "max_volume_rel": mv,
+             "max_symdiff_rel": ms, "failures": failures}
+    _SELF_CHECKS[memo] = check
+    return dict(check)
 
 
 # --------------------------------------------------------------------------------------------
@@ -330,7 +617,7 @@ def describe_stl(path, m) -> dict:
 
 
 def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progress=True,
-                  actuated: bool = True) -> dict:
+                  actuated: bool = True, renderer=None) -> dict:
     """Render the printable STLs of a design folder.
 
     Parameters
@@ -349,22 +636,26 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
         Progress bar and one line per step on stderr.
     actuated : bool
         Also render ``actuated.stl`` (the shell in its target pose).
+    renderer : {"openscad", "fast", "auto"}, optional
+        Part renderer (default :data:`DEFAULT_RENDERER`), see :func:`render_parts`.
 
     Returns
     -------
     summary : dict
-        ``parts``, ``rendered``, ``cached``, ``seconds_per_part`` (mean OpenSCAD
+        ``parts``, ``rendered``, ``cached``, ``seconds_per_part`` (mean renderer
         wall time of the parts rendered now, None if all were cached),
         ``wall_seconds_per_part`` (pool wall time / rendered parts),
-        ``cpu_seconds_per_part`` (OpenSCAD CPU time / rendered parts),
+        ``cpu_seconds_per_part`` (renderer CPU time / rendered parts),
         ``stl`` {key: path}, ``watertight`` {key: bool}, ``bodies``, ``volumes_mm3``,
         ``bbox_mm`` {key: [[xmin, ymin, zmin], [xmax, ymax, zmax]]}, ``timings_s``,
-        ``openscad``, ``jobs``, ``cache_dir``, ``scad_dir``, ``facet_tol_mm``.
+        ``openscad``, ``renderer`` (backend used), ``renderer_version``,
+        ``fallback_parts`` (parts the fast renderer failed on, rendered by OpenSCAD),
+        ``jobs``, ``cache_dir``, ``scad_dir``, ``facet_tol_mm``.
 
     Raises
     ------
     ExternalToolError
-        OpenSCAD missing or failing on some parts (named by base id and layer).
+        The renderer missing or failing on some parts (named by base id and layer).
     InputError
         Bad or missing tables.
     """
@@ -374,7 +665,8 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     design_dir = Path(design_dir).resolve()
     scad_dir = check_library(Path(scad_dir).resolve() if scad_dir else SCAD_DIR)
     cache_dir = Path(cache_dir) if cache_dir else default_cache_dir(design_dir)
-    exe = find_openscad()
+    renderer = check_renderer(DEFAULT_RENDERER if renderer is None else renderer)
+    exe = None if renderer == "fast" else find_openscad()   # fast: OpenSCAD only as fallback
 
     def log(msg):
         if progress:
@@ -390,9 +682,12 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     log(f"{len(parts)} part files in {design_dir / 'scad'}; cache {cache_dir}")
 
     res = render_parts(parts, cache_dir=cache_dir, scad_dir=scad_dir, jobs=jobs,
-                       progress=progress, exe=exe)
-    log(f"OpenSCAD: {res['rendered']} rendered, {res['cached']} cached, "
-        f"{res['wall_s']:.1f} s")
+                       progress=progress, exe=exe, renderer=renderer)
+    log(f"{res['renderer']} renderer ({res['renderer_version']}): {res['rendered']} rendered, "
+        f"{res['cached']} cached, {res['wall_s']:.1f} s")
+    if res["fallback"]:
+        log(f"WARNING: the fast renderer failed on {len(res['fallback'])} parts, rendered by "
+            f"OpenSCAD instead: {', '.join(sorted(res['fallback']))}")
 
     t0 = time.perf_counter()
     meshes = {p.name: load_stl(res["stl"][p.name]) for p in parts}
@@ -444,6 +739,10 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     info = {}
     with atomic_dir(design_dir / "stl") as tmp:
         for key, m in outputs.items():
+            # drop the zero-area triangles and doubled vertices that a union of coplanar
+            # faces can leave (they lie within manifold3d's ~1e-11 mm tolerance, so nothing
+            # moves): written as float32 they made the STL non-manifold
+            m = outputs[key] = m.simplify(EXPORT_SIMPLIFY_MM)
             from_manifold(m).export(str(tmp / STL_FILES[key]), file_type="stl")
             info[key] = describe_stl(tmp / STL_FILES[key], m)
     t_export = time.perf_counter() - t0
@@ -471,10 +770,14 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
         "volumes_mm3": {k: v["volume_mm3"] for k, v in info.items()},
         "bbox_mm": {k: v["bbox_mm"] for k, v in info.items()},
         "triangles": {k: v["triangles"] for k, v in info.items()},
-        "timings_s": {"write_scad": round(t_write, 3), "openscad": round(res["wall_s"], 3),
+        "timings_s": {"write_scad": round(t_write, 3), "self_check": round(res["self_check_s"], 3),
+                      "openscad": round(res["wall_s"], 3),
                       "union": round(t_union, 3), "export": round(t_export, 3),
                       "total": round(time.perf_counter() - t_start, 3)},
         "openscad": res["openscad"],
+        "renderer": res["renderer"],
+        "renderer_version": res["renderer_version"],
+        "fallback_parts": sorted(res["fallback"]),
         "jobs": res["jobs"],
         "cache_dir": str(cache_dir),
         "scad_dir": str(scad_dir),
@@ -487,4 +790,6 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
 
 __all__ = ["render_design", "render_parts", "find_openscad", "openscad_version",
            "library_digest", "part_key", "default_cache_dir", "load_stl", "to_manifold",
-           "from_manifold", "union", "describe_stl", "STL_FILES", "OPENSCAD_ENV", "FACET_TOL_MM"]
+           "from_manifold", "union", "describe_stl", "STL_FILES", "OPENSCAD_ENV", "FACET_TOL_MM",
+           "RENDERERS", "DEFAULT_RENDERER", "check_renderer", "fast_self_check",
+           "RendererFallbackWarning"]

@@ -142,7 +142,8 @@ def plate_layout(sizes, build_area, spacing: float = PLATE_SPACING) -> list[list
 
 
 def make_specimens(out_dir, lengths=(5, 6, 7, 8, 9), thicknesses=None, build_area=(200, 200),
-                   jobs=None, *, scad_dir=None, cache_dir=None, progress: bool = True) -> dict:
+                   jobs=None, *, scad_dir=None, cache_dir=None, progress: bool = True,
+                   renderer=None) -> dict:
     """Render unit-cell specimens and their build-plate layout.
 
     Parameters
@@ -167,6 +168,9 @@ def make_specimens(out_dir, lengths=(5, 6, 7, 8, 9), thicknesses=None, build_are
         Part cache (default: ``build/.cache/parts`` above ``out_dir``, else beside it).
     progress : bool
         Progress bar on stderr.
+    renderer : {"openscad", "fast", "auto"}, optional
+        Part renderer (default :data:`pysolver.render.DEFAULT_RENDERER`), see
+        :func:`pysolver.render.render_parts`.
 
     Returns
     -------
@@ -194,7 +198,7 @@ def make_specimens(out_dir, lengths=(5, 6, 7, 8, 9), thicknesses=None, build_are
     parts = [Part(specimen_name(l, h), "specimen", None, -1,
                   out_dir / "scad" / f"{specimen_name(l, h)}.scad") for l, h in grid]
     res = render_parts(parts, cache_dir=cache_dir, scad_dir=scad_dir, jobs=jobs,
-                       progress=progress)
+                       progress=progress, renderer=renderer)
 
     t0 = time.perf_counter()
     solids = [to_manifold(load_stl(res["stl"][p.name]), f"specimen {p.name}") for p in parts]
@@ -246,6 +250,7 @@ def make_specimens(out_dir, lengths=(5, 6, 7, 8, 9), thicknesses=None, build_are
         "timings_s": {"openscad": round(res["wall_s"], 3), "layout": round(t_layout, 3),
                       "total": round(time.perf_counter() - t_start, 3)},
         "openscad": res["openscad"],
+        "renderer": res["renderer"],
         "scad_dir": str(scad_dir),
         "cache_dir": str(cache_dir),
     }

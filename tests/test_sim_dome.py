@@ -1,7 +1,7 @@
 """A designed dome morphs into its target shape (design -> program -> simulate).
 
-Tolerances: every step converges (1e-6 N); at least 95 % of the cells reach their bumpers in
-both layers by t = 120 s; the final base centres are within 1 % of the target size (bounding
+Tolerances: every step converges (1e-6 N); at least 95 % of the cells reach their bumpers (all 4
+brackets, within the 0.05 mm printing clearance) by t = 120 s; the final base centres are within 1 % of the target size (bounding
 box diagonal, ~100 mm) RMS of the designed 3D centres after a rigid (Kabsch) alignment.  The
 residual (~0.4 % with the fitted model) comes from the two brackets of a layer having slightly
 different contact lengths and from the contact springs' compliance.
@@ -35,7 +35,8 @@ def test_dome_reaches_target(tmp_path):
         from pysolver.temporal import program_design
 
         material = load_bracket_model()
-        program_design(d, material=material, progress=False, picture=False)
+        program_design(d, material=material, progress=False, picture=False,
+                       fit_landscape=True)
     except (ImportError, InputError):  # no fitted model yet: design thickness + stand-in law
         from sim.synthetic import StandInBracketModel
 
@@ -44,7 +45,8 @@ def test_dome_reaches_target(tmp_path):
     assert summary["nonconverged_steps"] == []
     with np.load(d / "sim" / "frames.npz") as z:
         C = z["base_center"][-1]
-        tc = completion_times({"t": z["t"], "collided": z["collided"]})
+        tc = completion_times({k: z[k] for k in ("t", "collided", "bracket_length",
+                                                  "collision_length")})
     from pysolver.tables import read_table
 
     b = read_table(d, "bases")
