@@ -1,10 +1,9 @@
-"""A designed dome morphs into its target shape (design -> program -> simulate).
-
-Tolerances: every step converges (1e-6 N); at least 95 % of the cells reach their bumpers (all 4
-brackets, within the 0.05 mm printing clearance) by t = 120 s; the final base centres are within 1 % of the target size (bounding
-box diagonal, ~100 mm) RMS of the designed 3D centres after a rigid (Kabsch) alignment.  The
-residual (~0.4 % with the fitted model) comes from the two brackets of a layer having slightly
-different contact lengths and from the contact springs' compliance.
+"""A designed dome morphs into its target shape (design -> program -> simulate). Tolerances: every
+step converges (1e-6 N); at least 95 % of the cells reach their bumpers (all 4 brackets, within
+the 0.05 mm printing clearance) by t = 120 s; the final base centres are within 1 % of the
+target size (bounding box diagonal, ~100 mm) RMS of the designed 3D centres after a rigid
+(Kabsch) alignment. The residual (~0.4 % with the fitted model) comes from the two brackets of
+a layer having slightly different contact lengths and from the contact springs' compliance.
 """
 
 from __future__ import annotations
