@@ -23,7 +23,12 @@ def main(argv: list[str]) -> int:
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
         print(f"== {name}", flush=True)
-        status |= int(mod.main() or 0)
+        # each benchmark parses its own options; run it with its defaults
+        saved, sys.argv = sys.argv, [str(path)]
+        try:
+            status |= int(mod.main() or 0)
+        finally:
+            sys.argv = saved
     return status
 
 
