@@ -15,6 +15,7 @@ import shutil
 
 import numpy as np
 import pytest
+from _shared import section_width
 
 from pysolver import render, tables
 from pysolver.errors import ExternalToolError, InputError
@@ -94,21 +95,6 @@ def _fit_circle(P):
     sol, *_ = np.linalg.lstsq(A, (P ** 2).sum(1), rcond=None)
     c = sol[:2]
     return c, math.sqrt(sol[2] + c @ c)
-
-
-def _width(seg, m, w):
-    """Width of the solid around point m along direction w: nearest wall crossings either side."""
-    p, q = seg[:, 0], seg[:, 1]
-    d = q - p
-    den = w[0] * d[:, 1] - w[1] * d[:, 0]
-    ok = np.abs(den) > 1e-12
-    r = p - m
-    s = (r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0]) / np.where(ok, den, 1)
-    t = (r[:, 0] * w[1] - r[:, 1] * w[0]) / np.where(ok, den, 1)
-    s = s[ok & (t >= -1e-9) & (t <= 1 + 1e-9)]
-    if not (np.any(s > 0) and np.any(s < 0)):
-        return None
-    return s[s > 0].min() - s[s < 0].max()
 
 
 def _arms(d, layer):
@@ -231,13 +217,13 @@ def test_bracket_thickness_from_section(built):
         for c, mid, u, h in _arms(d, layer):
             m = _to_print(mid[None], layer)[0]
             w = T @ np.array([-u[1], u[0]])
-            width = _width(seg, m, w)
+            width = section_width(seg, m, w)
             assert width == pytest.approx(h, abs=0.02), (layer, c)
         # above the bracket height only bases and bumpers remain: no arm there
         seg = _slice(built["stl"][layer], U.bracket_w + 0.1)
         _c, mid, u, _h = _arms(d, layer)[0]
         m = _to_print(mid[None], layer)[0]
-        assert _width(seg, m, T @ np.array([-u[1], u[0]])) is None
+        assert section_width(seg, m, T @ np.array([-u[1], u[0]])) is None
 
 
 def test_actuated_preview_places_bases_on_target(built):
@@ -365,7 +351,7 @@ def test_editing_a_module_default_changes_the_build(built, tmp_path):
     T = print_transform("top")[:2, :2]
     for c, mid, u, h in _arms(built["d"], "top")[:8]:
         m = _to_print(mid[None], "top")[0]
-        assert _width(seg, m, T @ np.array([-u[1], u[0]])) == pytest.approx(h, abs=0.02), c
+        assert section_width(seg, m, T @ np.array([-u[1], u[0]])) == pytest.approx(h, abs=0.02), c
     assert s["volumes_mm3"]["top"] > built["summary"]["volumes_mm3"]["top"]
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from _shared import flat_grid, save_mesh
 
 from pysolver import tables
 from pysolver.cli import main
@@ -65,23 +66,6 @@ def _names(msg: str, *patterns: str) -> None:
 # meshes
 
 
-def _grid(n=8, size=40.0):
-    """Flat n x n grid of right triangles, size x size mm, CCW (normals +z)."""
-    X, Y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n))
-    V = np.c_[X.ravel(), Y.ravel(), np.zeros(n * n)]
-    F = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
-            F += [[a, b, d], [a, d, c]]
-    return V, np.array(F)
-
-
-def _save(path, V, F):
-    trimesh.Trimesh(V, F, process=False).export(path)
-    return path
-
-
 def _m_missing(d):
     return d / "nope.obj"
 
@@ -117,50 +101,50 @@ def _m_directory(d):
 
 
 def _m_nonmanifold_edge(d):
-    V, F = _grid()
+    V, F = flat_grid()
     V = np.vstack([V, [[2.9, 0.0, 10.0]]])
     F = np.vstack([F, [[1, 0, len(V) - 1]]])  # a fin on the (interior-facing) edge 0-1
     F = np.vstack([F, [[0, 1, len(V) - 1]]])
-    return _save(d / "fin.obj", V, F)
+    return save_mesh(d / "fin.obj", V, F)
 
 
 def _m_nonmanifold_vertex(d):
-    V, F = _grid()
+    V, F = flat_grid()
     F = np.where(F == 63, 0, F)  # glue the far corner onto the first: a bow-tie vertex
     V[63] = [1e3, 1e3, 1e3]      # (now unreferenced, dropped on load)
-    return _save(d / "bowtie.obj", V, F)
+    return save_mesh(d / "bowtie.obj", V, F)
 
 
 def _m_components(d):
-    V, F = _grid()
-    return _save(d / "two.ply", np.vstack([V, V + [60, 0, 0]]), np.vstack([F, F + len(V)]))
+    V, F = flat_grid()
+    return save_mesh(d / "two.ply", np.vstack([V, V + [60, 0, 0]]), np.vstack([F, F + len(V)]))
 
 
 def _m_hole(d):
-    V, F = _grid()
+    V, F = flat_grid()
     q = 2 * (3 * 7 + 3)  # the two triangles of the quad in row 3, column 3
-    return _save(d / "hole.obj", V, np.delete(F, [q, q + 1], axis=0))
+    return save_mesh(d / "hole.obj", V, np.delete(F, [q, q + 1], axis=0))
 
 
 def _m_handle(d):
     t = trimesh.creation.torus(30.0, 10.0)
-    return _save(d / "handle.off", t.vertices, t.faces[3:])
+    return save_mesh(d / "handle.off", t.vertices, t.faces[3:])
 
 
 def _m_closed(d):
     s = trimesh.creation.icosphere(2, radius=30.0)
-    return _save(d / "ball.stl", s.vertices, s.faces)
+    return save_mesh(d / "ball.stl", s.vertices, s.faces)
 
 
 def _m_closed_torus(d):
     t = trimesh.creation.torus(30.0, 10.0)
-    return _save(d / "ring.obj", t.vertices, t.faces)
+    return save_mesh(d / "ring.obj", t.vertices, t.faces)
 
 
 def _m_repeated_vertex(d):
-    V, F = _grid()
+    V, F = flat_grid()
     F[5] = [F[5, 0], F[5, 0], F[5, 2]]
-    return _save(d / "repeat.obj", V, F)
+    return save_mesh(d / "repeat.obj", V, F)
 
 
 def _m_zero_area(d):
@@ -168,7 +152,7 @@ def _m_zero_area(d):
     # and the T-junction closed by the zero-area triangle (A, M, C)
     V = np.array([[0, 0, 0], [40, 0, 0], [40, 40, 0], [0, 40, 0], [20, 20, 0]], float)
     F = np.array([[0, 1, 4], [1, 2, 4], [0, 2, 3], [0, 4, 2]])
-    return _save(d / "sliver.obj", V, F)
+    return save_mesh(d / "sliver.obj", V, F)
 
 
 def _m_nan(d):
@@ -182,30 +166,30 @@ def _m_inf(d):
 
 
 def _m_nan_stl(d):
-    V, F = _grid()
+    V, F = flat_grid()
     V[20] = [np.nan, 5.0, 0.0]      # (trimesh's STL processing would drop these triangles
-    return _save(d / "nan.stl", V, F)  # and the surface would show a misleading "hole")
+    return save_mesh(d / "nan.stl", V, F)  # and the surface would show a misleading "hole")
 
 
 def _m_flipped(d):
-    V, F = _grid()
+    V, F = flat_grid()
     F[10] = F[10, ::-1]
-    return _save(d / "flip.obj", V, F)
+    return save_mesh(d / "flip.obj", V, F)
 
 
 def _m_metres(d):
-    V, F = _grid(size=100.0)
-    return _save(d / "metres.stl", V / 1000.0, F)
+    V, F = flat_grid(size=100.0)
+    return save_mesh(d / "metres.stl", V / 1000.0, F)
 
 
 def _m_inches(d):
-    V, F = _grid(size=100.0)
-    return _save(d / "inches.obj", V / 25.4, F)
+    V, F = flat_grid(size=100.0)
+    return save_mesh(d / "inches.obj", V / 25.4, F)
 
 
 def _m_micrometres(d):
-    V, F = _grid(size=100.0)
-    return _save(d / "um.ply", V * 1000.0, F)
+    V, F = flat_grid(size=100.0)
+    return save_mesh(d / "um.ply", V * 1000.0, F)
 
 
 MESH_CASES = {
@@ -294,8 +278,8 @@ def test_metres_mesh_designs_with_scale_option(tmp_path, capsys):
 
 def test_suspicious_size_warns_and_offers_scale(tmp_path, capsys):
     """30 mm across is possible but suspicious (a 300 mm shell exported in cm): warn, go on."""
-    V, F = _grid(size=21.2)
-    path = _save(tmp_path / "small.obj", V, F)
+    V, F = flat_grid(size=21.2)
+    path = save_mesh(tmp_path / "small.obj", V, F)
     with pytest.warns(SizeWarning, match=r"30 mm across.*--scale 10 .*centimetres.*300 mm"):
         load_input(path)
     with warnings.catch_warnings():
@@ -325,7 +309,7 @@ def _cap(tmp_path):
     keep = s.triangles_center[:, 2] > 0.0
     m = trimesh.Trimesh(s.vertices + [0, 0, 100.0], s.faces[keep], process=False)
     m.remove_unreferenced_vertices()
-    return _save(tmp_path / "cap.obj", m.vertices, m.faces)
+    return save_mesh(tmp_path / "cap.obj", m.vertices, m.faces)
 
 
 def test_too_curved_names_the_region_in_input_coordinates(tmp_path):

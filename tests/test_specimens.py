@@ -13,6 +13,7 @@ import shutil
 
 import numpy as np
 import pytest
+from _shared import section_width
 
 from pysolver.errors import InputError
 from pysolver.params import UNIT_CELL
@@ -70,19 +71,6 @@ def _fit_circle(P):
     A = np.c_[2 * P, np.ones(len(P))]
     sol, *_ = np.linalg.lstsq(A, (P ** 2).sum(1), rcond=None)
     return sol[:2], math.sqrt(sol[2] + sol[:2] @ sol[:2])
-
-
-def _width(seg, m, w):
-    p, d = seg[:, 0], seg[:, 1] - seg[:, 0]
-    den = w[0] * d[:, 1] - w[1] * d[:, 0]
-    ok = np.abs(den) > 1e-12
-    r = p - m
-    s = (r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0]) / np.where(ok, den, 1)
-    t = (r[:, 0] * w[1] - r[:, 1] * w[0]) / np.where(ok, den, 1)
-    s = s[ok & (t >= -1e-9) & (t <= 1 + 1e-9)]
-    if not (np.any(s > 0) and np.any(s < 0)):
-        return None
-    return s[s > 0].min() - s[s < 0].max()
 
 
 def _inside(seg, pts):
@@ -211,7 +199,7 @@ def test_bracket_thickness_and_central_length_from_sections(made):
                 for k in (-1, 1):
                     u = np.array([math.cos(d + k * ALPHA), math.sin(d + k * ALPHA)])
                     m = np.array([cx, 0]) + (U.base_r + l / (2 * math.cos(ALPHA))) / 2 * u
-                    width = _width(seg, m, np.array([-u[1], u[0]]))
+                    width = section_width(seg, m, np.array([-u[1], u[0]]))
                     assert width == pytest.approx(h, abs=0.02), (l, h, z)
 
 
@@ -252,5 +240,5 @@ def test_editing_the_bracket_module_changes_the_specimen(made, tmp_path):
     u = np.array([math.cos(ALPHA), math.sin(ALPHA)])
     m = np.array([-2.5, 0]) + (U.base_r + 5 / (2 * math.cos(ALPHA))) / 2 * u
     w = np.array([-u[1], u[0]])
-    assert _width(_slice(edited, 1.1), m, w) == pytest.approx(0.3, abs=0.02)
-    assert _width(_slice(original, 1.1), m, w) is None
+    assert section_width(_slice(edited, 1.1), m, w) == pytest.approx(0.3, abs=0.02)
+    assert section_width(_slice(original, 1.1), m, w) is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from _shared import flat_grid, save_mesh
 
 from pysolver import surfaces, tables
 from pysolver.design import run_design
@@ -188,24 +189,8 @@ def test_user_stencil_keeps_vertex_and_face_order(tmp_path):
 # bad input catalogue
 
 
-def _grid(n=8, size=40.0):
-    X, Y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n))
-    V = np.c_[X.ravel(), Y.ravel(), np.zeros(n * n)]
-    F = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
-            F += [[a, b, d], [a, d, c]]
-    return V, np.array(F)
-
-
-def _write(path, V, F):
-    trimesh.Trimesh(V, F, process=False).export(path)
-    return path
-
-
 def _bad_meshes(tmp):
-    V, F = _grid()
+    V, F = flat_grid()
     n = 8
     cases = {}
     (tmp / "empty.obj").write_text("")
@@ -217,33 +202,33 @@ def _bad_meshes(tmp):
     Vn = np.vstack([V, [[20, 20, 10]]])
     Fn = np.vstack([F, [[0, 1, len(V)]]])  # a third face on boundary edge (0,1)... fin
     Fn = np.vstack([Fn, [[1, 0, len(V)]]])
-    cases["nonmanifold"] = (_write(tmp / "nm.obj", Vn, Fn), "non-manifold edge")
+    cases["nonmanifold"] = (save_mesh(tmp / "nm.obj", Vn, Fn), "non-manifold edge")
     V2 = np.vstack([V, V + [100, 0, 0]])
     F2 = np.vstack([F, F + len(V)])
-    cases["components"] = (_write(tmp / "two.obj", V2, F2), "2 separate pieces")
+    cases["components"] = (save_mesh(tmp / "two.obj", V2, F2), "2 separate pieces")
     hole = np.array([k for k, f in enumerate(F) if not np.all(np.isin(f, [27, 28, 35, 36]))])
     keep = np.ones(len(F), bool)
     keep[[k for k, f in enumerate(F) if np.isin(f, [27, 28, 35, 36]).sum() >= 2]] = False
     del hole
-    cases["hole"] = (_write(tmp / "hole.obj", V, F[keep]), "1 hole")
+    cases["hole"] = (save_mesh(tmp / "hole.obj", V, F[keep]), "1 hole")
     sphere = trimesh.creation.icosphere(2, radius=30.0)
-    cases["closed"] = (_write(tmp / "sphere.stl", sphere.vertices, sphere.faces), "closed")
+    cases["closed"] = (save_mesh(tmp / "sphere.stl", sphere.vertices, sphere.faces), "closed")
     torus = trimesh.creation.torus(30.0, 10.0)
-    cases["genus"] = (_write(tmp / "torus.off", torus.vertices, torus.faces[3:]), "handle")
+    cases["genus"] = (save_mesh(tmp / "torus.off", torus.vertices, torus.faces[3:]), "handle")
     Fd = F.copy()
     Fd[5] = [Fd[5, 0], Fd[5, 0], Fd[5, 2]]
-    cases["degenerate"] = (_write(tmp / "deg.obj", V, Fd), "degenerate triangle")
-    cases["tiny"] = (_write(tmp / "tiny.stl", V / 1000, F), "scale=1000")
-    cases["cm"] = (_write(tmp / "cm.obj", V / 10, F), "scale=10")
-    cases["huge"] = (_write(tmp / "huge.obj", V * 1000, F), "implausibly large")
+    cases["degenerate"] = (save_mesh(tmp / "deg.obj", V, Fd), "degenerate triangle")
+    cases["tiny"] = (save_mesh(tmp / "tiny.stl", V / 1000, F), "scale=1000")
+    cases["cm"] = (save_mesh(tmp / "cm.obj", V / 10, F), "scale=10")
+    cases["huge"] = (save_mesh(tmp / "huge.obj", V * 1000, F), "implausibly large")
     Fo = F.copy()
     Fo[10] = Fo[10, ::-1]
-    cases["orientation"] = (_write(tmp / "flip.obj", V, Fo), "consistently oriented")
+    cases["orientation"] = (save_mesh(tmp / "flip.obj", V, Fo), "consistently oriented")
     # pinch: merge the two far ends of a strip -> one vertex with two fans
-    Vs, Fs = _grid(n)
+    Vs, Fs = flat_grid(n)
     Fs = np.where(Fs == n * n - 1, 0, Fs)  # identify the last corner with the first
     Vs[n * n - 1] = [1e3, 1e3, 1e3]  # now unreferenced (dropped on load)
-    cases["pinch"] = (_write(tmp / "pinch.obj", Vs, Fs), "non-manifold vertex")
+    cases["pinch"] = (save_mesh(tmp / "pinch.obj", Vs, Fs), "non-manifold vertex")
     (tmp / "nan.obj").write_text("v 0 0 0\nv 40 0 0\nv 0 40 0\nv nan 40 0\nf 1 2 3\nf 2 4 3\n")
     cases["nan"] = (tmp / "nan.obj", "NaN")
     return cases
@@ -257,11 +242,11 @@ def test_bad_input_catalogue(tmp_path):
 
 
 def test_good_mesh_formats_load(tmp_path):
-    V, F = _grid()
+    V, F = flat_grid()
     for ext in ("obj", "stl", "ply", "off"):
-        m = load_input(_write(tmp_path / f"g.{ext}", V, F))
+        m = load_input(save_mesh(tmp_path / f"g.{ext}", V, F))
         assert m.kind == "mesh" and len(m.F) == len(F)
-    m = load_input(_write(tmp_path / "g.obj", V / 10, F), scale=10)
+    m = load_input(save_mesh(tmp_path / "g.obj", V / 10, F), scale=10)
     np.testing.assert_allclose(np.ptp(m.V, axis=0)[:2], 40.0)
 
 
@@ -271,7 +256,7 @@ def test_mesh_as_stencil_and_lscm(tmp_path):
     out = tmp_path / "dome"
     run_design("dome", out, progress=False, plots=False)
     V, _, F = tables.read_stencil(out / "stencil.obj")
-    src = _write(tmp_path / "mine.ply", V, F)
+    src = save_mesh(tmp_path / "mine.ply", V, F)
     summary = run_design(src, tmp_path / "mine", stencil_order=True, flattening="lscm",
                          progress=False, plots=False)
     assert summary["flattening"]["method"] == "lscm"
