@@ -111,6 +111,9 @@ STL_FILES = {
     "actuated": "actuated.stl",
 }
 
+_BAR_INTERVAL_S = 0.1 if sys.stderr.isatty() else 15.0
+"""Progress-bar refresh: live on a terminal, a line every 15 s in logs (CI, files)."""
+
 EXPORT_SIMPLIFY_MM = 0.0
 """Tolerance (mm) of the manifold3d ``simplify`` run on every output before writing it:
 0 drops only zero-area triangles and doubled vertices.  (1e-4 mm was tried against the
@@ -234,7 +237,7 @@ def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
             tmp.unlink(missing_ok=True)
 
     bar = tqdm(total=len(todo), desc="OpenSCAD parts", unit="part", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True)
+               disable=not progress, dynamic_ncols=True, mininterval=_BAR_INTERVAL_S)
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = [pool.submit(work, item) for item in todo]
         try:
@@ -275,7 +278,7 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
         os.close(fd)
         tmps.append(Path(tmp))
     bar = tqdm(total=len(todo), desc="fast parts", unit="part", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True)
+               disable=not progress, dynamic_ncols=True, mininterval=_BAR_INTERVAL_S)
     lock = threading.Lock()
 
     def done(i, ans):
