@@ -165,25 +165,14 @@ def read_design(design_dir):
     Raises
     ------
     InputError
-        A file or column is missing, or a bracket thickness / central length is
-        not printable.
+        A file or column is missing, a bracket thickness is outside 0.30-0.65 mm
+        (:func:`pysolver.tables.check_design`), or a central length is not printable.
     """
     from .tables import read_design as _read
 
     design_dir = Path(design_dir)
     d = _read(design_dir)
-    cells = d.cells
-    for layer in LAYERS:
-        key = f"thickness_{layer}_mm"
-        h = np.asarray(cells[key], float)
-        bad = np.flatnonzero(~np.isfinite(h) | (h <= 0) | (h >= UNIT_CELL.base_r))
-        if bad.size:
-            i = int(bad[0])
-            raise InputError(
-                f"{design_dir / 'cells.csv'}:{i + 2} (cell {int(cells['cell_id'][i])}): "
-                f"{key} = {h[i]!r} is not a printable bracket thickness.",
-                fix=f"thicknesses must lie in [{UNIT_CELL.thickness_min}, "
-                    f"{UNIT_CELL.thickness_max}] mm; re-run 'morphshell program DIR'.")
+    cells = d.cells  # thickness range: checked by pysolver.tables.check_design
     l = np.asarray(cells["central_length_mm"], float)
     bad = np.flatnonzero(~(l > UNIT_CELL.bracket_offset))
     if bad.size:

@@ -484,23 +484,25 @@ def decide(metrics: dict, th: Thresholds):
     if nf is not None:
         add("FAIL", "solver", f"non-finite positions from frame {nf['frame']} "
                               f"(t = {nf['time_s']:g} s): the simulation diverged")
+    def graded(value, warn, fail):
+        """(level, limit) for a value against WARN/FAIL limits, or (None, None)."""
+        if value > fail:
+            return "FAIL", fail
+        return ("WARN", warn) if value > warn else (None, None)
+
     sh = metrics["shape"]
-    if sh["rms_pct"] > th.shape_rms_fail_pct:
-        add("FAIL", "shape", f"final shape RMS error {sh['rms_mm']:.2f} mm = "
-                             f"{sh['rms_pct']:.1f} % of the size > {th.shape_rms_fail_pct:g} %")
-    elif sh["rms_pct"] > th.shape_rms_warn_pct:
-        add("WARN", "shape", f"final shape RMS error {sh['rms_mm']:.2f} mm = "
-                             f"{sh['rms_pct']:.1f} % of the size > {th.shape_rms_warn_pct:g} %")
+    level, lim = graded(sh["rms_pct"], th.shape_rms_warn_pct, th.shape_rms_fail_pct)
+    if level:
+        add(level, "shape", f"final shape RMS error {sh['rms_mm']:.2f} mm = "
+                            f"{sh['rms_pct']:.1f} % of the size > {lim:g} %")
     if sh["max_pct"] > th.shape_max_warn_pct:
         add("WARN", "shape", f"base {sh['worst_base']} ends {sh['max_mm']:.2f} mm "
                              f"({sh['max_pct']:.1f} % of the size) from its target "
                              f"> {th.shape_max_warn_pct:g} %")
-    if sh["normal_rms_deg"] > th.normal_fail_deg:
-        add("FAIL", "shape", f"base orientation RMS error {sh['normal_rms_deg']:.0f} deg > "
-                             f"{th.normal_fail_deg:g} deg (bent the wrong way?)")
-    elif sh["normal_rms_deg"] > th.normal_warn_deg:
-        add("WARN", "shape", f"base orientation RMS error {sh['normal_rms_deg']:.0f} deg > "
-                             f"{th.normal_warn_deg:g} deg")
+    level, lim = graded(sh["normal_rms_deg"], th.normal_warn_deg, th.normal_fail_deg)
+    if level:
+        add(level, "shape", f"base orientation RMS error {sh['normal_rms_deg']:.0f} deg > "
+                            f"{lim:g} deg" + (" (bent the wrong way?)" if level == "FAIL" else ""))
     fo = metrics.get("fold")
     if fo is not None:
         if fo["flipped_fraction"] > th.fold_flip_fail_fraction:
