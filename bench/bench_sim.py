@@ -1,6 +1,6 @@
 """Benchmark of the morphing simulator (not a test).
 
-A ~549-base, ~8000-triangle shell (the design stage's ``weave:large``, the size of the paper's
+A 551-base shell (the design stage's ``weave:large``, the size of the paper's
 largest example: 549 rigid bodies, 7942 membrane elements), programmed with the fitted bracket
 model, simulated for 240 steps of 0.5 s (plus the dry step).  Writes
 

@@ -1,7 +1,7 @@
 """Built-in procedural target shapes (generated in code) and their default time landscapes.
 
 Names: ``regular``, ``petal``, ``saddle``, ``dome``, ``weave``, ``spiral``; an option
-may follow a colon: ``"weave:large"`` (about 549 bases, the benchmark size), or
+may follow a colon: ``"weave:large"`` (551 bases, the benchmark size), or
 ``"dome:size=1.5"`` (linear size factor, more bases).  See :func:`builtin`.
 
 A :class:`Surface` is either a dense target surface (then the pipeline remeshes and
@@ -166,7 +166,6 @@ __all__ = ["Surface", "regular", "petal", "saddle", "dome", "weave", "spiral", "
 # dense procedural surfaces (remeshed and flattened by the pipeline)
 
 DENSE_EDGE = 2.5  # mm, edge length of the dense source triangulations
-LARGE_WEAVE = (30.0, 44.0, (40.0, 48.0, 56.0))  # hub, arm width, arc radii of "weave:large"
 
 # tuned remeshing (vertex count, CVT seed) of the default options, found by the search of
 # pysolver.remesh.remesh_surface (seeds=8); keyed by (shape, options)
@@ -175,8 +174,6 @@ TUNED = {
     ("saddle", ()): {"vertices": 71, "seed": 0},
     ("petal", ()): {"vertices": 124, "seed": 1},
     ("spiral", ()): {"vertices": 107, "seed": 2},
-    ("weave", ()): {"vertices": 212, "seed": 6},
-    ("weave", (("large", True),)): {"vertices": 342, "seed": 14},
 }
 
 
@@ -279,73 +276,140 @@ def _polygon_union(polys) -> np.ndarray:
     return np.asarray(loops[0], float)
 
 
-def weave(size: float = 1.0, large: bool = False, arms: int = 3, hub: float | None = None,
-          width: float | None = None, bend_start: float = 30.0, offset: float = 7.0,
-          overshoot: float = 16.0, radii=None) -> Surface:
-    """Three arms that curl over the hub and interweave; they must morph in order.
+def _lattice_disk(outline: np.ndarray, edge: float, angle_deg: float = 90.0):
+    """Equilateral triangle lattice clipped to a polygon.
 
-    A pinwheel (three 38 mm wide arms at 120 deg, offset sideways) around a flat hub.  Arm
-    k bends up by half a turn with arc radius 32 / 38 / 44 mm and runs back over the hub,
-    past the centre, so its tip lies over the root of the next-but-one arm.  The arms'
-    returning parts are stacked (arm 0 lowest): arm 1 must close over arm 0 and arm 2
-    over arm 1, while arm 2's root stays under arm 0's tip -- a cyclic over/under
-    pattern that only works in the order 0, 1, 2.  Default time landscape: hub 30 s,
-    arm 0 45 s, arm 1 65 s, arm 2 85 s.
+    Every face whose centroid lies inside ``outline`` is kept; then faces with fewer than
+    two edge neighbours (teeth of a boundary that does not follow a lattice line; a base
+    held by one unit cell only would be free to spin) are pruned until none is left.  An
+    outline whose edges follow lattice lines is reproduced exactly.
 
-    About 325 bases.  ``large=True`` (``"weave:large"``): 44 mm wide arms, hub 30 mm, arc
-    radii 40 / 48 / 56 mm -- 554 bases, the benchmark size of the paper's self-interweaving
-    shape (549 bases).
+    Parameters
+    ----------
+    outline : (k, 2) float, mm
+        Simple polygon.
+    edge : float, mm
+        Lattice edge length.
+    angle_deg : float, deg
+        Direction of one lattice edge (the others are at +-60 deg).
+
+    Returns
+    -------
+    P : (n, 2) float, mm
+    F : (m, 3) int, counter-clockwise
     """
-    if arms != 3:
-        raise InputError("weave: only 3 arms are supported")
-    dflt = LARGE_WEAVE if large else (28.0, 38.0, (32.0, 38.0, 44.0))
-    hub = dflt[0] if hub is None else hub
-    width = dflt[1] if width is None else width
-    radii = dflt[2] if radii is None else radii
-    hub, width, s0, e, over = (x * size for x in (hub, width, bend_start, offset, overshoot))
-    Rcs = np.array(radii, float) * size
-    ang = np.radians(90.0 + 120.0 * np.arange(3))
-    A = np.c_[np.cos(ang), np.sin(ang)]  # arm axes
-    B = np.c_[-A[:, 1], A[:, 0]]  # lateral (left)
-    total = s0 + np.pi * Rcs + (s0 + over)  # out, half turn, back past the centre
-    polys = [np.c_[hub * np.cos(t), hub * np.sin(t)]
-             for t in [np.linspace(0, 2 * np.pi, 180, endpoint=False)]]
-    for k in range(3):
-        c0 = A[k] * 0.0
-        corners = [c0 + B[k] * (e - width / 2), c0 + A[k] * total[k] + B[k] * (e - width / 2),
-                   c0 + A[k] * total[k] + B[k] * (e + width / 2), c0 + B[k] * (e + width / 2)]
-        polys.append(np.array(corners))
-    outline = _polygon_union(polys)
-    P, F = _dense(outline)
-    V = np.c_[P, np.zeros(len(P))]
-    arm_of = -np.ones(len(P), dtype=int)
-    for k in range(3):
-        s = P @ A[k]
-        t = P @ B[k] - e
-        inarm = (s > s0) & (np.abs(t) <= width / 2 + 1e-6)
-        arm_of[inarm] = k
-        sp_ = s[inarm] - s0
-        Rc = Rcs[k]
-        beta = sp_ / Rc
-        S = np.where(beta <= np.pi, s0 + Rc * np.sin(np.minimum(beta, np.pi)),
-                     s0 - (sp_ - np.pi * Rc))
-        Z = np.where(beta <= np.pi, Rc * (1 - np.cos(np.minimum(beta, np.pi))), 2 * Rc)
-        V[inarm, :2] = S[:, None] * A[k] + (t[inarm] + e)[:, None] * B[k]
-        V[inarm, 2] = Z
+    from matplotlib.path import Path as _Path
 
-    # flat-domain arm membership (largest axial coordinate among the strips containing it)
+    th = np.radians(angle_deg)
+    e1 = edge * np.array([np.cos(th), np.sin(th)])
+    e2 = edge * np.array([np.cos(th + np.pi / 3), np.sin(th + np.pi / 3)])
+    ij = outline @ np.linalg.inv(np.c_[e1, e2]).T
+    lo = np.floor(ij.min(axis=0)).astype(int) - 1
+    hi = np.ceil(ij.max(axis=0)).astype(int) + 1
+    I, J = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+    P = I.reshape(-1, 1) * e1 + J.reshape(-1, 1) * e2
+    idx = np.arange(I.size).reshape(I.shape)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[:-1, 1:].ravel(), idx[1:, 1:].ravel()
+    F = np.r_[np.c_[a, b, c], np.c_[b, d, c]]  # counter-clockwise (e1 x e2 > 0)
+    F = F[_Path(outline).contains_points(P[F].mean(axis=1))]
+    while len(F):
+        E = np.sort(np.r_[F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], axis=1)
+        _, inv, cnt = np.unique(E, axis=0, return_inverse=True, return_counts=True)
+        n_nb = (cnt[inv.ravel()] == 2).reshape(3, -1).sum(axis=0)
+        if n_nb.min() >= 2:
+            break
+        F = F[n_nb >= 2]
+    used = np.unique(F)
+    remap = np.full(len(P), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return P[used], remap[F]
+
+
+def weave(size: float = 1.0, large: bool = False, edge: float = 13.0, rows: int | None = None,
+          hub: int | None = None, bend_start: float | None = None, overshoot: float = 10.0,
+          radii=None, cell: float | None = None) -> Surface:
+    """Three arms that curl over the hub and stack there, closing in order.
+
+    A pinwheel of three straight arms at 120 deg around a hexagonal hub, on an
+    equilateral lattice (``edge`` 13 mm).  Arm k bends up by half a turn along a cylinder
+    of radius R_k = 30 / 39 / 48 mm and runs back over the hub, ``overshoot`` past the
+    centre, at height 2 R_k: the three returning parts stack above the hub, arm 0
+    lowest, arm 2 on top.  The stack forms in the order 0, 1, 2: a curling arm comes down
+    onto its place from above, through the place of every arm above it, which must still
+    be open.  Default time landscape: hub 30 s, arm 0 45 s, arm 1 65 s, arm 2 85 s.
+
+    Clearance rather than timing keeps the arms apart.  With the fitted bracket material
+    the lattice's unit cells (all 5.9 mm, see below) can only be programmed to finish
+    within about 46-56 s, so the arms' programmed closing times are a few seconds apart
+    and all three curl largely together.  The radii therefore differ by 9 mm: the
+    returning parts end 18 mm apart (12 mm after the 3D scale of the stencil, ~0.69),
+    2.4 times the 5.1 mm thickness of the shell, and the simulation finds no collision
+    in the programmed order or with all arms at once.  (At 4 mm steps, R = 30 / 34 /
+    38 mm, the order shows: at once, 9 base pairs collide while the arms curl; in order,
+    only the final stack touches, 0.26 mm deep.)
+
+    The surface is developable (flat hub, cylindrical bends) and its outline follows
+    lattice lines, so the lattice itself is the stencil: no remeshing, no flattening, all
+    unit cells alike.  The 3D scale is then set by the most curved arm (min-bumper rule)
+    and gives every cell the same flat length, 5.9 mm; ``cell`` sets a longer flat length
+    instead (the shell then contracts more than the membrane model was fitted for: the
+    default keeps the rule's).
+
+    Default: 3 lattice rows per arm (34 mm), hub of 2 edges, bend start 28 mm: 255
+    bases.  ``large=True`` (``"weave:large"``): 5 rows (56 mm), hub of 3 edges, bend
+    start 40 mm, radii 38 / 48 / 58 mm: 551 bases, the benchmark size of the paper's
+    self-interweaving shape (549 bases).
+    """
+    dflt = (5, 3, 40.0, (38.0, 48.0, 58.0)) if large else (3, 2, 28.0, (30.0, 39.0, 48.0))
+    rows = int(dflt[0] if rows is None else rows)
+    hub = int(dflt[1] if hub is None else hub)
+    bend_start = dflt[2] if bend_start is None else bend_start
+    radii = dflt[3] if radii is None else radii
+    if rows < 2 or hub < 1:
+        raise InputError(f"weave: rows={rows} must be >= 2 and hub={hub} >= 1 (lattice edges)")
+    if len(np.atleast_1d(radii)) != 3:
+        raise InputError("weave: radii must be three numbers (mm), e.g. radii=30;39;48")
+    if bend_start < hub * edge:
+        raise InputError(f"weave: bend_start={bend_start} mm must clear the hub "
+                         f"({hub * edge:g} mm)")
+    a, s0, over = (x * size for x in (edge, bend_start, overshoot))
+    Rcs = np.array(radii, float) * size
+    hr = a * np.sqrt(3) / 2  # spacing of the lattice lines along an arm
+    width = rows * hr
+    t_lo = -hr  # the arm strip spans lattice lines -1 .. rows - 1 (a pinwheel offset)
+    ang = np.radians(90.0 + 120.0 * np.arange(3))
+    A = np.c_[np.cos(ang), np.sin(ang)]  # arm axes (lattice directions)
+    B = np.c_[-A[:, 1], A[:, 0]]  # lateral (left)
+    total = 2 * s0 + np.pi * Rcs + over  # out, half turn, back past the centre
+    ring = np.radians(90.0 + 60.0 * np.arange(6))
+    polys = [hub * a * np.c_[np.cos(ring), np.sin(ring)]]
+    for k in range(3):
+        polys.append(np.array([B[k] * t_lo, A[k] * total[k] + B[k] * t_lo,
+                               A[k] * total[k] + B[k] * (t_lo + width), B[k] * (t_lo + width)]))
+    P, F = _lattice_disk(_polygon_union(polys), a)
+    V = np.c_[P, np.zeros(len(P))]
     t_dense = np.full(len(P), 30.0)
     best = np.full(len(P), -np.inf)
     for k, tk in enumerate((45.0, 65.0, 85.0)):
-        sk = P @ A[k]
-        lat = P @ B[k] - e
-        mine = (np.abs(lat) <= width / 2 + 1e-6) & (sk > best) & (sk > 0)
-        best[mine] = sk[mine]
-        t_dense[mine] = 30.0 + (tk - 30.0) * _smoothstep((sk[mine] - 0.6 * s0) / (0.4 * s0))
-    time = _time_on_dense(V, F, t_dense)
+        s = P @ A[k]
+        t = P @ B[k]
+        strip = (t >= t_lo - 1e-6) & (t <= t_lo + width + 1e-6)
+        inarm = strip & (s > s0)
+        sp_ = s[inarm] - s0
+        beta = np.minimum(sp_ / Rcs[k], np.pi)
+        S = np.where(sp_ <= np.pi * Rcs[k], s0 + Rcs[k] * np.sin(beta), s0 - (sp_ - np.pi * Rcs[k]))
+        V[inarm, :2] = S[:, None] * A[k] + t[inarm, None] * B[k]
+        V[inarm, 2] = Rcs[k] * (1 - np.cos(beta))
+        # time: the arm whose strip reaches farthest owns a point of the hub
+        mine = strip & (s > best) & (s > 0)
+        best[mine] = s[mine]
+        t_dense[mine] = 30.0 + (tk - 30.0) * _smoothstep((s[mine] - 0.6 * s0) / (0.4 * s0))
 
-    return Surface("weave", V, F, time=time,
-                   description="three-arm pinwheel, arms curl over the hub in order",
+    return Surface("weave", V, F, UV=P.copy(), time=_time_on_dense(V, F, t_dense),
+                   central_length=cell,
+                   description="three-arm pinwheel on a lattice, arms stack over the hub "
+                               "in order",
                    options=dict(size=size, large=bool(large)))
 
 

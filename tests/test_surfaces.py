@@ -20,7 +20,7 @@ GOLDEN = {
     "saddle": (114, 8.80),
     "petal": (191, 9.45),
     "spiral": (157, 9.29),
-    "weave": (325, 8.99),
+    "weave": (255, 5.86),
 }
 
 
@@ -64,8 +64,8 @@ def test_shape_options_and_errors():
     with pytest.raises(InputError, match="must be a number"):
         surfaces.builtin("dome:size=big")
     large = surfaces.builtin("weave:large")
-    assert large.remesh == {"vertices": 342, "seed": 14}
-    assert np.ptp(large.V[:, 2]) == pytest.approx(2 * 56.0, abs=1e-6)  # top arm: radius 56
+    assert len(large.F) == 551 and large.UV is not None  # lattice stencil: no remeshing
+    assert np.ptp(large.V[:, 2]) == pytest.approx(2 * 58.0, abs=1e-6)  # top arm: radius 58
 
 
 # --------------------------------------------------------------------------------------
@@ -86,11 +86,26 @@ def test_petal_small_petals_close_first():
 def test_weave_arms_in_order():
     s = surfaces.builtin("weave")
     t = s.time(s.V)
-    # the returning parts lie exactly at z = 2 R_k (R = 32, 38, 44 mm): arm 0 lowest
-    ret = [np.abs(s.V[:, 2] - 2 * R) < 1e-9 for R in (32.0, 38.0, 44.0)]
-    assert all(r.sum() > 20 for r in ret)
+    # the returning parts lie exactly at z = 2 R_k (R = 30, 39, 48 mm): arm 0 lowest
+    ret = [np.abs(s.V[:, 2] - 2 * R) < 1e-9 for R in (30.0, 39.0, 48.0)]
+    assert all(r.sum() > 10 for r in ret)
     np.testing.assert_allclose([t[r].mean() for r in ret], [45, 65, 85], atol=1e-6)
     assert t.min() == pytest.approx(30.0)
+
+
+def test_weave_is_an_isometric_lattice():
+    """The weave's stencil is the lattice itself: equilateral faces in the flat layout,
+    lengths kept by the (developable) lift within the chord error of the bends."""
+    s = surfaces.builtin("weave")
+    E = np.r_[s.F[:, [0, 1]], s.F[:, [1, 2]], s.F[:, [2, 0]]]
+    l2 = np.linalg.norm(s.UV[E[:, 0]] - s.UV[E[:, 1]], axis=1)
+    l3 = np.linalg.norm(s.V[E[:, 0]] - s.V[E[:, 1]], axis=1)
+    np.testing.assert_allclose(l2, 13.0, rtol=1e-9)
+    # a chord of arc length 13 mm on the tightest bend (R = 30 mm): 2 R sin(13 / 2R)
+    assert l3.min() >= 2 * 30.0 * np.sin(13.0 / 60.0) - 1e-9 and l3.max() <= 13.0 + 1e-9
+    # the stacked returning parts keep 2 x 9 mm between them
+    z = np.unique(np.round(s.V[:, 2][s.V[:, 2] > 59.9], 9))
+    assert {60.0, 78.0, 96.0} <= set(z)
 
 
 # --------------------------------------------------------------------------------------
