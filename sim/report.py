@@ -811,7 +811,11 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
     sel = _nearest_frames(t[:last + 1], times)
     labels = [f"t = {t[f]:g} s" + (" (end)" if f == last else "") for f in sel]
     names = []
-    for f, img in zip(sel, ren.images(sel, labels=labels), strict=True):
+    # each still framed on its own frame (the flat sheet is 2-4x the size of the target, so
+    # one camera for all would leave the end shape small); the GIF keeps one camera
+    stills = [ren.images([f], labels=[lab], fit="these")[0]
+              for f, lab in zip(sel, labels, strict=True)]
+    for f, img in zip(sel, stills, strict=True):
         name = f"render_f{f:04d}.png"
         rp.save_png(img, tmp / name)
         names.append(name)
