@@ -15,9 +15,12 @@ nothing and calls one module once, e.g.::
 
 Parts
 -----
-``node_<layer>_<base>``      base + bumpers + brackets + pocket/hole, flat shell frame
-``actuated_<layer>_<base>``  the same node with its brackets opened to the target spans,
-                             about its base centre (render.py moves it to its target pose)
+``node_<layer>_<base>``      base + bumpers + the whole bracket of every cell this base
+                             owns (:func:`bracket_owner`: the lower base id) + pocket/hole,
+                             flat shell frame
+``actuated_<layer>_<base>``  the same node with its own two arms per cell, opened to the
+                             target spans, about its base centre (render.py moves it to
+                             its target pose)
 ``frame_<layer>``            support-frame ring with breakaway connectors, flat shell frame
 ``marker``                   one marker dot in the layer-local frame (instanced in Python)
 """
@@ -197,6 +200,17 @@ def _layer_centre_offset() -> float:
     return UNIT_CELL.base_th / 2 + UNIT_CELL.base_p
 
 
+def bracket_owner(base_a: int, base_b: int) -> int:
+    """Base whose flat node draws the whole bracket of the cell (base_a, base_b): the lower id.
+
+    Each cell's bracket has one owner per layer (the same base in both layers), so
+    every bracket apex lies inside one part and the union of a layer never has to
+    join two parts at an apex: the only joint is the far end of each V, anchored
+    ``h`` deep inside the other base's disc (``scad/bracket.scad``).
+    """
+    return int(min(int(base_a), int(base_b)))
+
+
 def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = False) -> dict:
     """Keyword arguments of ``unit_node()`` for one base and layer.
 
@@ -215,8 +229,9 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
     -------
     kwargs : dict
         ``centre`` (2,) mm, ``layer``, ``bumpers`` [[dir deg, (3,) mm, (3,)]],
-        ``brackets`` [[dir deg, l mm, h mm(, span mm)]], ``alignment``, ``marker``
-        and, if actuated, ``pose`` [(3,) rad, (3,) mm].
+        ``brackets`` [[dir deg, l mm, h mm(, span mm)]] (flat: the cells whose bracket
+        this base owns, :func:`bracket_owner`; actuated: every cell of the base, with
+        its span), ``alignment``, ``marker`` and, if actuated, ``pose`` [(3,) rad, (3,) mm].
     """
     bases, cells, bumpers = design.bases, design.cells, design.bumpers
     s = layer_sign(layer)
@@ -234,12 +249,15 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
               float(bumpers["plane_pz"][k])],
              [float(bumpers["plane_nx"][k]), float(bumpers["plane_ny"][k]),
               float(bumpers["plane_nz"][k])]] for k in sel]
-    # brackets toward every interior neighbour, by slot of this base
+    # brackets by slot of this base: flat, only the cells this base owns (drawn whole);
+    # actuated, every cell (this node's own opened arms)
     ba, bb = np.asarray(cells["base_a"]), np.asarray(cells["base_b"])
     entries = []
     for c in np.flatnonzero((ba == base_id) | (bb == base_id)):
         mine_a = ba[c] == base_id
         nb = int(bb[c] if mine_a else ba[c])
+        if not actuated and bracket_owner(ba[c], bb[c]) != base_id:
+            continue
         slot = int(cells["slot_a"][c] if mine_a else cells["slot_b"][c])
         nrow = int(np.flatnonzero(np.asarray(bases["base_id"]) == nb)[0])
         d = flat[nrow] - flat[row]
@@ -395,4 +413,5 @@ def check_library(scad_dir) -> Path:
 
 
 __all__ = ["Part", "SCAD_DIR", "CONNECTOR_SPACING", "scad_literal", "part_text", "read_design",
-           "node_arguments", "frame_connectors", "write_part_files", "check_library"]
+           "bracket_owner", "node_arguments", "frame_connectors", "write_part_files",
+           "check_library"]

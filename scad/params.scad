@@ -21,7 +21,6 @@ ALIGN_R = 0.75;        // alignment through-hole radius (diameter 1.5 mm)
 MARKER_R = 0.3;        // marker-dot pocket radius
 MARKER_DEPTH = 0.5;    // marker-dot pocket depth from the far face
 ALPHA_MARGIN = 7;      // deg, margin added to the rim-clearing bracket angle
-APEX_OVERLAP = 0.01;   // extra length of each bracket arm past the apex closure (see bracket.scad)
 APEX_GAP = 0.05;       // actuated preview only: gap between facing arms (nodes stay separate)
 LAYER_H = BASE_TH + BASE_P;                           // 2.3 mm
 ALPHA = asin(BASE_TH / (2 * BASE_R)) + ALPHA_MARGIN;  // bracket arm angle to the cell axis, 37 deg

@@ -46,9 +46,9 @@ function specimen_label_centres(l, length=SPEC_LENGTH, pin_inset=SPEC_PIN_INSET,
 //   One unit-cell specimen, assembled as printed (bed at z = 0, cell axis along
 //   x, centred on the origin).  Two half-cells stacked with a `gap` between
 //   them, like the two layers of a shell on either side of the membrane; each
-//   half = two bases (base()) at x = -+l/2, the full bracket rhombus (each base's
-//   bracket() toward the other, on the half's outer face) and a handle from
-//   each base to the specimen end.  The lower half (z in [0, half_h], brackets
+//   half = two bases (base()) at x = -+l/2, the full bracket rhombus (one flat
+//   bracket() from the left base toward the right one, on the half's outer
+//   face) and a handle from each base to the specimen end.  The lower half (z in [0, half_h], brackets
 //   on the bed) carries a pin on each handle that passes through the gap into
 //   a through-hole of the upper half (z in [half_h + gap, 2 half_h + gap]), so
 //   the halves stay aligned in the test rig but are separate solids.  Labels
@@ -105,12 +105,14 @@ module specimen(l, h, half_h=SPEC_HALF_H, gap=SPEC_GAP, length=SPEC_LENGTH, widt
     }
 }
 
-// One half-cell in its local frame (z = 0 inner face, z = half_h far face with the brackets).
+// One half-cell in its local frame (z = 0 inner face, z = half_h far face with the brackets):
+// two bases with their handles and the whole bracket rhombus, drawn once from the left base
+// (as the owner base of a shell cell draws it, see unit_node()).
 module _specimen_half(l, h, half_h, length, width) {
     for (s = [-1, 1]) translate([s * l / 2, 0, 0]) {
         base(height=half_h);
-        bracket(s > 0 ? 180 : 0, l, h, layer_h=half_h);
         translate([s > 0 ? 0 : -(length / 2 - l / 2), -width / 2, 0])
             cube([length / 2 - l / 2, width, half_h]);
     }
+    translate([-l / 2, 0, 0]) bracket(0, l, h, layer_h=half_h);
 }

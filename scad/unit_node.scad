@@ -15,14 +15,23 @@ use <holes.scad>
 //   One base of one layer with everything attached to it, in the flat shell
 //   frame (x, y = flat layout, z = 0 membrane mid-plane; top layer z in
 //   [0, 2.3], bottom layer z in [-2.3, 0]): the base disc, one bumper per
-//   interior neighbour trimmed by its plane (minus the printing clearance), one
-//   V bracket (two arms) per interior neighbour, the marker pocket in the far
-//   face and, for alignment bases, the through-hole.  Dimensions are the
-//   defaults of base(), bumper(), bracket(), marker_pocket() and
-//   alignment_hole(): edit them there (or in params.scad).
-//   With `pose` (actuated preview) the node is instead placed in the target
-//   shape: p_target = t + R p_local, p_local = flat position relative to the
-//   base centre, and each bracket entry carries its actuated span.
+//   interior neighbour trimmed by its plane (minus the printing clearance), the
+//   brackets listed in `brackets`, the marker pocket in the far face and, for
+//   alignment bases, the through-hole.  Dimensions are the defaults of base(),
+//   bumper(), bracket(), marker_pocket() and alignment_hole(): edit them there
+//   (or in params.scad).
+//   Flat (as printed) every cell's bracket in a layer has ONE owner, the base
+//   with the lower base id (chosen by pysolver/scad_io.py): its node lists the
+//   cell and draws the whole bracket (both V's of the rhombus, see bracket());
+//   the other base's node does not list it.  Every bracket apex thus lies
+//   inside one part, and two nodes join only where a V end crosses the wall of
+//   the neighbour's disc.
+//   Actuated preview: every cell of the base is listed with its actuated span
+//   (4th element), and the node draws its own two arms per cell, opened and
+//   stopping short of the neighbour's (each node its own solid).  With `pose`
+//   the node is placed in the target shape: p_target = t + R p_local, p_local =
+//   flat position relative to the base centre (render.py passes no pose and
+//   places the node itself).
 // Arguments:
 //   centre = [x, y] flat base centre, mm
 //   layer = "top" or "bottom"
@@ -30,9 +39,10 @@ use <holes.scad>
 //       a point of the ideal contact plane ([x,y,z] mm, flat shell frame,
 //       relative to the base centre) and its normal pointing away from the base
 //       (rows of bumpers.csv)
-//   brackets = list of [dir, l, h] or [dir, l, h, span]: direction of the
+//   brackets = list of [dir, l, h] (flat: the cells this node owns) or
+//       [dir, l, h, span] (actuated: every cell of the base): direction of the
 //       neighbour (deg), central length l (mm), this layer's bracket thickness h
-//       (mm), optional actuated span (mm)
+//       (mm), actuated span (mm)
 //   alignment = cut the alignment through-hole. Default: false
 //   marker = cut the marker pocket. Default: true
 //   pose = [rotation vector (rad), target centre [x,y,z] mm] or undef (flat). Default: undef

@@ -133,6 +133,36 @@ def test_summary_and_part_files(built):
         assert body.count(");") == 1 and "module" not in body        # data + one call
 
 
+def test_each_flat_bracket_has_one_owner(built):
+    """Flat nodes list every cell once per layer, at the lower base id, pointing at the other
+    base (its whole bracket); actuated nodes list every cell of their base (own arms)."""
+    from pysolver.scad_io import bracket_owner, node_arguments
+
+    d = built["d"]
+    ids = [int(b) for b in d.bases["base_id"]]
+    C = {b: np.array([d.bases["flat_x_mm"][r], d.bases["flat_y_mm"][r]]) for r, b in enumerate(ids)}
+    cells = {frozenset((int(a), int(b))): (float(l), float(ht), float(hb))
+             for a, b, l, ht, hb in zip(d.cells["base_a"], d.cells["base_b"],
+                                       d.cells["central_length_mm"], d.cells["thickness_top_mm"],
+                                       d.cells["thickness_bottom_mm"], strict=True)}
+    assert bracket_owner(7, 3) == bracket_owner(3, 7) == 3
+    for layer in LAYERS:
+        drawn = []
+        for b in ids:
+            for dir_, l, h in node_arguments(d, b, layer)["brackets"]:
+                ang = math.radians(dir_)
+                far = C[b] + l * np.array([math.cos(ang), math.sin(ang)])
+                dist = {j: np.linalg.norm(C[j] - far) for j in ids}
+                nb = min(dist, key=dist.get)
+                assert dist[nb] < 1e-3 and b < nb
+                lc, ht, hb = cells[frozenset((b, nb))]
+                assert (l, h) == pytest.approx((lc, ht if layer == "top" else hb), abs=1e-9)
+                drawn.append(frozenset((b, nb)))
+        assert sorted(map(sorted, drawn)) == sorted(map(sorted, cells))      # each cell once
+        n_act = sum(len(node_arguments(d, b, layer, actuated=True)["brackets"]) for b in ids)
+        assert n_act == 2 * len(cells)
+
+
 def test_every_stl_is_watertight_and_single(built):
     s, d = built["summary"], built["d"]
     for key, mesh in built["stl"].items():
@@ -156,9 +186,9 @@ def test_every_stl_is_watertight_and_single(built):
 def test_layer_bounding_box_matches_table(built):
     """bbox = base discs (flat centre +- r) and the outer corners of the bracket rhombi.
 
-    A rhombus corner lies on the cell's bisector at (l/2) tan(alpha) + (h/2)/cos(alpha)
-    from the axis; on the patch's boundary it sticks out past the discs (vertical cells).
-    The 0.01 mm apex overlap moves it by less than the 0.05 mm tolerance.
+    A rhombus corner (the outer apex of a mitred V) lies on the cell's bisector at
+    (l/2) tan(alpha) + (h/2)/cos(alpha) from the axis; on the patch's boundary it sticks
+    out past the discs (vertical cells).
     """
     d = built["d"]
     C = np.c_[d.bases["flat_x_mm"], d.bases["flat_y_mm"]]
@@ -298,18 +328,26 @@ def _cadquery_node(cq, d, base, layer):
             .rect(60, 60).extrude(60)
         node = node.union(pr.cut(cutter))
     C = np.c_[d.bases["flat_x_mm"], d.bases["flat_y_mm"]]
+    zb0, zb1 = zr(U.layer_h - U.bracket_w, U.layer_h)
     for cid in np.flatnonzero((d.cells["base_a"] == base) | (d.cells["base_b"] == base)):
-        other = d.cells["base_b"][cid] if d.cells["base_a"][cid] == base else d.cells["base_a"][cid]
-        v = C[other] - c
+        a, b = int(d.cells["base_a"][cid]), int(d.cells["base_b"][cid])
+        if base != min(a, b):
+            continue                # the lower base id draws the whole bracket of the cell
         l = d.cells["central_length_mm"][cid]
         h = d.cells[f"thickness_{layer}_mm"][cid]
-        ang = math.atan2(v[1], v[0])
-        for k in (-1, 1):
-            u = np.array([math.cos(ang + k * ALPHA), math.sin(ang + k * ALPHA)])
-            t0 = U.base_r - h
-            t1 = l / (2 * math.cos(ALPHA)) + h / 2 * math.tan(ALPHA) + 0.01  # + APEX_OVERLAP
-            node = node.union(prism(c, u, t1 - t0, h, U.layer_h - U.bracket_w, U.layer_h,
-                                    start=t0))
+        # each base's two arms: strips of width h from h inside its rim, radial at +-alpha,
+        # cut by the cell's perpendicular bisector (the mitre of each V)
+        for p0, p1 in ((C[a], C[b]), (C[b], C[a])):
+            v = (p1 - p0) / l
+            ang = math.atan2(v[1], v[0])
+            half = cq.Workplane(cq.Plane(origin=(*(p0 + v * l / 2), zb0), xDir=(-v[1], v[0], 0),
+                                         normal=(0, 0, 1))).center(0, 10).rect(40, 20) \
+                .extrude(zb1 - zb0)           # the half plane toward p0
+            for k in (-1, 1):
+                u = np.array([math.cos(ang + k * ALPHA), math.sin(ang + k * ALPHA)])
+                arm = prism(p0, u, l, h, U.layer_h - U.bracket_w, U.layer_h,
+                            start=U.base_r - h)
+                node = node.union(arm.intersect(half))
     zp0, zp1 = zr(U.layer_h - U.marker_depth, U.layer_h + 0.1)
     node = node.cut(cq.Workplane("XY").workplane(offset=zp0).center(*c)
                     .circle(U.marker_r).extrude(zp1 - zp0))

@@ -31,7 +31,7 @@ pytestmark = pytest.mark.skipif(shutil.which("openscad") is None,
                                 reason="OpenSCAD not installed (apt-get install openscad)")
 
 U = UNIT_CELL
-OVERLAP = 0.01   # APEX_OVERLAP of scad/params.scad: arm length past the apex closure
+GAP = 0.05       # APEX_GAP of scad/params.scad: gap between opened arms (actuated preview)
 LIBS = ("util", "base", "bumper", "bracket", "holes", "support_frame", "unit_node")
 
 
@@ -80,13 +80,11 @@ def test_params_scad_equals_params_py(tmp_path):
     v = _echo(tmp_path, BASE_R="BASE_R", BASE_TH="BASE_TH", BASE_P="BASE_P",
               BRACKET_W="BRACKET_W", CLEARANCE="CLEARANCE", ALIGN_R="ALIGN_R",
               MARKER_R="MARKER_R", MARKER_DEPTH="MARKER_DEPTH", ALPHA_MARGIN="ALPHA_MARGIN",
-              LAYER_H="LAYER_H", ALPHA="ALPHA", FACET_TOL="FACET_TOL",
-              APEX_OVERLAP="APEX_OVERLAP")
+              LAYER_H="LAYER_H", ALPHA="ALPHA", FACET_TOL="FACET_TOL")
     expect = dict(BASE_R=U.base_r, BASE_TH=U.base_th, BASE_P=U.base_p, BRACKET_W=U.bracket_w,
                   CLEARANCE=U.clearance, ALIGN_R=U.align_r, MARKER_R=U.marker_r,
                   MARKER_DEPTH=U.marker_depth, ALPHA_MARGIN=U.alpha_margin_deg,
-                  LAYER_H=U.layer_h, ALPHA=U.alpha_deg, FACET_TOL=FACET_TOL_MM,
-                  APEX_OVERLAP=OVERLAP)
+                  LAYER_H=U.layer_h, ALPHA=U.alpha_deg, FACET_TOL=FACET_TOL_MM)
     for k, e in expect.items():
         assert v[k] == pytest.approx(e, rel=1e-5), k
 
@@ -143,12 +141,11 @@ def test_bracket_arms_form_a_rhombus(tmp_path):
         root, tip, start, end = (R.T @ np.array(p) for p in arm)   # cell frame
         assert root == pytest.approx(U.base_r * np.array([math.cos(a), k * math.sin(a)]), abs=1e-4)
         assert tip == pytest.approx([l / 2, k * (l / 2) * math.tan(a)], abs=1e-4)
-        # box starts h inside the base; its outer edge reaches the bisector (apex closure)
-        # and goes on by the overlap
+        # flat: the printed arm starts h inside the base, radially, and ends at the apex
         u = (tip - root) / np.linalg.norm(tip - root)
+        assert u == pytest.approx([math.cos(a), k * math.sin(a)], abs=1e-4)
         assert np.linalg.norm(root - start) == pytest.approx(h, abs=1e-4)
-        outer = end + k * (h / 2) * np.array([-u[1], u[0]])   # outer long edge
-        assert outer[0] == pytest.approx(l / 2 + OVERLAP * u[0], abs=1e-4)
+        assert end == pytest.approx(tip, abs=1e-4)
     for arm in v["s"]:   # actuated: same roots and arm length, tips at span/2 along the axis
         root, tip, start, end = (R.T @ np.array(p) for p in arm)
         assert tip[0] == pytest.approx(5.9 / 2, abs=1e-4)
@@ -157,7 +154,43 @@ def test_bracket_arms_form_a_rhombus(tmp_path):
         # the box's farthest corner stops APEX_GAP/2 before the bisector
         u = (tip - root) / np.linalg.norm(tip - root)
         corner = end[0] + (h / 2) * abs(u[1])
-        assert corner == pytest.approx(5.9 / 2 - 0.05 / 2, abs=1e-4)
+        assert corner == pytest.approx(5.9 / 2 - GAP / 2, abs=1e-4)
+
+
+def _v_outline(l, h, k):
+    """Independent closed form of one flat V (cell frame: own base at 0, neighbour at (l, 0))."""
+    a, r = np.radians(U.alpha_deg), U.base_r
+    u = np.array([math.cos(a), k * math.sin(a)])               # own arm k, radial
+    n = k * np.array([-u[1], u[0]])                             # away from the axis
+    s = (r - h) * u                                             # root end, h inside the rim
+    y_out = k * ((l / 2) * math.tan(a) + (h / 2) / math.cos(a))
+    y_in = k * ((l / 2) * math.tan(a) - (h / 2) / math.cos(a))
+    mirror = np.array([-1.0, 1.0])                              # x -> l - x
+    return np.array([s - h / 2 * n, s + h / 2 * n, [l / 2, y_out],
+                     [l, 0] + mirror * (s + h / 2 * n), [l, 0] + mirror * (s - h / 2 * n),
+                     [l / 2, y_in]])
+
+
+def test_bracket_outline_is_the_mitred_v(tmp_path):
+    """Each V: root ends h inside both rims, apexes = crossings of the edge lines, on the
+    bisector at (l/2) tan(alpha) +- (h/2)/cos(alpha); edges h/2 off the bracket_arms() lines."""
+    dir_, l, h = 25.0, 7.3, 0.45
+    v = _echo(tmp_path, m=f"bracket_outline({dir_}, {l}, {h}, -1)",
+              p=f"bracket_outline({dir_}, {l}, {h}, 1)", a=f"bracket_arms({dir_}, {l}, {h})",
+              b=f"bracket_arms({dir_ + 180}, {l}, {h})")
+    c, s = math.cos(math.radians(dir_)), math.sin(math.radians(dir_))
+    R = np.array([[c, -s], [s, c]])
+    far = np.array([l * c, l * s])
+    for k, key in ((-1, "m"), (1, "p")):
+        P = np.array(v[key]) @ R                                # cell frame
+        assert P == pytest.approx(_v_outline(l, h, k), abs=1e-4)
+        # consistent with the arm centre lines: own arm k and the neighbour's arm -k
+        own = np.array(v["a"][(k + 1) // 2])
+        nb = np.array(v["b"][(1 - k) // 2]) + far
+        for line, idx in ((own, (0, 1, 2, 5)), (nb, (2, 3, 4, 5))):
+            u = (line[1] - line[0]) / np.linalg.norm(line[1] - line[0])
+            off = [(np.array(v[key][i]) - line[0]) @ np.array([-u[1], u[0]]) for i in idx]
+            assert np.abs(off) == pytest.approx(np.full(4, h / 2), abs=1e-4)
 
 
 def test_bumper_points_lie_on_the_moved_plane(tmp_path):
@@ -213,12 +246,29 @@ def test_base_with_pocket_and_hole_volume(tmp_path):
 
 @pytest.mark.parametrize("l, h", [(5.0, 0.3), (7.0, 0.45), (9.0, 0.65)])
 def test_bracket_volume(tmp_path, l, h):
-    """Two boxes of width h, height 1, length lng + h + (h/2) tan(alpha) + overlap (exact)."""
+    """Flat bracket = two V's, each two strips of width h whose centre lines run lng + h from
+    the root end to the mitre: 4 h (lng + h) x height (exact); = bracket_volume()."""
     m = _mesh(f"bracket(33, {l}, {h});", tmp_path)
+    assert len(m.split(only_watertight=True)) == 2              # the two V's, one solid each
     a = np.radians(U.alpha_deg)
     lng = l / (2 * math.cos(a)) - U.base_r
-    expect = 2 * h * U.bracket_w * (lng + h + h / 2 * math.tan(a) + OVERLAP)
+    expect = 4 * h * U.bracket_w * (lng + h)
     assert m.volume == pytest.approx(expect, rel=2e-5)
+    # the same from the V polygon (shoelace), and the library's closed form
+    P = _v_outline(l, h, 1)
+    area = 0.5 * abs(np.dot(P[:, 0], np.roll(P[:, 1], -1)) - np.dot(P[:, 1], np.roll(P[:, 0], -1)))
+    assert 2 * area * U.bracket_w == pytest.approx(expect, rel=1e-12)
+    assert _echo(tmp_path, v=f"bracket_volume({l}, {h})")["v"] == pytest.approx(expect, rel=1e-5)
+
+
+def test_actuated_bracket_is_two_separate_boxes(tmp_path):
+    """With a span a base draws only its own two arms (boxes of width h and length t_end + h)."""
+    l, h, span = 7.0, 0.45, 5.9
+    m = _mesh(f"bracket(33, {l}, {h}, span={span});", tmp_path)
+    v = _echo(tmp_path, a=f"bracket_arms(33, {l}, {h}, span={span})")
+    assert len(m.split(only_watertight=True)) == 2
+    lengths = [np.linalg.norm(np.array(arm[3]) - np.array(arm[2])) for arm in v["a"]]
+    assert m.volume == pytest.approx(h * U.bracket_w * sum(lengths), rel=2e-5)
 
 
 def test_bumper_volume_straight_and_tilted(tmp_path):
