@@ -229,7 +229,7 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
     -------
     kwargs : dict
         ``centre`` (2,) mm, ``layer``, ``bumpers`` [[dir deg, (3,) mm, (3,)]],
-        ``brackets`` [[dir deg, l mm, h mm(, span mm)]] (flat: the cells whose bracket
+        ``brackets`` [[dir deg, l mm, h mm(, span mm, fold deg)]] (flat: the cells whose bracket
         this base owns, :func:`bracket_owner`; actuated: every cell of the base, with
         its span), ``alignment``, ``marker`` and, if actuated, ``pose`` [(3,) rad, (3,) mm].
     """
@@ -270,6 +270,7 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
             span = float(np.linalg.norm((tgt[nrow] + off * nrm[nrow])
                                         - (tgt[row] + off * nrm[row])))
             entry.append(float(np.clip(span, UNIT_CELL.bracket_offset + 1e-6, entry[1])))
+            entry.append(float(cells["fold_angle_deg"][c]))  # opened arms stop short by it
         entries.append((slot, entry))
     brackets = [e for _, e in sorted(entries, key=lambda se: se[0])]
     kw = dict(centre=flat[row], layer=layer, bumpers=bump, brackets=brackets,

@@ -136,10 +136,16 @@ function bracket_volume(l, h, height=BRACKET_W, base_r=BASE_R, alpha=ALPHA) =
 //   layer_h = layer height (z of the far face), mm. Default: LAYER_H (2.3)
 //   span = actuated distance of the centres (preview only), mm. Default: undef
 //   gap = gap between facing arms in the actuated preview, mm. Default: APEX_GAP (0.05)
+//   fold = actuated preview only: the cell's fold angle, deg. The two nodes of a
+//       folded cell are turned by `fold` against each other, so the end faces of
+//       facing arms close (concave side) by up to 2 layer_h tan(|fold| / 2) over
+//       the layer height; the arms stop that much shorter as well, so facing arms
+//       never touch (their end faces would cross at the small angle `fold`, and
+//       the union would keep vertices too close for a float32 STL). Default: 0
 // Example:
 //   bracket(0, 7, 0.45);
 module bracket(dir, l, h, height=BRACKET_W, base_r=BASE_R, alpha=ALPHA, layer_h=LAYER_H,
-               span=undef, gap=APEX_GAP) {
+               span=undef, gap=APEX_GAP, fold=0) {
     assert(is_num(height) && height > 0 && height <= layer_h,
            str("bracket(): height must be in (0, ", layer_h, "] mm, got ", height));
     if (is_undef(span)) {
@@ -147,7 +153,10 @@ module bracket(dir, l, h, height=BRACKET_W, base_r=BASE_R, alpha=ALPHA, layer_h=
             translate([0, 0, layer_h - height])
                 linear_extrude(height) polygon(bracket_outline(dir, l, h, side, base_r, alpha));
     } else {
-        for (arm = bracket_arms(dir, l, h, base_r, alpha, span, gap)) {
+        assert(is_num(fold) && abs(fold) < 90,
+               str("bracket(): fold must be an angle in (-90, 90) deg, got ", fold));
+        for (arm = bracket_arms(dir, l, h, base_r, alpha, span,
+                                gap + 2 * layer_h * tan(abs(fold) / 2))) {
             d = arm[3] - arm[2];
             translate([arm[2][0], arm[2][1], layer_h - height])
                 rotate([0, 0, atan2(d[1], d[0])])

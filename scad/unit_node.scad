@@ -40,9 +40,10 @@ use <holes.scad>
 //       relative to the base centre) and its normal pointing away from the base
 //       (rows of bumpers.csv)
 //   brackets = list of [dir, l, h] (flat: the cells this node owns) or
-//       [dir, l, h, span] (actuated: every cell of the base): direction of the
-//       neighbour (deg), central length l (mm), this layer's bracket thickness h
-//       (mm), actuated span (mm)
+//       [dir, l, h, span, fold] (actuated: every cell of the base): direction of
+//       the neighbour (deg), central length l (mm), this layer's bracket
+//       thickness h (mm), actuated span (mm), the cell's fold angle (deg,
+//       optional, see bracket())
 //   alignment = cut the alignment through-hole. Default: false
 //   marker = cut the marker pocket. Default: true
 //   pose = [rotation vector (rad), target centre [x,y,z] mm] or undef (flat). Default: undef
@@ -57,8 +58,8 @@ module unit_node(centre=[0, 0], layer="top", bumpers=[], brackets=[], alignment=
     assert(is_list(bumpers) && len([for (b = bumpers) if (!(is_list(b) && len(b) == 3)) 0]) == 0,
            "unit_node(): bumpers must be a list of [dir, plane_p, plane_n]");
     assert(is_list(brackets)
-           && len([for (b = brackets) if (!(is_list(b) && (len(b) == 3 || len(b) == 4))) 0]) == 0,
-           "unit_node(): brackets must be a list of [dir, l, h] or [dir, l, h, span]");
+           && len([for (b = brackets) if (!(is_list(b) && (len(b) >= 3 && len(b) <= 5))) 0]) == 0,
+           "unit_node(): brackets must be a list of [dir, l, h] or [dir, l, h, span(, fold)]");
     assert(is_undef(pose) || (is_list(pose) && len(pose) == 2 && len(pose[0]) == 3 && len(pose[1]) == 3),
            str("unit_node(): pose must be [rotation vector, target centre] or undef, got ", pose));
     if (is_undef(pose))
@@ -75,7 +76,8 @@ module _unit_node_flat(layer, bumpers, brackets, alignment, marker) {
         union() {
             base();
             for (b = bumpers) bumper(b[0], to_layer_local(b[1], layer), to_layer_local(b[2], layer));
-            for (b = brackets) bracket(b[0], b[1], b[2], span=len(b) > 3 ? b[3] : undef);
+            for (b = brackets) bracket(b[0], b[1], b[2], span=len(b) > 3 ? b[3] : undef,
+                                         fold=len(b) > 4 ? b[4] : 0);
         }
         if (marker) marker_pocket();
         if (alignment) alignment_hole();

@@ -324,3 +324,20 @@ def test_asserts_reject_bad_arguments(tmp_path, code, message):
     rc, err, _ = _run(code, tmp_path)
     assert rc != 0
     assert "Assertion" in err and message in err, err
+
+
+def test_actuated_arms_of_a_folded_cell_stop_short(tmp_path):
+    """A folded cell's opened arms stop 2 layer_h tan(|fold|/2) shorter along the axis
+    (the end faces of facing arms would otherwise close over the layer height)."""
+    l, h, span, fold = 7.0, 0.45, 5.9, 16.0
+    v = _echo(tmp_path, a=f"bracket_arms(0, {l}, {h}, span={span})",
+              b=f"bracket_arms(0, {l}, {h}, span={span}, "
+                f"gap=APEX_GAP + 2 * LAYER_H * tan({fold} / 2))")
+    extra = 2 * U.layer_h * math.tan(math.radians(fold / 2))
+    for a, b in zip(v["a"], v["b"], strict=True):
+        # tips' axial reach: shorter by half the extra gap (each side gives half)
+        assert a[3][0] - b[3][0] == pytest.approx(extra / 2, abs=1e-5)  # echo: 6 digits
+    m0 = _mesh(f"bracket(0, {l}, {h}, span={span});", tmp_path, "f0")
+    m1 = _mesh(f"bracket(0, {l}, {h}, span={span}, fold={fold});", tmp_path, "f1")
+    m2 = _mesh(f"bracket(0, {l}, {h}, span={span}, fold={-fold});", tmp_path, "f2")
+    assert m1.volume < m0.volume and m1.volume == pytest.approx(m2.volume, rel=1e-9)
