@@ -231,7 +231,9 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
         ``centre`` (2,) mm, ``layer``, ``bumpers`` [[dir deg, (3,) mm, (3,)]],
         ``brackets`` [[dir deg, l mm, h mm(, span mm, fold deg)]] (flat: the cells whose bracket
         this base owns, :func:`bracket_owner`; actuated: every cell of the base, with
-        its span), ``alignment``, ``marker`` and, if actuated, ``pose`` [(3,) rad, (3,) mm].
+        its span), ``alignment``, ``marker``; flat: ``rim`` [[dir deg, l mm, h mm]] (every
+        cell of the base, for the rotation of its polygon); actuated: ``pose``
+        [(3,) rad, (3,) mm].
     """
     bases, cells, bumpers = design.bases, design.cells, design.bumpers
     s = layer_sign(layer)
@@ -252,17 +254,18 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
     # brackets by slot of this base: flat, only the cells this base owns (drawn whole);
     # actuated, every cell (this node's own opened arms)
     ba, bb = np.asarray(cells["base_a"]), np.asarray(cells["base_b"])
-    entries = []
+    entries, all_cells = [], []
     for c in np.flatnonzero((ba == base_id) | (bb == base_id)):
         mine_a = ba[c] == base_id
         nb = int(bb[c] if mine_a else ba[c])
-        if not actuated and bracket_owner(ba[c], bb[c]) != base_id:
-            continue
         slot = int(cells["slot_a"][c] if mine_a else cells["slot_b"][c])
         nrow = int(np.flatnonzero(np.asarray(bases["base_id"]) == nb)[0])
         d = flat[nrow] - flat[row]
         entry = [math.degrees(math.atan2(d[1], d[0])), float(cells["central_length_mm"][c]),
                  float(cells[f"thickness_{layer}_mm"][c])]
+        all_cells.append((slot, entry))
+        if not actuated and bracket_owner(ba[c], bb[c]) != base_id:
+            continue
         if actuated:
             # actuated span = 3D distance of this layer's centres (as the reference), kept
             # within [2 r cos(alpha), l] where the opened V exists (a preview must not fail)
@@ -275,6 +278,10 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
     brackets = [e for _, e in sorted(entries, key=lambda se: se[0])]
     kw = dict(centre=flat[row], layer=layer, bumpers=bump, brackets=brackets,
               alignment=bool(int(bases["alignment"][row])), marker=True)
+    if not actuated:
+        # every cell of the base, owned or not: their V ends all cross this base's rim,
+        # which sets the rotation of its polygon (scad/base.scad base_phase())
+        kw["rim"] = [e[:3] for _, e in sorted(all_cells, key=lambda se: se[0])]
     if actuated:
         rv = [float(bases["rot_x_rad"][row]), float(bases["rot_y_rad"][row]),
               float(bases["rot_z_rad"][row])]

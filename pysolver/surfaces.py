@@ -228,10 +228,11 @@ def petal(size: float = 1.0, petals: int = 6, r0: float = 34.0, small: float = 3
     """Flower: flat centre (radius 34 mm) and petals of two sizes (34 / 50 mm) that curl up.
 
     Petals alternate small / large (``petals`` must be even).  Each petal bends up along
-    circular arcs; small petals close to 50 deg, large petals to 85 deg, i.e. they rise
-    higher and lean over the small ones (about 190 bases).  Default time landscape:
-    centre 35 s, small petals 45 s, large petals 75 s -- the small petals close first and
-    the large ones then cover them.
+    circular arcs; small petals close to 50 deg, large petals to 85 deg, so they stand
+    almost upright around the small ones (191 bases).  Default time landscape: centre 35 s,
+    small petals 45 s, large petals 75 s -- the small petals close first, then the large
+    ones rise around them.  The petals are sectors of one disk and stay side by side: the
+    sequence is the landscape's, they do not physically overlap as a real bud's do.
     """
     petals = int(petals)
     if petals % 2 or petals < 4:

@@ -165,6 +165,31 @@ module bracket(dir, l, h, height=BRACKET_W, base_r=BASE_R, alpha=ALPHA, layer_h=
     }
 }
 
+// Function: bracket_rim_angles()
+// Usage:
+//   a = bracket_rim_angles(dir, l, h, [base_r], [alpha], [span], [gap], [fold]);
+// Description:
+//   Polar angles (deg, layer-local frame of the base) where the side edges of
+//   the two arms that this base's bracket toward `dir` anchors in its disc cross
+//   the rim: flat, the arms of bracket_arms() (radial, so the same whether this
+//   base owns the bracket or its neighbour does); with `span`, the opened arms of
+//   the actuated preview.  Each edge is the line of the arm's side, h/2 off its
+//   centre line, starting inside the disc; the angle is that of its first
+//   crossing of the circle of radius base_r.  For base_phase().
+// Arguments:
+//   dir, l, h, base_r, alpha, span, gap, fold = see bracket()
+function bracket_rim_angles(dir, l, h, base_r=BASE_R, alpha=ALPHA, span=undef, gap=APEX_GAP,
+                            fold=0, layer_h=LAYER_H) =
+    let(arms = bracket_arms(dir, l, h, base_r, alpha, span,
+                            is_undef(span) ? gap : gap + 2 * layer_h * tan(abs(fold) / 2)))
+    [for (arm = arms, w = [-h / 2, h / 2])
+        let(u = _unit(arm[3] - arm[2]),
+            q = arm[2] + w * _left(u),
+            qu = q * u,
+            t = -qu + sqrt(max(0, qu * qu - (q * q - base_r * base_r))),
+            p = q + t * u)
+        atan2(p[1], p[0])];
+
 // 2D helpers: unit vector, left normal, and the crossing of the lines p + s u and q + t v.
 function _unit(v) = v / norm(v);
 function _left(u) = [-u[1], u[0]];

@@ -82,3 +82,19 @@ module bumper(dir, plane_p, plane_n, side=BASE_TH, z0=BASE_P, clearance=CLEARANC
                faces=[[0, 1, 2, 3], [4, 7, 6, 5], [0, 4, 5, 1], [1, 5, 6, 2], [2, 6, 7, 3],
                       [3, 7, 4, 0]]);
 }
+
+// Function: bumper_rim_angles()
+// Usage:
+//   a = bumper_rim_angles(dir, [side], [r]);
+// Description:
+//   Polar angles (deg) where the two side walls of a bumper along `dir` cross the
+//   rim of a base of radius r: dir -+ asin(side / (2 r)) (30 deg off the axis for
+//   the paper's 2 mm prism on a 4 mm disc).  For base_phase().
+// Arguments:
+//   dir = bumper axis direction, deg
+//   side = prism side, mm. Default: BASE_TH (2.0)
+//   r = base radius, mm. Default: BASE_R (2.0)
+function bumper_rim_angles(dir, side=BASE_TH, r=BASE_R) =
+    assert(is_num(side) && side > 0 && side < 2 * r,
+           str("bumper_rim_angles(): side must be in (0, 2 r) mm, got ", side))
+    [dir - asin(side / (2 * r)), dir + asin(side / (2 * r))];

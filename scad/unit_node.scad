@@ -47,10 +47,13 @@ use <holes.scad>
 //   alignment = cut the alignment through-hole. Default: false
 //   marker = cut the marker pocket. Default: true
 //   pose = [rotation vector (rad), target centre [x,y,z] mm] or undef (flat). Default: undef
+//   rim = list of [dir, l, h] for EVERY cell of this base in this layer, owned or
+//       not: where their bracket edges cross the rim (with the bumper walls) sets
+//       the rotation of the base polygon (base_phase()). Default: `brackets`
 // Example:
 //   unit_node([0, 0], "top", bumpers=[[0, [3.5, 0, 1.3], [1, 0, 0]]], brackets=[[0, 7, 0.45]]);
 module unit_node(centre=[0, 0], layer="top", bumpers=[], brackets=[], alignment=false, marker=true,
-                 pose=undef) {
+                 pose=undef, rim=undef) {
     assert(layer == "top" || layer == "bottom",
            str("unit_node(): layer must be \"top\" or \"bottom\", got ", layer));
     assert(is_list(centre) && len(centre) == 2 && is_num(centre[0]) && is_num(centre[1]),
@@ -62,19 +65,27 @@ module unit_node(centre=[0, 0], layer="top", bumpers=[], brackets=[], alignment=
            "unit_node(): brackets must be a list of [dir, l, h] or [dir, l, h, span(, fold)]");
     assert(is_undef(pose) || (is_list(pose) && len(pose) == 2 && len(pose[0]) == 3 && len(pose[1]) == 3),
            str("unit_node(): pose must be [rotation vector, target centre] or undef, got ", pose));
+    assert(is_undef(rim) || (is_list(rim) && len([for (c = rim) if (!(is_list(c) && len(c) >= 3)) 0]) == 0),
+           "unit_node(): rim must be a list of [dir, l, h]");
+    phase = base_phase(concat(
+        [for (b = bumpers) each bumper_rim_angles(b[0])],
+        [for (c = is_undef(rim) ? brackets : rim)
+            each bracket_rim_angles(c[0], c[1], c[2], span=len(c) > 3 ? c[3] : undef,
+                                    fold=len(c) > 4 ? c[4] : 0)]));
     if (is_undef(pose))
-        translate([centre[0], centre[1], 0]) _unit_node_flat(layer, bumpers, brackets, alignment, marker);
+        translate([centre[0], centre[1], 0])
+            _unit_node_flat(layer, bumpers, brackets, alignment, marker, phase);
     else
         multmatrix(rotvec_matrix(pose[0], pose[1]))
-            _unit_node_flat(layer, bumpers, brackets, alignment, marker);
+            _unit_node_flat(layer, bumpers, brackets, alignment, marker, phase);
 }
 
 // The node relative to its base centre, in the flat shell frame.
-module _unit_node_flat(layer, bumpers, brackets, alignment, marker) {
+module _unit_node_flat(layer, bumpers, brackets, alignment, marker, phase) {
     mirror([0, 0, layer == "top" ? 0 : 1])
     difference() {
         union() {
-            base();
+            base(phase=phase);
             for (b = bumpers) bumper(b[0], to_layer_local(b[1], layer), to_layer_local(b[2], layer));
             for (b = brackets) bracket(b[0], b[1], b[2], span=len(b) > 3 ? b[3] : undef,
                                          fold=len(b) > 4 ? b[4] : 0);

@@ -397,7 +397,7 @@ def test_failing_part_is_named_and_others_stay_cached(built, tmp_path):
     lib = tmp_path / "scad"
     shutil.copytree(SCAD_DIR, lib)
     src = (lib / "unit_node.scad").read_text()
-    anchor = "                 pose=undef) {\n"
+    anchor = "                 pose=undef, rim=undef) {\n"
     bad = anchor + '    assert(centre[0] < 0, "test: refusing x >= 0");\n'
     (lib / "unit_node.scad").write_text(src.replace(anchor, bad))
     cache = tmp_path / "cache"

@@ -341,3 +341,40 @@ def test_actuated_arms_of_a_folded_cell_stop_short(tmp_path):
     m1 = _mesh(f"bracket(0, {l}, {h}, span={span}, fold={fold});", tmp_path, "f1")
     m2 = _mesh(f"bracket(0, {l}, {h}, span={span}, fold={-fold});", tmp_path, "f2")
     assert m1.volume < m0.volume and m1.volume == pytest.approx(m2.volume, rel=1e-9)
+
+
+def test_base_phase_keeps_rim_crossings_away_from_vertices(tmp_path):
+    """base_phase() picks the polygon rotation whose nearest vertex is farthest from every
+    given rim angle: optimal on a fine grid to within the candidate spacing, and above the
+    stated worst-case bound."""
+    n = 48
+    step = 360.0 / n
+    rng = np.random.default_rng(3)
+    angles = rng.uniform(0, 360, 36)
+
+    def clearance(phase, a):
+        x = np.mod(np.asarray(a) - phase, step)
+        return np.minimum(x, step - x).min()
+
+    lst = "[" + ", ".join(f"{a:.6f}" for a in angles) + "]"
+    v = _echo(tmp_path, empty="base_phase([])", axes="base_phase([0, 30, 90, -30])",
+              rnd=f"base_phase({lst})")
+    assert v["empty"] == pytest.approx(step / 2)
+    assert clearance(v["axes"], [0, 30, 90, -30]) == pytest.approx(step / 2, abs=step / 96)
+    best = max(clearance(p, angles) for p in np.linspace(0, step, 4801))
+    got = clearance(v["rnd"], angles)
+    assert got >= best - step / 96 - 1e-6
+    assert got >= step * (1 / (2 * len(angles)) - 1 / (2 * 96))
+
+
+def test_rim_angles_of_brackets_and_bumpers(tmp_path):
+    """Side edges of a flat radial arm (centre line at dir +- alpha, h/2 off it) cross the
+    rim at dir +- alpha +- asin(h / (2 r)); bumper walls at dir +- asin(base_th / (2 r))."""
+    h, d = 0.45, 20.0
+    v = _echo(tmp_path, br=f"bracket_rim_angles({d}, 7, {h})", bu=f"bumper_rim_angles({d})")
+    da = math.degrees(math.asin(h / (2 * U.base_r)))
+    a = U.alpha_deg
+    expect = sorted([d - a - da, d - a + da, d + a - da, d + a + da])
+    np.testing.assert_allclose(sorted(v["br"]), expect, atol=1e-4)
+    w = math.degrees(math.asin(U.base_th / (2 * U.base_r)))
+    np.testing.assert_allclose(v["bu"], [d - w, d + w], atol=1e-4)
