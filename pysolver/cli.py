@@ -57,9 +57,10 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
 
 def _add_renderer_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--renderer", choices=("auto", "openscad", "fast"), default=None,
-                   help="part renderer: openscad (Debian OpenSCAD, the default), fast "
-                        "(openscad-evaluator, ~20x faster; a part it fails on is rendered by "
-                        "OpenSCAD) or auto (fast if its self-check against OpenSCAD passes)")
+                   help="part renderer: auto (the default: fast once its self-check "
+                        "against OpenSCAD passes on your scad/, else openscad), openscad "
+                        "(Debian OpenSCAD for every part) or fast (openscad-evaluator, ~15x "
+                        "faster, no self-check; a part it fails on is rendered by OpenSCAD)")
 
 
 def _parser() -> argparse.ArgumentParser:
