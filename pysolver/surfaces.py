@@ -329,7 +329,7 @@ def _lattice_disk(outline: np.ndarray, edge: float, angle_deg: float = 90.0):
 
 def weave(size: float = 1.0, large: bool = False, edge: float = 13.0, rows: int | None = None,
           hub: int | None = None, bend_start: float | None = None, overshoot: float = 10.0,
-          radii=None, cell: float | None = None) -> Surface:
+          radii=None) -> Surface:
     """Three arms that curl over the hub and stack there, closing in order.
 
     A pinwheel of three straight arms at 120 deg around a hexagonal hub, on an
@@ -353,9 +353,7 @@ def weave(size: float = 1.0, large: bool = False, edge: float = 13.0, rows: int 
     The surface is developable (flat hub, cylindrical bends) and its outline follows
     lattice lines, so the lattice itself is the stencil: no remeshing, no flattening, all
     unit cells alike.  The 3D scale is then set by the most curved arm (min-bumper rule)
-    and gives every cell the same flat length, 5.9 mm; ``cell`` sets a longer flat length
-    instead (the shell then contracts more than the membrane model was fitted for: the
-    default keeps the rule's).
+    and gives every cell the same flat length, 5.9 mm.
 
     Default: 3 lattice rows per arm (34 mm), hub of 2 edges, bend start 28 mm: 255
     bases.  ``large=True`` (``"weave:large"``): 5 rows (56 mm), hub of 3 edges, bend
@@ -408,7 +406,6 @@ def weave(size: float = 1.0, large: bool = False, edge: float = 13.0, rows: int 
         t_dense[mine] = 30.0 + (tk - 30.0) * _smoothstep((s[mine] - 0.6 * s0) / (0.4 * s0))
 
     return Surface("weave", V, F, UV=P.copy(), time=_time_on_dense(V, F, t_dense),
-                   central_length=cell,
                    description="three-arm pinwheel on a lattice, arms stack over the hub "
                                "in order",
                    options=dict(size=size, large=bool(large)))
