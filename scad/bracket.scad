@@ -156,7 +156,7 @@ module bracket(dir, l, h, height=BRACKET_W, base_r=BASE_R, alpha=ALPHA, layer_h=
         assert(is_num(fold) && abs(fold) < 90,
                str("bracket(): fold must be an angle in (-90, 90) deg, got ", fold));
         for (arm = bracket_arms(dir, l, h, base_r, alpha, span,
-                                gap + 2 * layer_h * tan(abs(fold) / 2))) {
+                                bracket_preview_gap(gap, fold, layer_h))) {
             d = arm[3] - arm[2];
             translate([arm[2][0], arm[2][1], layer_h - height])
                 rotate([0, 0, atan2(d[1], d[0])])
@@ -164,6 +164,19 @@ module bracket(dir, l, h, height=BRACKET_W, base_r=BASE_R, alpha=ALPHA, layer_h=
         }
     }
 }
+
+// Function: bracket_preview_gap()
+// Usage:
+//   g = bracket_preview_gap(gap, fold, [layer_h]);
+// Description:
+//   Gap (mm) between the opened arms of facing nodes in the actuated preview:
+//   `gap` plus 2 layer_h tan(|fold| / 2), what the end faces of the two nodes of
+//   a cell folded by `fold` (deg) close by over the layer height (see bracket()).
+// Arguments:
+//   gap = gap of an unfolded cell, mm
+//   fold = the cell's fold angle, deg
+//   layer_h = layer height, mm. Default: LAYER_H (2.3)
+function bracket_preview_gap(gap, fold, layer_h=LAYER_H) = gap + 2 * layer_h * tan(abs(fold) / 2);
 
 // Function: bracket_rim_angles()
 // Usage:
@@ -181,7 +194,7 @@ module bracket(dir, l, h, height=BRACKET_W, base_r=BASE_R, alpha=ALPHA, layer_h=
 function bracket_rim_angles(dir, l, h, base_r=BASE_R, alpha=ALPHA, span=undef, gap=APEX_GAP,
                             fold=0, layer_h=LAYER_H) =
     let(arms = bracket_arms(dir, l, h, base_r, alpha, span,
-                            is_undef(span) ? gap : gap + 2 * layer_h * tan(abs(fold) / 2)))
+                            is_undef(span) ? gap : bracket_preview_gap(gap, fold, layer_h)))
     [for (arm = arms, w = [-h / 2, h / 2])
         let(u = _unit(arm[3] - arm[2]),
             q = arm[2] + w * _left(u),

@@ -332,7 +332,7 @@ def test_actuated_arms_of_a_folded_cell_stop_short(tmp_path):
     l, h, span, fold = 7.0, 0.45, 5.9, 16.0
     v = _echo(tmp_path, a=f"bracket_arms(0, {l}, {h}, span={span})",
               b=f"bracket_arms(0, {l}, {h}, span={span}, "
-                f"gap=APEX_GAP + 2 * LAYER_H * tan({fold} / 2))")
+                f"gap=bracket_preview_gap(APEX_GAP, {fold}))")
     extra = 2 * U.layer_h * math.tan(math.radians(fold / 2))
     for a, b in zip(v["a"], v["b"], strict=True):
         # tips' axial reach: shorter by half the extra gap (each side gives half)
