@@ -15,7 +15,6 @@ MATERIAL   ?=
 DATA       ?=
 VERTICES   ?=
 TIME       ?=
-REFINE     ?= 1
 JOBS       ?=
 ARGS       ?=
 PYTHON     ?= python3
@@ -28,11 +27,30 @@ export OMP_THREAD_LIMIT ?= 1
 export VTK_DEFAULT_OPENGL_WINDOW ?= vtkEGLRenderWindow
 export PYTHONDONTWRITEBYTECODE := 1
 
-# A user mesh can be given as shape=path/to/mesh.obj or SURFACE=path/to/mesh.obj.
-SOURCE     := $(if $(SURFACE),$(SURFACE),$(shape))
-BUILD_OPTS := $(if $(MATERIAL),--material $(MATERIAL)) $(if $(VERTICES),--vertices $(VERTICES)) \
-              $(if $(TIME),--time "$(TIME)") $(if $(REFINE),--refine $(REFINE)) \
-              $(if $(JOBS),--jobs $(JOBS)) $(ARGS)
+# User values reach the shell only through the environment, quoted ("$$MS_TIME"), never
+# pasted into a recipe: a quote or $(...) in TIME, a path or ARGS is text, not a command.
+# `override X := $(value X)` also stops make itself from expanding $(...) in them.
+USER_VARS  := shape SURFACE MATERIAL DATA VERTICES TIME REFINE JOBS ARGS OUT
+$(foreach v,$(USER_VARS),$(eval override $(v) := $$(value $(v))))
+export MS_SOURCE   := $(if $(SURFACE),$(SURFACE),$(shape))
+export MS_NAME     := $(notdir $(basename $(MS_SOURCE)))
+export MS_MATERIAL := $(MATERIAL)
+export MS_DATA     := $(DATA)
+export MS_VERTICES := $(VERTICES)
+export MS_TIME     := $(TIME)
+export MS_REFINE   := $(REFINE)
+export MS_JOBS     := $(JOBS)
+export MS_ARGS     := $(ARGS)
+export MS_OUT      := $(OUT)
+unexport $(USER_VARS)
+
+# Options from the variables above, expanded by the shell (set -f: no globbing of ARGS,
+# which is split into words on spaces).
+BUILD_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
+              $${MS_VERTICES:+--vertices "$$MS_VERTICES"} \
+              $${MS_TIME:+--time "$$MS_TIME"} $${MS_REFINE:+--refine "$$MS_REFINE"} \
+              $${MS_JOBS:+--jobs "$$MS_JOBS"} $$MS_ARGS
+RUN        := set -f;
 
 .PHONY: all build design sim report test bench clean material membrane-model specimens \
         system-deps venv lint shapes
@@ -40,34 +58,35 @@ BUILD_OPTS := $(if $(MATERIAL),--material $(MATERIAL)) $(if $(VERTICES),--vertic
 all: build
 
 build: $(STAMP)
-	$(PY) -m pysolver.cli build "$(SOURCE)" $(BUILD_OPTS)
+	@$(RUN) $(PY) -m pysolver.cli build "$$MS_SOURCE" $(BUILD_OPTS)
 
 design: $(STAMP)
-	$(PY) -m pysolver.cli build "$(SOURCE)" --no-render --no-sim $(BUILD_OPTS)
+	@$(RUN) $(PY) -m pysolver.cli build "$$MS_SOURCE" --no-render --no-sim $(BUILD_OPTS)
 
 sim: $(STAMP)
-	$(PY) -m pysolver.cli build "$(SOURCE)" --no-render $(BUILD_OPTS)
+	@$(RUN) $(PY) -m pysolver.cli build "$$MS_SOURCE" --no-render $(BUILD_OPTS)
 
 report: $(STAMP)
-	$(PY) -m pysolver.cli report "build/$(notdir $(basename $(SOURCE)))"
+	@$(RUN) $(PY) -m pysolver.cli report "build/$$MS_NAME"
 
 shapes: $(STAMP)
 	$(PY) -m pysolver.cli shapes
 
 material: $(STAMP)
-	$(PY) -m pysolver.cli fit-material $(if $(DATA),--data $(DATA)) $(if $(OUT),--out $(OUT)) $(ARGS)
+	@$(RUN) $(PY) -m pysolver.cli fit-material $${MS_DATA:+--data "$$MS_DATA"} \
+	  $${MS_OUT:+--out "$$MS_OUT"} $$MS_ARGS
 
 membrane-model: $(STAMP)
 	$(PY) -m pysolver.cli fit-membrane
 
 specimens: $(STAMP)
-	$(PY) -m pysolver.cli specimens $(if $(JOBS),--jobs $(JOBS))
+	@$(RUN) $(PY) -m pysolver.cli specimens $${MS_JOBS:+--jobs "$$MS_JOBS"}
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile $(ARGS)
+	@$(RUN) $(PY) -m pytest -q -n 2 --dist loadfile $$MS_ARGS
 
 bench: $(STAMP)
-	$(PY) bench/run.py $(ARGS)
+	@$(RUN) $(PY) bench/run.py $$MS_ARGS
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check pysolver sim tests bench

@@ -17,14 +17,26 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import json
+import os
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from .atomic import atomic_write_text, build_lock, recover_stale, replace_dir
+from .atomic import (
+    atomic_write_text,
+    build_lock,
+    claim_output,
+    public_mode,
+    recover_stale,
+    remove_staging,
+    replace_dir,
+    staging_dir,
+    write_stamp,
+)
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
+from .params import DEFAULT_REFINE, LIMITS, SIM
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 BUILD_ROOT = Path("build")
@@ -125,15 +137,16 @@ def design_only(source: str, *, out=None, progress: bool = True, **options) -> d
     check_design_options(**{k: v for k, v in options.items()
                             if k in ("vertices", "time", "scale", "flattening")})
     name = shape_name(source)
-    out = (Path(out) if out else BUILD_ROOT / name).absolute()
+    out = claim_output(out or BUILD_ROOT / name, what="output folder", inputs=[source])
     with build_lock(out):
         recover_stale(out)
         with atomic_dir(out) as tmp:
             result = run_design(source, tmp, progress=progress, **options)
+    _log(f"{name}: design -> {out}", progress)
     return result
 
 
-def check_build_options(*, jobs=None, t_end=None, dt=None, render: bool = True,
+def check_build_options(*, jobs=None, t_end=None, dt=None, refine=None, render: bool = True,
                         simulate: bool = True, renderer=None) -> None:
     """Refuse bad build options before any stage runs (even options of skipped stages:
     a typo should not wait for the next full build to show).
@@ -146,14 +159,25 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, render: bool = True,
     """
     import math
 
-    if jobs is not None and (int(jobs) != jobs or jobs < 1):
-        raise InputError(f"--jobs must be a whole number >= 1, got {jobs}.",
+    if jobs is not None and (int(jobs) != jobs or not 1 <= jobs <= LIMITS.max_jobs):
+        raise InputError(f"--jobs must be a whole number from 1 to {LIMITS.max_jobs}, got "
+                         f"{jobs}.",
                          fix="omit --jobs (JOBS=) to use every CPU, or give e.g. --jobs 2.")
-    for opt, v in (("--t-end", t_end), ("--dt", dt)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise InputError(f"{opt} must be a positive number of seconds, got {v}.",
+    if refine is not None and (int(refine) != refine or not 0 <= refine <= LIMITS.max_refine):
+        raise InputError(f"--refine must be a whole number from 0 to {LIMITS.max_refine}, "
+                         f"got {refine}.", fix=f"use e.g. --refine {DEFAULT_REFINE} (the "
+                                               "default), or 0 for no refinement")
+    for opt, v, lo, hi in (("--t-end", t_end, 0.0, LIMITS.max_t_end),
+                           ("--dt", dt, LIMITS.min_dt, LIMITS.max_t_end)):
+        if v is not None and not (math.isfinite(v) and v > 0 and lo <= v <= hi):
+            raise InputError(f"{opt} must be a number of seconds from {lo:g} to {hi:g}, "
+                             f"got {v}.",
                              fix=f"omit {opt} for the default, or give e.g. "
                                  f"{opt} {120 if opt == '--t-end' else 0.5}.")
+    steps = (t_end or SIM.t_end) / (dt or SIM.dt)
+    if steps > LIMITS.max_steps:
+        raise InputError(f"--t-end / --dt = {steps:.0f} simulation steps, more than "
+                         f"{LIMITS.max_steps}.", fix="use a larger --dt or a shorter --t-end.")
     if simulate and (t_end is not None or dt is not None) and _has_module("sim.simulate"):
         from sim.simulate import SimSettings
 
@@ -168,9 +192,9 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, render: bool = True,
 
 def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0,
           flattening: str = "cetm", stencil_order: bool = False, material=None,
-          refine: int = 0, program: bool = True, render: bool = True,
+          refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
-          progress: bool = True, renderer=None) -> dict:
+          progress: bool = True, renderer=None, keep_failed: bool = False) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -197,6 +221,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     renderer : {"openscad", "fast", "auto"}, optional
         Part renderer of the render stage (default
         :data:`pysolver.render.DEFAULT_RENDERER`), see :func:`pysolver.render.render_parts`.
+    keep_failed : bool
+        Keep the staging folder of a build whose stage fails (``--debug``); by default it
+        is removed, so a failed build leaves nothing behind.
 
     Returns
     -------
@@ -207,16 +234,15 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         raise InputError(f"material model file {material!r} does not exist.",
                          fix="give a file written by 'make material DATA=dir' "
                              "(morphshell fit-material --out FILE), or omit MATERIAL.")
-    if refine < 0:
-        raise InputError(f"--refine must be >= 0, got {refine}.", fix="use e.g. --refine 2")
     from .design import check_design_options
 
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening)
-    check_build_options(jobs=jobs, t_end=t_end, dt=dt, render=render, simulate=simulate,
-                        renderer=renderer)
+    check_build_options(jobs=jobs, t_end=t_end, dt=dt, refine=refine, render=render,
+                        simulate=simulate, renderer=renderer)
     name = shape_name(source)
     # absolute: stages may run external tools in other working directories (OpenSCAD)
-    out = (Path(out) if out else BUILD_ROOT / name).absolute()
+    out = claim_output(out or BUILD_ROOT / name, what="output folder",
+                       inputs=[source, material])
     design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
                        stencil_order=stencil_order)
     all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
@@ -224,9 +250,10 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     if dt is not None:  # (only when given: keeps the hash of earlier builds)
         all_opts["dt"] = dt
     digest = inputs_hash(source, all_opts)
-    staging = out.parent / ".staging" / out.name
+    staging = staging_dir(out)
     summary: dict = {"shape": name, "source": str(source), "options": all_opts,
-                     "inputs_sha256": digest, "stages": {}, "timings_s": {}}
+                     "inputs_sha256": digest, "stages": {}, "timings_s": {},
+                     "stage_inputs": {}}
     t_build = _now()
     with build_lock(out):
         recover_stale(out)
@@ -241,8 +268,17 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             except MorphshellError as e:  # say which stage, and what was (not) kept
                 kept = (f"the previous complete build in {out} is unchanged"
                         if out.exists() else f"nothing was written to {out}")
-                raise type(e)(f"{key} stage: {e.problem}\n  ({kept}; this build's partial "
-                              f"files are in {staging})", fix=e.fix) from e
+                if keep_failed:
+                    kept += f"; this build's partial files are in {staging}"
+                else:
+                    remove_staging(staging)
+                    kept += ("; this build's partial files were removed (add --debug to "
+                             "keep them)")
+                problem, fix = e.problem, e.fix
+                if not keep_failed:  # name files of the removed folder by their own names
+                    problem, fix = (m and m.replace(f"{staging}/", "").replace(
+                        str(staging), "the design folder") for m in (problem, fix))
+                raise type(e)(f"{key} stage: {problem}\n  ({kept})", fix=fix) from e
             summary["timings_s"][key] = round(_now() - t0, 3)
             stages[key] = res if isinstance(res, dict) else {}
             _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
@@ -277,15 +313,26 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         if simulate:
             from sim.report import make_report
             stage("report", make_report, staging, progress=progress)
+        summary["stage_inputs"] = _stage_inputs(staging, material=material, t_end=t_end, dt=dt)
+        summary["kept"] = _keep_skipped_outputs(out, staging, summary["stage_inputs"],
+                                                render=render, simulate=simulate,
+                                                progress=progress)
         summary["timings_s"]["total"] = round(_now() - t_build, 3)
         summary["versions"] = tool_versions()
         summary["figures"] = _key_figures(staging, stages)
+        summary["output"] = str(out)
         atomic_write_text(staging / "summary.json",
                           json.dumps(summary, indent=2, sort_keys=True, default=_json_default)
                           + "\n")
         (staging / ".inputs_sha256").unlink(missing_ok=True)
+        write_stamp(staging)
+        public_mode(staging, recursive=True)
         replace_dir(staging, out)
+        remove_staging(staging)
     _log(f"{name}: build complete in {summary['timings_s']['total']:.1f} s -> {out}", progress)
+    if "report" in stages:
+        from sim.report import print_verdict
+        print_verdict(stages["report"], out / "report")
     verdict = stages.get("report", {}).get("verdict")
     summary["exit_code"] = EXIT_CHECK_FAILED if verdict == "FAIL" else EXIT_OK
     return summary
@@ -302,9 +349,75 @@ def _prepare_staging(staging: Path, digest: str, progress: bool) -> None:
         if marker.exists() and marker.read_text().strip() == digest:
             _log(f"resuming the interrupted build in {staging}", progress)
             return
-        shutil.rmtree(staging)
+        remove_staging(staging)
     staging.mkdir(parents=True)
     marker.write_text(digest + "\n")
+
+
+# outputs of the stages a build may skip, and what they are computed from
+_SKIPPABLE = {"render": ("scad", "stl"), "simulate": ("sim", "report")}
+
+
+def _stage_inputs(folder: Path, *, material=None, t_end=None, dt=None) -> dict:
+    """Hash of what the render and the simulation (+ report) stages read: the design tables
+    and stencil, plus the SCAD library (render) or the material model and time settings
+    (simulate).  Equal hashes mean a skipped stage's earlier outputs are still right."""
+    from .render import SCAD_DIR
+
+    h = hashlib.sha256()
+    for f in sorted(folder.glob("*.csv")) + [folder / "stencil.obj"]:
+        h.update(f.name.encode() + b"\0" + (f.read_bytes() if f.is_file() else b"") + b"\0")
+    tables = h.hexdigest()
+    lib = hashlib.sha256(b"".join(p.name.encode() + p.read_bytes()
+                                  for p in sorted(Path(SCAD_DIR).glob("*.scad"))))
+    mat = _sha256_file(Path(material)) if material else "committed:" + _version("morphshell")
+    sim = json.dumps({"material": mat, "t_end": t_end, "dt": dt}, sort_keys=True)
+    return {"render": hashlib.sha256((tables + lib.hexdigest()).encode()).hexdigest(),
+            "simulate": hashlib.sha256((tables + sim).encode()).hexdigest()}
+
+
+def _keep_skipped_outputs(out: Path, staging: Path, current: dict, *, render: bool,
+                          simulate: bool, progress: bool) -> dict:
+    """Carry the previous build's outputs of a skipped stage into ``staging`` when what they
+    were computed from is unchanged; otherwise say that they are dropped.
+
+    Returns
+    -------
+    dict
+        ``{stage: "kept" | "dropped"}`` for every skipped stage the previous build had run.
+    """
+    try:
+        old = json.loads((out / "summary.json").read_text()).get("stage_inputs", {})
+    except (OSError, ValueError, AttributeError):
+        old = {}
+    result = {}
+    for stage, folders in _SKIPPABLE.items():
+        if (render if stage == "render" else simulate):
+            continue
+        present = [f for f in folders if (out / f).is_dir()]
+        if not present:
+            continue
+        if old.get(stage) == current[stage]:
+            for f in present:
+                shutil.copytree(out / f, staging / f, copy_function=_link_or_copy)
+            result[stage] = "kept"
+            _log(f"{stage} not run: kept the previous {', '.join(present)} (inputs unchanged)",
+                 progress)
+        else:
+            result[stage] = "dropped"
+            _log(f"{stage} not run: the previous {', '.join(p + '/' for p in present)} no "
+                 "longer match the design and are dropped; re-run without "
+                 f"--no-{'render' if stage == 'render' else 'sim'} to make them again",
+                 progress)
+    return result
+
+
+def _link_or_copy(src, dst):
+    """Hard-link a file (instant, no extra space), copying it where links are impossible."""
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
 
 
 def _key_figures(folder: Path, stages: dict) -> dict:

@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import argparse
 import errno
+import functools
 import sys
+import time
 import traceback
 import warnings
 from pathlib import Path
 
+from .atomic import STAMP_NAME, claim_output, claim_output_file, write_stamp
 from .errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERNAL,
@@ -23,6 +26,7 @@ from .errors import (
     EXIT_OK,
     MorphshellError,
 )
+from .params import DEFAULT_REFINE
 
 STAGES_HELP = """\
 stages (each reads and writes plain files in a design folder, build/<shape>/):
@@ -73,15 +77,24 @@ def _parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     ap.add_argument("--quiet", action="store_true", help="no progress output")
+    # the same flags after the subcommand ('morphshell build petal --debug'); SUPPRESS keeps
+    # a flag given before the subcommand from being reset by the subparser's default
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show tracebacks of errors")
+    common.add_argument("--quiet", action="store_true", default=argparse.SUPPRESS,
+                        help="no progress output")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    add = functools.partial(sub.add_parser, parents=[common])
 
-    p = sub.add_parser("build", help="run the whole pipeline for a shape or a mesh file")
+    p = add("build", help="run the whole pipeline for a shape or a mesh file")
     p.add_argument("shape", help="built-in shape name (see 'shapes') or a mesh/stencil file")
     p.add_argument("--out", default=None, help="output folder (default: build/<name>)")
     _add_design_options(p)
     p.add_argument("--material", default=None, help="bracket model file (default: committed one)")
-    p.add_argument("--refine", type=int, default=0,
-                   help="K rounds of closing the timing loop: correct t* from the simulation")
+    p.add_argument("--refine", type=int, default=DEFAULT_REFINE,
+                   help="K rounds of closing the timing loop: correct t* from the simulation "
+                        f"(default {DEFAULT_REFINE}, as make's REFINE; 0 = off)")
     p.add_argument("--no-program", action="store_true", help="keep uniform thickness")
     p.add_argument("--no-render", action="store_true", help="skip STL rendering")
     p.add_argument("--no-sim", action="store_true", help="skip simulation and report")
@@ -90,36 +103,36 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, default=None, help="parallel OpenSCAD processes")
     _add_renderer_option(p)
 
-    p = sub.add_parser("design", help="design the flat layout only")
+    p = add("design", help="design the flat layout only")
     p.add_argument("shape")
     p.add_argument("--out", default=None)
     _add_design_options(p)
 
-    p = sub.add_parser("program", help="bracket thicknesses from the time landscape")
+    p = add("program", help="bracket thicknesses from the time landscape")
     p.add_argument("dir", help="design folder")
     p.add_argument("--material", default=None)
 
-    p = sub.add_parser("render", help="render the STLs of a design folder")
+    p = add("render", help="render the STLs of a design folder")
     p.add_argument("dir")
     p.add_argument("--jobs", type=int, default=None)
     _add_renderer_option(p)
 
-    p = sub.add_parser("simulate", help="simulate the morph of a design folder")
+    p = add("simulate", help="simulate the morph of a design folder")
     p.add_argument("dir")
     p.add_argument("--t-end", type=float, default=None)
     p.add_argument("--dt", type=float, default=None, help="time step, s (default 0.5)")
     p.add_argument("--material", default=None)
     p.add_argument("--no-resume", action="store_true", help="start over, ignore a checkpoint")
 
-    p = sub.add_parser("report", help="simulation check report of a design folder")
+    p = add("report", help="simulation check report of a design folder")
     p.add_argument("dir")
 
-    p = sub.add_parser("compare-scan", help="compare scanned marker dots with the simulation")
+    p = add("compare-scan", help="compare scanned marker dots with the simulation")
     p.add_argument("dir")
     p.add_argument("scan", help="point set: OBJ vertices, PLY, or CSV with x y z columns (mm)")
     p.add_argument("--layer", choices=("auto", "top", "bottom"), default="auto")
 
-    p = sub.add_parser("fit-material", help="fit the bracket model from measurements")
+    p = add("fit-material", help="fit the bracket model from measurements")
     p.add_argument("--data", default=None,
                    help="measurement folder (default: ../shared/material-data)")
     p.add_argument("--out", default=None,
@@ -130,15 +143,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--compare-to", default=None,
                    help="plot the new model against this one (default: the committed model)")
 
-    p = sub.add_parser("fit-membrane", help="fit the linearised membrane model (F_mem)")
+    p = add("fit-membrane", help="fit the linearised membrane model (F_mem)")
     p.add_argument("--out", default=None)
     p.add_argument("--report", default=None)
 
-    p = sub.add_parser("specimens", help="printable unit-cell test specimens")
+    p = add("specimens", help="printable unit-cell test specimens")
     p.add_argument("--out", default="build/specimens")
     p.add_argument("--jobs", type=int, default=None)
 
-    sub.add_parser("shapes", help="list the built-in shapes")
+    add("shapes", help="list the built-in shapes")
     return ap
 
 
@@ -148,10 +161,21 @@ def _design_dir(arg: str) -> Path:
 
 
 def _run(args: argparse.Namespace) -> int:
-    progress = not args.quiet
-    cmd = args.command
+    progress = not getattr(args, "quiet", False)
     if hasattr(args, "dir"):
         args.dir = _design_dir(args.dir)
+        t0 = time.time()
+        try:
+            return _run_stage(args, progress)
+        finally:  # files this stage wrote into a stamped design folder are morphshell's
+            if (args.dir / STAMP_NAME).is_file():
+                write_stamp(args.dir, since=t0 - 1.0)
+    return _run_command(args, progress)
+
+
+def _run_command(args: argparse.Namespace, progress: bool) -> int:
+    """The subcommands that make new outputs (no design-folder argument)."""
+    cmd = args.command
     if cmd == "build":
         from .build import build
         result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
@@ -160,7 +184,7 @@ def _run(args: argparse.Namespace) -> int:
                        refine=args.refine, program=not args.no_program,
                        render=not args.no_render, simulate=not args.no_sim,
                        t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress,
-                       renderer=args.renderer)
+                       renderer=args.renderer, keep_failed=getattr(args, "debug", False))
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
         from .build import design_only
@@ -168,6 +192,12 @@ def _run(args: argparse.Namespace) -> int:
                     scale=args.scale, flattening=args.flattening,
                     stencil_order=args.stencil_order, progress=progress)
         return EXIT_OK
+    return _run_other(args, progress)
+
+
+def _run_stage(args: argparse.Namespace, progress: bool) -> int:
+    """The subcommands that run one stage on an existing design folder ``args.dir``."""
+    cmd = args.command
     if cmd == "program":
         from .temporal import program_design
         program_design(Path(args.dir), material=args.material, progress=progress)
@@ -188,13 +218,21 @@ def _run(args: argparse.Namespace) -> int:
                         resume=not args.no_resume, **kw)
         return EXIT_OK
     if cmd == "report":
-        from sim.report import make_report
+        from sim.report import make_report, print_verdict
+
         rep = make_report(Path(args.dir), progress=progress)
+        print_verdict(rep, Path(args.dir) / "report")
         return 3 if rep.get("verdict") == "FAIL" else EXIT_OK
     if cmd == "compare-scan":
         from sim.scan import compare_scan
         compare_scan(Path(args.dir), Path(args.scan), layer=args.layer)
         return EXIT_OK
+    raise AssertionError(cmd)
+
+
+def _run_other(args: argparse.Namespace, progress: bool) -> int:
+    """Material and membrane fits, specimens, the shape list."""
+    cmd = args.command
     if cmd == "fit-material":
         from .material.fit import fit_material
         out, report = args.out, args.report
@@ -202,6 +240,10 @@ def _run(args: argparse.Namespace) -> int:
             stem = Path(args.data).resolve().name or "material"
             out = out or str(Path("build/material") / f"{stem}.json")
             report = report or str(Path("build/material") / stem)
+        if out is not None:
+            claim_output_file(out, what="--out model file")
+        if report is not None:
+            claim_output(report, what="--report folder")
         res = fit_material(data_dir=args.data, out_path=out, report_dir=report,
                            compare_to=args.compare_to, progress=progress)
         missing = {k: v for k, v in (res.get("missing_specimens") or {}).items() if v}
@@ -211,11 +253,17 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if cmd == "fit-membrane":
         from .membrane_model import fit_membrane_model
+        if args.out is not None:
+            claim_output_file(args.out, what="--out model file")
+        if args.report is not None:
+            claim_output(args.report, what="--report folder")
         fit_membrane_model(out_path=args.out, report_dir=args.report)
         return EXIT_OK
     if cmd == "specimens":
         from .specimens import make_specimens
-        make_specimens(Path(args.out), jobs=args.jobs)
+        out = claim_output(args.out, what="--out folder")
+        make_specimens(out, jobs=args.jobs)
+        write_stamp(out)
         return EXIT_OK
     if cmd == "shapes":
         from .surfaces import BUILTIN_SHAPES
@@ -255,7 +303,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _run(args)
     except MorphshellError as e:
-        if args.debug:
+        if getattr(args, "debug", False):
             traceback.print_exc()
         print(f"morphshell {args.command}: error: {e}", file=sys.stderr)
         return e.exit_code
@@ -264,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception as e:  # a bug: say so, and how to get details
-        if args.debug:
+        if getattr(args, "debug", False):
             traceback.print_exc()
         if isinstance(e, OSError) and e.errno in _ENVIRONMENT_ERRNOS:
             # the machine, not the program: no permission, disk full, read-only file system

@@ -26,7 +26,7 @@ from .cellnodes import bracket_nodes, collision_lengths
 from .checks import check_layout
 from .errors import InputError
 from .layout import Layout, build_layout
-from .params import UNIT_CELL, UnitCell
+from .params import LIMITS, UNIT_CELL, UnitCell
 from .time_landscape import cell_times, check_time_option, check_time_source, resolve_time
 
 FLATTENINGS = ("cetm", "lscm")
@@ -98,14 +98,18 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
     """
     if flattening not in FLATTENINGS:
         raise InputError(f"flattening={flattening!r}", fix=f"use one of {FLATTENINGS}")
-    if not (np.isfinite(scale) and scale > 0):
-        raise InputError(f"scale={scale!r} must be a positive number",
+    if not (np.isfinite(scale) and 0 < scale <= LIMITS.max_scale):
+        raise InputError(f"--scale {scale!r} must be a positive number up to "
+                         f"{LIMITS.max_scale:g}",
                          fix="e.g. --scale 1000 for a mesh in metres, 25.4 in inches")
     if not (params.thickness_min <= thickness <= params.thickness_max):
         raise InputError(f"thickness={thickness} mm outside {params.thickness_min}-"
                          f"{params.thickness_max} mm")
-    if vertices is not None and (int(vertices) != vertices or vertices < 4):
-        raise InputError(f"vertices={vertices!r} must be an integer >= 4",
+    if vertices is not None and (int(vertices) != vertices or not
+                                 4 <= vertices <= LIMITS.max_vertices):
+        raise InputError(f"--vertices {vertices!r} must be a whole number from 4 to "
+                         f"{LIMITS.max_vertices} (about {2 * LIMITS.max_vertices} bases, "
+                         "beyond any print tray)",
                          fix="omit --vertices to let the design search it")
     check_time_option(time)
 
@@ -165,6 +169,13 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
 
     remesh_info = {}
     comparison = {}
+    if vertices is not None and (surf.UV is not None or stencil_order):
+        what = ("a finished stencil (its own flat layout)" if kind != "builtin"
+                else "a fixed tessellation")
+        raise InputError(f"--vertices {vertices} has no effect on {src_desc}: it is {what}, "
+                         "not remeshed.",
+                         fix="omit --vertices for this input; it applies to surfaces that are "
+                             "remeshed (built-in curved shapes and mesh files).")
     if surf.UV is not None:
         V0, UV0, F0 = surf.V, surf.UV, surf.F
         remesh_info = {"remeshed": False, "vertices": int(len(V0))}

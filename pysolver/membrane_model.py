@@ -890,7 +890,6 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
     from .atomic import atomic_write_text
 
     atomic_write_text(out_path, json.dumps(model, indent=1) + "\n")
-    out_path.chmod(0o644)
     png = plot_membrane_fit(model, report_dir / "membrane_fit.png")
     model["picture"] = str(png)
     if progress:

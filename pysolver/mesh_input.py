@@ -22,6 +22,7 @@ import igl
 import numpy as np
 
 from .errors import InputError
+from .params import tol as TOL
 
 SUPPORTED = (".obj", ".stl", ".ply", ".off")
 # a shell smaller or larger than this (bounding-box diagonal, mm) is probably in other units:
@@ -85,7 +86,8 @@ def _read_trimesh(path: Path):
     ext = path.suffix.lower()
     try:
         # process=False everywhere: trimesh's processing would silently drop the triangles
-        # of NaN/inf vertices (an STL then shows up as a "hole"); STL corners are merged below
+        # of NaN/inf vertices (an STL then shows up as a "hole"); corners are welded by
+        # weld_vertices, the same way for every format
         m = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:  # noqa: BLE001 - any parser failure is a corrupt file
         raise InputError(f"{path}: cannot read the {ext[1:].upper()} file, it is corrupt or "
@@ -103,8 +105,36 @@ def _read_trimesh(path: Path):
             raise InputError(f"{path}: {len(tri)} triangle(s) with NaN or infinite vertex "
                              f"coordinates (first: triangle {tri[0] if len(tri) else '?'})",
                              fix="repair or re-export the mesh")
-        m.merge_vertices()  # STL stores every triangle corner separately
     return m
+
+
+def weld_vertices(V, F, tol: float = TOL.merge) -> tuple[np.ndarray, np.ndarray, int]:
+    """Merge vertices that lie within ``tol`` of each other (on a grid of that size).
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    tol : float, mm
+
+    Returns
+    -------
+    keep : (k,) int
+        Index of the first vertex of each group, in the original order.
+    F : (m, 3) int
+        Faces re-indexed into ``V[keep]``.
+    n_welded : int
+        ``n - k``, the vertices merged away.
+    """
+    V = np.asarray(V, float)
+    if len(V) == 0 or not np.all(np.isfinite(V)):
+        return np.arange(len(V)), np.asarray(F), 0  # validate_surface names bad coordinates
+    key = np.round(V / tol).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)           # groups in the order of their first vertex
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[np.ravel(inverse)][np.asarray(F)], len(V) - len(first)
 
 
 def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
@@ -165,7 +195,14 @@ def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
     vis = getattr(m, "visual", None)
     if vis is not None and getattr(vis, "kind", None) == "vertex":
         colors = np.asarray(vis.vertex_colors, float)[:, :3] / 255.0
-    # drop unreferenced vertices (keeping the order of the others)
+    # weld coincident corners (an STL, or an OBJ/PLY/OFF triangle soup, stores every
+    # triangle corner separately), then drop unreferenced vertices, keeping the vertex order
+    keep, F, n_welded = weld_vertices(V, F)
+    if n_welded:
+        notes.append(f"{n_welded} coincident vertices welded")
+        V = V[keep]
+        attrs = {k: v[keep] for k, v in attrs.items()}
+        colors = None if colors is None else colors[keep]
     used = np.unique(F)
     if len(used) < len(V):
         notes.append(f"{len(V) - len(used)} unreferenced vertices removed")

@@ -151,6 +151,44 @@ class Tolerances:
     line_search_halvings: int = 30
 
 
+@dataclass(frozen=True)
+class Limits:
+    """Upper bounds of the size and count options, so that a typo (``--vertices 10000000``)
+    is refused at once instead of running for hours.
+
+    Attributes
+    ----------
+    max_vertices : int
+        Stencil vertices (``--vertices``); the paper's largest shell has 330.
+    max_refine : int
+        Timing refinement rounds (``--refine``), each one simulation.
+    max_jobs : int
+        Parallel render processes (``--jobs``).
+    max_t_end : float, s
+        Simulated time in water (``--t-end``).
+    min_dt : float, s
+        Smallest simulation time step (``--dt``).
+    max_steps : int
+        Simulation steps, ``t_end / dt``.
+    max_scale : float
+        Input scale factor (``--scale``).
+    """
+
+    max_vertices: int = 5000
+    max_refine: int = 10
+    max_jobs: int = 256
+    max_t_end: float = 3600.0
+    min_dt: float = 0.01
+    max_steps: int = 20000
+    max_scale: float = 1e6
+
+
+LIMITS = Limits()
+
+DEFAULT_REFINE = 1
+"""Rounds of timing refinement from the simulation, the one default of ``morphshell build``,
+``make`` and :func:`pysolver.build.build`."""
+
 UNIT_CELL = UnitCell()
 SIM = SimConstants()
 tol = Tolerances()
@@ -169,5 +207,5 @@ def layer_sign(layer) -> int:
     raise ValueError(f"layer must be 0/'top' or 1/'bottom', got {layer!r}")
 
 
-__all__ = ["UnitCell", "SimConstants", "Tolerances", "UNIT_CELL", "SIM", "tol", "LAYERS",
-           "layer_sign"]
+__all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
+           "UNIT_CELL", "SIM", "tol", "LAYERS", "layer_sign"]

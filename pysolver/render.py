@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_dir
+from .atomic import atomic_dir, public_mode
 from .errors import ExternalToolError, InputError
 from .params import LAYERS, SIM, UNIT_CELL, layer_sign
 from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files
@@ -201,12 +201,15 @@ def _run_openscad(exe: str, scad: Path, out_stl: Path) -> tuple[bool, float, str
 
 
 def default_cache_dir(design_dir) -> Path:
-    """``build/.cache/parts`` of the ``build`` folder holding the design (else beside it)."""
+    """``build/.cache/parts`` of the ``build`` folder holding the design, else the user's
+    cache folder (``$XDG_CACHE_HOME/morphshell/parts``, by default
+    ``~/.cache/morphshell/parts``): never a folder of the user's own beside the design."""
     design_dir = Path(design_dir).resolve()
     for p in (design_dir, *design_dir.parents):
         if p.name == "build":
             return p / ".cache" / "parts"
-    return design_dir.parent / ".cache" / "parts"
+    root = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(root) / "morphshell" / "parts"
 
 
 def check_renderer(renderer) -> str:
@@ -243,6 +246,7 @@ def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
         try:
             ok, dt, err = _run_openscad(exe, part.path, tmp)
             if ok:
+                public_mode(tmp)
                 os.replace(tmp, target)
             return part, ok, dt, err
         finally:
@@ -304,6 +308,7 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
         for (part, target), tmp, ans in zip(todo, tmps, answers, strict=True):
             ok = ans["ok"] and tmp.is_file() and tmp.stat().st_size > 84
             if ok:
+                public_mode(tmp)
                 os.replace(tmp, target)
                 seconds[part.name] = float(ans["seconds"])
             else:
@@ -694,7 +699,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
                                  design=design)
     parts = [dataclasses.replace(p, path=design_dir / "scad" / p.path.name) for p in parts]
     t_write = time.perf_counter() - t0
-    log(f"{len(parts)} part files in {design_dir / 'scad'}; cache {cache_dir}")
+    log(f"{len(parts)} part files in scad/; cache {cache_dir}")
 
     res = render_parts(parts, cache_dir=cache_dir, scad_dir=scad_dir, jobs=jobs,
                        progress=progress, exe=exe, renderer=renderer)
@@ -799,7 +804,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
         "facet_tol_mm": FACET_TOL_MM,
         "layer_height_mm": UNIT_CELL.layer_h,
     }
-    log(f"done in {summary['timings_s']['total']:.1f} s -> {design_dir / 'stl'}")
+    log(f"done in {summary['timings_s']['total']:.1f} s -> stl/")
     return summary
 
 

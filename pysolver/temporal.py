@@ -392,7 +392,8 @@ def _fix_message(ach) -> str:
                 "brackets; check the material model.")
     rng = ach["common"]
     msg = ("shift or scale the time landscape into the achievable range: "
-           + (f"every cell can finish between {rng[0]:.1f} and {rng[1]:.1f} s; "
+           + (f"every cell that can finish at all can do so between {rng[0]:.1f} and "
+              f"{rng[1]:.1f} s; "
               if rng is not None else "no single time suits every cell; ")
            + f"cells can finish between {ach['earliest']:.1f} and {ach['latest']:.1f} s "
            f"overall, and {100 * ach['best_constant'][1]:.0f} % of them at "
@@ -569,11 +570,19 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         png = plot_feasibility(design_dir, land, cells, res, design_dir / PICTURE)
         summary["picture"] = png.name
     if not summary["feasible"]:
+        never = ~np.isfinite(res["t_min"])
+        early, late = res["side"] < 0, (res["side"] > 0) & ~never
+        why = [f"{k} {what}" for k, what in (
+            (int(early.sum()), "would need to finish sooner than their thinnest brackets "
+                               f"({UNIT_CELL.thickness_min:.2f} mm) allow"),
+            (int(late.sum()), "would need to finish later than their thickest brackets "
+                              f"({UNIT_CELL.thickness_max:.2f} mm) allow"),
+            (int(never.sum()), "cannot finish at all within the material model's "
+                               f"{time_limit(mat):.0f} s")) if k]
         raise InputError(
-            f"{design_dir}: the time landscape is mostly infeasible: {len(clamped)} of {n} "
-            f"cells ({100 * frac:.0f} %) cannot finish at their time t* (t* spans "
-            f"{t_star.min():.1f}-{t_star.max():.1f} s; {len(summary['too_early_cells'])} too "
-            f"early, {len(summary['too_late_cells'])} too late for 0.30-0.65 mm brackets).",
+            f"the time landscape is mostly infeasible: {len(clamped)} of {n} cells "
+            f"({100 * frac:.0f} %) cannot finish at their time t* (t* spans "
+            f"{t_star.min():.1f}-{t_star.max():.1f} s): " + "; ".join(why) + ".",
             fix=_fix_message(ach) + f" See {design_dir / PICTURE}.")
     out = dict(cells)
     out["t_star_s"] = t_star

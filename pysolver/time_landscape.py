@@ -29,48 +29,127 @@ from .errors import InputError
 DEFAULT_TIME_S = 60.0
 T_MIN_S, T_MAX_S = 0.0, 120.0
 
-_FUNCS = {n: getattr(np, n) for n in (
-    "sin", "cos", "tan", "arcsin", "arccos", "arctan", "arctan2", "sinh", "cosh", "tanh",
-    "exp", "log", "log10", "sqrt", "abs", "minimum", "maximum", "clip", "where", "floor",
-    "ceil", "round", "sign", "hypot", "degrees", "radians", "mod")}
+# The closed language of time expressions: numbers, the names below, arithmetic,
+# comparisons and these functions with exactly this many positional arguments.  The
+# expression is parsed with ``ast`` and walked by :func:`_evaluate`; it is never compiled or
+# handed to ``eval``, and numpy's keyword or extra positional arguments (``out=``,
+# ``where=``, ``sign(x, x)``), attributes and subscripts cannot be written.
+_FUNCS = {  # name: (numpy function, arity)
+    **{n: (getattr(np, n), 1) for n in (
+        "sin", "cos", "tan", "arcsin", "arccos", "arctan", "sinh", "cosh", "tanh", "exp",
+        "log", "log10", "sqrt", "abs", "floor", "ceil", "round", "sign", "degrees",
+        "radians")},
+    **{n: (getattr(np, n), 2) for n in ("arctan2", "minimum", "maximum", "hypot", "mod")},
+    "clip": (np.clip, 3),
+    "where": (np.where, 3),
+}
 _CONSTS = {"pi": np.pi, "e": np.e}
-_ALLOWED_NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Compare, ast.BoolOp, ast.Call,
-                  ast.Name, ast.Load, ast.Constant, ast.IfExp, ast.operator, ast.unaryop,
-                  ast.cmpop, ast.boolop, ast.keyword)
+_BINOPS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
+           ast.Div: np.true_divide, ast.Pow: np.power, ast.Mod: np.mod,
+           ast.FloorDiv: np.floor_divide}
+_UNARYOPS = {ast.USub: np.negative, ast.UAdd: np.positive}
+_CMPOPS = {ast.Lt: np.less, ast.LtE: np.less_equal, ast.Gt: np.greater,
+           ast.GtE: np.greater_equal, ast.Eq: np.equal, ast.NotEq: np.not_equal}
+_VARIABLES = ("x", "y", "z", "r", *(a + m for a in "xyz" for m in ("min", "max")))
+_NAMES = {*_VARIABLES, *_CONSTS}
+MAX_EXPRESSION_CHARS = 2000
+"""Longest time expression accepted (characters)."""
+_HELP = ("a numpy-style expression of x, y, z, r (mm) giving seconds, e.g. \"30 + 0.5*z\"; "
+         "names: x y z r xmin..zmax pi e; functions: "
+         + ", ".join(f"{n}/{k}" for n, (_f, k) in sorted(_FUNCS.items())))
 
 
-_NAMES = {"x", "y", "z", "r", *(a + m for a in "xyz" for m in ("min", "max")), *_CONSTS,
-          *_FUNCS}
+def _refuse(expr: str, what: str):
+    raise InputError(f"time expression {expr!r}: {what}", fix=f"write {_HELP}")
 
 
 def parse_expression(expr: str) -> ast.Expression:
-    """Parse a time expression and check it is safe (names, calls, constants), without
-    evaluating it: cheap, so options can be checked before any stage runs.
+    """Parse a time expression and check that it stays in the closed language (see
+    :data:`_FUNCS`), without evaluating it: cheap, so options can be checked before any
+    stage runs.
 
     Raises
     ------
     InputError
-        Syntax error, unknown name, or a construct other than arithmetic, comparisons and
-        whitelisted numpy functions.
+        Syntax error, unknown name, a call with the wrong number of arguments or with keyword
+        arguments, or any construct other than numbers, names, arithmetic, comparisons and
+        the whitelisted functions.
     """
+    if not isinstance(expr, str):
+        raise InputError(f"time expression {expr!r} is not text", fix=f"write {_HELP}")
+    if len(expr) > MAX_EXPRESSION_CHARS:
+        _refuse(expr[:40] + "...", f"longer than {MAX_EXPRESSION_CHARS} characters")
     try:
-        tree = ast.parse(expr, mode="eval")
+        tree = ast.parse(expr.strip(), mode="eval")
     except SyntaxError as e:
-        raise InputError(f"time expression {expr!r}: syntax error ({e.msg})",
-                         fix='write a numpy expression of x, y, z, r, e.g. "30 + 0.5*z"') from None
+        _refuse(expr, f"syntax error ({e.msg})")
+    except (ValueError, RecursionError, MemoryError) as e:  # null bytes, absurd nesting
+        _refuse(expr, f"cannot be parsed ({type(e).__name__})")
     for node in ast.walk(tree):
-        if not isinstance(node, _ALLOWED_NODES):
-            raise InputError(f"time expression {expr!r}: {type(node).__name__} is not allowed",
-                             fix="use arithmetic, comparisons and numpy functions only")
-        if isinstance(node, ast.Name) and node.id not in _NAMES:
-            raise InputError(f"time expression {expr!r}: unknown name {node.id!r}",
-                             fix=f"allowed names: x, y, z, r, pi, {', '.join(sorted(_FUNCS))}")
-        if isinstance(node, ast.Call) and not (isinstance(node.func, ast.Name)
-                                               and node.func.id in _FUNCS):
-            raise InputError(f"time expression {expr!r}: only numpy functions may be called")
-        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
-            raise InputError(f"time expression {expr!r}: only numeric constants are allowed")
+        if isinstance(node, (ast.Expression, ast.Load, *_BINOPS, *_UNARYOPS, *_CMPOPS)):
+            continue
+        if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
+            continue
+        if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARYOPS:
+            continue
+        if isinstance(node, ast.Compare) and all(type(o) in _CMPOPS for o in node.ops):
+            continue
+        if isinstance(node, ast.Constant):
+            if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
+                _refuse(expr, f"only numbers are allowed as constants, not {node.value!r}")
+            continue
+        if isinstance(node, ast.Name):
+            if node.id not in _NAMES and node.id not in _FUNCS:
+                _refuse(expr, f"unknown name {node.id!r}")
+            continue
+        if isinstance(node, ast.Call):
+            name = node.func.id if isinstance(node.func, ast.Name) else None
+            if name not in _FUNCS:
+                _refuse(expr, "only the listed functions may be called")
+            if node.keywords:
+                _refuse(expr, f"{name}() takes no keyword arguments")
+            arity = _FUNCS[name][1]
+            if len(node.args) != arity or any(isinstance(a, ast.Starred) for a in node.args):
+                _refuse(expr, f"{name}() takes exactly {arity} argument"
+                              f"{'s' if arity > 1 else ''}, got {len(node.args)}")
+            continue
+        _refuse(expr, f"{type(node).__name__} is not allowed")
+    for node in ast.walk(tree):  # a function name is only valid as the callee of a call
+        if isinstance(node, ast.Name) and node.id in _FUNCS and node.id not in _NAMES:
+            parents = [p for p in ast.walk(tree) if isinstance(p, ast.Call) and p.func is node]
+            if not parents:
+                _refuse(expr, f"{node.id} is a function; call it, e.g. {node.id}(x)")
     return tree
+
+
+def _evaluate(node, names: dict):
+    """Value of a checked expression node; numbers are floats (Python ints have unbounded
+    size, so "9**9**9" would run for minutes; float arithmetic overflows at once)."""
+    if isinstance(node, ast.Expression):
+        return _evaluate(node.body, names)
+    if isinstance(node, ast.Constant):
+        return float(node.value)
+    if isinstance(node, ast.Name):
+        return names[node.id]
+    if isinstance(node, ast.BinOp):
+        if isinstance(node.op, (ast.Div, ast.FloorDiv, ast.Mod)):
+            den = np.asarray(_evaluate(node.right, names))
+            if np.any(den == 0):
+                raise ZeroDivisionError("division by zero")
+        return _BINOPS[type(node.op)](_evaluate(node.left, names), _evaluate(node.right, names))
+    if isinstance(node, ast.UnaryOp):
+        return _UNARYOPS[type(node.op)](_evaluate(node.operand, names))
+    if isinstance(node, ast.Compare):  # a < b < c means (a < b) & (b < c), as in Python
+        left, out = _evaluate(node.left, names), True
+        for op, right_node in zip(node.ops, node.comparators, strict=True):
+            right = _evaluate(right_node, names)
+            out = np.logical_and(out, _CMPOPS[type(op)](left, right))
+            left = right
+        return out.astype(float)
+    if isinstance(node, ast.Call):
+        fn, _arity = _FUNCS[node.func.id]
+        return fn(*(_evaluate(a, names) for a in node.args))
+    raise AssertionError(type(node).__name__)  # parse_expression admits nothing else
 
 
 def check_time_option(time) -> None:
@@ -113,30 +192,21 @@ def evaluate_expression(expr: str, V: np.ndarray) -> np.ndarray:
     t : (n,) float, s
     """
     tree = parse_expression(expr)
+    V = np.array(V, dtype=float)  # a private copy: nothing in the expression can reach V
     x, y, z = V[:, 0], V[:, 1], V[:, 2]
-    names = {"x": x, "y": y, "z": z, "r": np.hypot(x, y), **_CONSTS, **_FUNCS}
+    names = {"x": x, "y": y, "z": z, "r": np.hypot(x, y), **_CONSTS}
     for a, col in zip("xyz", (x, y, z), strict=True):
         names[a + "min"], names[a + "max"] = float(col.min()), float(col.max())
-    # integer literals become floats: Python ints have unbounded size, so "9**9**9" would run
-    # for minutes; float arithmetic overflows at once (and 1/0 raises ZeroDivisionError)
-    tree = ast.fix_missing_locations(_FloatConstants().visit(tree))
-    code = compile(tree, "<time>", "eval")
+    for v in names.values():
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
     try:
-        with np.errstate(all="ignore"):
-            val = eval(code, {"__builtins__": {}}, names)  # noqa: S307 - AST checked above
+        with np.errstate(over="raise", divide="ignore", invalid="ignore", under="ignore"):
+            val = _evaluate(tree, names)
         return np.broadcast_to(np.asarray(val, dtype=float), (len(V),)).copy()
-    except (ArithmeticError, TypeError, ValueError) as e:
+    except (ArithmeticError, TypeError, ValueError, RecursionError) as e:
         raise InputError(f"time expression {expr!r} cannot be evaluated: "
-                         f"{type(e).__name__}: {e}",
-                         fix='write a numpy expression of x, y, z, r giving seconds, e.g. '
-                             '"30 + 0.5*z"') from None
-
-
-class _FloatConstants(ast.NodeTransformer):
-    def visit_Constant(self, node):
-        if isinstance(node.value, int) and not isinstance(node.value, bool):
-            return ast.copy_location(ast.Constant(float(node.value)), node)
-        return node
+                         f"{type(e).__name__}: {e}", fix=f"write {_HELP}") from None
 
 
 def interpolate_to_stencil(values, V_src, F_src, V_stencil) -> np.ndarray:

@@ -801,7 +801,6 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     timings["total"] = round(time.perf_counter() - t_start, 3)
     result["timings_s"] = timings
     pr.step("written")
-    _print_verdict(result, out_dir)
     return result
 
 
@@ -1045,7 +1044,8 @@ def _html(r, tmp, sd) -> str:
     return "\n".join(parts)
 
 
-def _print_verdict(r, out_dir):
+def print_verdict(r, out_dir):
+    """Print the verdict line, naming ``out_dir/index.html``, and its reasons and notes."""
     print(f"simulation check: {r['verdict']}  ({out_dir / 'index.html'})")
     for x in r["reasons"]:
         print(f"  {x['level']}: [{x['check']}] {x['message']}")
@@ -1063,12 +1063,13 @@ def main(argv=None) -> int:
     ap.add_argument("--renderer", default="auto", choices=("auto", "pyvista", "matplotlib"))
     a = ap.parse_args(argv)
     r = make_report(a.design_dir, out_dir=a.out, progress=not a.quiet, renderer=a.renderer)
+    print_verdict(r, Path(a.out) if a.out else Path(a.design_dir) / "report")
     return 3 if r["verdict"] == "FAIL" else 0
 
 
 __all__ = ["Thresholds", "SECTIONS", "SimData", "load_frames", "load_sim", "completion_times",
            "shape_metrics", "fold_metrics", "shape_rms_over_time", "timing_metrics",
-           "solver_metrics", "decide", "make_report"]
+           "solver_metrics", "decide", "make_report", "print_verdict"]
 
 if __name__ == "__main__":
     sys.exit(main())

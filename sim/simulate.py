@@ -56,13 +56,13 @@ import contextlib
 import json
 import os
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from pysolver.atomic import atomic_file, atomic_write_text
 from pysolver.errors import InputError, MorphshellError
 from pysolver.params import SIM, UNIT_CELL
 from pysolver.params import tol as TOL
@@ -391,16 +391,8 @@ class Simulation:
 
 def _atomic_savez(path: Path, arrays: dict) -> None:
     """``np.savez`` through a temporary file in the same folder and an atomic rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    with atomic_file(path) as tmp:
+        np.savez(tmp, **arrays)
 
 
 def _material_id(material) -> str:
@@ -560,15 +552,13 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
                     "completion_time_max_s": float(np.nanmax(tc)) if np.isfinite(tc).any()
                     else float("nan"),
                     "frames": str(frames_path)})
-    from pysolver.atomic import atomic_write_text
-
     atomic_write_text(out_dir / "summary.json",
                       json.dumps(summary, indent=2, sort_keys=True, default=float) + "\n")
     nc = summary["nonconverged_steps"]
     if nc:
         _log(f"{label}: WARNING {len(nc)} step(s) did not converge (residual > "
              f"{st.tol:g} N): {nc[:10]}{' ...' if len(nc) > 10 else ''}", progress)
-    _log(f"{label}: {summary['steps']} frames in {summary['wall_s']:.1f} s -> {frames_path}",
+    _log(f"{label}: {summary['steps']} frames in {summary['wall_s']:.1f} s -> sim/{FRAMES_NAME}",
          progress)
     return summary
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from pysolver.atomic import build_lock, recover_stale, replace_dir
+from pysolver.atomic import build_lock, recover_stale, replace_dir, write_stamp
 from pysolver.errors import EXIT_BAD_INPUT
 
 REPO = Path(__file__).resolve().parent.parent
@@ -120,20 +120,21 @@ def test_replace_interrupted_between_its_renames_is_recovered(tmp_path):
     dst = tmp_path / "petal"
     dst.mkdir()
     (dst / "summary.json").write_text("old complete\n")
+    write_stamp(dst)                                  # a folder morphshell made
     os.replace(dst, tmp_path / ".petal.old-12345")    # the state after the first rename
     (tmp_path / ".petal.tmp-abc").mkdir()             # a killed atomic_dir's temp folder
     (tmp_path / ".petal.tmp-abc" / "cells.csv").write_text("half\n")
     with build_lock(dst):
         done = recover_stale(dst)
     assert (dst / "summary.json").read_text() == "old complete\n"
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".locks", "petal"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["petal"]
     assert len(done) == 2
     new = tmp_path / "new"
     new.mkdir()
     (new / "summary.json").write_text("new complete\n")
     replace_dir(new, dst)
     assert (dst / "summary.json").read_text() == "new complete\n"
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".locks", "petal"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["petal"]
 
 
 def test_lock_refuses_a_second_build_of_the_same_shape_not_others(tmp_path):

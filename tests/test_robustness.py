@@ -354,8 +354,8 @@ def _fresh(regular_dir, tmp_path):
     ("nan", [r"time .nan.: NaN/inf is not a time", r"finite times in seconds"]),
     ("-5", [r"time .-5.: negative time -5 s", r">= 0"]),
     ("1/0", [r"time expression '1/0' cannot be evaluated: ZeroDivisionError"]),
-    ("9**9**9", [r"cannot be evaluated: OverflowError"]),            # instant, not a hang
-    ("30 + 0.5*w", [r"unknown name 'w'", r"allowed names: x, y, z, r"]),
+    ("9**9**9", [r"cannot be evaluated: .*overflow"]),            # instant, not a hang
+    ("30 + 0.5*w", [r"unknown name 'w'", r"names: x y z r"]),
     ("sqrt(-1 - r)", [r"NaN/inf at vertex 0 \(42 values\)"]),
     (np.arange(5.0), [r"time array has 5 values; the stencil has 42 vertices"]),
     (np.r_[np.full(20, 60.0), np.nan, np.full(21, 60.0)], [r"time array: NaN/inf at vertex 20"]),
@@ -410,7 +410,8 @@ def test_all_infeasible_landscape_names_the_achievable_range(regular_dir, tmp_pa
     before = (d / "cells.csv").read_bytes()
     with pytest.raises(InputError) as e:
         program_design(d, progress=False, picture=False)
-    _names(str(e.value), r"infeasible", r"79 of 79 cells", r"too late",
+    _names(str(e.value), r"infeasible", r"79 of 79 cells",
+           r"\d+ would need to finish later than their thickest brackets \(0\.65 mm\) allow",
            r"shift or scale the time landscape into the achievable range",
            r"\d+\.\d and \d+\.\d s")
     assert (d / "cells.csv").read_bytes() == before     # nothing half-written
@@ -611,15 +612,17 @@ def test_diverging_simulation_stops_keeps_frames_names_step_and_cause(tmp_path):
     (["build", "dome:size=big"], [r"'size=big': value must be a number"]),
     (["build", "no/such/mesh.stl"], [r"mesh file 'no/such/mesh.stl' does not exist"]),
     (["build", "regular", "--vertices", "abc"], [r"argument --vertices: invalid int value"]),
-    (["build", "regular", "--vertices", "2"], [r"vertices=2 must be an integer >= 4"]),
-    (["build", "regular", "--scale", "-1"], [r"scale=-1\.0 must be a positive number"]),
+    (["build", "regular", "--vertices", "2"], [r"--vertices 2 must be a whole number from 4"]),
+    (["build", "regular", "--scale", "-1"], [r"--scale -1\.0 must be a positive number"]),
     (["build", "regular", "--time", "t+1"], [r"unknown name 't'"]),
     (["build", "regular", "--material", "nosuch.json"],
      [r"material model file 'nosuch\.json' does not exist"]),
-    (["build", "regular", "--refine", "-1"], [r"--refine must be >= 0, got -1"]),
-    (["build", "regular", "--jobs", "0"], [r"--jobs must be a whole number >= 1, got 0"]),
+    (["build", "regular", "--refine", "-1"], [r"--refine must be a whole number from 0 to "
+                                              r"\d+, got -1"]),
+    (["build", "regular", "--jobs", "0"], [r"--jobs must be a whole number from 1 to \d+, "
+                                           r"got 0"]),
     (["build", "regular", "--no-sim", "--no-render", "--t-end", "-3"],
-     [r"--t-end must be a positive number of seconds, got -3\.0"]),
+     [r"--t-end must be a number of seconds from 0 to \d+, got -3\.0"]),
     (["build", "regular", "--t-end", "10.2", "--no-render"],
      [r"t_end = 10\.2 s is not a non-negative multiple of dt = 0\.5 s"]),
     (["build", "regular", "--flattening", "bff"], [r"invalid choice: 'bff'"]),
@@ -679,7 +682,7 @@ def test_stage_failure_in_build_names_the_stage_and_what_was_kept(tmp_path, caps
     assert rc == EXIT_BAD_INPUT
     _names(err, r"morphshell build: error: program stage: .*infeasible",
            r"nothing was written to .*build/regular",
-           r"this build's partial files are in .*build/\.staging/regular",
+           r"this build's partial files were removed \(add --debug to keep them\)",
            r"Fix: shift or scale the time landscape")
     assert not (tmp_path / "build" / "regular").exists()
 

@@ -117,10 +117,11 @@ def test_time_expression_and_safety():
     np.testing.assert_allclose(evaluate_expression("30 + 0.5*z", V), [25, 30, 35])
     np.testing.assert_allclose(evaluate_expression("40 + clip(r, 0, 4)", V), [40, 44, 40])
     np.testing.assert_allclose(evaluate_expression("where(z > 0, 60, 30)", V), [30, 30, 60])
-    for bad, msg in [("__import__('os')", "unknown name|only numpy"),
+    for bad, msg in [("__import__('os')", "only the listed functions"),
                      ("x.__class__", "Attribute is not allowed"),
-                     ("open('f')", "unknown name|only numpy"), ("[1, 2]", "List is not allowed"),
-                     ("'a'", "numeric constants"), ("30 +", "syntax error")]:
+                     ("open('f')", "only the listed functions"),
+                     ("[1, 2]", "List is not allowed"),
+                     ("'a'", "only numbers are allowed"), ("30 +", "syntax error")]:
         with pytest.raises(InputError, match=msg):
             evaluate_expression(bad, V)
     t, desc = resolve_time("45", V)
