@@ -121,7 +121,8 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("fit-material", help="fit the bracket model from measurements")
     p.add_argument("--data", default=None,
-                   help="measurement folder (default: ../shared/material-data)")
+                   help="measurement folder (default: data/material-measurements, the "
+                        "paper's tests shipped with the project)")
     p.add_argument("--out", default=None,
                    help="model file to write (default: the committed model when fitting the "
                         "shipped data, else build/material/<data folder>.json)")
