@@ -203,10 +203,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     summary : dict
         The content of ``summary.json`` plus ``exit_code``.
     """
-    if material is not None and not Path(material).is_file():
-        raise InputError(f"material model file {material!r} does not exist.",
-                         fix="give a file written by 'make material DATA=dir' "
-                             "(morphshell fit-material --out FILE), or omit MATERIAL.")
+    from .material.validate import validate_model_files
+
+    validate_model_files(material)  # material + membrane model files, before any stage
     if refine < 0:
         raise InputError(f"--refine must be >= 0, got {refine}.", fix="use e.g. --refine 2")
     from .design import check_design_options

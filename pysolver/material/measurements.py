@@ -146,7 +146,8 @@ def _find_file(data_dir: Path, pattern: str, exclude: str | None, kind: str) -> 
         raise InputError(
             f"no {kind} measurement file '{pattern}' in {data_dir}.",
             fix=f"put the {kind} tests in {data_dir}/{pattern.replace('*', '<date>')} "
-                "(columns as in data/material-measurements/README.md), or pass the folder that has it.")
+                "(columns as in data/material-measurements/README.md), or pass the folder "
+                "that has it.")
     if len(files) > 1:
         raise InputError(
             f"{len(files)} {kind} measurement files match '{pattern}' in {data_dir}: "
