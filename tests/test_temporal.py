@@ -268,7 +268,7 @@ def test_load_membrane_model_refuses_bad_files(tmp_path):
         load_membrane_model(tmp_path / "none.json")
     p = tmp_path / "bad.json"
     p.write_text(json.dumps({"terms": ["1", "b", "q"], "coefficients": [1, 2, 3]}))
-    with pytest.raises(InputError, match="not a membrane model"):
+    with pytest.raises(InputError, match=r"terms\[2\] = 'q' is not a known monomial"):
         load_membrane_model(p)
 
 
