@@ -155,6 +155,10 @@ BRACKET_CASES = [
     ("forces-rise-with-time",
      _with(**{"force_coefficients.data": lambda c: np.array(c)[:, :, ::-1].tolist()}),
      [r"forces must fall with time in water"]),
+    ("no-softening", _with(**{"force_coefficients.data": lambda c: np.repeat(
+        np.array(c)[:, :, :1], 21, axis=2).tolist()}),
+     [r"force_coefficients\.data hardly changes with time: the median of F\(t = 120 s\) / "
+      r"F\(t = 0 s\) over the grid is 1, above 0\.5"]),
     ("plastic-fraction", _with(plastic_fraction=1.5),
      [r"plastic_fraction is 1\.5; it must be a number in \[0, 1\)"]),
     ("creep-model-nan", _with(**{"creep_model.wet.coefficients": _set_entry((3,), None)}),
