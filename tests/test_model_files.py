@@ -225,11 +225,11 @@ def test_program_refuses_bad_material_file(name, make, patterns, tmp_path, desig
     assert _tree_hash(design_dir) == before
 
 
-@pytest.mark.parametrize("kind", ["folder", "missing", "not-utf8"])
+@pytest.mark.parametrize("kind", ["folder", "missing", "not-utf8", "device"])
 def test_bad_material_paths(kind, tmp_path, design_dir):
-    p = tmp_path / "model.json"
+    p = Path("/dev/null") if kind == "device" else tmp_path / "model.json"
     rule = {"folder": r"is a folder, not a file\.", "missing": r"does not exist\.",
-            "not-utf8": r"is not UTF-8 text"}[kind]
+            "not-utf8": r"is not UTF-8 text", "device": r"is not a regular file"}[kind]
     if kind == "folder":
         p.mkdir()
     elif kind == "not-utf8":

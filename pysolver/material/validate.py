@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -106,14 +107,19 @@ def read_model_json(path, kind: str = BRACKET_KIND, fix: str = BRACKET_FIX) -> d
     """
     f = _File(path, kind, fix)
     p = f.path
-    if p.is_dir():
+    try:
+        st = os.stat(p)
+    except (FileNotFoundError, NotADirectoryError):
+        f.fail("", "does not exist.")
+    except (OSError, ValueError) as e:  # no permission on a folder, name too long, NUL byte
+        f.fail("", f"cannot be opened ({getattr(e, 'strerror', None) or e}).",
+               fix="check the path and its permissions.")
+    if stat.S_ISDIR(st.st_mode):
         f.fail("", "is a folder, not a file.",
                fix="give the path of the model JSON file itself (e.g. build/material/x.json).")
-    if not p.exists():
-        f.fail("", "does not exist.")
-    if not p.is_file():
+    if not stat.S_ISREG(st.st_mode):
         f.fail("", "is not a regular file (a device, pipe or socket).")
-    size = p.stat().st_size
+    size = st.st_size
     if size > MODEL_FILES.max_bytes:
         f.fail("", f"is {size / 2**20:.0f} MB; a model file is at most "
                    f"{MODEL_FILES.max_bytes / 2**20:.0f} MB (the committed one is < 1 MB).")
