@@ -230,10 +230,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     summary : dict
         The content of ``summary.json`` plus ``exit_code``.
     """
-    if material is not None and not Path(material).is_file():
-        raise InputError(f"material model file {material!r} does not exist.",
-                         fix="give a file written by 'make material DATA=dir' "
-                             "(morphshell fit-material --out FILE), or omit MATERIAL.")
+    from .material.validate import validate_model_files
+
+    validate_model_files(material)  # material + membrane model files, before any stage
     from .design import check_design_options
 
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening)

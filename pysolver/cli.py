@@ -134,7 +134,8 @@ def _parser() -> argparse.ArgumentParser:
 
     p = add("fit-material", help="fit the bracket model from measurements")
     p.add_argument("--data", default=None,
-                   help="measurement folder (default: ../shared/material-data)")
+                   help="measurement folder (default: data/material-measurements, the "
+                        "paper's tests shipped with the project)")
     p.add_argument("--out", default=None,
                    help="model file to write (default: the committed model when fitting the "
                         "shipped data, else build/material/<data folder>.json)")

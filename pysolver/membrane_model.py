@@ -172,33 +172,20 @@ def load_membrane_model(path=None) -> MembraneModel:
     Raises
     ------
     InputError
-        If the file is missing or is not a membrane model.
+        If the file is missing, is not a membrane model, or breaks a rule of
+        :mod:`pysolver.material.validate` (the message names the key and the rule).
     """
     if isinstance(path, MembraneModel):
         return path
+    from .material.validate import validate_membrane_model_file
+
     p = Path(path) if path is not None else MODEL_PATH
-    if not p.is_file():
-        raise InputError(f"membrane model file {str(p)!r} does not exist.",
-                         fix="run 'make membrane-model' (morphshell fit-membrane) to fit it, "
-                             "or give an existing file.")
-    try:
-        data = json.loads(p.read_text())
-        coef = np.asarray(data["coefficients"], dtype=float)
-        terms = tuple(data["terms"])
-        unknown = [t for t in terms if t not in TERMS]
-        if unknown or coef.shape != (len(terms),) or not np.all(np.isfinite(coef)):
-            raise ValueError(f"terms {terms} with {coef.size} coefficients")
-    except (ValueError, KeyError, TypeError) as e:
-        raise InputError(f"{p} is not a membrane model file ({e}).",
-                         fix="re-fit it with 'make membrane-model'.") from None
-    s = data.get("samples", {})
-    samples = {k: np.asarray(s[k], dtype=float) for k in ("b0_mm", "d_mm", "force_N") if k in s}
-    return MembraneModel(coef=coef, terms=terms,
-                         boundary_factor=float(data.get("boundary_factor",
-                                                        SIM.boundary_weakening)),
-                         residual_rms_N=float(data["fit"]["residual_rms_N"]),
-                         residual_max_N=float(data["fit"]["residual_max_N"]),
-                         samples=samples, meta=data)
+    v = validate_membrane_model_file(p)
+    bf = v["boundary_factor"]
+    return MembraneModel(coef=v["coef"], terms=v["terms"],
+                         boundary_factor=SIM.boundary_weakening if bf is None else bf,
+                         residual_rms_N=v["residual_rms_N"], residual_max_N=v["residual_max_N"],
+                         samples=v["samples"], meta=v["data"])
 
 
 # ----------------------------------------------------------------------------------------------

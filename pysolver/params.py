@@ -189,9 +189,69 @@ DEFAULT_REFINE = 1
 """Rounds of timing refinement from the simulation, the one default of ``morphshell build``,
 ``make`` and :func:`pysolver.build.build`."""
 
+@dataclass(frozen=True)
+class ModelFileRules:
+    """Rules of the model-file validator (:mod:`pysolver.material.validate`).
+
+    The bracket (material) model and the membrane model are read from JSON files that a user
+    can write or edit; every rule below is checked before any stage runs.
+
+    Attributes
+    ----------
+    max_bytes : int, bytes
+        Largest model file read (the committed bracket model is ~0.3 MB).
+    format_version : int
+        Newest bracket-model ``format_version`` this code reads.
+    grid_min_nodes : int
+        Nodes per grid axis at least (trilinear interpolation needs a cell).
+    stiffness_min : float, N/mm
+        The stiffness at zero compression, ``c1 = F'(0)``, must exceed this at every node.
+    stiffness_tol : float, N/mm
+        Negative ``F'(x)`` allowed on ``[0, b]`` at a node (round-off of the fit's
+        constraints; the committed model reaches -8e-9 N/mm).
+    compressions : int
+        Compressions ``x = b/n, 2b/n, .., b`` checked at each grid node.
+    force_rise_tol : float
+        Forces must fall with time in water: at every node and compression, ``F(t)`` may rise
+        above its minimum over earlier times by at most this fraction of ``F(t=0)`` (the
+        committed model rises by up to 4.9 %, a fit without one specimen by 5.5 %, both at
+        b = 0.81 mm, below the measured lengths).
+    softening_median_max : float
+        The brackets must soften in water: the median over nodes and compressions of
+        ``F(t_last) / F(t=0)`` must not exceed this (committed model: 0.056).
+    plastic_fraction_max : float
+        Upper bound (exclusive) of a stored plastic fraction ``eta`` (lower bound 0).
+    membrane_b_range_mm : (float, float), mm
+        Flat bracket lengths at which the membrane force is checked (the bracket model's grid
+        starts at 0.81 mm; the longest cell, 9.5 mm, has b = 6.31 mm).
+    membrane_d_fraction : float
+        Shortenings ``d`` in ``[0, membrane_d_fraction * b]`` are checked: the membrane force
+        must stay positive and must not grow as the cell shortens (the pre-stretch relaxes).
+    membrane_samples : int
+        Samples per axis of that check.
+    boundary_factor_range : (float, float)
+        Allowed ``boundary_factor`` (exclusive lower, inclusive upper bound).
+    """
+
+    max_bytes: int = 64 * 1024 * 1024
+    format_version: int = 1
+    grid_min_nodes: int = 2
+    stiffness_min: float = 0.0
+    stiffness_tol: float = 1e-6
+    compressions: int = 20
+    force_rise_tol: float = 0.10
+    softening_median_max: float = 0.5
+    plastic_fraction_max: float = 1.0
+    membrane_b_range_mm: tuple = (0.8, 6.4)
+    membrane_d_fraction: float = 0.7
+    membrane_samples: int = 12
+    boundary_factor_range: tuple = (0.0, 1.0)
+
+
 UNIT_CELL = UnitCell()
 SIM = SimConstants()
 tol = Tolerances()
+MODEL_FILES = ModelFileRules()
 
 LAYERS = ("top", "bottom")
 """Layer names.  ``top`` = +z in the flat print frame = +face-normal side of the
@@ -208,4 +268,4 @@ def layer_sign(layer) -> int:
 
 
 __all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
-           "UNIT_CELL", "SIM", "tol", "LAYERS", "layer_sign"]
+           "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign"]

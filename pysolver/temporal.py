@@ -499,10 +499,10 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
 
     t0 = time.perf_counter()
     design_dir = Path(design_dir)
+    mat = _material(material)  # model files first: a bad file is refused before any work
+    mem = _membrane(membrane)
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
-    mat = _material(material)
-    mem = _membrane(membrane)
     t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
     factor, finfo = membrane_factors(design_dir, cells, mem, correction)
     res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],

@@ -514,8 +514,8 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
         The simulation diverged (frames so far are kept in ``frames.npz``).
     """
     folder = Path(design_dir)
+    mat = _resolve_material(material)  # a bad model file is refused before anything else
     model = load_model(folder)
-    mat = _resolve_material(material)
     st = SimSettings(t_end=float(t_end), dt=float(dt), checkpoint_every=checkpoint_every,
                      **settings)
     sim = Simulation(model, mat, st)

@@ -15,8 +15,6 @@ import sys
 import threading
 from pathlib import Path
 
-import pytest
-
 from pysolver.atomic import build_lock, recover_stale, replace_dir, write_stamp
 from pysolver.errors import EXIT_BAD_INPUT
 
@@ -76,7 +74,6 @@ def _visible(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
 
 
-@pytest.mark.skipif(not __import__("shutil").which("openscad"), reason="OpenSCAD not installed")
 def test_kill_during_render_keeps_the_previous_complete_build(tmp_path):
     r = _run(["--quiet", "build", SMALL, "--no-program", "--no-render", "--no-sim"], tmp_path)
     assert r.returncode == 0, r.stderr

@@ -14,11 +14,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pysolver import render_fast, surfaces
+from pysolver import surfaces
 from pysolver.build import build
-
-pytestmark = pytest.mark.skipif(not render_fast.available(),
-                                reason="openscad_evaluator is not importable")
 
 
 def _nonmanifold_edges(m: trimesh.Trimesh) -> int:

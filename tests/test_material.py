@@ -37,9 +37,6 @@ from pysolver.material.measurements import DEFAULT_DATA_DIR, movmean_even, prepr
 from pysolver.material.polyfit import monomial_exponents
 from pysolver.params import SIM, UNIT_CELL
 
-HAVE_DATA = (DEFAULT_DATA_DIR / "unit_cell_wet_20181119.csv").is_file()
-needs_data = pytest.mark.skipif(not HAVE_DATA, reason="shared/material-data not present")
-
 # thresholds set from the first honest fit (dry 0.0558 mm, wet 0.6392 mm, eq. 9 0.7208 mm)
 DRY_RMS_MAX_MM = 0.07
 WET_RMS_MAX_MM = 0.70
@@ -229,7 +226,6 @@ def test_committed_model_concave_and_stiff_positive_in_cells(model):
     assert np.all(model.force(h, b, t, u) >= -1e-9)
 
 
-@needs_data
 def test_committed_model_residuals_on_measurements(model):
     meas = load_measurements()
     wet = model_residuals(model, wet_eval_rows(meas.wet, 0.7, 120.0))
@@ -245,7 +241,6 @@ def test_committed_model_residuals_on_measurements(model):
     assert model.meta["provenance"]["inputs_sha256"] == meas.provenance()
 
 
-@needs_data
 @pytest.mark.slow
 def test_refit_reproduces_committed_model(model):
     """Fitting the shipped data again gives the committed coefficients exactly (deterministic
@@ -477,7 +472,6 @@ def test_bad_input_model_file(tmp_path):
         load_bracket_model(p)
 
 
-@needs_data
 def test_one_specimen_removed_still_fits_and_reports(tmp_path):
     """A user dataset without specimen h = 0.45, l = 8 fits and names the gap."""
     src = DEFAULT_DATA_DIR

@@ -22,15 +22,6 @@ from pysolver.params import LAYERS
 from pysolver.render import load_stl, render_design, render_parts, to_manifold
 from pysolver.scad_io import Part
 
-pytestmark = [
-    pytest.mark.skipif(not render_fast.available(),
-                       reason="openscad_evaluator is not importable "
-                              "(.venv/bin/pip install openscad-evaluator)"),
-    pytest.mark.skipif(shutil.which("openscad") is None,
-                       reason="OpenSCAD not installed (apt-get install openscad): nothing to "
-                              "cross-check the fast renderer against"),
-]
-
 VOLUME_RTOL = 1e-4
 SYMDIFF_RTOL = 1e-3
 

@@ -28,7 +28,6 @@ REPO = Path(__file__).resolve().parent.parent
 SMALL = "regular:rows=1,cols=2"
 TABLES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
           "support_frame.csv")
-HAS_OPENSCAD = shutil.which("openscad") is not None
 
 
 @pytest.mark.parametrize("shape", ["regular", "dome"])
@@ -69,8 +68,6 @@ def cli_build(tmp_path_factory):
     """``morphshell build regular:rows=1,cols=2 --no-program --no-sim`` (design, render)."""
     cwd = tmp_path_factory.mktemp("cli")
     args = [sys.executable, "-m", "pysolver.cli", "--quiet", "build", SMALL, "--no-program"]
-    if not HAS_OPENSCAD:
-        args.append("--no-render")
     r = subprocess.run(args + ["--no-sim"], capture_output=True, text=True, cwd=cwd,
                        env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=600)
     assert r.returncode == 0, r.stderr
@@ -83,15 +80,14 @@ def test_summary_records_versions_and_inputs_hash(cli_build):
     for lib in ("morphshell", "python", "numpy", "scipy", "libigl", "trimesh", "manifold3d",
                 "triangle", "matplotlib", "openscad"):
         assert v.get(lib) and v[lib] != "not installed", lib
-    if HAS_OPENSCAD:
-        assert re.match(r"OpenSCAD version \d{4}\.\d\d", v["openscad"]), v["openscad"]
+    assert re.match(r"OpenSCAD version \d{4}\.\d\d", v["openscad"]), v["openscad"]
     assert re.fullmatch(r"[0-9a-f]{64}", s["inputs_sha256"])
     # the hash is that of the recorded source + options, and changes with any option
     assert s["inputs_sha256"] == inputs_hash(s["source"], s["options"])
     other = dict(s["options"], vertices=30)
     assert inputs_hash(s["source"], other) != s["inputs_sha256"]
     assert s["figures"]["n_bases"] == 4 and s["figures"]["n_cells"] == 3
-    assert set(s["stages"]) == ({"design", "render"} if HAS_OPENSCAD else {"design"})
+    assert set(s["stages"]) == {"design", "render"}
     assert not (cli_build / ".inputs_sha256").exists()
 
 
@@ -116,7 +112,6 @@ def test_two_programs_are_byte_identical(tmp_path):
     assert out[0] == out[1]
 
 
-@pytest.mark.skipif(not HAS_OPENSCAD, reason="OpenSCAD not installed")
 def test_two_renders_are_geometrically_identical(cli_build, tmp_path):
     """Render an independent copy of the design with a cold cache of its own (every part
     through OpenSCAD again, then union and export): the STLs match the build's."""

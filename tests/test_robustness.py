@@ -470,7 +470,6 @@ def test_cells_csv_cell_refers_to_missing_base(regular_dir, tmp_path):
                          r"exist \(the design has 60, ids 0\.\.59\)", r"undo the hand edit")
 
 
-@pytest.mark.skipif(not HAS_OPENSCAD, reason="OpenSCAD not installed")
 def test_render_refuses_hand_edited_thickness(regular_dir, tmp_path):
     from pysolver.render import render_design
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import shutil
 import subprocess
 
 import numpy as np
@@ -26,9 +25,6 @@ from pysolver.frames import rotvec_to_matrix
 from pysolver.params import UNIT_CELL
 from pysolver.render import FACET_TOL_MM, load_stl
 from pysolver.scad_io import SCAD_DIR
-
-pytestmark = pytest.mark.skipif(shutil.which("openscad") is None,
-                                reason="OpenSCAD not installed (apt-get install openscad)")
 
 U = UNIT_CELL
 GAP = 0.05       # APEX_GAP of scad/params.scad: gap between opened arms (actuated preview)

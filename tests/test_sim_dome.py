@@ -9,8 +9,11 @@ a layer having slightly different contact lengths and from the contact springs' 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
+from pysolver.design import run_design
+from pysolver.material.model import load_bracket_model
+from pysolver.tables import read_table
+from pysolver.temporal import program_design
 from sim.simulate import completion_times, simulate_design
 
 
@@ -24,30 +27,18 @@ def _kabsch_rms(A, B):
 
 
 def test_dome_reaches_target(tmp_path):
-    design = pytest.importorskip("pysolver.design")
-    from pysolver.errors import InputError
-
+    """Designed, programmed with the committed model (programming must work: no stand-in
+    material), simulated with the same model."""
     d = tmp_path / "dome"
-    design.run_design("dome", d, progress=False, plots=False)
-    try:
-        from pysolver.material.model import load_bracket_model
-        from pysolver.temporal import program_design
-
-        material = load_bracket_model()
-        program_design(d, material=material, progress=False, picture=False,
-                       fit_landscape=True)
-    except (ImportError, InputError):  # no fitted model yet: design thickness + stand-in law
-        from sim.synthetic import StandInBracketModel
-
-        material = StandInBracketModel(t_soft=20.0)
+    run_design("dome", d, progress=False, plots=False)
+    material = load_bracket_model()
+    program_design(d, material=material, progress=False, picture=False, fit_landscape=True)
     summary = simulate_design(d, material=material, progress=False)
     assert summary["nonconverged_steps"] == []
     with np.load(d / "sim" / "frames.npz") as z:
         C = z["base_center"][-1]
         tc = completion_times({k: z[k] for k in ("t", "collided", "bracket_length",
                                                   "collision_length")})
-    from pysolver.tables import read_table
-
     b = read_table(d, "bases")
     T = np.c_[b["target_x_mm"], b["target_y_mm"], b["target_z_mm"]]
     rms, _ = _kabsch_rms(C, T)

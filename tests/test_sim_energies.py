@@ -185,8 +185,8 @@ def test_reduced_gradient_and_hessian_fd(patch_model, seed):
     assert np.linalg.norm(Hf - Hs) / np.linalg.norm(Hs) < REL
 
 
-@pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed")
 def test_numba_and_numpy_assembly_agree(patch_model):
+    assert HAVE_NUMBA, "numba is not importable; 'make' installs it (pyproject dependency)"
     for psd in (False, True):
         (e1, s), (e2, _) = _random_energy(patch_model, 5, "numpy"), _random_energy(patch_model, 5,
                                                                                    "numba")

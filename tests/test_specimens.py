@@ -31,9 +31,6 @@ ALPHA = math.radians(U.alpha_deg)
 HALF_H, GAP, LABEL_H, LABEL_SIZE, LENGTH = 2.5, 0.05, 0.3, 3.0, 40.0   # scad/specimen.scad
 TOP = 2 * HALF_H + GAP
 
-needs_openscad = pytest.mark.skipif(shutil.which("openscad") is None,
-                                    reason="OpenSCAD not installed (apt-get install openscad)")
-
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
@@ -161,7 +158,6 @@ def test_labels_format():
     assert specimen_labels(8.5, 0.3) == ("L8.5", "H.3")
 
 
-@needs_openscad
 def test_specimens_are_watertight_two_halves(made):
     s = made["s"]
     assert s["count"] == 8 and s["rendered"] == 8
@@ -178,7 +174,6 @@ def test_specimens_are_watertight_two_halves(made):
     assert sum(p["count"] for p in s["plates"]) == s["count"]
 
 
-@needs_openscad
 def test_bracket_thickness_and_central_length_from_sections(made):
     for sp, mesh in zip(made["s"]["specimens"], made["meshes"], strict=True):
         l, h = sp["l_mm"], sp["h_mm"]
@@ -203,7 +198,6 @@ def test_bracket_thickness_and_central_length_from_sections(made):
                     assert width == pytest.approx(h, abs=0.02), (l, h, z)
 
 
-@needs_openscad
 def test_labels_read_back_from_the_stl(made):
     for sp, mesh in zip(made["s"]["specimens"], made["meshes"], strict=True):
         expect = sp["labels"]
@@ -214,7 +208,6 @@ def test_labels_read_back_from_the_stl(made):
             assert _read_label(bottom, c, text, mirrored=True, engraved=True) == text
 
 
-@needs_openscad
 def test_specimens_csv_and_cache(made):
     lines = (made["root"] / "out" / "specimens.csv").read_text().splitlines()
     assert lines[0].startswith("l_mm,h_mm,label_left,label_right,stl,plate")
@@ -225,7 +218,6 @@ def test_specimens_csv_and_cache(made):
     assert again["rendered"] == 0 and again["cached"] == 8
 
 
-@needs_openscad
 def test_editing_the_bracket_module_changes_the_specimen(made, tmp_path):
     lib = tmp_path / "scad"
     shutil.copytree(SCAD_DIR, lib)

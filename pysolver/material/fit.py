@@ -646,7 +646,8 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
     Parameters
     ----------
     data_dir : path-like, optional
-        Measurement folder (default ``<repo>/../shared/material-data``).
+        Measurement folder (default ``<repo>/data/material-measurements``, the paper's
+        tests shipped with the project).
     out_path : path-like, optional
         Model file to write (default: the committed ``pysolver/data/bracket_model.json``).
     report_dir : path-like, optional

@@ -1,6 +1,7 @@
 """Read, validate and preprocess the unit-cell tensile-test measurements.
 
-The measurements are the tidy CSVs described in ``shared/material-data/README.md``:
+The measurements are the tidy CSVs described in ``data/material-measurements/README.md`` (the
+paper's tests, shipped with the project):
 
 * dry quasi-static compression, one file ``unit_cell_dry_*.csv`` with the columns
   ``specimen, thickness_mm, central_length_mm, time_s, displacement_mm, force_N``
@@ -37,8 +38,9 @@ from ..params import UNIT_CELL
 REPO_ROOT = Path(__file__).resolve().parents[2]
 """Repository root (the folder holding ``pysolver/``)."""
 
-DEFAULT_DATA_DIR = REPO_ROOT.parent / "shared" / "material-data"
-"""Default measurement folder, ``<repo>/../shared/material-data``."""
+DEFAULT_DATA_DIR = REPO_ROOT / "data" / "material-measurements"
+"""Default measurement folder, ``<repo>/data/material-measurements`` (the paper's tensile tests,
+shipped with the project; source, licence and columns in its ``README.md``)."""
 
 SPECIMEN_BRACKETS = 4
 """Brackets per test specimen (two V-brackets per side): specimen force = 4 x bracket force."""
@@ -144,7 +146,8 @@ def _find_file(data_dir: Path, pattern: str, exclude: str | None, kind: str) -> 
         raise InputError(
             f"no {kind} measurement file '{pattern}' in {data_dir}.",
             fix=f"put the {kind} tests in {data_dir}/{pattern.replace('*', '<date>')} "
-                "(columns as in shared/material-data/README.md), or pass the folder that has it.")
+                "(columns as in data/material-measurements/README.md), or pass the folder "
+                "that has it.")
     if len(files) > 1:
         raise InputError(
             f"{len(files)} {kind} measurement files match '{pattern}' in {data_dir}: "
@@ -169,7 +172,7 @@ def _read_csv(path: Path, required: tuple[str, ...]) -> tuple[dict, str]:
         raise InputError(
             f"{path}: missing column(s) {', '.join(missing)} (header is: {', '.join(header)}).",
             fix=f"the file needs the columns {', '.join(required)} "
-                "(see shared/material-data/README.md).")
+                "(see data/material-measurements/README.md).")
     rows = [r for r in reader if r and any(c.strip() for c in r)]
     if not rows:
         raise InputError(f"{path} has a header but no data rows.", fix="add the measurements.")
@@ -355,7 +358,7 @@ def load_measurements(data_dir=None) -> Measurements:
     ----------
     data_dir : path-like, optional
         Folder with one ``unit_cell_dry_*.csv`` and one ``unit_cell_wet_*.csv``. Default
-        :data:`DEFAULT_DATA_DIR` (``<repo>/../shared/material-data``).
+        :data:`DEFAULT_DATA_DIR` (``<repo>/data/material-measurements``).
 
     Returns
     -------
@@ -372,7 +375,7 @@ def load_measurements(data_dir=None) -> Measurements:
     if not data_dir.is_dir():
         raise InputError(f"measurement folder {data_dir} does not exist.",
                          fix="pass the folder holding unit_cell_dry_*.csv and "
-                             "unit_cell_wet_*.csv (default ../shared/material-data).")
+                             "unit_cell_wet_*.csv (default data/material-measurements).")
     dry = read_test_table(_find_file(data_dir, "unit_cell_dry_*.csv", None, "dry"), wet=False)
     wet = read_test_table(_find_file(data_dir, "unit_cell_wet_*.csv", "unit_cell_wet_speed_*",
                                      "wet"), wet=True)

@@ -28,7 +28,6 @@ follows :func:`plastic_rest_length`.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -341,34 +340,16 @@ def load_bracket_model(path=None, outside: str = "clamp") -> BracketModel:
     Raises
     ------
     InputError
-        Missing or malformed file.
+        Missing or malformed file, or a model that breaks a rule of
+        :mod:`pysolver.material.validate` (the message names the key and the rule).
     """
+    from .validate import validate_bracket_model_file
+
     path = Path(DEFAULT_MODEL_PATH if path is None else path)
-    if not path.is_file():
-        raise InputError(f"bracket model file {path} does not exist.",
-                         fix="fit one with 'morphshell fit-material --out FILE' or omit the path "
-                             "to use the committed model.")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(f"bracket model file {path} is not valid JSON ({e}).",
-                         fix="regenerate it with 'morphshell fit-material'.") from None
-    if d.get("format") != "morphshell.bracket_model":
-        raise InputError(f"{path} is not a morphshell bracket model (format = "
-                         f"{d.get('format')!r}); the authors' bracket_model.json (energy "
-                         "coefficients, minutes) is a different format.",
-                         fix="fit a model with 'morphshell fit-material'.")
-    try:
-        g = d["grid"]
-        coef = np.asarray(d["force_coefficients"]["data"], dtype=float)
-        shape = tuple(g["num"]) + (4,)
-        if coef.shape != shape or not np.all(np.isfinite(coef)):
-            raise ValueError(f"coefficients have shape {coef.shape}, expected {shape}, or NaNs")
-        meta = {k: v for k, v in d.items() if k not in ("format", "format_version", "description",
-                                                         "units", "grid", "force_coefficients")}
-        m = BracketModel(g["min"], g["step"], coef, outside=outside, meta=meta)
-    except (KeyError, TypeError, ValueError) as e:
-        raise InputError(f"bracket model file {path} is malformed: {e}.",
-                         fix="regenerate it with 'morphshell fit-material'.") from None
+    v = validate_bracket_model_file(path)
+    meta = {k: val for k, val in v["data"].items()
+            if k not in ("format", "format_version", "description", "units", "grid",
+                         "force_coefficients")}
+    m = BracketModel(v["grid_min"], v["grid_step"], v["coef"], outside=outside, meta=meta)
     m.path = path
     return m
