@@ -6,13 +6,18 @@ with the fitted bracket model, simulated for 240 steps of 0.5 s (plus the dry st
 (``--shape weave:large`` matches the paper's body count, 551 bases, but not its membrane:
 its lattice cells are 5.9 mm, so only 4138 triangles.)  Writes
 
-* ``build/bench/sim.json`` -- ``wall_s`` (total simulation wall time), CPU time, per-step wall
-  and Newton iterations (mean / median / max), peak memory, model sizes, machine load;
-* ``build/bench/sim_profile.txt`` -- cProfile, top entries by internal time.
+* ``build/bench/sim.json`` -- ``wall_s`` (total simulation wall time of the default ``fast``
+  solver path), its split (factorisation, linear solves, assembly + line search + other), CPU
+  time, per-step wall and Newton iterations (mean / median / max), peak memory, model sizes,
+  machine load; under ``solvers`` the same for each path timed, and with both paths (the
+  default) ``speedup_vs_reference`` and the largest difference of their final base centres
+  (mm) and completion times (s);
+* ``build/bench/sim_profile_<solver>.txt`` -- cProfile, top entries by internal time.
 
 Usage::
 
     .venv/bin/python bench/bench_sim.py [--shape petal:size=1.7] [--t-end 120] [--out build/bench]
+                                        [--solver both|fast|reference]
 
 Fallbacks: if the design stage cannot build the shape, a synthetic 546-base regular patch on a
 spherical cap is used; if the fitted bracket model is missing, a stand-in force law (recorded
@@ -126,6 +131,8 @@ def main(argv=None) -> int:
     ap.add_argument("--t-end", type=float, default=120.0)
     ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
     ap.add_argument("--top", type=int, default=30, help="profile entries to keep")
+    ap.add_argument("--solver", choices=("both", "fast", "reference"), default="both",
+                    help="solver path(s) to time (default: both, and their ratio)")
     ap.add_argument("--prepare-only", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     out = Path(args.out)
@@ -152,13 +159,48 @@ def main(argv=None) -> int:
 
     from sim import kernels
     from sim.model import load_model
-    from sim.simulate import completion_times, simulate_design
 
     t0 = time.perf_counter()
     kernels.warm_up()  # numba compilation (cached on disk after the first run)
     t_compile = time.perf_counter() - t0
     model = load_model(folder)
     log(f"{source}: {model.summary()}; material {mat_desc}; thickness {prog}")
+    runs, finals = {}, {}
+    for solver in (["fast", "reference"] if args.solver == "both" else [args.solver]):
+        runs[solver], finals[solver] = _simulate(folder, mat, solver, args, out, log)
+    fast = runs[next(iter(runs))]
+    res = dict(fast)
+    res.update({
+        "solvers": runs,
+        "model": model.summary(),
+        "source": source,
+        "material": mat_desc,
+        "thickness": prog,
+        "numba": kernels.HAVE_NUMBA,
+        "numba_compile_s": round(t_compile, 2),
+        "prepare_s": round(t_prep, 2),
+        "cpu_count": os.cpu_count(),
+        "omp_thread_limit": os.environ.get("OMP_THREAD_LIMIT"),
+        "target_wall_s": 20.0,
+    })
+    if len(runs) == 2:
+        res["speedup_vs_reference"] = round(runs["reference"]["wall_s"] / runs["fast"]["wall_s"],
+                                            2)
+        a, b = finals["fast"], finals["reference"]
+        res["final_position_difference_mm"] = float(np.abs(a[0] - b[0]).max())
+        res["completion_time_difference_s"] = float(np.nanmax(np.abs(a[1] - b[1]))
+                                                    if np.isfinite(a[1]).any() else 0.0)
+    (out / "sim.json").write_text(json.dumps(res, indent=2, default=float) + "\n")
+    log(" | ".join(f"{k}: wall {v['wall_s']:.1f} s ({v['split_s']})" for k, v in runs.items())
+        + f" -> {out / 'sim.json'}")
+    return 0
+
+
+def _simulate(folder: Path, mat, solver: str, args, out: Path, log) -> tuple[dict, tuple]:
+    """Simulate the benchmark design with one solver path; returns its figures and (final base
+    centres (n, 3) mm, completion times (n_cells,) s)."""
+    from sim.simulate import completion_times, simulate_design
+
     load0 = os.getloadavg()
     prof = cProfile.Profile()
     c0, w0 = time.process_time(), time.perf_counter()
@@ -166,7 +208,7 @@ def main(argv=None) -> int:
     # settle_mm=0: no early stop once the shell has settled -- every run simulates all
     # 240 increments, like the paper's timing, so figures stay comparable across designs
     summary = simulate_design(folder, t_end=args.t_end, material=mat, progress=True,
-                              resume=False, checkpoint_every=0, settle_mm=0.0)
+                              resume=False, checkpoint_every=0, settle_mm=0.0, solver=solver)
     prof.disable()
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     load1 = os.getloadavg()
@@ -176,10 +218,19 @@ def main(argv=None) -> int:
         ws = z["wall_s"]
         conv = z["converged"]
         tc = completion_times({"t": z["t"], "collided": z["collided"]})
+        final = np.array(z["base_center"][-1])
     steps = len(it) - 1
+    lin = summary["linear_solver"]
     res = {
         "wall_s": round(wall, 2),
         "cpu_s": round(cpu, 2),
+        "split_s": {"factorize": round(lin["factorize_s"], 2),
+                    "linear_solve": round(lin["solve_s"], 2),
+                    "assembly_line_search_other": round(wall - lin["factorize_s"]
+                                                        - lin["solve_s"], 2)},
+        "factorizations": lin["factorizations"],
+        "ms_per_factorization": round(1000 * lin["factorize_s"]
+                                      / max(lin["factorizations"], 1), 2),
         "steps": int(steps),
         "frames": int(len(it)),
         "t_end_s": args.t_end,
@@ -193,29 +244,16 @@ def main(argv=None) -> int:
         "converged_steps": int(conv.sum()),
         "completed_cells": int(np.isfinite(tc).sum()),
         "peak_memory_mb": round(peak_mb, 1),
-        "peak_memory_note": "max RSS of the simulating process (design and programming run "
-                            "in a child process)",
-        "model": model.summary(),
-        "source": source,
-        "material": mat_desc,
-        "thickness": prog,
-        "numba": kernels.HAVE_NUMBA,
-        "numba_compile_s": round(t_compile, 2),
-        "prepare_s": round(t_prep, 2),
         "loadavg_start": [round(v, 2) for v in load0],
         "loadavg_end": [round(v, 2) for v in load1],
-        "cpu_count": os.cpu_count(),
-        "omp_thread_limit": os.environ.get("OMP_THREAD_LIMIT"),
         "summary": summary,
-        "target_wall_s": 120.0,
     }
-    (out / "sim.json").write_text(json.dumps(res, indent=2, default=float) + "\n")
     s = io.StringIO()
     pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(args.top)
-    (out / "sim_profile.txt").write_text(s.getvalue())
-    log(f"wall {wall:.1f} s (cpu {cpu:.1f} s), {steps} steps, {it.sum()} Newton iterations, "
-        f"peak {peak_mb:.0f} MB -> {out / 'sim.json'}")
-    return 0
+    (out / f"sim_profile_{solver}.txt").write_text(s.getvalue())
+    log(f"{solver}: wall {wall:.1f} s (cpu {cpu:.1f} s), {steps} steps, {it.sum()} Newton "
+        f"iterations, {lin['factorizations']} factorisations, peak {peak_mb:.0f} MB")
+    return res, (final, tc)
 
 
 if __name__ == "__main__":

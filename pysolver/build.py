@@ -194,7 +194,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
           flattening: str = "cetm", stencil_order: bool = False, material=None,
           refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
-          progress: bool = True, renderer=None, keep_failed: bool = False) -> dict:
+          progress: bool = True, renderer=None, keep_failed: bool = False,
+          solver: str = "fast") -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -221,6 +222,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     renderer : {"openscad", "fast", "auto"}, optional
         Part renderer of the render stage (default
         :data:`pysolver.render.DEFAULT_RENDERER`), see :func:`pysolver.render.render_parts`.
+    solver : {"fast", "reference"}
+        Linear-algebra path of the simulations (:data:`sim.solver.SOLVERS`; same results).
     keep_failed : bool
         Keep the staging folder of a build whose stage fails (``--debug``); by default it
         is removed, so a failed build leaves nothing behind.
@@ -296,13 +299,13 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             kw = {} if t_end is None else {"t_end": t_end}
             sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
             stage("simulate", simulate_design, staging, material=material, progress=progress,
-                  **sim_kw)
+                  solver=solver, **sim_kw)
             if refine and program:
                 import functools
 
                 from .temporal import refine_design
-                hook = {} if dt is None else {
-                    "simulate": functools.partial(simulate_design, dt=dt)}
+                hook = {"simulate": functools.partial(simulate_design, solver=solver,
+                                                      **({} if dt is None else {"dt": dt}))}
                 stage("refine", refine_design, staging, iterations=refine, material=material,
                       progress=progress, **kw, **hook)
         if render:  # after refinement, so the STLs carry the final thicknesses

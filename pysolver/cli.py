@@ -67,6 +67,12 @@ def _add_renderer_option(p: argparse.ArgumentParser) -> None:
                         "faster, no self-check; a part it fails on is rendered by OpenSCAD)")
 
 
+def _add_solver_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--solver", choices=("fast", "reference"), default="fast",
+                   help="simulation linear algebra: fast (default) or reference (the path "
+                        "before the speed work, kept for comparisons; same results)")
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="morphshell",
@@ -102,6 +108,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=None, help="simulation time step, s")
     p.add_argument("--jobs", type=int, default=None, help="parallel OpenSCAD processes")
     _add_renderer_option(p)
+    _add_solver_option(p)
 
     p = add("design", help="design the flat layout only")
     p.add_argument("shape")
@@ -123,6 +130,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=None, help="time step, s (default 0.5)")
     p.add_argument("--material", default=None)
     p.add_argument("--no-resume", action="store_true", help="start over, ignore a checkpoint")
+    _add_solver_option(p)
 
     p = add("report", help="simulation check report of a design folder")
     p.add_argument("dir")
@@ -185,7 +193,8 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
                        refine=args.refine, program=not args.no_program,
                        render=not args.no_render, simulate=not args.no_sim,
                        t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress,
-                       renderer=args.renderer, keep_failed=getattr(args, "debug", False))
+                       renderer=args.renderer, keep_failed=getattr(args, "debug", False),
+                       solver=args.solver)
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
         from .build import design_only
@@ -216,7 +225,7 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
         check_build_options(t_end=args.t_end, dt=args.dt, render=False)
         kw = {k: v for k, v in (("t_end", args.t_end), ("dt", args.dt)) if v is not None}
         simulate_design(Path(args.dir), material=args.material, progress=progress,
-                        resume=not args.no_resume, **kw)
+                        resume=not args.no_resume, solver=args.solver, **kw)
         return EXIT_OK
     if cmd == "report":
         from sim.report import make_report, print_verdict

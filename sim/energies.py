@@ -462,6 +462,7 @@ class ShellEnergy:
             self.backend = "numpy"
         self.model = model
         self.consts = model.consts
+        self.last_energy_scale = None  # energy_scale of the state last evaluated (N mm)
         m, c = model.n_bases, model.n_cells
         self.m = m
         self.n = model.n_dof
@@ -603,6 +604,8 @@ class ShellEnergy:
         _accumulate(G, md.spring_points, gs)
         _accumulate(G, md.cross_points, gx)
         E = float(es.sum() + ex.sum()) + em
+        # the round-off scale of this energy, as energy_scale(state) computes it
+        self.last_energy_scale = abs(float(es.sum())) + abs(float(ex.sum())) + abs(em)
         g = self._reduce_gradient(G, v)
         if not hessian:
             return E, g, None

@@ -69,7 +69,7 @@ from pysolver.params import tol as TOL
 
 from .energies import ShellEnergy, State
 from .model import ShellModel, load_model
-from .solver import LinearSolver, StaticProblem, newton
+from .solver import SOLVERS, LinearSolver, StaticProblem, newton
 
 FRAMES_NAME = "frames.npz"
 CHECKPOINT_NAME = "checkpoint.npz"
@@ -96,6 +96,10 @@ class SimSettings:
     predictor : bool or "guarded"
         Warm start each solve from the extrapolation of the last frames (see
         ``Simulation._predict``); ``False``: from the previous equilibrium.
+    solver : {"fast", "reference"}
+        Linear-algebra threading of the Newton solves (:data:`sim.solver.SOLVERS`): ``fast``
+        runs every solve on one BLAS thread, ``reference`` as before it was measured.  Same
+        results; the reference path is kept for ``make bench``'s comparison.
     """
 
     t_end: float = SIM.t_end
@@ -108,6 +112,12 @@ class SimSettings:
     blowup: float = 100.0
     checkpoint_every: int = 20
     predictor: bool | str = True
+    solver: str = "fast"
+
+    def __post_init__(self):
+        if self.solver not in SOLVERS:
+            raise InputError(f"solver {self.solver!r} is not one of {', '.join(SOLVERS)}",
+                             fix="use --solver fast (the default) or --solver reference")
 
     def times(self) -> np.ndarray:
         n = int(round(self.t_end / self.dt))
@@ -139,7 +149,7 @@ class Simulation:
         self.times = settings.times()
         self.energy = ShellEnergy(model)
         self.state = State.flat(model)
-        self.linear = LinearSolver()
+        self.linear = LinearSolver(solver=settings.solver)
         self.rest = model.spring_rest0.copy()
         self.contact = np.zeros(len(self.rest), dtype=bool)
         self.prev_lengths = None
@@ -457,6 +467,7 @@ def run_simulation(sim: Simulation, *, progress: bool = True, label: str = "sim"
             "converged_steps": int(fr["converged"][:nf].sum()),
             "nonconverged_steps": [int(i) for i in np.flatnonzero(~fr["converged"][:nf])],
             "newton_iterations_total": int(fr["newton_iterations"][:nf].sum()),
+            "linear_solver": dict(sim.linear.timings(), solver=st.solver),
             "newton_iterations_max": int(fr["newton_iterations"][:nf].max(initial=0)),
             "residual_max_N": float(fr["residual"][:nf].max(initial=0.0)),
             "final_energy_Nmm": float(fr["energy"][nf - 1]) if nf else float("nan"),

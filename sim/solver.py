@@ -7,7 +7,13 @@ Design (documented choices):
   fixed by :class:`sim.energies.SparsePattern`) and reused, each Newton iteration only
   refactorises.  Debian's CHOLMOD starts OpenMP threads regardless of ``OMP_NUM_THREADS``;
   ``OMP_THREAD_LIMIT=1`` is set before importing it (2-3x faster on 2 cores; it must be set
-  before any library loads OpenMP, so entry points import this module first).  If
+  before any library loads OpenMP, so entry points import this module first).  CHOLMOD's
+  dense supernode kernels call Debian's OpenBLAS, whose pthreads (two on this machine, three
+  OpenBLAS copies in one process: numpy's, scipy's, Debian's) cost far more in wake-ups than
+  they gain on these small blocks: a 11055-DOF factorisation takes 9-12 ms on one thread and
+  44-200 ms with the default threads, worse when the other core is busy.  So every CHOLMOD
+  call runs with one BLAS thread (threadpoolctl, scoped to the call, 0.05 ms), unless the
+  user set ``OPENBLAS_NUM_THREADS``.  If
   scikit-sparse is missing or CHOLMOD fails for another reason than indefiniteness, scipy
   SuperLU (``MMD_AT_PLUS_A`` ordering, ``SymmetricMode``, no pivoting) takes over; a
   non-positive pivot there counts as "not positive definite".
@@ -38,17 +44,21 @@ Design (documented choices):
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import os
 import time
 import warnings
 from dataclasses import dataclass, field
 
 _USER_OMP_LIMIT = "OMP_THREAD_LIMIT" in os.environ
+_USER_BLAS_LIMIT = "OPENBLAS_NUM_THREADS" in os.environ
 os.environ.setdefault("OMP_THREAD_LIMIT", "1")
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
+from threadpoolctl import ThreadpoolController  # noqa: E402
 
 from pysolver.params import tol as TOL  # noqa: E402
 
@@ -80,7 +90,33 @@ def _limit_openmp() -> None:
 
 _limit_openmp()
 
+# the BLAS libraries loaded now, CHOLMOD's among them (scikit-sparse is imported above)
+_BLAS = None if _USER_BLAS_LIMIT else ThreadpoolController()
+
+
+def _one_blas_thread():
+    """Context in which every loaded BLAS runs one thread (see the module docstring)."""
+    if _BLAS is None:
+        return contextlib.nullcontext()
+    return _BLAS.limit(limits=1, user_api="blas")
+
+
+def _blas_scoped(fn):
+    """Decorator of :func:`newton`: the whole solve runs in its linear solver's BLAS scope
+    (numpy's vector norms and dot products pay the same thread wake-ups as CHOLMOD)."""
+    @functools.wraps(fn)
+    def wrapped(problem, *args, linear=None, **kwargs):
+        linear = linear or LinearSolver()
+        with linear.blas_scope():
+            return fn(problem, *args, linear=linear, **kwargs)
+
+    return wrapped
+
+
 BACKENDS = ("auto", "cholmod", "superlu")
+SOLVERS = ("fast", "reference")
+"""``fast``: one BLAS thread in every solve (the default); ``reference``: the thread pools as
+the libraries set them, the path before this was measured (kept for ``make bench``)."""
 
 
 class NotPositiveDefinite(Exception):
@@ -96,9 +132,12 @@ class LinearSolver:
         ``auto`` = CHOLMOD if scikit-sparse is importable, else SuperLU.
     """
 
-    def __init__(self, backend: str = "auto"):
+    def __init__(self, backend: str = "auto", solver: str = "fast"):
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        self.solver = solver
         if backend == "cholmod" and not HAVE_CHOLMOD:
             from pysolver.errors import InputError
 
@@ -113,7 +152,18 @@ class LinearSolver:
         self._lu = None
         self.n_factorizations = 0
         self.n_analyses = 0
+        self.factorize_s = 0.0
+        self.solve_s = 0.0
         self.shift_hint = SHIFT_MIN
+
+    def blas_scope(self):
+        """Context for the calls of this solver: one BLAS thread (``fast``), or nothing."""
+        return _one_blas_thread() if self.solver == "fast" else contextlib.nullcontext()
+
+    def timings(self) -> dict:
+        """Counters since construction: factorisations, analyses, and their wall times (s)."""
+        return {"factorizations": self.n_factorizations, "analyses": self.n_analyses,
+                "factorize_s": round(self.factorize_s, 4), "solve_s": round(self.solve_s, 4)}
 
     def factorize(self, A_lower: sp.csc_matrix) -> None:
         """Factorise the SPD matrix given by its lower triangle (CSC, sorted indices).
@@ -124,6 +174,14 @@ class LinearSolver:
             CHOLMOD found a non-positive pivot (SuperLU: a non-positive diagonal pivot).
         """
         self.n_factorizations += 1
+        t0 = time.perf_counter()
+        try:
+            with self.blas_scope():
+                self._factorize(A_lower)
+        finally:
+            self.factorize_s += time.perf_counter() - t0
+
+    def _factorize(self, A_lower: sp.csc_matrix) -> None:
         if self.backend == "cholmod":
             key = (A_lower.shape, A_lower.indptr.tobytes(), A_lower.indices.tobytes())
             try:
@@ -152,9 +210,12 @@ class LinearSolver:
             raise NotPositiveDefinite("non-positive pivot")
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        if self.backend == "cholmod":
-            return self._factor(b)
-        return self._lu.solve(b)
+        """Solve with the last factorisation; ``b`` : (n,) or (n, k) float."""
+        t0 = time.perf_counter()
+        with self.blas_scope():
+            x = self._factor(b) if self.backend == "cholmod" else self._lu.solve(b)
+        self.solve_s += time.perf_counter() - t0
+        return x
 
 
 @dataclass
@@ -197,9 +258,12 @@ class StaticProblem:
         self.n = energy.n
         self.dof_scale = energy.dof_scale
         self.trans_dofs, self.rot_dofs = energy.trans_dofs, energy.rot_dofs
+        self._scale = None  # (state, energy scale) of the last evaluation
 
     def evaluate(self, hessian=True, psd=False):
-        return self.energy.evaluate(self.state, hessian=hessian, psd=psd)
+        out = self.energy.evaluate(self.state, hessian=hessian, psd=psd)
+        self._scale = (self.state, self.energy.last_energy_scale)
+        return out
 
     def trial(self, dx, alpha):
         return self.state.moved(dx, alpha)
@@ -217,7 +281,11 @@ class StaticProblem:
         return self.energy.residual(g)
 
     def roundoff(self) -> float:
-        return 1e-13 * max(self.energy.energy_scale(self.state), 1.0)
+        """Round-off of the energy at the current state (1e-13 x the sum of |energy parts|);
+        free when the current state was the last one evaluated."""
+        scale = (self._scale[1] if self._scale is not None and self._scale[0] is self.state
+                 else self.energy.energy_scale(self.state))
+        return 1e-13 * max(scale, 1.0)
 
 
 def _step_limit(p, trans, rot, max_step, max_rot) -> float:
@@ -240,19 +308,26 @@ def _wolfe(problem, p, E0, g0, eps_E, alpha_max, c1, c2, max_evals):
     alpha : float
     trial : state at ``alpha`` (None when no acceptable step was found)
     ok : bool
+    E, g : float, N mm and (n,) float
+        Energy and gradient at ``trial`` (evaluated by the search; None when not ok), so
+        the caller need not evaluate them again.
     """
     d0 = float(g0 @ p)
     if not d0 < 0:
-        return 0.0, None, False
+        return 0.0, None, False, None, None
     evals = 0
-    best = None  # (alpha, trial, E) with sufficient decrease
+    best = None  # (alpha, trial, E, g) with sufficient decrease
+    last = None  # gradient at the last trial
 
     def phi(a):
-        nonlocal evals
+        nonlocal evals, last
         evals += 1
         tr = problem.trial(p, a)
-        Et, gt = problem.gradient_at(tr)
-        return tr, Et, float(gt @ p) if np.all(np.isfinite(gt)) else np.nan
+        Et, last = problem.gradient_at(tr)
+        return tr, Et, float(last @ p) if np.all(np.isfinite(last)) else np.nan
+
+    def done(a, tr, Et, gt=None):
+        return a, tr, True, Et, last if gt is None else gt
 
     def armijo(a, Et):
         return np.isfinite(Et) and Et <= E0 + c1 * a * d0 + eps_E
@@ -266,17 +341,17 @@ def _wolfe(problem, p, E0, g0, eps_E, alpha_max, c1, c2, max_evals):
                 hi = a
             else:
                 if best is None or Et < best[2]:
-                    best = (a, tr, Et)
+                    best = (a, tr, Et, last)
                 if abs(dt) <= -c2 * d0:
-                    return a, tr, True
+                    return done(a, tr, Et)
                 if dt * (hi - lo) >= 0:
                     hi = lo
                 lo, E_lo = a, Et
             if abs(hi - lo) < 1e-12 * max(lo, hi, 1e-300):
                 break
         if best is not None:
-            return best[0], best[1], True
-        return 0.0, None, False
+            return done(*best)
+        return 0.0, None, False, None, None
 
     a_prev, E_prev = 0.0, E0
     a = min(1.0, alpha_max)
@@ -285,18 +360,18 @@ def _wolfe(problem, p, E0, g0, eps_E, alpha_max, c1, c2, max_evals):
         if not armijo(a, Et) or (a_prev > 0 and Et >= E_prev + eps_E) or not np.isfinite(dt):
             return zoom(a_prev, E_prev, a)
         if best is None or Et < best[2]:
-            best = (a, tr, Et)
+            best = (a, tr, Et, last)
         if abs(dt) <= -c2 * d0:
-            return a, tr, True
+            return done(a, tr, Et)
         if dt >= 0:
             return zoom(a, Et, a_prev)
         if a >= alpha_max:
-            return a, tr, True
+            return done(a, tr, Et)
         a_prev, E_prev = a, Et
         a = min(2.0 * a, alpha_max)
     if best is not None:
-        return best[0], best[1], True
-    return 0.0, None, False
+        return done(*best)
+    return 0.0, None, False, None, None
 
 
 SHIFT_MIN = 1e-8
@@ -325,6 +400,7 @@ def _candidates(last_shift: float):
     yield "gradient", 0.0
 
 
+@_blas_scoped
 def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_max_iter_wet,
            linear: LinearSolver | None = None, c1: float = 1e-4, c2: float = 0.9,
            max_halvings: int = TOL.line_search_halvings, max_step_mm: float = 2.0,
@@ -365,7 +441,6 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
     NewtonResult
     """
     t0 = time.perf_counter()
-    linear = linear or LinearSolver()
     E, g, H = problem.evaluate(hessian=True)
     r = problem.residual(g)
     hist = [(E, r, 0.0)]
@@ -397,8 +472,8 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
                     continue
             alpha_max = _step_limit(p, problem.trans_dofs, problem.rot_dofs, max_step_mm,
                                     max_rot_rad)
-            alpha, trial, accepted = _wolfe(problem, p, E, g, eps_E, alpha_max, c1, c2,
-                                            max_halvings)
+            alpha, trial, accepted, E_trial, g_trial = _wolfe(problem, p, E, g, eps_E,
+                                                              alpha_max, c1, c2, max_halvings)
             if accepted:
                 n_reg += not (kind == "exact" and rel <= SHIFT_MIN)
                 if kind == "exact" and rel > SHIFT_MIN:
@@ -409,7 +484,7 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
             break
         problem.accept(trial)
         linear.shift_hint = shift
-        E, g, H = problem.evaluate(hessian=True)
+        E, g = E_trial, g_trial  # the search evaluated them at the accepted point
         r = problem.residual(g)
         hist.append((E, r, alpha))
         if callback is not None:
@@ -417,6 +492,9 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
         if not np.isfinite(E) or not np.all(np.isfinite(g)):
             status = "nan"
             break
+        if linear.solver == "reference" or (r >= tol and it < max_iter):
+            E, g, H = problem.evaluate(hessian=True)  # (fast: only when another iteration
+            # follows; the reference path evaluates after every step, as it used to)
     else:
         if r < tol:
             status = "converged"

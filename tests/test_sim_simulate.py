@@ -142,3 +142,29 @@ def test_completion_times():
     assert np.array_equal(S.completion_times(t, col), ta, equal_nan=True)  # no lengths: "all"
     with pytest.raises(InputError):
         S.completion_times(t[:3], col)
+
+
+def test_fast_and_reference_solver_paths_agree(tmp_path):
+    """The ``fast`` path (one BLAS thread, the Hessian only when another Newton iteration
+    follows, the round-off scale from the last evaluation) follows the same Newton path as the
+    ``reference`` one: the same iterations per step, and the same frames to 1e-9 mm."""
+    frames, stats = {}, {}
+    for solver in ("fast", "reference"):
+        d = write_design(tmp_path / solver, regular_stencil(5, 4), thickness=0.4)
+        s = S.simulate_design(d, t_end=20.0, material=StandInBracketModel(), progress=False,
+                              solver=solver, checkpoint_every=0)
+        stats[solver] = s["linear_solver"]
+        with np.load(d / "sim" / "frames.npz") as z:
+            frames[solver] = {k: z[k] for k in ("base_center", "membrane_vertices",
+                                                "newton_iterations")}
+    f, r = frames["fast"], frames["reference"]
+    np.testing.assert_array_equal(f["newton_iterations"], r["newton_iterations"])
+    for k in ("base_center", "membrane_vertices"):
+        np.testing.assert_allclose(f[k], r[k], rtol=0, atol=1e-9)
+    assert stats["fast"]["factorizations"] == stats["reference"]["factorizations"] > 0
+    assert stats["fast"]["solver"] == "fast" and stats["reference"]["solver"] == "reference"
+
+
+def test_unknown_solver_is_a_named_error():
+    with pytest.raises(InputError, match="solver 'quick' is not one of fast, reference"):
+        S.SimSettings(solver="quick")

@@ -1,0 +1,78 @@
+"""Benchmark of a whole build from scratch (not a test): ``make shape=petal`` with an empty part
+cache, as a new user's first build after installing.
+
+Each solver path (``--solver fast``, the default, and ``reference``, the path before the speed
+work) builds ``petal`` in its own fresh working folder, so no part cache or staging folder
+carries over, and the stage split comes from the build's own ``summary.json``.  Writes
+``build/bench/build_petal.json``: ``wall_s`` (the fast path, target 60 s), ``stages_s`` (design,
+program, simulate, refine, render, report), the same under ``solvers`` for each path, and
+``speedup_vs_reference``.
+
+Usage::
+
+    .venv/bin/python bench/bench_build.py [--shape petal] [--solver both|fast|reference]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _build(shape: str, solver: str, log) -> dict:
+    """Build ``shape`` in a fresh folder through the CLI; wall time and the stage split."""
+    with tempfile.TemporaryDirectory(prefix="morphshell-bench-") as tmp:
+        env = dict(os.environ, PYTHONPATH=str(ROOT), XDG_CACHE_HOME=str(Path(tmp) / "cache"))
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-m", "pysolver.cli", "--quiet", "build", shape,
+                            "--solver", solver], cwd=tmp, env=env, capture_output=True,
+                           text=True)
+        wall = time.perf_counter() - t0
+        if r.returncode not in (0, 3):
+            raise SystemExit(f"build {shape} --solver {solver} failed:\n{r.stderr}")
+        name = shape.split(":")[0]
+        summary = json.loads((Path(tmp) / "build" / name / "summary.json").read_text())
+    stages = {k: v for k, v in summary["timings_s"].items() if k != "total"}
+    log(f"{shape} --solver {solver}: {wall:.1f} s  "
+        + "  ".join(f"{k} {v:.1f}" for k, v in stages.items()))
+    return {"wall_s": round(wall, 2), "build_total_s": summary["timings_s"]["total"],
+            "stages_s": stages, "verdict": summary.get("figures", {}).get("verdict"),
+            "bases": summary.get("figures", {}).get("n_bases"),
+            "loadavg_end": [round(v, 2) for v in os.getloadavg()]}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--shape", default="petal")
+    ap.add_argument("--solver", choices=("both", "fast", "reference"), default="both")
+    ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def log(msg):
+        print(f"[bench_build] {msg}", file=sys.stderr, flush=True)
+
+    solvers = ["fast", "reference"] if args.solver == "both" else [args.solver]
+    runs = {s: _build(args.shape, s, log) for s in solvers}
+    res = dict(runs[solvers[0]], shape=args.shape, solvers=runs, target_wall_s=60.0,
+               cpu_count=os.cpu_count())
+    if len(runs) == 2:
+        res["speedup_vs_reference"] = round(runs["reference"]["wall_s"]
+                                            / runs["fast"]["wall_s"], 2)
+    name = args.shape.split(":")[0]
+    (out / f"build_{name}.json").write_text(json.dumps(res, indent=2) + "\n")
+    log(f"-> {out / f'build_{name}.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
