@@ -67,7 +67,6 @@ def _load_source(source, scale: float):
             if surf.time is not None:
                 t0 = surf.time
                 surf.time = lambda X, t0=t0: t0(np.asarray(X) / scale)
-            surf.remesh = {}
         h = hashlib.sha256(src.encode()).hexdigest()[:16]
         return surf, "builtin", src, h, None
     if not p.exists():
@@ -188,11 +187,11 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         else:
             from .remesh import remesh_surface
 
-            n_req, sd = vertices, seed
-            if n_req is None and seed is None and surf.remesh and params == UNIT_CELL:
-                n_req, sd = surf.remesh.get("vertices"), surf.remesh.get("seed")
-            V0, F0, remesh_info = remesh_surface(surf.V, surf.F, vertices=n_req, seed=sd,
-                                                 target_bases=surf.target_bases, params=params)
+            V0, F0, remesh_info = remesh_surface(
+                surf.V, surf.F, vertices=vertices, seed=seed, target_bases=surf.target_bases,
+                params=params,
+                progress=(lambda line: print(f"[design {surf.name}] remesh {line}",
+                                             file=sys.stderr, flush=True)) if progress else None)
         clock.step("remesh")
         results = compare_flattenings(V0, F0, params=params)
         comparison = {k: r.metrics for k, r in results.items()}

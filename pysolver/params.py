@@ -185,6 +185,77 @@ class Limits:
 
 LIMITS = Limits()
 
+
+@dataclass(frozen=True)
+class StencilSearch:
+    """Settings of the stencil generation (:mod:`pysolver.remesh`, :mod:`pysolver.stencil_opt`).
+
+    Attributes
+    ----------
+    dense_faces : int
+        User meshes are resampled to about this many well-shaped faces before flattening.
+    lloyd_iterations : int
+        Weighted Lloyd iterations of the CVT in the conformal plane.
+    relax_iterations : int
+        Spring relaxation iterations (Persson and Strang's scheme) after the CVT.
+    relax_retriangulate : int
+        Delaunay re-triangulation every this many relaxation iterations.
+    relax_fscale, relax_step : float
+        Rest length over mean length of the repulsive springs (1.2 as in Persson and
+        Strang) and the explicit step size.
+    grading : float
+        Target spacing in 3D ``~ exp(u)^(-grading)`` (u = conformal log-scale):
+        0 = uniform in 3D (isotropic and uniform on the target), 1 = uniform in the plane.
+    rim_insets : tuple of float
+        Insets of the stencil boundary from the target's boundary, as fractions of the edge
+        of the smallest regular cell the min-bumper rule allows (``sqrt(3) 2 (base_r +
+        min_bumper)``, 7.3-8 mm), tried in order (0 = the stencil reaches the rim).  A
+        CVT's outer sites lie about 0.3-0.5 spacing inside its domain; the reference's
+        stencils cover 80-88 % of their targets for that reason.  The inset removes the
+        rim's sharpest features (the stand's notches), where cells fold most.
+    opt_sharpness : float
+        Log-sum-exp sharpness of the smoothed maxima in the stencil optimisation.
+    opt_s3_weight : float
+        Weight of log(3D scaling) beside log(longest flat cell) in the objective.
+    opt_rounds, opt_iterations : int
+        Outer rounds (re-lifting onto the target) and L-BFGS iterations per round.
+    opt_barrier : float
+        Weight of the log barrier that keeps flat triangles positively oriented.
+    seeds : int
+        Seeds tried per vertex count when none is given.
+    count_steps : int
+        Secant steps of the vertex count toward a 3D scaling of 1.
+    count_tolerance : float
+        |log scale3d| under which the secant search stops.
+    candidates : tuple of float
+        Relative vertex counts tried around the secant result (the other seeds are tried at
+        the best count).
+    margin : float, mm
+        Preferred distance of the longest flat cell below the limit.
+    """
+
+    dense_faces: int = 6000
+    lloyd_iterations: int = 40
+    relax_iterations: int = 100
+    relax_retriangulate: int = 5
+    relax_fscale: float = 1.2
+    relax_step: float = 0.2
+    grading: float = 1.0
+    rim_insets: tuple = (0.5, 0.0)
+    opt_sharpness: float = 60.0
+    opt_s3_weight: float = 0.0
+    opt_rounds: int = 2
+    opt_iterations: int = 50
+    opt_barrier: float = 1e-3
+    seeds: int = 2
+    count_steps: int = 4
+    count_tolerance: float = 0.05
+    candidates: tuple = ()
+    margin: float = 0.3
+
+
+STENCIL = StencilSearch()
+
 DEFAULT_REFINE = 1
 """Rounds of timing refinement from the simulation, the one default of ``morphshell build``,
 ``make`` and :func:`pysolver.build.build`."""

@@ -1,21 +1,32 @@
-"""Isotropic remeshing of the target surface into the stencil (N vertices).
+"""Stencil generation: isotropic remeshing of the target surface into N vertices, optimised.
 
-Default method ``"cvt"`` (as the reference, restated): flatten the dense target
-conformally (CETM), place N points in the flat domain by a weighted Lloyd iteration
-(centroidal Voronoi tessellation) whose density ``exp(-2u)`` makes the spacing uniform
-*in 3D*, triangulate them (constrained Delaunay, Shewchuk's Triangle) and lift every
-point to 3D with the barycentric coordinates of its dense flat triangle.  Because the
-map is conformal, near-equilateral flat triangles stay near-equilateral in 3D.
-Boundary points are spaced uniformly in 3D arc length and kept fixed.
+Method ``"cvt"`` (default), in the conformal plane of the dense target (CETM, boundary
+log-scale 0, :func:`pysolver.flatten.cetm`):
 
-Method ``"pymeshlab"``: pymeshlab's isotropic explicit remeshing in 3D (kept for
-comparison; at the coarse stencil resolution its triangles are much less regular).
+1. **Boundary**: points along the target's boundary, or along a curve inset from it by a
+   fraction of a cell spacing (``StencilSearch.rim_insets``), equally spaced in 3D arc length.
+2. **CVT**: weighted Lloyd iterations of the interior points.  A 2D CVT of density ``rho``
+   spaces its points as ``rho^(-1/4)``; to be uniform *on the target* the density must be
+   ``exp(-4u)`` (u = conformal log-scale, flat = exp(u) 3D).  The reference used
+   ``exp(-2u)``, which only half compensates the conformal scale (``pipeline.md`` §2.2).
+3. **Relaxation**: Persson and Strang's spring relaxation (DistMesh): repulsive springs of
+   rest length 1.2 x the mean, with the desired spacing in the plane ``exp(u)^(1 - grading)``,
+   Delaunay re-triangulation (Shewchuk's Triangle) every few steps.  It removes most of the
+   valence defects a Lloyd iteration from random seeds leaves behind.
+4. **Ears**: triangles with two boundary edges are removed.
+5. **Optimisation** (:mod:`pysolver.stencil_opt`): the interior vertices move in the plane
+   to minimise the longest flat cell after both scaling rules.
+6. **Lift**: every flat point is mapped to 3D through its dense flat triangle.
 
-Vertex count: ``vertices=N`` or searched.  The paper's estimate ``N ~ 0.38 A / 7^2``
-is recorded; the search starts from the count of a regular mesh whose centroid spacing
-meets the min-bumper rule, then tries a few candidates and keeps the one whose 3D
-scaling factor (:func:`pysolver.layout.scale_3d`) is closest to 1, so the shell keeps
-the input's size.  Finally "ear" triangles (two boundary edges) are removed.
+Because the map is conformal, triangles that are near-equilateral in the plane are
+near-equilateral on the target.  Method ``"pymeshlab"`` (pymeshlab's isotropic explicit
+remeshing in 3D) is kept for comparison; at the stencil's coarse resolution its triangles are
+much less regular.
+
+Vertex count: ``vertices=N`` or searched: secant steps on the 3D scaling (which grows as
+``sqrt(N)``) toward 1, so that the shell keeps the size of its target, then neighbouring counts
+and seeds; among the candidates whose longest flat cell is within the limit the one with the
+scaling closest to 1 wins (:func:`remesh_surface`).  Nothing is tuned per shape.
 """
 
 from __future__ import annotations
@@ -23,15 +34,17 @@ from __future__ import annotations
 import igl
 import numpy as np
 import triangle as tr
+from matplotlib.path import Path as PolygonPath
 from scipy.spatial import cKDTree
+from shapely.geometry import LinearRing, Polygon
 
 from .errors import InputError
-from .params import UNIT_CELL, UnitCell
+from .flatten import cetm
+from .layout import build_layout, face_adjacency, face_normals
+from .params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from .stencil_opt import optimize_stencil
 
 PAPER_CELL_LENGTH = 7.0  # mm, l_avg of the vertex-count estimate (Supplementary Note 1)
-LLOYD_ITERATIONS = 40
-BOUNDARY_DENSITY = 1.0  # boundary points per (regular-mesh edge length) of perimeter
-DENSE_FACES = 6000  # user meshes are resampled to about this many faces before flattening
 
 
 def surface_area(V, F) -> float:
@@ -52,8 +65,6 @@ def remove_ears(V, F):
     V : (k, 3) float
     F : (f, 3) int
     """
-    from .layout import face_adjacency
-
     F = np.asarray(F, dtype=np.int64)
     for _ in range(10):
         ff = face_adjacency(F)
@@ -93,8 +104,6 @@ def isotropic_remesh(V, F, edge_length: float, iterations: int = 12):
 
 
 def _keep_orientation(V2, F2, V, F):
-    from .layout import face_normals
-
     _, fi, _ = igl.point_mesh_squared_distance(V2[F2].mean(1), np.asarray(V, float),
                                                np.asarray(F, dtype=np.int64))
     n_src = face_normals(V, F)[fi]
@@ -103,7 +112,7 @@ def _keep_orientation(V2, F2, V, F):
     return V2, F2
 
 
-def resample_dense(V, F, faces: int = DENSE_FACES):
+def resample_dense(V, F, faces: int = STENCIL.dense_faces):
     """Resample a user mesh to about ``faces`` well-shaped triangles (pymeshlab)."""
     A = surface_area(V, F)
     L = float(np.sqrt(4 * A / (np.sqrt(3) * faces)))
@@ -112,149 +121,226 @@ def resample_dense(V, F, faces: int = DENSE_FACES):
 
 
 # --------------------------------------------------------------------------------------
-# CVT remeshing in the conformal flat domain
+# the conformal plane of the dense target
 
 
-def required_spacing(V, F, params: UnitCell = UNIT_CELL, smooth: int = 3) -> np.ndarray:
-    """Relative cell spacing the min-bumper rule needs at each vertex (1 where flat).
+class RimInsetError(ValueError):
+    """A rim inset does not leave one connected region (a neck narrower than twice the inset);
+    the search then tries the next inset."""
 
-    A cell of centroid distance D on a surface of normal curvature k folds by about
-    ``theta ~ sqrt(3) D k / 2`` per half, and the rule ``D / (2 cos theta) >= base_r +
-    min_bumper + layer_h tan(theta)`` gives ``D >= D0 / (1 - sqrt(3) layer_h k)`` with
-    ``D0 = 2 (base_r + min_bumper)``.  Returns ``1 / (1 - sqrt(3) layer_h k_max)``
-    (k_max = largest |principal curvature|, smoothed, capped), so curved regions get
-    proportionally larger cells and flat regions the smallest the rule allows.
+
+def _polyline_by_length(C, X, k: int) -> np.ndarray:
+    """``k`` points of the closed flat polyline ``C`` (r, 2) equally spaced in the arc length
+    of its 3D image ``X`` (r, 3); the last point of C repeats the first."""
+    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(X, axis=0), axis=1))]
+    q = np.linspace(0.0, s[-1], k, endpoint=False)
+    return np.c_[np.interp(q, s, C[:, 0]), np.interp(q, s, C[:, 1])]
+
+
+def triangulate_flat(P, n_boundary: int) -> np.ndarray:
+    """Constrained Delaunay triangulation of flat points whose first ``n_boundary`` rows are a
+    closed boundary polygon (no Steiner points, Shewchuk's Triangle), positively oriented.
+
+    Returns
+    -------
+    F : (m, 3) int
     """
-    V = np.asarray(V, float)
-    F = np.asarray(F, dtype=np.int64)
-    try:
-        _, _, k1, k2, _ = igl.principal_curvature(V, F, radius=5)
-        k = np.maximum(np.abs(k1), np.abs(k2))
-        k = np.where(np.isfinite(k), k, 0.0)
-    except Exception:  # noqa: BLE001 - curvature is only a density hint
-        k = np.zeros(len(V))
-    A = igl.adjacency_matrix(F).astype(float)
-    deg = np.asarray(A.sum(axis=1)).ravel()
-    for _ in range(smooth):
-        k = 0.5 * k + 0.5 * (A @ k) / np.maximum(deg, 1)
-    x = np.clip(np.sqrt(3) * params.layer_h * k, 0.0, 0.6)
-    return 1.0 / (1.0 - x)
+    P = np.asarray(P, float)
+    nb = int(n_boundary)
+    seg = np.c_[np.arange(nb), (np.arange(nb) + 1) % nb]
+    t = tr.triangulate({"vertices": P, "segments": seg}, "pYQ")
+    if len(t["vertices"]) != len(P) or "triangles" not in t:
+        raise InputError("remeshing: the flat domain boundary self-intersects",
+                         fix="check the input surface (it folds onto itself when flattened)")
+    F = t["triangles"].astype(np.int64)
+    A = ((P[F[:, 1], 0] - P[F[:, 0], 0]) * (P[F[:, 2], 1] - P[F[:, 0], 1])
+         - (P[F[:, 1], 1] - P[F[:, 0], 1]) * (P[F[:, 2], 0] - P[F[:, 0], 0]))
+    F[A < 0] = F[A < 0][:, ::-1]
+    return F
 
 
 class FlatDomain:
-    """Dense target mesh with its conformal flattening, for CVT remeshing.
+    """Dense target mesh with its conformal flattening (CETM), where stencils are made.
 
     Parameters
     ----------
     V : (n, 3) float, mm
     F : (m, 3) int
+    settings : StencilSearch
     """
 
-    def __init__(self, V, F, params: UnitCell = UNIT_CELL, adaptive: bool = False):
-        from .flatten import cetm
-
+    def __init__(self, V, F, settings: StencilSearch = STENCIL):
         self.V = np.asarray(V, float)
         self.F = np.asarray(F, dtype=np.int64)
-        UV, u, _ = cetm(self.V, self.F)
-        self.UV = UV
-        self.u = u
+        self.settings = settings
+        self.UV, self.u, _ = cetm(self.V, self.F)
+        self.UV3 = np.c_[self.UV, np.zeros(len(self.UV))]
         self.area3 = 0.5 * igl.doublearea(self.V, self.F)
-        # target spacing factor per dense vertex: 1 on flat parts, larger where curved
-        self.spacing = (required_spacing(self.V, self.F, params) if adaptive
-                        else np.ones(len(self.V)))
-        self.wface = self.area3 / self.spacing[self.F].mean(axis=1) ** 2
-        self.area = float(self.wface.sum())  # "effective" area in units of flat spacing
-        self.UV3 = np.c_[UV, np.zeros(len(UV))]
-        # quadrature: 4 points per dense face (midpoint subdivision centroids), weight = 3D area/4
-        P = UV[self.F]
-        m = (P + np.roll(P, -1, axis=1)) / 2  # edge midpoints
-        q = [(P[:, k] + m[:, k] + m[:, (k + 2) % 3]) / 3 for k in range(3)]
-        q.append(m.mean(axis=1))
-        self.quad = np.concatenate(q)
-        self.quad_w = np.tile(self.wface / 4, 4)
+        self.area2 = 0.5 * igl.doublearea(self.UV, self.F)
+        self.face_u = self.u[self.F].mean(axis=1)
         loop = igl.boundary_loop(self.F)
-        self.loop = loop
-        seg3 = np.linalg.norm(self.V[np.roll(loop, -1)] - self.V[loop], axis=1)
-        seg3 = seg3 / (0.5 * (self.spacing[loop] + self.spacing[np.roll(loop, -1)]))
-        self.loop_s = np.r_[0, np.cumsum(seg3)]
-        self.perimeter = float(self.loop_s[-1])
-        self.boundary_density = BOUNDARY_DENSITY
+        self.loop = np.asarray(loop, dtype=np.int64)
+        self.perimeter = float(np.linalg.norm(self.V[np.roll(loop, -1)] - self.V[loop],
+                                              axis=1).sum())
+        # quadrature: 4 points per dense face (midpoint-subdivision centroids)
+        T = self.UV[self.F]
+        m = (T + np.roll(T, -1, axis=1)) / 2
+        q = [(T[:, k] + m[:, k] + m[:, (k + 2) % 3]) / 3 for k in range(3)]
+        self.quad = np.concatenate(q + [m.mean(axis=1)])
+        self.quad_face = np.tile(np.arange(len(self.F)), 4)
 
-    def boundary_points(self, k: int) -> np.ndarray:
-        """``k`` flat boundary points equally spaced in 3D arc length (over the spacing)."""
-        s = np.linspace(0, self.perimeter, k, endpoint=False)
-        loopc = np.r_[self.loop, self.loop[:1]]
-        P = self.UV[loopc]
-        return np.c_[np.interp(s, self.loop_s, P[:, 0]), np.interp(s, self.loop_s, P[:, 1])]
-
-    def lift(self, P2) -> np.ndarray:
-        """3D points for flat points (barycentric in the dense flat triangle)."""
-        P2 = np.asarray(P2, float)
-        _, fi, C = igl.point_mesh_squared_distance(np.c_[P2, np.zeros(len(P2))], self.UV3,
-                                                   self.F)
+    # -- maps ------------------------------------------------------------------------
+    def _barycentric(self, P):
+        P = np.asarray(P, float)
+        _, fi, C = igl.point_mesh_squared_distance(np.c_[P, np.zeros(len(P))], self.UV3, self.F)
         T = self.UV[self.F[fi]]
         e1, e2, w = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0], C[:, :2] - T[:, 0]
         det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
         b1 = (w[:, 0] * e2[:, 1] - w[:, 1] * e2[:, 0]) / det
         b2 = (e1[:, 0] * w[:, 1] - e1[:, 1] * w[:, 0]) / det
-        b0 = 1 - b1 - b2
-        X = self.V[self.F[fi]]
-        return b0[:, None] * X[:, 0] + b1[:, None] * X[:, 1] + b2[:, None] * X[:, 2]
+        return fi, np.c_[1 - b1 - b2, b1, b2]
 
-    def remesh(self, n: int, iterations: int = LLOYD_ITERATIONS, seed: int = 0):
-        """Stencil with about ``n`` vertices (before ear removal).
+    def lift(self, P) -> np.ndarray:
+        """(k, 3) float, mm: target points of flat points ``P`` (k, 2) (barycentric in the
+        dense flat triangle; points outside are first moved to the nearest one)."""
+        fi, B = self._barycentric(P)
+        return np.einsum("ij,ijk->ik", B, self.V[self.F[fi]])
+
+    def lift_jacobian(self, P) -> np.ndarray:
+        """(k, 3, 2) float: derivative of :meth:`lift` at ``P`` (piecewise constant)."""
+        fi, _ = self._barycentric(P)
+        T, X = self.UV[self.F[fi]], self.V[self.F[fi]]
+        Mu = np.stack([T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]], axis=2)
+        Mx = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]], axis=2)
+        return Mx @ np.linalg.inv(Mu)
+
+    def log_scale(self, P) -> np.ndarray:
+        """(k,) float: conformal log-scale u at flat points (flat length = exp(u) 3D)."""
+        fi, B = self._barycentric(P)
+        return np.einsum("ij,ij->i", B, self.u[self.F[fi]])
+
+    # -- stencil -----------------------------------------------------------------------
+    def spacing(self, n: int, inset: float = 0.0) -> float:
+        """3D edge length h of a regular mesh of ``n`` vertices on this target (the spacing
+        of the stencil before the rim inset), mm."""
+        g = self.settings.grading
+        area = float(np.sum(self.area3 * np.exp(2 * g * self.face_u)))
+        return edge_for_count(area, self.perimeter, n)
+
+    def boundary_polygon(self, inset_mm: float = 0.0) -> np.ndarray:
+        """(r, 2) float: the flat boundary, or the curve ``inset_mm`` inside it (the boundary
+        log-scale is 0, so flat and 3D distances agree there), closed (last = first)."""
+        C = self.UV[np.r_[self.loop, self.loop[:1]]]
+        if inset_mm <= 0:
+            return C
+        poly = Polygon(C).buffer(-float(inset_mm), join_style="round", quad_segs=8)
+        if poly.is_empty or poly.geom_type != "Polygon":
+            raise RimInsetError(f"an inset of {inset_mm:.2f} mm from the rim splits or empties "
+                                "the target")
+        R = np.asarray(poly.exterior.coords)
+        if LinearRing(R).is_ccw != LinearRing(C).is_ccw:
+            R = R[::-1]
+        # densify so that the arc length of the lift is accurate
+        seg = np.linalg.norm(np.diff(R, axis=0), axis=1)
+        s = np.r_[0.0, np.cumsum(seg)]
+        t = np.linspace(0.0, s[-1], max(4 * len(self.loop), 200))
+        return np.c_[np.interp(t, s, R[:, 0]), np.interp(t, s, R[:, 1])]
+
+    def cvt(self, n: int, seed: int = 0, inset: float = 0.0):
+        """Flat points of a weighted CVT with ``n`` points, boundary first, the boundary
+        ``inset`` mm inside the target's rim.
+
+        Returns
+        -------
+        P : (n', 2) float, mm
+        n_boundary : int
+        """
+        st = self.settings
+        h = self.spacing(n)
+        C = self.boundary_polygon(inset)
+        X = self.lift(C)
+        length = float(np.sum(np.linalg.norm(np.diff(X, axis=0), axis=1)))
+        nb = max(int(round(length / h)), 6)
+        B = _polyline_by_length(C, X, nb)
+        inside = PolygonPath(B).contains_points(self.quad)
+        quad = self.quad[inside]
+        # CVT density exp(-4 (1 - grading) u) per flat area (module docstring)
+        w = (self.area2 * np.exp(-4 * (1 - st.grading) * self.face_u))[self.quad_face[inside]]
+        ni = max(n - nb, 1)
+        if len(quad) < ni:
+            raise InputError(f"the target is too small for {n} stencil vertices",
+                             fix="use fewer vertices (--vertices) or a larger target")
+        rng = np.random.default_rng(seed)
+        Y = quad[rng.choice(len(quad), size=ni, replace=False, p=w / w.sum())].copy()
+        for _ in range(st.lloyd_iterations):
+            _, owner = cKDTree(np.vstack([B, Y])).query(quad)
+            owner = owner - nb
+            ok = owner >= 0
+            W = np.bincount(owner[ok], weights=w[ok], minlength=ni)
+            Sx = np.bincount(owner[ok], weights=w[ok] * quad[ok, 0], minlength=ni)
+            Sy = np.bincount(owner[ok], weights=w[ok] * quad[ok, 1], minlength=ni)
+            has = W > 0
+            Y[has] = np.c_[Sx[has] / W[has], Sy[has] / W[has]]
+        return np.vstack([B, Y]), nb
+
+    def relax(self, P, n_boundary: int) -> np.ndarray:
+        """Spring relaxation of the interior points (Persson and Strang, 2004): repulsive
+        springs along the Delaunay edges with rest length ``fscale`` x the RMS length, scaled
+        by the desired spacing ``exp(u)^(1 - grading)``; boundary points fixed.
+
+        Written here because DistMesh itself is a MATLAB script and no maintained Python
+        package relaxes points in a given domain with a given size function.
+        """
+        st = self.settings
+        P = np.array(P, float)
+        nb = int(n_boundary)
+        domain = PolygonPath(P[:nb])
+        E = None
+        for it in range(st.relax_iterations):
+            if it % st.relax_retriangulate == 0:
+                E = igl.edges(triangulate_flat(P, nb))
+            d = P[E[:, 0]] - P[E[:, 1]]
+            length = np.linalg.norm(d, axis=1)
+            want = np.exp((1 - st.grading) * self.log_scale(0.5 * (P[E[:, 0]] + P[E[:, 1]])))
+            rest = want * st.relax_fscale * np.sqrt(np.sum(length**2) / np.sum(want**2))
+            f = np.maximum(rest - length, 0.0) / length
+            force = np.zeros_like(P)
+            np.add.at(force, E[:, 0], f[:, None] * d)
+            np.add.at(force, E[:, 1], -f[:, None] * d)
+            step = st.relax_step * force[nb:]
+            moved = P[nb:] + step
+            ok = domain.contains_points(moved)
+            P[nb:][ok] = moved[ok]
+        return P
+
+    def stencil(self, n: int, seed: int = 0, inset: float = 0.0):
+        """Flat stencil before optimisation: CVT, relaxation, triangulation, ear removal
+        (``inset``: mm from the rim).
+
+        Returns
+        -------
+        P : (k, 2) float, mm -- flat points (the conformal plane)
+        F : (f, 3) int
+        """
+        P, nb = self.cvt(n, seed=seed, inset=inset)
+        P = self.relax(P, nb)
+        F = triangulate_flat(P, nb)
+        P, F = remove_ears(P, F)
+        return P, F
+
+    def remesh(self, n: int, seed: int = 0, inset: float = 0.0, params: UnitCell = UNIT_CELL,
+               optimize: bool = True):
+        """Stencil with about ``n`` vertices (before ear removal) on the target.
 
         Returns
         -------
         V : (k, 3) float, mm
         F : (f, 3) int
         """
-        h = edge_for_count(self.area, self.perimeter, n)
-        nb = max(int(round(self.boundary_density * self.perimeter / h)), 6)
-        ni = max(n - nb, 1)
-        B = self.boundary_points(nb)
-        rng = np.random.default_rng(seed)
-        pick = rng.choice(len(self.F), size=ni, p=self.wface / self.wface.sum())
-        r1, r2 = rng.random(ni), rng.random(ni)
-        flip = r1 + r2 > 1
-        r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
-        T = self.UV[self.F[pick]]
-        X = T[:, 0] + r1[:, None] * (T[:, 1] - T[:, 0]) + r2[:, None] * (T[:, 2] - T[:, 0])
-        w = self.quad_w
-        for _ in range(iterations):
-            sites = np.vstack([B, X])
-            _, owner = cKDTree(sites).query(self.quad)
-            owner = owner - nb
-            ok = owner >= 0
-            W = np.bincount(owner[ok], weights=w[ok], minlength=ni)
-            Sx = np.bincount(owner[ok], weights=w[ok] * self.quad[ok, 0], minlength=ni)
-            Sy = np.bincount(owner[ok], weights=w[ok] * self.quad[ok, 1], minlength=ni)
-            has = W > 0
-            X[has] = np.c_[Sx[has] / W[has], Sy[has] / W[has]]
-        P2 = np.vstack([B, X])
-        seg = np.c_[np.arange(nb), (np.arange(nb) + 1) % nb]
-        t = tr.triangulate({"vertices": P2, "segments": seg}, "pYQ")
-        if len(t["vertices"]) != len(P2):
-            raise InputError("remeshing: the flat domain boundary self-intersects",
-                             fix="check the input surface (it folds onto itself when flattened)")
-        F2 = t["triangles"].astype(np.int64)
-        A = 0.5 * ((P2[F2[:, 1], 0] - P2[F2[:, 0], 0]) * (P2[F2[:, 2], 1] - P2[F2[:, 0], 1])
-                   - (P2[F2[:, 1], 1] - P2[F2[:, 0], 1]) * (P2[F2[:, 2], 0] - P2[F2[:, 0], 0]))
-        F2[A < 0] = F2[A < 0][:, ::-1]
-        V3 = self.lift(P2)
-        return remove_ears(V3, F2)
-
-
-def _max_cell_length(V, F, params):
-    """Max flat cell length of the CETM layout (scaling rules incl. the actual flat gaps)."""
-    from .flatten import cetm
-    from .layout import build_layout
-
-    try:
-        UV, _, _ = cetm(V, F)
-        return float(build_layout(V, UV, F, params).central_length.max())
-    except InputError:
-        return np.inf
+        P, F = self.stencil(n, seed=seed, inset=inset)
+        if optimize:
+            P, _ = optimize_stencil(self, P, F, params, self.settings)
+        return self.lift(P), F
 
 
 def edge_for_count(area: float, perimeter: float, n: int) -> float:
@@ -265,12 +351,6 @@ def edge_for_count(area: float, perimeter: float, n: int) -> float:
     return float(1.0 / x)
 
 
-def _scale3d_of(V, F, params):
-    from .layout import scale_3d, unit_cells
-
-    return scale_3d(V, F, unit_cells(F), params)[0]
-
-
 def _regular_count(area, params: UnitCell, perimeter=0.0):
     """Vertices of a regular mesh whose centroid spacing just meets the flat min-bumper rule."""
     D = 2 * (params.base_r + params.min_bumper)  # centroid distance
@@ -278,52 +358,87 @@ def _regular_count(area, params: UnitCell, perimeter=0.0):
     return int(round(2 * area / (np.sqrt(3) * h**2) + perimeter / (2 * h)))
 
 
-def _pick(tried: dict, params: UnitCell, margin: float = 0.5):
-    """Best candidate: scale3d closest to 1 among those whose quick layout keeps every cell
-    ``margin`` below the length limit; else below the limit; else the shortest max length."""
+# --------------------------------------------------------------------------------------
+# measuring and choosing stencils
+
+
+def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
+    """Layout margins and regularity of a stencil (its CETM layout after both scaling rules).
+
+    Returns
+    -------
+    dict
+        ``scale3d``; ``max_cell_length_mm`` (inf when the layout fails);
+        ``bumper_mm`` [min, max] target bumper length beyond the rim; ``edge_spread``
+        (95th / 5th percentile of the 3D edge length, after scaling), ``min_angle_deg``
+        (smallest 3D triangle angle).
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    E = igl.edges(F)
+    edge = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+    out = {"edge_spread": round(float(np.percentile(edge, 95) / np.percentile(edge, 5)), 4),
+           "min_angle_deg": round(float(np.degrees(igl.internal_angles(V, F).min())), 2)}
+    try:
+        UV, _, _ = cetm(V, F)
+        lay = build_layout(V, UV, F, params)
+    except InputError:
+        out.update(scale3d=np.inf, max_cell_length_mm=np.inf, bumper_mm=[np.nan, np.nan])
+        return out
+    bump = lay.bumpers.length - params.base_r
+    out.update(scale3d=round(float(lay.scale3d), 6),
+               max_cell_length_mm=round(float(lay.central_length.max()), 4),
+               bumper_mm=[round(float(bump.min()), 4), round(float(bump.max()), 4)])
+    return out
+
+
+def _pick(tried: dict, params: UnitCell, margin: float):
+    """Best candidate: 3D scaling closest to 1 among those whose longest flat cell keeps
+    ``margin`` below the limit; else below the limit; else the shortest longest cell."""
     for lim in (params.max_cell_length - margin, params.max_cell_length):
-        ok = [k for k in tried if tried[k][1] <= lim]
+        ok = [k for k, c in tried.items() if c["max_cell_length_mm"] <= lim]
         if ok:
-            return min(ok, key=lambda k: (round(abs(np.log(tried[k][0])), 3), tried[k][1], k))
-    return min(tried, key=lambda k: (tried[k][1], k))
+            return min(ok, key=lambda k: (round(abs(np.log(tried[k]["scale3d"])), 3),
+                                          tried[k]["max_cell_length_mm"], k))
+    return min(tried, key=lambda k: (tried[k]["max_cell_length_mm"], k))
 
 
 def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
-                   params: UnitCell = UNIT_CELL, candidates: int = 3, seeds: int = 4,
-                   method: str = "cvt", dense: bool | None = None):
-    """Remesh a target surface into a stencil.
+                   params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL,
+                   method: str = "cvt", dense: bool | None = None, optimize: bool = True,
+                   progress=None):
+    """Remesh a target surface into a stencil, searching the vertex count.
 
     Parameters
     ----------
     V : (n, 3) float, mm
     F : (m, 3) int
     vertices : int, optional
-        Vertex count override; otherwise searched (see module docstring).
+        Vertex count N; otherwise searched (module docstring).
     seed : int, optional
-        Seed of the CVT initialisation; otherwise ``seeds`` seeds are tried per count
-        (the irregularity of a CVT triangulation, hence the longest cell, varies a lot
-        from one seed to the next).
+        Seed of the CVT initialisation; otherwise ``settings.seeds`` seeds are tried.
     target_bases : int, optional
-        Start of the search (about 2 N).
+        Start of the search (about 2 N); default from the min-bumper rule on a regular mesh.
     params : UnitCell
-    candidates : int
-        Counts tried around the predicted best (+-5 % steps).
-    seeds : int
-        Seeds tried per count when ``seed`` is not given.
+    settings : StencilSearch
     method : {"cvt", "pymeshlab"}
     dense : bool, optional
         Resample the input finely with pymeshlab first (default: when the input's
         triangles are poor, min angle < 15 deg, or it has fewer than 2000 faces).
+    optimize : bool
+        Run the stencil optimisation (:mod:`pysolver.stencil_opt`).
+    progress : callable, optional
+        Called with one line per tried candidate.
 
     Returns
     -------
     V2 : (k, 3) float, mm
     F2 : (f, 3) int
     info : dict
-        ``vertices``, ``seed``, ``estimate_paper``, ``scale3d``, ``max_cell_length_mm``
-        (quick layout) and ``candidates`` [[N, seed, scale3d, max cell length], ...].
-        Candidates whose quick layout has cells longer than the limit are only used when
-        none passes (then the shortest max length wins).
+        ``vertices``, ``requested``, ``seed``, ``rim_inset_mm``, ``estimate_paper``,
+        ``scale3d``, ``max_cell_length_mm``, ``before_optimisation`` / ``after_optimisation``
+        (:func:`stencil_figures` of the chosen stencil) and ``candidates``
+        [[N, seed, inset, scale3d, longest flat cell], ...].
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -336,55 +451,89 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         minang = np.degrees(igl.internal_angles(V, F).min())
         dense = minang < 15.0 or len(F) < 2000
     if dense:
-        V, F = resample_dense(V, F)
+        V, F = resample_dense(V, F, settings.dense_faces)
         info["dense_resampled_faces"] = int(len(F))
     if method == "cvt":
-        dom = FlatDomain(V, F, params)
-        make = dom.remesh
-        perim = dom.perimeter
-    else:
-        def make(n, seed=0):
-            L = np.sqrt(2 * A / (np.sqrt(3) * n))
-            return remove_ears(*isotropic_remesh(V, F, L))
-        loop = igl.boundary_loop(F)
-        perim = float(np.linalg.norm(V[np.roll(loop, -1)] - V[loop], axis=1).sum())
-        seeds = 1
-    tried: dict = {}
+        dom = FlatDomain(V, F, settings)
 
-    def trial(n, sd):
+        def make(n, sd, inset):
+            P, F2 = dom.stencil(n, seed=sd, inset=inset)
+            before = (dom.lift(P), F2)
+            if optimize:
+                P, _ = optimize_stencil(dom, P, F2, params, settings)
+            return dom.lift(P), F2, before
+        # insets in mm: a fraction of the edge of the smallest regular cell the min-bumper rule
+        # allows (fixed, so that the 3D scaling stays monotone in the vertex count)
+        edge = np.sqrt(3) * 2 * (params.base_r + params.min_bumper)
+        insets = tuple(round(float(f) * edge, 4) for f in settings.rim_insets)
+    else:
+        def make(n, sd, inset):
+            L = np.sqrt(2 * A / (np.sqrt(3) * n))
+            V2, F2 = remove_ears(*isotropic_remesh(V, F, L))
+            return V2, F2, (V2, F2)
+        insets = (0.0,)
+    tried: dict = {}
+    meshes: dict = {}
+
+    def trial(n, sd, inset):
         n = max(int(n), 8)
-        key = (n, int(sd))
+        key = (n, int(sd), float(inset))
         if key not in tried:
-            V2, F2 = make(n, seed=int(sd))
-            tried[key] = (_scale3d_of(V2, F2, params), _max_cell_length(V2, F2, params), V2, F2)
+            V2, F2, before = make(n, int(sd), inset)
+            tried[key] = stencil_figures(V2, F2, params)
+            meshes[key] = (V2, F2, before)
+            if progress is not None:
+                c = tried[key]
+                progress(f"N={n} seed={sd} rim inset {inset:g} mm: scale3d {c['scale3d']:.3f}, "
+                         f"longest flat cell {c['max_cell_length_mm']:.2f} mm")
         return n
 
-    seed_list = [int(seed)] if seed is not None else list(range(seeds))
-    if vertices is not None:
-        for sd in seed_list:
-            trial(int(vertices), sd)
-    else:
-        n0 = int(target_bases / 2) if target_bases else _regular_count(A, params, perim)
-        n = max(n0, 8)
-        sd0 = seed_list[0]
-        trial(n, sd0)
-        for _ in range(4):  # secant steps on scale3d ~ sqrt(N)
-            s3 = tried[(n, sd0)][0]
-            if abs(np.log(s3)) < 0.03:
-                break
-            n = trial(round(n / s3**2), sd0)
-        half = (candidates - 1) / 2
-        for f in 1 + 0.05 * (np.arange(candidates) - half):
+    seed_list = [int(seed)] if seed is not None else list(range(settings.seeds))
+    limit = params.max_cell_length
+    sd0 = seed_list[0]
+    start = [int(target_bases / 2) if target_bases else estimate_vertices(A)]
+
+    def search_counts(inset):
+        if vertices is not None:
             for sd in seed_list:
-                trial(round(n * f), sd)
-    best = _pick(tried, params)
-    s3, lmax, V2, F2 = tried[best]
+                trial(int(vertices), sd, inset)
+            return
+        n = trial(start[0], sd0, inset)
+        for _ in range(settings.count_steps):  # secant steps on scale3d ~ sqrt(N)
+            s3 = tried[(n, sd0, float(inset))]["scale3d"]
+            if not np.isfinite(s3) or abs(np.log(s3)) < settings.count_tolerance:
+                break
+            n = trial(round(n / s3**2), sd0, inset)
+        start[0] = n
+        for f in settings.candidates:
+            trial(round(n * f), sd0, inset)
+        here = {k: c for k, c in tried.items() if k[2] == float(inset)}
+        best_n = _pick(here, params, settings.margin)[0]
+        for sd in seed_list[1:]:
+            trial(best_n, sd, inset)
+
+    for inset in insets:
+        try:
+            search_counts(inset)
+        except RimInsetError:
+            continue
+        if any(c["max_cell_length_mm"] <= limit - settings.margin for c in tried.values()):
+            break
+    if not tried:
+        raise InputError("every rim inset splits the target into pieces",
+                         fix="use a larger target (--size) or a smoother outline")
+    best = _pick(tried, params, settings.margin)
+    V2, F2, before = meshes[best]
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
-                scale3d=round(float(s3), 5), max_cell_length_mm=round(float(lmax), 3),
-                candidates=[[int(k[0]), int(k[1]), round(float(v[0]), 4), round(float(v[1]), 3)]
+                rim_inset_mm=float(best[2]), scale3d=tried[best]["scale3d"],
+                max_cell_length_mm=tried[best]["max_cell_length_mm"],
+                before_optimisation=stencil_figures(*before, params) if optimize else None,
+                after_optimisation=tried[best],
+                candidates=[[k[0], k[1], k[2], v["scale3d"], v["max_cell_length_mm"]]
                             for k, v in sorted(tried.items())])
     return V2, F2, info
 
 
 __all__ = ["surface_area", "estimate_vertices", "remove_ears", "isotropic_remesh",
-           "resample_dense", "FlatDomain", "remesh_surface"]
+           "resample_dense", "triangulate_flat", "FlatDomain", "edge_for_count",
+           "stencil_figures", "remesh_surface"]

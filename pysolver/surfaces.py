@@ -36,10 +36,6 @@ class Surface:
         Flat central length override (test patches).
     target_bases : int or None
         Suggested number of bases (remeshing search start).
-    remesh : dict
-        Tuned ``{"vertices": N, "seed": s}`` for the default options of a built-in shape
-        (found by the search of :func:`pysolver.remesh.remesh_surface`; makes the default
-        designs fast and reproducible).  Empty: search.
     description : str
     options : dict
     """
@@ -53,7 +49,6 @@ class Surface:
     target_bases: int | None = None
     description: str = ""
     options: dict = field(default_factory=dict)
-    remesh: dict = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------
@@ -166,16 +161,6 @@ __all__ = ["Surface", "regular", "petal", "saddle", "dome", "weave", "spiral", "
 # dense procedural surfaces (remeshed and flattened by the pipeline)
 
 DENSE_EDGE = 2.5  # mm, edge length of the dense source triangulations
-
-# tuned remeshing (vertex count, CVT seed) of the default options, found by the search of
-# pysolver.remesh.remesh_surface (seeds=8); keyed by (shape, options)
-TUNED = {
-    ("dome", ()): {"vertices": 69, "seed": 0},
-    ("saddle", ()): {"vertices": 71, "seed": 0},
-    ("petal", ()): {"vertices": 124, "seed": 1},
-    ("spiral", ()): {"vertices": 107, "seed": 2},
-}
-
 
 def _dense(boundary_xy, edge=DENSE_EDGE):
     B = _resample_closed(np.asarray(boundary_xy, float), edge)
@@ -495,7 +480,4 @@ def builtin(spec: str) -> Surface:
         surf = BUILTIN[name](**opts)
     except TypeError as e:
         raise InputError(f"shape {spec!r}: bad option ({e})") from None
-    key = (name, tuple(sorted(opts.items())))
-    if key in TUNED:
-        surf.remesh = dict(TUNED[key])
     return surf
