@@ -135,7 +135,7 @@ def design_only(source: str, *, out=None, progress: bool = True, **options) -> d
     from .design import check_design_options, run_design
 
     check_design_options(**{k: v for k, v in options.items()
-                            if k in ("vertices", "time", "scale", "flattening")})
+                            if k in ("vertices", "time", "scale", "flattening", "params")})
     name = shape_name(source)
     out = claim_output(out or BUILD_ROOT / name, what="output folder", inputs=[source])
     with build_lock(out):
@@ -195,7 +195,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
           refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
           progress: bool = True, renderer=None, keep_failed: bool = False,
-          solver: str = "fast") -> dict:
+          solver: str = "fast", params=None) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -224,6 +224,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         :data:`pysolver.render.DEFAULT_RENDERER`), see :func:`pysolver.render.render_parts`.
     solver : {"fast", "reference"}
         Linear-algebra path of the simulations (:data:`sim.solver.SOLVERS`; same results).
+    params : UnitCell, optional
+        Unit cell with the user's tolerances (:func:`pysolver.design.unit_cell_options`);
+        default :data:`pysolver.params.UNIT_CELL`.  Later stages read it from ``design.json``.
     keep_failed : bool
         Keep the staging folder of a build whose stage fails (``--debug``); by default it
         is removed, so a failed build leaves nothing behind.
@@ -237,8 +240,11 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
 
     validate_model_files(material)  # material + membrane model files, before any stage
     from .design import check_design_options
+    from .params import UNIT_CELL
 
-    check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening)
+    params = UNIT_CELL if params is None else params
+    check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
+                         params=params)
     check_build_options(jobs=jobs, t_end=t_end, dt=dt, refine=refine, render=render,
                         simulate=simulate, renderer=renderer)
     name = shape_name(source)
@@ -246,9 +252,12 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     out = claim_output(out or BUILD_ROOT / name, what="output folder",
                        inputs=[source, material])
     design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
-                       stencil_order=stencil_order)
+                       stencil_order=stencil_order, params=params)
     all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
                     program=program, t_end=t_end)
+    all_opts.pop("params")
+    if params != UNIT_CELL:  # (only when changed: keeps the hash of earlier builds)
+        all_opts["params"] = params.to_dict()
     if dt is not None:  # (only when given: keeps the hash of earlier builds)
         all_opts["dt"] = dt
     digest = inputs_hash(source, all_opts)

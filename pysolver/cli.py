@@ -57,6 +57,22 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
                    help="conformal flattening method (default: cetm)")
     p.add_argument("--stencil-order", action="store_true",
                    help="treat an OBJ with vt as a finished stencil: keep vertex/face order")
+    p.add_argument("--min-bumper", type=float, default=None, metavar="MM",
+                   help="minimal bumper length beyond the base rim, mm (default 0.3, the "
+                        "paper's; 3D scaling rule)")
+    p.add_argument("--min-gap", type=float, default=None, metavar="MM",
+                   help="minimal flat gap between facing bumper tips, mm (default 0.1; 2D "
+                        "scaling rule)")
+    p.add_argument("--max-cell-length", type=float, default=None, metavar="MM",
+                   help="longest printable unit cell (flat centre distance), mm (default 9.5)")
+
+
+def _unit_cell(args: argparse.Namespace):
+    """The design's unit cell from --min-bumper, --min-gap, --max-cell-length (checked)."""
+    from .design import unit_cell_options
+
+    return unit_cell_options(min_bumper=args.min_bumper, min_gap=args.min_gap,
+                             max_cell_length=args.max_cell_length)
 
 
 def _add_renderer_option(p: argparse.ArgumentParser) -> None:
@@ -194,13 +210,14 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
                        render=not args.no_render, simulate=not args.no_sim,
                        t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress,
                        renderer=args.renderer, keep_failed=getattr(args, "debug", False),
-                       solver=args.solver)
+                       solver=args.solver, params=_unit_cell(args))
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
         from .build import design_only
         design_only(args.shape, out=args.out, vertices=args.vertices, time=args.time,
                     scale=args.scale, flattening=args.flattening,
-                    stencil_order=args.stencil_order, progress=progress)
+                    stencil_order=args.stencil_order, progress=progress,
+                    params=_unit_cell(args))
         return EXIT_OK
     return _run_other(args, progress)
 

@@ -87,6 +87,76 @@ def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -
     return build_layout(V, UV, F, params, central_length=central_length)
 
 
+def unit_cell_options(*, min_bumper=None, min_gap=None, max_cell_length=None,
+                      base: UnitCell = UNIT_CELL) -> UnitCell:
+    """The unit cell of a design with the tolerances a researcher varies, checked.
+
+    Parameters
+    ----------
+    min_bumper : float, mm, optional
+        Minimal bumper length beyond the base rim (3D scaling rule; ``--min-bumper``).
+    min_gap : float, mm, optional
+        Minimal flat gap between facing bumper tips (2D scaling rule; ``--min-gap``).
+    max_cell_length : float, mm, optional
+        Longest printable flat central length (``--max-cell-length``).
+    base : UnitCell
+        The values of the options not given (default: the paper's, :data:`UNIT_CELL`).
+
+    Returns
+    -------
+    UnitCell
+        ``dataclasses.replace(base, ...)``; equal to ``base`` when no option is given.
+
+    Raises
+    ------
+    InputError
+        An option outside its range in :class:`pysolver.params.Limits` (exit code 2).
+    """
+    import dataclasses
+
+    given = {k: v for k, v in (("min_bumper", min_bumper), ("min_gap", min_gap),
+                               ("max_cell_length", max_cell_length)) if v is not None}
+    params = dataclasses.replace(base, **{k: float(v) for k, v in given.items()
+                                          if _is_number(v)})
+    for k, v in given.items():
+        if not _is_number(v):
+            raise InputError(f"--{k.replace('_', '-')} {v!r} is not a number of mm",
+                             fix=f"give e.g. --{k.replace('_', '-')} {getattr(base, k):g}")
+    check_unit_cell(params)
+    return params
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def check_unit_cell(params: UnitCell) -> None:
+    """Check the user-variable tolerances of a unit cell against :class:`~pysolver.params.Limits`.
+
+    Raises
+    ------
+    InputError
+        Naming the option, its value, the allowed range and a fix.
+    """
+    for opt, v, (lo, hi), why in (
+            ("--min-bumper", params.min_bumper, LIMITS.min_bumper_mm,
+             "the paper uses 0.3 mm, most reference examples 0.1 mm"),
+            ("--min-gap", params.min_gap, LIMITS.min_gap_mm,
+             "the paper and the reference examples use 0.1 mm")):
+        if not (np.isfinite(v) and lo <= v <= hi):
+            raise InputError(f"{opt} {v!r} mm is outside {lo:g}-{hi:g} mm",
+                             fix=f"give a length in that range ({why})")
+    lo, hi = params.shortest_cell(), LIMITS.max_cell_length_mm
+    v = params.max_cell_length
+    if not (np.isfinite(v) and lo < v <= hi):
+        raise InputError(
+            f"--max-cell-length {v!r} mm is outside {lo:g}-{hi:g} mm: no cell is shorter than "
+            f"2 (base radius + min bumper) + min gap = {lo:g} mm, and the bracket model is "
+            f"measured up to 9 mm (used up to {hi:g} mm)",
+            fix=f"give a length above {lo:g} and up to {hi:g} mm (default "
+                f"{UNIT_CELL.max_cell_length:g} mm)")
+
+
 def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cetm",
                          thickness=0.5, params: UnitCell = UNIT_CELL) -> None:
     """Check the design options (see :func:`run_design`) without running anything.
@@ -96,6 +166,10 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
     InputError
         Naming the option, its value and the rule.
     """
+    if not isinstance(params, UnitCell):
+        raise InputError(f"params={params!r} is not a UnitCell",
+                         fix="build it with pysolver.design.unit_cell_options(...)")
+    check_unit_cell(params)
     if flattening not in FLATTENINGS:
         raise InputError(f"flattening={flattening!r}", fix=f"use one of {FLATTENINGS}")
     if not (np.isfinite(scale) and 0 < scale <= LIMITS.max_scale):
@@ -363,5 +437,5 @@ def _write_json(path: Path, data: dict):
     os.replace(tmp, path)
 
 
-__all__ = ["run_design", "check_design_options", "design_layout", "write_design_tables",
-           "FLATTENINGS"]
+__all__ = ["run_design", "check_design_options", "unit_cell_options", "check_unit_cell",
+           "design_layout", "write_design_tables", "FLATTENINGS"]

@@ -85,6 +85,12 @@ class UnitCell:
         """Bracket length b (mm) of a cell of flat central length l (mm): b = l - 2 r cos(alpha)."""
         return central_length - self.bracket_offset
 
+    def shortest_cell(self) -> float:
+        """Shortest flat central length the scaling rules allow, mm: a flat cell whose
+        bumpers stick out ``min_bumper`` and keep ``min_gap``, ``2 (base_r + min_bumper) +
+        min_gap``."""
+        return 2 * (self.base_r + self.min_bumper) + self.min_gap
+
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -172,6 +178,22 @@ class Limits:
         Simulation steps, ``t_end / dt``.
     max_scale : float
         Input scale factor (``--scale``).
+    size_mm : (float, float), mm
+        Range of ``--size`` (largest bounding-box extent of the scaled target); the same
+        band as the unitless-size check of :mod:`pysolver.mesh_input` (bounding-box
+        diagonal 20-2000 mm) applied to one extent.
+    min_bumper_mm : (float, float), mm
+        Range of ``--min-bumper`` (bumper length beyond the base rim, 3D scaling rule).
+        Longer than 2 mm, the bumpers would reach past the bracket's roots.
+    min_gap_mm : (float, float), mm
+        Range of ``--min-gap`` (flat gap between facing bumper tips, 2D scaling rule).
+    max_cell_length_mm : float, mm
+        Upper bound of ``--max-cell-length`` (flat central length of a unit cell): the
+        bracket model's last measured length (l = 9.0 mm, ``bracket_length_mm`` grid end
+        5.8055 + 3.1945) plus two steps of its 0.25 mm length grid, which is how far the
+        clamped model is used today (cells beyond 9.0 mm are warned about).  The lower
+        bound is the shortest cell the scaling rules allow, ``2 (base_r + min_bumper) +
+        min_gap`` (:meth:`UnitCell.shortest_cell`).
     """
 
     max_vertices: int = 5000
@@ -181,6 +203,10 @@ class Limits:
     min_dt: float = 0.01
     max_steps: int = 20000
     max_scale: float = 1e6
+    size_mm: tuple = (20.0, 2000.0)
+    min_bumper_mm: tuple = (0.0, 2.0)
+    min_gap_mm: tuple = (0.0, 2.0)
+    max_cell_length_mm: float = 9.5
 
 
 LIMITS = Limits()
