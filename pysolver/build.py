@@ -135,7 +135,8 @@ def design_only(source: str, *, out=None, progress: bool = True, **options) -> d
     from .design import check_design_options, run_design
 
     check_design_options(**{k: v for k, v in options.items()
-                            if k in ("vertices", "time", "scale", "flattening", "params")})
+                            if k in ("vertices", "time", "scale", "flattening", "params",
+                                     "size")})
     name = shape_name(source)
     out = claim_output(out or BUILD_ROOT / name, what="output folder", inputs=[source])
     with build_lock(out):
@@ -195,7 +196,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
           refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
           progress: bool = True, renderer=None, keep_failed: bool = False,
-          solver: str = "fast", params=None) -> dict:
+          solver: str = "fast", params=None, size=None) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -205,7 +206,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         ``regular``) or a path to a mesh / stencil OBJ.
     out : path-like, optional
         Output folder (default ``build/<name>``).
-    vertices, time, scale, flattening, stencil_order
+    vertices, time, scale, size, flattening, stencil_order
         Design options, see :func:`pysolver.design.run_design`.
     material : path-like, optional
         Bracket model file (default: the committed model).
@@ -244,7 +245,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
 
     params = UNIT_CELL if params is None else params
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
-                         params=params)
+                         params=params, size=size)
     check_build_options(jobs=jobs, t_end=t_end, dt=dt, refine=refine, render=render,
                         simulate=simulate, renderer=renderer)
     name = shape_name(source)
@@ -256,6 +257,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
                     program=program, t_end=t_end)
     all_opts.pop("params")
+    if size is not None:  # (only when given, as dt and params)
+        design_opts["size"] = all_opts["size"] = size
     if params != UNIT_CELL:  # (only when changed: keeps the hash of earlier builds)
         all_opts["params"] = params.to_dict()
     if dt is not None:  # (only when given: keeps the hash of earlier builds)

@@ -51,8 +51,13 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time", default=None,
                    help="time landscape: a constant in s, or a Python expression of the target "
                         "coordinates x, y, z in mm (e.g. '30 + 0.5*z'); default: the shape's own")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="multiply the input mesh coordinates by this factor (e.g. 1000 for metres)")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--scale", type=float, default=1.0,
+                      help="multiply the input mesh coordinates by this factor (e.g. 1000 for "
+                           "metres)")
+    size.add_argument("--size", type=float, default=None, metavar="MM",
+                      help="scale the input so that its largest bounding-box extent is MM mm "
+                           "(for unitless meshes)")
     p.add_argument("--flattening", choices=("cetm", "lscm"), default="cetm",
                    help="conformal flattening method (default: cetm)")
     p.add_argument("--stencil-order", action="store_true",
@@ -204,7 +209,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
     if cmd == "build":
         from .build import build
         result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
-                       scale=args.scale, flattening=args.flattening,
+                       scale=args.scale, size=args.size, flattening=args.flattening,
                        stencil_order=args.stencil_order, material=args.material,
                        refine=args.refine, program=not args.no_program,
                        render=not args.no_render, simulate=not args.no_sim,
@@ -215,7 +220,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
     if cmd == "design":
         from .build import design_only
         design_only(args.shape, out=args.out, vertices=args.vertices, time=args.time,
-                    scale=args.scale, flattening=args.flattening,
+                    scale=args.scale, size=args.size, flattening=args.flattening,
                     stencil_order=args.stencil_order, progress=progress,
                     params=_unit_cell(args))
         return EXIT_OK

@@ -49,17 +49,22 @@ class _Clock:
                   f"(total {now - self._start:6.1f} s)", file=sys.stderr, flush=True)
 
 
-def _load_source(source, scale: float):
-    """Returns (surface-like object, kind, source description, hash)."""
+def _load_source(source, scale: float, size=None):
+    """Returns (surface-like object, kind, source description, hash, input mesh or None,
+    factor applied to the input coordinates: ``scale``, or the one that ``size`` asks for)."""
     from . import surfaces
 
     if isinstance(source, surfaces.Surface):
         h = hashlib.sha256(np.ascontiguousarray(source.V).tobytes()).hexdigest()[:16]
-        return source, "builtin", source.name, h, None
+        return source, "builtin", source.name, h, None, 1.0
     src = str(source)
     p = Path(src)
     if not p.exists() and surfaces.is_builtin(src):
         surf = surfaces.builtin(src)
+        if size is not None:
+            from .mesh_input import size_factor
+
+            scale = size_factor(surf.V, size, src)
         if scale != 1.0:
             surf.V = surf.V * scale
             if surf.UV is not None:
@@ -69,17 +74,17 @@ def _load_source(source, scale: float):
                 surf.time = lambda X, t0=t0: t0(np.asarray(X) / scale)
             surf.remesh = {}
         h = hashlib.sha256(src.encode()).hexdigest()[:16]
-        return surf, "builtin", src, h, None
+        return surf, "builtin", src, h, None, scale
     if not p.exists():
         raise InputError(f"{src}: no such file and not a built-in shape",
                          fix=f"give a mesh file (OBJ, STL, PLY, OFF) or one of "
                              f"{', '.join(surfaces.BUILTIN)}")
     from .mesh_input import load_input
 
-    mesh = load_input(p, scale=scale)
+    mesh = load_input(p, scale=scale, size=size)
     h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
     surf = surfaces.Surface(p.stem, mesh.V, mesh.F, UV=mesh.UV)
-    return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh
+    return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh, mesh.scale
 
 
 def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -> Layout:
@@ -158,7 +163,7 @@ def check_unit_cell(params: UnitCell) -> None:
 
 
 def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cetm",
-                         thickness=0.5, params: UnitCell = UNIT_CELL) -> None:
+                         thickness=0.5, params: UnitCell = UNIT_CELL, size=None) -> None:
     """Check the design options (see :func:`run_design`) without running anything.
 
     Raises
@@ -176,6 +181,16 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
         raise InputError(f"--scale {scale!r} must be a positive number up to "
                          f"{LIMITS.max_scale:g}",
                          fix="e.g. --scale 1000 for a mesh in metres, 25.4 in inches")
+    if size is not None:
+        lo, hi = LIMITS.size_mm
+        if not (_is_number(size) and np.isfinite(size) and lo <= size <= hi):
+            raise InputError(f"--size {size!r} must be a length in mm from {lo:g} to {hi:g} "
+                             "(the largest bounding-box extent of the target)",
+                             fix="e.g. --size 106 for a shell 106 mm across")
+        if scale != 1.0:
+            raise InputError(f"--size {size:g} and --scale {scale:g} both set the input's "
+                             "size", fix="give one of them: --size MM for a unitless mesh, "
+                                         "--scale K for a mesh in other units")
     if not (params.thickness_min <= thickness <= params.thickness_max):
         raise InputError(f"thickness={thickness} mm outside {params.thickness_min}-"
                          f"{params.thickness_max} mm")
@@ -190,7 +205,8 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
 
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
-               stencil_order=False, progress=True, plots=True, seed=None) -> dict:
+               stencil_order=False, progress=True, plots=True, seed=None,
+               size=None) -> dict:
     """Design a shell and write the design folder.
 
     Parameters
@@ -208,6 +224,10 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         use the final target coordinates (``stencil.obj`` v, mm, centred).
     scale : float
         Factor applied to the input coordinates (e.g. 10 for a mesh in cm).
+    size : float, mm, optional
+        Scale the input instead so that its largest bounding-box extent is ``size`` mm
+        (unitless meshes; exclusive with ``scale``).  The size checks and every message
+        see the scaled coordinates.
     flattening : {"cetm", "lscm"}
         Conformal flattening used for the layout (both are computed and compared).
     params : UnitCell
@@ -232,10 +252,10 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         checks and timings per stage (also in ``design.json``).
     """
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
-                         thickness=thickness, params=params)
+                         thickness=thickness, params=params, size=size)
     out_dir = Path(out_dir)
     clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
-    surf, kind, src_desc, src_hash, mesh = _load_source(source, scale)
+    surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size)
     check_time_source(time, mesh)
     clock.step("load")
 
@@ -300,10 +320,9 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     th = np.full((len(lay.cells.faces), 2), float(thickness))
     clock.step("time")
 
-    # messages name places in the user's input: target = (V0 - centre) * scale3d, V0 in
-    # input units * scale
-    report = check_layout(lay, params, raise_=False,
-                          to_input=lambda P: (np.asarray(P) / lay.scale3d + center) / scale)
+    # messages name places on the target in mm (the scaled, centred stencil.obj v): the
+    # input may be unitless (--size) or in other units (--scale)
+    report = check_layout(lay, params, raise_=False)
     from .flatten import distortion_metrics
 
     dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
@@ -327,7 +346,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
         "vertices": vertices, "seed": seed,
         "time": time if isinstance(time, (str, int, float, type(None))) else "array",
-        "scale": scale, "flattening": flattening, "thickness_mm": thickness,
+        "scale": scale, "size_mm": size, "input_scale": input_scale,
+        "flattening": flattening, "thickness_mm": thickness,
         "central_length_mm": cl, "stencil_order": stencil_order,
         "params": params.to_dict(),
         "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
