@@ -48,9 +48,15 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vertices", type=int, default=None,
                    help="number of stencil vertices N (default: estimated from the area, then "
                         "searched to minimise stencil scaling)")
-    p.add_argument("--time", default=None,
-                   help="time landscape: a constant in s, or a Python expression of the target "
-                        "coordinates x, y, z in mm (e.g. '30 + 0.5*z'); default: the shape's own")
+    tl = p.add_mutually_exclusive_group()
+    tl.add_argument("--time", default=None,
+                    help="time landscape: a constant in s, or a Python expression of the "
+                         "target coordinates x, y, z in mm (e.g. '30 + 0.5*z'); default: the "
+                         "shape's own")
+    tl.add_argument("--time-file", default=None, metavar="FILE",
+                    help="time landscape as a CSV of one time (s) per vertex of the input mesh, "
+                         "in file order (one column, optional header); carried onto the "
+                         "stencil by interpolation, used as given for a stencil OBJ")
     size = p.add_mutually_exclusive_group()
     size.add_argument("--scale", type=float, default=1.0,
                       help="multiply the input mesh coordinates by this factor (e.g. 1000 for "
@@ -210,6 +216,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
         from .build import build
         result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
                        scale=args.scale, size=args.size, flattening=args.flattening,
+                       time_file=args.time_file,
                        stencil_order=args.stencil_order, material=args.material,
                        refine=args.refine, program=not args.no_program,
                        render=not args.no_render, simulate=not args.no_sim,
@@ -221,6 +228,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
         from .build import design_only
         design_only(args.shape, out=args.out, vertices=args.vertices, time=args.time,
                     scale=args.scale, size=args.size, flattening=args.flattening,
+                    time_file=args.time_file,
                     stencil_order=args.stencil_order, progress=progress,
                     params=_unit_cell(args))
         return EXIT_OK

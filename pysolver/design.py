@@ -27,7 +27,13 @@ from .checks import check_layout
 from .errors import InputError
 from .layout import Layout, build_layout
 from .params import LIMITS, UNIT_CELL, UnitCell
-from .time_landscape import cell_times, check_time_option, check_time_source, resolve_time
+from .time_landscape import (
+    cell_times,
+    check_time_option,
+    check_time_source,
+    read_time_file,
+    resolve_time,
+)
 
 FLATTENINGS = ("cetm", "lscm")
 
@@ -85,6 +91,34 @@ def _load_source(source, scale: float, size=None):
     h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
     surf = surfaces.Surface(p.stem, mesh.V, mesh.F, UV=mesh.UV)
     return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh, mesh.scale
+
+
+def _time_file_source(path, mesh, surf, stencil_order: bool):
+    """The ``time`` source for ``--time-file``: the values as they are (an array per stencil
+    vertex) for a finished stencil, else a vertex attribute of the input mesh that
+    :func:`~pysolver.time_landscape.resolve_time` interpolates (``vertex:<name>``).
+
+    Returns
+    -------
+    time : (n,) float array or str
+    info : dict -- ``path``, ``sha256``, ``values``, ``carried`` (recorded in design.json)
+    """
+    from .time_landscape import TIME_FILE_ATTRIBUTE, read_time_file, time_file_per_vertex
+
+    values, sha = read_time_file(path)
+    if mesh is None:
+        raise InputError(f"--time-file {path} gives values per vertex of an input mesh; "
+                         f"{surf.name} is a built-in shape",
+                         fix="give the time landscape of a built-in shape with --time "
+                             "(an expression of x, y, z in mm), or design a mesh file")
+    t = time_file_per_vertex(values, mesh, str(path))
+    info = {"path": str(path), "sha256": sha, "values": int(len(values))}
+    if surf.UV is not None or stencil_order:  # the stencil is the input: vertex-aligned
+        info["carried"] = "used as given: the input is the stencil"
+        return t, info
+    mesh.vertex_attributes = dict(mesh.vertex_attributes or {}, **{TIME_FILE_ATTRIBUTE: t})
+    info["carried"] = "barycentric interpolation on the input surface"
+    return f"vertex:{TIME_FILE_ATTRIBUTE}", info
 
 
 def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -> Layout:
@@ -163,7 +197,8 @@ def check_unit_cell(params: UnitCell) -> None:
 
 
 def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cetm",
-                         thickness=0.5, params: UnitCell = UNIT_CELL, size=None) -> None:
+                         thickness=0.5, params: UnitCell = UNIT_CELL, size=None,
+                         time_file=None) -> None:
     """Check the design options (see :func:`run_design`) without running anything.
 
     Raises
@@ -201,12 +236,17 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
                          "beyond any print tray)",
                          fix="omit --vertices to let the design search it")
     check_time_option(time)
+    if time_file is not None:
+        if time is not None:
+            raise InputError(f"--time {time!r} and --time-file {time_file} both give the time "
+                             "landscape", fix="give one of them")
+        read_time_file(time_file)  # format and values now; the count once the mesh is read
 
 
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
                stencil_order=False, progress=True, plots=True, seed=None,
-               size=None) -> dict:
+               size=None, time_file=None) -> dict:
     """Design a shell and write the design folder.
 
     Parameters
@@ -228,6 +268,11 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         Scale the input instead so that its largest bounding-box extent is ``size`` mm
         (unitless meshes; exclusive with ``scale``).  The size checks and every message
         see the scaled coordinates.
+    time_file : str or Path, optional
+        CSV of one time (s) per vertex of the input mesh, in file order (exclusive with
+        ``time``; :func:`pysolver.time_landscape.read_time_file`).  Carried onto the stencil
+        by barycentric interpolation on the input surface, the path of a PLY vertex
+        property; for a finished stencil (OBJ with vt, or ``stencil_order``) used as given.
     flattening : {"cetm", "lscm"}
         Conformal flattening used for the layout (both are computed and compared).
     params : UnitCell
@@ -252,10 +297,13 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         checks and timings per stage (also in ``design.json``).
     """
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
-                         thickness=thickness, params=params, size=size)
+                         thickness=thickness, params=params, size=size, time_file=time_file)
     out_dir = Path(out_dir)
     clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
     surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size)
+    time_opt, time_file_info = time, None
+    if time_file is not None:
+        time, time_file_info = _time_file_source(time_file, mesh, surf, stencil_order)
     check_time_source(time, mesh)
     clock.step("load")
 
@@ -316,6 +364,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         if mesh is not None:
             src_mesh = mesh.transformed(-center, lay.scale3d)
         t_vertex, t_desc = resolve_time(time, lay.V, source_mesh=src_mesh)
+        if time_file_info is not None:
+            t_desc = f"--time-file {time_file_info['path']}, {time_file_info['carried']}"
     t_star = cell_times(t_vertex, lay.cells.verts)
     th = np.full((len(lay.cells.faces), 2), float(thickness))
     clock.step("time")
@@ -345,7 +395,9 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     options = {
         "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
         "vertices": vertices, "seed": seed,
-        "time": time if isinstance(time, (str, int, float, type(None))) else "array",
+        "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
+                 else "array"),
+        "time_file": time_file_info,
         "scale": scale, "size_mm": size, "input_scale": input_scale,
         "flattening": flattening, "thickness_mm": thickness,
         "central_length_mm": cl, "stencil_order": stencil_order,

@@ -56,6 +56,10 @@ class InputMesh:
     kind : "stencil" or "mesh"
     notes : list of str
     scale : float -- factor applied to the file's coordinates (``scale``, or from ``size``)
+    file_index : (n,) int or None -- index of each vertex in the file's own vertex list
+        (before welding and removing unreferenced vertices), for per-vertex data given in
+        file order (``--time-file``)
+    file_vertices : int -- number of vertices in the file
     """
 
     V: np.ndarray
@@ -67,12 +71,15 @@ class InputMesh:
     kind: str = "mesh"
     notes: list = field(default_factory=list)
     scale: float = 1.0
+    file_index: np.ndarray | None = None
+    file_vertices: int = 0
 
     def transformed(self, shift, scale: float) -> InputMesh:
         """Copy with ``V' = (V + shift) * scale`` (to follow the stencil's centring/scaling)."""
-        return InputMesh((self.V + np.asarray(shift)) * scale, self.F, self.UV,
-                         self.vertex_attributes, self.colors, self.path, self.kind, self.notes,
-                         self.scale * scale)
+        import dataclasses
+
+        return dataclasses.replace(self, V=(self.V + np.asarray(shift)) * scale,
+                                   scale=self.scale * scale)
 
 
 def _obj_has_vt(path: Path) -> bool:
@@ -212,7 +219,8 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
             if size is not None:
                 scale = size_factor(V, size, str(path))
             mesh = InputMesh(V * scale, F, None if UV is None else UV * scale, path=path,
-                             kind="stencil" if UV is not None else "mesh", scale=scale)
+                             kind="stencil" if UV is not None else "mesh", scale=scale,
+                             file_index=np.arange(len(V)), file_vertices=len(V))
             if validate:
                 validate_surface(mesh.V, mesh.F, str(path))
             return mesh
@@ -222,6 +230,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
             notes.append("vt ignored: the texture layout has seams (not a stencil)")
     m = _read_trimesh(path)
     V = np.asarray(m.vertices, float) * scale
+    file_index = np.arange(len(V))
     F = np.asarray(m.faces, dtype=np.int64)
     attrs = {}
     raw = getattr(m, "metadata", {}).get("_ply_raw") if ext == ".ply" else None
@@ -241,6 +250,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
     if n_welded:
         notes.append(f"{n_welded} coincident vertices welded")
         V = V[keep]
+        file_index = file_index[keep]
         attrs = {k: v[keep] for k, v in attrs.items()}
         colors = None if colors is None else colors[keep]
     used = np.unique(F)
@@ -249,12 +259,14 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
         remap = -np.ones(len(V), dtype=np.int64)
         remap[used] = np.arange(len(used))
         V, F = V[used], remap[F]
+        file_index = file_index[used]
         attrs = {k: v[used] for k, v in attrs.items()}
         colors = None if colors is None else colors[used]
     if size is not None:  # measured on the vertices the faces use
         scale = size_factor(V, size, str(path))
         V = V * scale
-    mesh = InputMesh(V, F, None, attrs, colors, path, "mesh", notes, scale)
+    mesh = InputMesh(V, F, None, attrs, colors, path, "mesh", notes, scale, file_index,
+                     int(len(m.vertices)))
     if validate:
         validate_surface(mesh.V, mesh.F, str(path))
     return mesh

@@ -187,6 +187,8 @@ class Limits:
         Longer than 2 mm, the bumpers would reach past the bracket's roots.
     min_gap_mm : (float, float), mm
         Range of ``--min-gap`` (flat gap between facing bumper tips, 2D scaling rule).
+    max_time_file_bytes : int, bytes
+        Largest ``--time-file`` read (one number per line: millions of vertices).
     max_cell_length_mm : float, mm
         Upper bound of ``--max-cell-length`` (flat central length of a unit cell): the
         bracket model's last measured length (l = 9.0 mm, ``bracket_length_mm`` grid end
@@ -207,6 +209,7 @@ class Limits:
     min_bumper_mm: tuple = (0.0, 2.0)
     min_gap_mm: tuple = (0.0, 2.0)
     max_cell_length_mm: float = 9.5
+    max_time_file_bytes: int = 64 * 1024 * 1024
 
 
 LIMITS = Limits()
