@@ -133,6 +133,40 @@ class SimConstants:
 
 
 @dataclass(frozen=True)
+class SupportFrame:
+    """The support frame printed around each layer (``scad/support_frame.scad``), mm.
+
+    Attributes
+    ----------
+    offset_in, offset_out : float, mm
+        The ring lies between these offsets of the flat outline (reference: 6 and 9);
+        the same values as ``FRAME_OFFSET_IN``/``FRAME_OFFSET_OUT`` of ``scad/params.scad``.
+    connector_w : float, mm
+        Square section of a breakaway connector (``CONNECTOR_W``).
+    connector_r0 : float, mm
+        Connectors start this far from the base centre, inside the base (``CONNECTOR_R0``).
+    spacing : float, mm
+        A boundary base gets a connector only if no connected base lies within this flat
+        distance (greedy in base order, as the reference).
+    connector_max_reach : float, mm
+        Longest connector beyond its base's boundary edge.  Each connector ends in the
+        middle of the ring along its own direction; where the ring is farther (deep in a
+        notch of the outline) or the direction crosses the shell again, the base gets no
+        connector and the next boundary base is tried.
+    step : float, mm
+        Sampling step along a connector when its end in the ring is searched.
+    """
+
+    offset_in: float = 6.0
+    offset_out: float = 9.0
+    connector_w: float = 0.5
+    connector_r0: float = 1.0
+    spacing: float = 30.0
+    connector_max_reach: float = 15.0
+    step: float = 0.02
+
+
+@dataclass(frozen=True)
 class Tolerances:
     """Every geometric and solver tolerance, named (trimesh's ``tol`` habit).
 
@@ -278,6 +312,7 @@ class ModelFileRules:
 
 
 UNIT_CELL = UnitCell()
+SUPPORT_FRAME = SupportFrame()
 SIM = SimConstants()
 tol = Tolerances()
 MODEL_FILES = ModelFileRules()
@@ -297,4 +332,5 @@ def layer_sign(layer) -> int:
 
 
 __all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
+           "SupportFrame", "SUPPORT_FRAME",
            "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign"]
