@@ -17,7 +17,7 @@ from pysolver.time_landscape import evaluate_expression, resolve_time
 GOLDEN = {
     "regular": (60, 7.0),
     "dome": (113, 8.94),
-    "saddle": (114, 8.80),
+    "saddle": (114, 8.75),  # 8.80 before the gap check measured the printed bumpers
     "petal": (191, 9.45),
     "spiral": (157, 9.29),
     "weave": (255, 5.86),
