@@ -255,3 +255,36 @@ def test_time_file_on_a_remeshed_surface_is_interpolated(grid, tmp_path):
     # s, against a 30 s span: within 5e-5 mm of the surface, the slope 0.3 s/mm
     assert np.abs(A @ coef - d.time).max() < 1e-4
     assert "interpolation" in summary["time"]["source"]
+
+
+def test_make_passes_the_options_as_data(stencil, tmp_path):
+    """``make design ... TIMEFILE=f ARGS="--min-bumper 0.1 ..."``: the options arrive as words,
+    a hostile TIMEFILE is a file name, not a command."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    path, V, _F = stencil
+    tf = tmp_path / "t s.csv"  # (a space: one word all the same)
+    tf.write_text("time_s\n" + "".join(f"{40.0 + i % 7}\n" for i in range(len(V))))
+
+    def make(*var):
+        return subprocess.run(
+            ["make", "-s", "-f", str(repo / "Makefile"), "-o", ".venv/.installed",
+             f"PY={sys.executable}", "design", f"shape={path}", *var],
+            cwd=tmp_path, capture_output=True, text=True, timeout=300,
+            env=dict(os.environ, PYTHONPATH=str(repo)))
+
+    r = make(f"TIMEFILE={tf}",
+             "ARGS=--quiet --no-program --size 60 --min-bumper 0.1 --min-gap 0.2 --out out")
+    assert r.returncode == 0, r.stderr
+    opts = json.loads((tmp_path / "out" / "design.json").read_text())["options"]
+    assert opts["params"]["min_bumper"] == 0.1 and opts["params"]["min_gap"] == 0.2
+    assert opts["time_file"]["path"] == str(tf) and opts["size_mm"] == 60.0
+    pwn = tmp_path / "pwned"
+    r = make(f'TIMEFILE=x"; touch {pwn}; echo "$(shell touch {pwn}-2)`touch {pwn}-3`',
+             "ARGS=--quiet --size 60 --out out2")
+    assert r.returncode == 2 and "no such file" in r.stderr, r.stderr
+    assert list(tmp_path.glob("pwned*")) == []
