@@ -155,6 +155,11 @@ class SupportFrame:
         connector and the next boundary base is tried.
     step : float, mm
         Sampling step along a connector when its end in the ring is searched.
+    hole_margin : float, mm
+        Holes of the ring's inner offset (which would leave loose ring islands) are filled
+        grown by this much, to overlap the inner offset whatever its faceting.
+    circle_segments : int
+        Segments per full circle of the round offsets computed in Python (manifold3d).
     """
 
     offset_in: float = 6.0
@@ -164,6 +169,8 @@ class SupportFrame:
     spacing: float = 30.0
     connector_max_reach: float = 15.0
     step: float = 0.02
+    hole_margin: float = 0.1
+    circle_segments: int = 256
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ function support_frame_bar(centre, dir, length, r0=CONNECTOR_R0) =
 
 // Module: support_frame()
 // Usage:
-//   support_frame(outline, [connectors], [layer], [offset_in], [offset_out], [bar_w], [height]);
+//   support_frame(outline, [connectors], [layer], [offset_in], [offset_out], [bar_w], [height], [holes]);
 // Description:
 //   The support frame of one layer in the flat shell frame: a ring between the
 //   offsets offset_in and offset_out (rounded) of the flat outline of the
@@ -46,6 +46,9 @@ function support_frame_bar(centre, dir, length, r0=CONNECTOR_R0) =
 //   side bar_w per entry of `connectors`, lying on the far face (printed on the
 //   bed) and reaching from inside the base into the ring (support_frame_bar();
 //   the lengths are computed for offset_in/offset_out by pysolver.scad_io).
+//   `holes` are filled in the inner offset: where a notch of the outline is
+//   wider inside than at its mouth, the inner offset has a hole and the ring
+//   would get a loose island around it (pysolver.scad_io.frame_holes).
 // Arguments:
 //   outline = flat boundary loop of the stencil, list of [x, y], mm (support_frame.csv)
 //   connectors = list of [[x, y] base centre, outward dir (deg), length from the centre (mm)]. Default: []
@@ -54,8 +57,11 @@ function support_frame_bar(centre, dir, length, r0=CONNECTOR_R0) =
 //   offset_out = outer ring offset, mm. Default: FRAME_OFFSET_OUT (9)
 //   bar_w = connector section side, mm. Default: CONNECTOR_W (0.5)
 //   height = layer height, mm. Default: LAYER_H (2.3)
+//   holes = polygons (lists of [x, y], mm) added to the inner offset. Default: []
+// Example:
+//   support_frame([[0, 0], [40, 0], [40, 30], [0, 30]], [[[20, 2], -90, 9.5]]);
 module support_frame(outline, connectors=[], layer="top", offset_in=FRAME_OFFSET_IN,
-                     offset_out=FRAME_OFFSET_OUT, bar_w=CONNECTOR_W, height=LAYER_H) {
+                     offset_out=FRAME_OFFSET_OUT, bar_w=CONNECTOR_W, height=LAYER_H, holes=[]) {
     assert(is_list(outline) && len(outline) >= 3,
            "support_frame(): outline must be a list of at least 3 [x, y] points (mm)");
     assert(abs(polygon_area(outline)) > 0, "support_frame(): the outline has zero area");
@@ -63,13 +69,18 @@ module support_frame(outline, connectors=[], layer="top", offset_in=FRAME_OFFSET
            str("support_frame(): need 0 < offset_in < offset_out, got ", offset_in, ", ", offset_out));
     assert(is_num(bar_w) && bar_w > 0 && bar_w <= height,
            str("support_frame(): bar_w must be in (0, ", height, "] mm, got ", bar_w));
+    assert(is_list(holes) && len([for (h = holes) if (!is_list(h) || len(h) < 3) 1]) == 0,
+           "support_frame(): holes must be a list of polygons of at least 3 [x, y] points");
     assert(layer == "top" || layer == "bottom",
            str("support_frame(): layer must be \"top\" or \"bottom\", got ", layer));
     mirror([0, 0, layer == "top" ? 0 : 1]) {
         linear_extrude(height=height)
             difference() {
                 offset(r=offset_out, $fn=facets(offset_out)) polygon(outline);
-                offset(r=offset_in, $fn=facets(offset_in)) polygon(outline);
+                union() {
+                    offset(r=offset_in, $fn=facets(offset_in)) polygon(outline);
+                    for (h = holes) polygon(h);
+                }
             }
         for (c = connectors) {
             bar = support_frame_bar(c[0], c[1], c[2]);

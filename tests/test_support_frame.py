@@ -17,7 +17,13 @@ from matplotlib.path import Path as MplPath
 
 from pysolver.params import SUPPORT_FRAME as SF
 from pysolver.params import UNIT_CELL as U
-from pysolver.scad_io import boundary_edges, frame_connectors, ring_reach, write_part_files
+from pysolver.scad_io import (
+    boundary_edges,
+    frame_connectors,
+    frame_holes,
+    ring_reach,
+    write_part_files,
+)
 from pysolver.tables import read_design, write_stencil
 
 
@@ -56,21 +62,38 @@ def _outline_distance(P, X):
     return np.linalg.norm(X[:, None] - (A + t[..., None] * AB), axis=2).min(1)
 
 
-@pytest.fixture(scope="module")
-def design(tmp_path_factory):
+# notch (x0, x1) in lattice units: narrow everywhere (< 2 offset_in), or wider inside than
+# at its zig-zag mouth, so the ring's inner offset has holes (loose ring islands before the
+# holes were filled)
+NOTCHES = {"narrow": (4.4, 5.4), "bottleneck": (4.4, 5.6)}
+
+
+@pytest.fixture(scope="module", params=sorted(NOTCHES))
+def design(tmp_path_factory, request):
     from pysolver.design import run_design
 
-    root = tmp_path_factory.mktemp("frame")
-    V2, F = u_patch()
+    root = tmp_path_factory.mktemp(f"frame_{request.param}")
+    V2, F = u_patch(notch=(*NOTCHES[request.param], 3.0))
     write_stencil(root / "u.obj", np.c_[V2, np.zeros(len(V2))], V2, F)
     run_design(root / "u.obj", root / "d", size=60.0, plots=False, progress=False)
-    return read_design(root / "d"), root
+    return read_design(root / "d"), root, request.param
+
+
+def test_holes_of_the_inner_offset(design):
+    """The bottleneck notch leaves holes in the inner offset (3 here), the narrow one none;
+    every hole point is farther than offset_in from the outline, up to the margin."""
+    d, _, kind = design
+    holes = frame_holes(d.support)
+    assert len(holes) == (3 if kind == "bottleneck" else 0)
+    for h in holes:
+        r = _outline_distance(d.support, h)
+        assert r.min() >= SF.offset_in - SF.hole_margin - 1e-3
 
 
 def test_a_fixed_length_would_end_short_in_the_notch(design):
     """The test shape has the petal's problem: from some boundary bases the fixed-length
     connector (edge distance + offset_out - bar width) ends outside the ring."""
-    d, _ = design
+    d, _, _kind = design
     P = d.support
     ends = np.array([c + (dist + SF.offset_out - SF.connector_w) * n
                      for _b, c, n, dist in boundary_edges(d)])
@@ -80,8 +103,10 @@ def test_a_fixed_length_would_end_short_in_the_notch(design):
 
 
 def test_every_connector_ends_in_the_ring(design):
-    d, _ = design
+
+    d, _, _kind = design
     P = d.support
+    holes = frame_holes(P)
     con = frame_connectors(d)
     assert len(con) >= 4
     C = np.array([c for c, _a, _l in con])
@@ -90,6 +115,8 @@ def test_every_connector_ends_in_the_ring(design):
     r_end = _outline_distance(P, C + L[:, None] * u)
     mid = 0.5 * (SF.offset_in + SF.offset_out)
     assert r_end == pytest.approx(np.full(len(con), mid), abs=SF.step)
+    for h in holes:  # not in a filled hole
+        assert not MplPath(h).contains_points(C + L[:, None] * u).any()
     # and every point of the bar beyond its base stays outside the shell
     for c, uu, length in zip(C, u, L, strict=True):
         s = np.linspace(U.base_r + 1.0, length, 200)
@@ -120,7 +147,7 @@ def test_frame_stl_is_one_body_and_every_connector_joins_base_and_ring(design):
 
     from pysolver.render import load_stl, render_parts, to_manifold
 
-    d, root = design
+    d, root, _kind = design
     parts = [p for p in write_part_files(root / "d", root / "scad", actuated=False, design=d)
              if p.kind == "frame"]
     res = render_parts(parts, cache_dir=root / "cache", progress=False, renderer="openscad")
