@@ -15,6 +15,7 @@ MATERIAL   ?=
 DATA       ?=
 VERTICES   ?=
 TIME       ?=
+TIMEFILE   ?=
 JOBS       ?=
 ARGS       ?=
 PYTHON     ?= python3
@@ -30,7 +31,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 # User values reach the shell only through the environment, quoted ("$$MS_TIME"), never
 # pasted into a recipe: a quote or $(...) in TIME, a path or ARGS is text, not a command.
 # `override X := $(value X)` also stops make itself from expanding $(...) in them.
-USER_VARS  := shape SURFACE MATERIAL DATA VERTICES TIME REFINE JOBS ARGS OUT
+USER_VARS  := shape SURFACE MATERIAL DATA VERTICES TIME TIMEFILE REFINE JOBS ARGS OUT
 $(foreach v,$(USER_VARS),$(eval override $(v) := $$(value $(v))))
 export MS_SOURCE   := $(if $(SURFACE),$(SURFACE),$(shape))
 export MS_NAME     := $(notdir $(basename $(MS_SOURCE)))
@@ -38,6 +39,7 @@ export MS_MATERIAL := $(MATERIAL)
 export MS_DATA     := $(DATA)
 export MS_VERTICES := $(VERTICES)
 export MS_TIME     := $(TIME)
+export MS_TIMEFILE := $(TIMEFILE)
 export MS_REFINE   := $(REFINE)
 export MS_JOBS     := $(JOBS)
 export MS_ARGS     := $(ARGS)
@@ -48,7 +50,8 @@ unexport $(USER_VARS)
 # which is split into words on spaces).
 BUILD_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
               $${MS_VERTICES:+--vertices "$$MS_VERTICES"} \
-              $${MS_TIME:+--time "$$MS_TIME"} $${MS_REFINE:+--refine "$$MS_REFINE"} \
+              $${MS_TIME:+--time "$$MS_TIME"} $${MS_TIMEFILE:+--time-file "$$MS_TIMEFILE"} \
+              $${MS_REFINE:+--refine "$$MS_REFINE"} \
               $${MS_JOBS:+--jobs "$$MS_JOBS"} $$MS_ARGS
 RUN        := set -f;
 

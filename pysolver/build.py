@@ -135,9 +135,12 @@ def design_only(source: str, *, out=None, progress: bool = True, **options) -> d
     from .design import check_design_options, run_design
 
     check_design_options(**{k: v for k, v in options.items()
-                            if k in ("vertices", "time", "scale", "flattening")})
+                            if k in ("vertices", "time", "scale", "flattening", "params",
+                                     "size", "time_file")})
     name = shape_name(source)
-    out = claim_output(out or BUILD_ROOT / name, what="output folder", inputs=[source])
+    out = claim_output(out or BUILD_ROOT / name, what="output folder",
+                       inputs=[source] + ([options["time_file"]] if options.get("time_file")
+                                          else []))
     with build_lock(out):
         recover_stale(out)
         with atomic_dir(out) as tmp:
@@ -195,7 +198,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
           refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
           progress: bool = True, renderer=None, keep_failed: bool = False,
-          solver: str = "fast") -> dict:
+          solver: str = "fast", params=None, size=None, time_file=None) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -205,7 +208,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         ``regular``) or a path to a mesh / stencil OBJ.
     out : path-like, optional
         Output folder (default ``build/<name>``).
-    vertices, time, scale, flattening, stencil_order
+    vertices, time, time_file, scale, size, flattening, stencil_order
         Design options, see :func:`pysolver.design.run_design`.
     material : path-like, optional
         Bracket model file (default: the committed model).
@@ -224,6 +227,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         :data:`pysolver.render.DEFAULT_RENDERER`), see :func:`pysolver.render.render_parts`.
     solver : {"fast", "reference"}
         Linear-algebra path of the simulations (:data:`sim.solver.SOLVERS`; same results).
+    params : UnitCell, optional
+        Unit cell with the user's tolerances (:func:`pysolver.design.unit_cell_options`);
+        default :data:`pysolver.params.UNIT_CELL`.  Later stages read it from ``design.json``.
     keep_failed : bool
         Keep the staging folder of a build whose stage fails (``--debug``); by default it
         is removed, so a failed build leaves nothing behind.
@@ -237,18 +243,31 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
 
     validate_model_files(material)  # material + membrane model files, before any stage
     from .design import check_design_options
+    from .params import UNIT_CELL
 
-    check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening)
+    params = UNIT_CELL if params is None else params
+    check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
+                         params=params, size=size, time_file=time_file)
     check_build_options(jobs=jobs, t_end=t_end, dt=dt, refine=refine, render=render,
                         simulate=simulate, renderer=renderer)
     name = shape_name(source)
     # absolute: stages may run external tools in other working directories (OpenSCAD)
     out = claim_output(out or BUILD_ROOT / name, what="output folder",
-                       inputs=[source, material])
+                       inputs=[source, material, time_file])
     design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
-                       stencil_order=stencil_order)
+                       stencil_order=stencil_order, params=params)
     all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
                     program=program, t_end=t_end)
+    all_opts.pop("params")
+    if size is not None:  # (only when given, as dt and params)
+        design_opts["size"] = all_opts["size"] = size
+    if time_file is not None:  # the file's content is an input: its hash goes into the digest
+        from .time_landscape import read_time_file
+
+        design_opts["time_file"] = all_opts["time_file"] = str(time_file)
+        all_opts["time_file_sha256"] = read_time_file(time_file)[1]
+    if params != UNIT_CELL:  # (only when changed: keeps the hash of earlier builds)
+        all_opts["params"] = params.to_dict()
     if dt is not None:  # (only when given: keeps the hash of earlier builds)
         all_opts["dt"] = dt
     digest = inputs_hash(source, all_opts)
@@ -293,7 +312,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             # A shape's own landscape gives the order of completion; its seconds are mapped
             # onto what the material can achieve.  A user's landscape is only checked.
             stage("program", program_design, staging, material=material, progress=progress,
-                  fit_landscape=time is None)
+                  fit_landscape=time is None and time_file is None)
         if simulate:
             from sim.simulate import simulate_design
             kw = {} if t_end is None else {"t_end": t_end}

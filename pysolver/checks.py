@@ -44,9 +44,14 @@ class CheckReport:
                 "warnings": list(self.warnings), "figures": self.figures}
 
 
-def _where(P: np.ndarray, frame: str = "target") -> str:
-    c = P.mean(axis=0)
-    return f"around {frame} ({c[0]:.0f}, {c[1]:.0f}, {c[2]:.0f}) mm"
+def _xyz(p) -> str:
+    """``(12.3, -40.1, 5.0)``: a point in mm to 0.1 mm (no ``-0.0``)."""
+    p = np.round(np.asarray(p, float), 1) + 0.0
+    return f"({p[0]:.1f}, {p[1]:.1f}, {p[2]:.1f})"
+
+
+def _where(P: np.ndarray, frame: str = "on the target") -> str:
+    return f"around {_xyz(P.mean(axis=0))} mm {frame}"
 
 
 def _region(P: np.ndarray, on_rim: np.ndarray) -> str:
@@ -57,9 +62,9 @@ def _region(P: np.ndarray, on_rim: np.ndarray) -> str:
     P : (k, 3) float, mm -- item positions
     on_rim : (k,) bool -- item touches a boundary base
     """
-    c = np.round(P.mean(axis=0)) + 0.0  # no "-0"
+    c = P.mean(axis=0)
     r = float(np.linalg.norm(P - c, axis=1).max(initial=0.0))
-    s = f"region centred at ({c[0]:.0f}, {c[1]:.0f}, {c[2]:.0f}) mm, radius {r:.0f} mm"
+    s = f"region centred at {_xyz(c)} mm, radius {r:.1f} mm"
     nb = int(np.sum(on_rim))
     if nb * 2 >= len(P):
         s += f", mostly along the rim ({nb} of {len(P)} next to the boundary)"
@@ -72,8 +77,7 @@ def _worst(ids, pos, score, k=4) -> str:
     """``id at (x, y, z)`` for the k worst items (highest score), + how many in all."""
     ids = np.asarray(ids)
     order = ids[np.argsort(-score[ids], kind="stable")]
-    parts = [f"{int(i)} at ({pos[i, 0]:.0f}, {pos[i, 1]:.0f}, {pos[i, 2]:.0f}) mm"
-             for i in order[:k]]
+    parts = [f"{int(i)} at {_xyz(pos[i])} mm" for i in order[:k]]
     return "; ".join(parts) + (f"; ... ({len(ids)} in all)" if len(ids) > k else "")
 
 
@@ -131,18 +135,19 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     raise_ : bool
         Raise InputError when there are errors.
     to_input : callable((k, 3) float) -> (k, 3) float, optional
-        Maps target-frame points (the layout's centred, scaled ``V``) to the user's input
-        coordinates; messages then name places in the input (which the user can find in
-        their modeller) instead of the target frame (only written on success).
+        Maps target-frame points (the layout's centred, scaled ``V``, mm) to other
+        coordinates named in the messages.  By default messages give mm on the target
+        (``stencil.obj`` v: the input after ``--scale``/``--size``, centred and scaled by
+        the 3D rule), e.g. "at (12.3, -40.1, 5.0) mm on the target".
     """
     rep = CheckReport()
     cells = lay.cells
     l = lay.central_length
-    frame = "the target"
+    frame = "on the target"
     Fc = lay.Fc
     if to_input is not None:
         Fc = np.asarray(to_input(Fc), float)
-        frame = "the input's coordinates"
+        frame = "in the input's coordinates"
     cell_pos = 0.5 * (Fc[cells.faces[:, 0]] + Fc[cells.faces[:, 1]])
     rim_face = np.any(lay.ff < 0, axis=1)
     cell_rim = rim_face[cells.faces[:, 0]] | rim_face[cells.faces[:, 1]]
@@ -153,7 +158,7 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     if len(flipped):
         rep.errors.append((
             f"{len(flipped)} flipped triangle(s) in the flat layout (faces {_ids(flipped)}, "
-            f"{_where(Fc[flipped], frame.removeprefix('the '))})",
+            f"{_where(Fc[flipped], frame)})",
             "use flattening='cetm', improve the mesh quality there, or cut the surface"))
 
     # 2. cell length
@@ -161,7 +166,7 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     if len(too_long):
         rep.errors.append((
             f"{len(too_long)} unit cell(s) longer than {params.max_cell_length} mm (max "
-            f"{l.max():.2f} mm), in {frame}: cell {_worst(too_long, cell_pos, l)}; "
+            f"{l.max():.2f} mm), {frame}: cell {_worst(too_long, cell_pos, l)}; "
             f"{_region(cell_pos[too_long], cell_rim[too_long])}",
             "the surface needs too much stretching or bending there: cut the surface "
             "through that region or reduce its curvature; the stencil's irregularity also "
@@ -187,8 +192,8 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
             over = np.flatnonzero(gaps.gap[bad] <= 0)
             kind = "overlap" if len(over) else f"are closer than {params.min_gap} mm"
             mid = 0.5 * (Fc[pairs[:, 0]] + Fc[pairs[:, 1]])
-            where = "; ".join(f"bases {a}-{b} ({g:.3f} mm) at ({m[0]:.0f}, {m[1]:.0f}, "
-                              f"{m[2]:.0f}) mm" for (a, b), g, m in
+            where = "; ".join(f"bases {a}-{b} ({g:.3f} mm) at {_xyz(m)} mm {frame}"
+                              for (a, b), g, m in
                               zip(pairs[:4], gaps.gap[bad][:4], mid[:4], strict=True))
             rep.errors.append((
                 f"{len(bad)} pair(s) of bases/bumpers {kind} in the flat layout (min gap "

@@ -48,15 +48,42 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vertices", type=int, default=None,
                    help="number of stencil vertices N (default: estimated from the area, then "
                         "searched to minimise stencil scaling)")
-    p.add_argument("--time", default=None,
-                   help="time landscape: a constant in s, or a Python expression of the target "
-                        "coordinates x, y, z in mm (e.g. '30 + 0.5*z'); default: the shape's own")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="multiply the input mesh coordinates by this factor (e.g. 1000 for metres)")
+    tl = p.add_mutually_exclusive_group()
+    tl.add_argument("--time", default=None,
+                    help="time landscape: a constant in s, or a Python expression of the "
+                         "target coordinates x, y, z in mm (e.g. '30 + 0.5*z'); default: the "
+                         "shape's own")
+    tl.add_argument("--time-file", default=None, metavar="FILE",
+                    help="time landscape as a CSV of one time (s) per vertex of the input mesh, "
+                         "in file order (one column, optional header); carried onto the "
+                         "stencil by interpolation, used as given for a stencil OBJ")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--scale", type=float, default=1.0,
+                      help="multiply the input mesh coordinates by this factor (e.g. 1000 for "
+                           "metres)")
+    size.add_argument("--size", type=float, default=None, metavar="MM",
+                      help="scale the input so that its largest bounding-box extent is MM mm "
+                           "(for unitless meshes)")
     p.add_argument("--flattening", choices=("cetm", "lscm"), default="cetm",
                    help="conformal flattening method (default: cetm)")
     p.add_argument("--stencil-order", action="store_true",
                    help="treat an OBJ with vt as a finished stencil: keep vertex/face order")
+    p.add_argument("--min-bumper", type=float, default=None, metavar="MM",
+                   help="minimal bumper length beyond the base rim, mm (default 0.3, the "
+                        "paper's; 3D scaling rule)")
+    p.add_argument("--min-gap", type=float, default=None, metavar="MM",
+                   help="minimal flat gap between facing bumper tips, mm (default 0.1; 2D "
+                        "scaling rule)")
+    p.add_argument("--max-cell-length", type=float, default=None, metavar="MM",
+                   help="longest printable unit cell (flat centre distance), mm (default 9.5)")
+
+
+def _unit_cell(args: argparse.Namespace):
+    """The design's unit cell from --min-bumper, --min-gap, --max-cell-length (checked)."""
+    from .design import unit_cell_options
+
+    return unit_cell_options(min_bumper=args.min_bumper, min_gap=args.min_gap,
+                             max_cell_length=args.max_cell_length)
 
 
 def _add_renderer_option(p: argparse.ArgumentParser) -> None:
@@ -188,19 +215,22 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
     if cmd == "build":
         from .build import build
         result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
-                       scale=args.scale, flattening=args.flattening,
+                       scale=args.scale, size=args.size, flattening=args.flattening,
+                       time_file=args.time_file,
                        stencil_order=args.stencil_order, material=args.material,
                        refine=args.refine, program=not args.no_program,
                        render=not args.no_render, simulate=not args.no_sim,
                        t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress,
                        renderer=args.renderer, keep_failed=getattr(args, "debug", False),
-                       solver=args.solver)
+                       solver=args.solver, params=_unit_cell(args))
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
         from .build import design_only
         design_only(args.shape, out=args.out, vertices=args.vertices, time=args.time,
-                    scale=args.scale, flattening=args.flattening,
-                    stencil_order=args.stencil_order, progress=progress)
+                    scale=args.scale, size=args.size, flattening=args.flattening,
+                    time_file=args.time_file,
+                    stencil_order=args.stencil_order, progress=progress,
+                    params=_unit_cell(args))
         return EXIT_OK
     return _run_other(args, progress)
 

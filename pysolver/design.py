@@ -27,7 +27,13 @@ from .checks import check_layout
 from .errors import InputError
 from .layout import Layout, build_layout
 from .params import LIMITS, UNIT_CELL, UnitCell
-from .time_landscape import cell_times, check_time_option, check_time_source, resolve_time
+from .time_landscape import (
+    cell_times,
+    check_time_option,
+    check_time_source,
+    read_time_file,
+    resolve_time,
+)
 
 FLATTENINGS = ("cetm", "lscm")
 
@@ -49,17 +55,22 @@ class _Clock:
                   f"(total {now - self._start:6.1f} s)", file=sys.stderr, flush=True)
 
 
-def _load_source(source, scale: float):
-    """Returns (surface-like object, kind, source description, hash)."""
+def _load_source(source, scale: float, size=None):
+    """Returns (surface-like object, kind, source description, hash, input mesh or None,
+    factor applied to the input coordinates: ``scale``, or the one that ``size`` asks for)."""
     from . import surfaces
 
     if isinstance(source, surfaces.Surface):
         h = hashlib.sha256(np.ascontiguousarray(source.V).tobytes()).hexdigest()[:16]
-        return source, "builtin", source.name, h, None
+        return source, "builtin", source.name, h, None, 1.0
     src = str(source)
     p = Path(src)
     if not p.exists() and surfaces.is_builtin(src):
         surf = surfaces.builtin(src)
+        if size is not None:
+            from .mesh_input import size_factor
+
+            scale = size_factor(surf.V, size, src)
         if scale != 1.0:
             surf.V = surf.V * scale
             if surf.UV is not None:
@@ -68,17 +79,45 @@ def _load_source(source, scale: float):
                 t0 = surf.time
                 surf.time = lambda X, t0=t0: t0(np.asarray(X) / scale)
         h = hashlib.sha256(src.encode()).hexdigest()[:16]
-        return surf, "builtin", src, h, None
+        return surf, "builtin", src, h, None, scale
     if not p.exists():
         raise InputError(f"{src}: no such file and not a built-in shape",
                          fix=f"give a mesh file (OBJ, STL, PLY, OFF) or one of "
                              f"{', '.join(surfaces.BUILTIN)}")
     from .mesh_input import load_input
 
-    mesh = load_input(p, scale=scale)
+    mesh = load_input(p, scale=scale, size=size)
     h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
     surf = surfaces.Surface(p.stem, mesh.V, mesh.F, UV=mesh.UV)
-    return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh
+    return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh, mesh.scale
+
+
+def _time_file_source(path, mesh, surf, stencil_order: bool):
+    """The ``time`` source for ``--time-file``: the values as they are (an array per stencil
+    vertex) for a finished stencil, else a vertex attribute of the input mesh that
+    :func:`~pysolver.time_landscape.resolve_time` interpolates (``vertex:<name>``).
+
+    Returns
+    -------
+    time : (n,) float array or str
+    info : dict -- ``path``, ``sha256``, ``values``, ``carried`` (recorded in design.json)
+    """
+    from .time_landscape import TIME_FILE_ATTRIBUTE, read_time_file, time_file_per_vertex
+
+    values, sha = read_time_file(path)
+    if mesh is None:
+        raise InputError(f"--time-file {path} gives values per vertex of an input mesh; "
+                         f"{surf.name} is a built-in shape",
+                         fix="give the time landscape of a built-in shape with --time "
+                             "(an expression of x, y, z in mm), or design a mesh file")
+    t = time_file_per_vertex(values, mesh, str(path))
+    info = {"path": str(path), "sha256": sha, "values": int(len(values))}
+    if surf.UV is not None or stencil_order:  # the stencil is the input: vertex-aligned
+        info["carried"] = "used as given: the input is the stencil"
+        return t, info
+    mesh.vertex_attributes = dict(mesh.vertex_attributes or {}, **{TIME_FILE_ATTRIBUTE: t})
+    info["carried"] = "barycentric interpolation on the input surface"
+    return f"vertex:{TIME_FILE_ATTRIBUTE}", info
 
 
 def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -> Layout:
@@ -86,8 +125,79 @@ def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -
     return build_layout(V, UV, F, params, central_length=central_length)
 
 
+def unit_cell_options(*, min_bumper=None, min_gap=None, max_cell_length=None,
+                      base: UnitCell = UNIT_CELL) -> UnitCell:
+    """The unit cell of a design with the tolerances a researcher varies, checked.
+
+    Parameters
+    ----------
+    min_bumper : float, mm, optional
+        Minimal bumper length beyond the base rim (3D scaling rule; ``--min-bumper``).
+    min_gap : float, mm, optional
+        Minimal flat gap between facing bumper tips (2D scaling rule; ``--min-gap``).
+    max_cell_length : float, mm, optional
+        Longest printable flat central length (``--max-cell-length``).
+    base : UnitCell
+        The values of the options not given (default: the paper's, :data:`UNIT_CELL`).
+
+    Returns
+    -------
+    UnitCell
+        ``dataclasses.replace(base, ...)``; equal to ``base`` when no option is given.
+
+    Raises
+    ------
+    InputError
+        An option outside its range in :class:`pysolver.params.Limits` (exit code 2).
+    """
+    import dataclasses
+
+    given = {k: v for k, v in (("min_bumper", min_bumper), ("min_gap", min_gap),
+                               ("max_cell_length", max_cell_length)) if v is not None}
+    params = dataclasses.replace(base, **{k: float(v) for k, v in given.items()
+                                          if _is_number(v)})
+    for k, v in given.items():
+        if not _is_number(v):
+            raise InputError(f"--{k.replace('_', '-')} {v!r} is not a number of mm",
+                             fix=f"give e.g. --{k.replace('_', '-')} {getattr(base, k):g}")
+    check_unit_cell(params)
+    return params
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def check_unit_cell(params: UnitCell) -> None:
+    """Check the user-variable tolerances of a unit cell against :class:`~pysolver.params.Limits`.
+
+    Raises
+    ------
+    InputError
+        Naming the option, its value, the allowed range and a fix.
+    """
+    for opt, v, (lo, hi), why in (
+            ("--min-bumper", params.min_bumper, LIMITS.min_bumper_mm,
+             "the paper uses 0.3 mm, most reference examples 0.1 mm"),
+            ("--min-gap", params.min_gap, LIMITS.min_gap_mm,
+             "the paper and the reference examples use 0.1 mm")):
+        if not (np.isfinite(v) and lo <= v <= hi):
+            raise InputError(f"{opt} {v!r} mm is outside {lo:g}-{hi:g} mm",
+                             fix=f"give a length in that range ({why})")
+    lo, hi = params.shortest_cell(), LIMITS.max_cell_length_mm
+    v = params.max_cell_length
+    if not (np.isfinite(v) and lo < v <= hi):
+        raise InputError(
+            f"--max-cell-length {v!r} mm is outside {lo:g}-{hi:g} mm: no cell is shorter than "
+            f"2 (base radius + min bumper) + min gap = {lo:g} mm, and the bracket model is "
+            f"measured up to 9 mm (used up to {hi:g} mm)",
+            fix=f"give a length above {lo:g} and up to {hi:g} mm (default "
+                f"{UNIT_CELL.max_cell_length:g} mm)")
+
+
 def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cetm",
-                         thickness=0.5, params: UnitCell = UNIT_CELL) -> None:
+                         thickness=0.5, params: UnitCell = UNIT_CELL, size=None,
+                         time_file=None) -> None:
     """Check the design options (see :func:`run_design`) without running anything.
 
     Raises
@@ -95,12 +205,26 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
     InputError
         Naming the option, its value and the rule.
     """
+    if not isinstance(params, UnitCell):
+        raise InputError(f"params={params!r} is not a UnitCell",
+                         fix="build it with pysolver.design.unit_cell_options(...)")
+    check_unit_cell(params)
     if flattening not in FLATTENINGS:
         raise InputError(f"flattening={flattening!r}", fix=f"use one of {FLATTENINGS}")
     if not (np.isfinite(scale) and 0 < scale <= LIMITS.max_scale):
         raise InputError(f"--scale {scale!r} must be a positive number up to "
                          f"{LIMITS.max_scale:g}",
                          fix="e.g. --scale 1000 for a mesh in metres, 25.4 in inches")
+    if size is not None:
+        lo, hi = LIMITS.size_mm
+        if not (_is_number(size) and np.isfinite(size) and lo <= size <= hi):
+            raise InputError(f"--size {size!r} must be a length in mm from {lo:g} to {hi:g} "
+                             "(the largest bounding-box extent of the target)",
+                             fix="e.g. --size 106 for a shell 106 mm across")
+        if scale != 1.0:
+            raise InputError(f"--size {size:g} and --scale {scale:g} both set the input's "
+                             "size", fix="give one of them: --size MM for a unitless mesh, "
+                                         "--scale K for a mesh in other units")
     if not (params.thickness_min <= thickness <= params.thickness_max):
         raise InputError(f"thickness={thickness} mm outside {params.thickness_min}-"
                          f"{params.thickness_max} mm")
@@ -111,11 +235,17 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
                          "beyond any print tray)",
                          fix="omit --vertices to let the design search it")
     check_time_option(time)
+    if time_file is not None:
+        if time is not None:
+            raise InputError(f"--time {time!r} and --time-file {time_file} both give the time "
+                             "landscape", fix="give one of them")
+        read_time_file(time_file)  # format and values now; the count once the mesh is read
 
 
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
-               stencil_order=False, progress=True, plots=True, seed=None) -> dict:
+               stencil_order=False, progress=True, plots=True, seed=None,
+               size=None, time_file=None) -> dict:
     """Design a shell and write the design folder.
 
     Parameters
@@ -133,6 +263,15 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         use the final target coordinates (``stencil.obj`` v, mm, centred).
     scale : float
         Factor applied to the input coordinates (e.g. 10 for a mesh in cm).
+    size : float, mm, optional
+        Scale the input instead so that its largest bounding-box extent is ``size`` mm
+        (unitless meshes; exclusive with ``scale``).  The size checks and every message
+        see the scaled coordinates.
+    time_file : str or Path, optional
+        CSV of one time (s) per vertex of the input mesh, in file order (exclusive with
+        ``time``; :func:`pysolver.time_landscape.read_time_file`).  Carried onto the stencil
+        by barycentric interpolation on the input surface, the path of a PLY vertex
+        property; for a finished stencil (OBJ with vt, or ``stencil_order``) used as given.
     flattening : {"cetm", "lscm"}
         Conformal flattening used for the layout (both are computed and compared).
     params : UnitCell
@@ -157,10 +296,13 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         checks and timings per stage (also in ``design.json``).
     """
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
-                         thickness=thickness, params=params)
+                         thickness=thickness, params=params, size=size, time_file=time_file)
     out_dir = Path(out_dir)
     clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
-    surf, kind, src_desc, src_hash, mesh = _load_source(source, scale)
+    surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size)
+    time_opt, time_file_info = time, None
+    if time_file is not None:
+        time, time_file_info = _time_file_source(time_file, mesh, surf, stencil_order)
     check_time_source(time, mesh)
     clock.step("load")
 
@@ -221,14 +363,15 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         if mesh is not None:
             src_mesh = mesh.transformed(-center, lay.scale3d)
         t_vertex, t_desc = resolve_time(time, lay.V, source_mesh=src_mesh)
+        if time_file_info is not None:
+            t_desc = f"--time-file {time_file_info['path']}, {time_file_info['carried']}"
     t_star = cell_times(t_vertex, lay.cells.verts)
     th = np.full((len(lay.cells.faces), 2), float(thickness))
     clock.step("time")
 
-    # messages name places in the user's input: target = (V0 - centre) * scale3d, V0 in
-    # input units * scale
-    report = check_layout(lay, params, raise_=False,
-                          to_input=lambda P: (np.asarray(P) / lay.scale3d + center) / scale)
+    # messages name places on the target in mm (the scaled, centred stencil.obj v): the
+    # input may be unitless (--size) or in other units (--scale)
+    report = check_layout(lay, params, raise_=False)
     from .flatten import distortion_metrics
 
     dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
@@ -251,8 +394,11 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     options = {
         "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
         "vertices": vertices, "seed": seed,
-        "time": time if isinstance(time, (str, int, float, type(None))) else "array",
-        "scale": scale, "flattening": flattening, "thickness_mm": thickness,
+        "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
+                 else "array"),
+        "time_file": time_file_info,
+        "scale": scale, "size_mm": size, "input_scale": input_scale,
+        "flattening": flattening, "thickness_mm": thickness,
         "central_length_mm": cl, "stencil_order": stencil_order,
         "params": params.to_dict(),
         "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
@@ -362,5 +508,5 @@ def _write_json(path: Path, data: dict):
     os.replace(tmp, path)
 
 
-__all__ = ["run_design", "check_design_options", "design_layout", "write_design_tables",
-           "FLATTENINGS"]
+__all__ = ["run_design", "check_design_options", "unit_cell_options", "check_unit_cell",
+           "design_layout", "write_design_tables", "FLATTENINGS"]

@@ -5,9 +5,10 @@ Restates ``shared/design/pipeline.md`` §2.4-2.8 and §1.4 (facts, not code):
 * connectivity: ``ff[i, j]`` = face across the edge opposite vertex ``F[i, j]``;
   unit cells enumerated face-major, pairs with neighbour > i;
 * 3D scaling rule (min-bumper) and 2D scaling rule (min-gap), closed form;
-  then the 2D scale is raised, if needed, until the *actual* flat footprints
+  then the 2D scale is raised, if needed, until the *printed* flat footprints
   (bumpers rotated with the base, so off their flat axes by the local conformal
-  angle error) keep ``min_gap`` -- the reference ignores that error;
+  angle error, and trimmed by the printing clearance) keep ``min_gap`` -- the
+  reference ignores the angle error;
 * base rotations ``R_i`` (flat -> target), reference neighbour = first interior slot;
 * bumpers per layer with their ideal contact plane and cut type;
 * boundary cells, alignment bases, support-frame outline.
@@ -380,12 +381,24 @@ def build_bumpers(V, F, ff, cells: Cells, R, params: UnitCell = UNIT_CELL) -> Bu
 # flat footprints (exact 2D geometry) and gaps
 
 
-def footprint_rectangles(bumpers: Bumpers, C2: np.ndarray, params: UnitCell = UNIT_CELL):
+def footprint_rectangles(bumpers: Bumpers, C2: np.ndarray, params: UnitCell = UNIT_CELL,
+                         printed: bool = False):
     """Flat footprint of every bumper as a rectangle (corners CCW), absolute flat coordinates.
 
     The bumper is a square prism of side ``base_th`` along its axis from the base
     centre; its end plane's in-plane trace is perpendicular to the axis, so the
     footprint is ``[0, max(L_far, L_mem)] x [-base_th/2, base_th/2]`` in the axis frame.
+
+    Parameters
+    ----------
+    bumpers : Bumpers
+    C2 : (m, 2) float, mm -- flat base centres
+    params : UnitCell
+    printed : bool
+        The printed bumper: its end plane moved back by the printing clearance along its
+        unit normal (``bumper_trim_plane`` in ``scad/bumper.scad``), which shortens the
+        footprint by ``clearance / |n_xy|`` (``n_xy`` = the in-plane part of the plane's
+        unit normal, parallel to the axis).  Default: the ideal contact planes.
 
     Returns
     -------
@@ -394,7 +407,11 @@ def footprint_rectangles(bumpers: Bumpers, C2: np.ndarray, params: UnitCell = UN
     ang = np.radians(bumpers.dir_deg)
     u = np.stack([np.cos(ang), np.sin(ang)], 1)
     w = np.stack([-u[:, 1], u[:, 0]], 1)
-    L = np.maximum(bumpers.length, bumpers.length_mem)[:, None]
+    L = np.maximum(bumpers.length, bumpers.length_mem)
+    if printed:
+        n = bumpers.plane_n / np.linalg.norm(bumpers.plane_n, axis=1, keepdims=True)
+        L = L - params.clearance / np.hypot(n[:, 0], n[:, 1])
+    L = L[:, None]
     h = params.base_th / 2
     c = C2[bumpers.base]
     Q = np.stack([c - h * w, c + L * u - h * w, c + L * u + h * w, c + h * w], axis=1)
@@ -461,7 +478,15 @@ class Gaps:
 
 
 def footprint_gaps(bumpers: Bumpers, C2, params: UnitCell = UNIT_CELL, reach=None) -> Gaps:
-    """Minimum flat distance between the footprints (disc + bumpers) of nearby bases.
+    """Minimum flat distance between the printed footprints (disc + bumpers) of nearby bases.
+
+    What is printed is measured: each bumper rotated with its base (off its flat axis by
+    the local conformal angle error) and trimmed by its plane moved back by the printing
+    clearance (:func:`footprint_rectangles` with ``printed=True``).  ``min_gap`` is the
+    smallest gap allowed between printed parts of different bases.  The closed-form 2D
+    rule (:func:`scale_2d`, the reference's) keeps ``min_gap`` between the ideal,
+    axis-aligned tips, i.e. ``min_gap + 2 clearance`` once printed; this measure raises
+    the scale only where the real footprints come closer than ``min_gap``.
 
     Parameters
     ----------
@@ -477,7 +502,7 @@ def footprint_gaps(bumpers: Bumpers, C2, params: UnitCell = UNIT_CELL, reach=Non
     pairs = np.array(sorted(cKDTree(C2).query_pairs(2 * reach + 1.0)), dtype=np.int64)
     if len(pairs) == 0:
         return Gaps(np.zeros((0, 2), int), np.zeros(0, int), np.zeros(0))
-    Q = footprint_rectangles(bumpers, C2, params)
+    Q = footprint_rectangles(bumpers, C2, params, printed=True)
     out_p, out_l, out_g = [], [], []
     for s in (0, 1):
         sel = np.flatnonzero(bumpers.layer == s)
@@ -624,7 +649,8 @@ def build_layout(V, UV, F, params: UnitCell = UNIT_CELL, *, central_length=None,
         If given, the flat layout is scaled so the *shortest* flat central length is
         this value (test patches); it must not violate the min-gap rule.
     enforce_gap : bool
-        Raise the 2D scale until the actual flat footprints keep ``min_gap``.
+        Raise the 2D scale until the printed flat footprints keep ``min_gap``
+        (:func:`footprint_gaps`).
 
     Returns
     -------

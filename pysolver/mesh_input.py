@@ -55,6 +55,11 @@ class InputMesh:
     path : Path
     kind : "stencil" or "mesh"
     notes : list of str
+    scale : float -- factor applied to the file's coordinates (``scale``, or from ``size``)
+    file_index : (n,) int or None -- index of each vertex in the file's own vertex list
+        (before welding and removing unreferenced vertices), for per-vertex data given in
+        file order (``--time-file``)
+    file_vertices : int -- number of vertices in the file
     """
 
     V: np.ndarray
@@ -65,11 +70,16 @@ class InputMesh:
     path: Path | None = None
     kind: str = "mesh"
     notes: list = field(default_factory=list)
+    scale: float = 1.0
+    file_index: np.ndarray | None = None
+    file_vertices: int = 0
 
     def transformed(self, shift, scale: float) -> InputMesh:
         """Copy with ``V' = (V + shift) * scale`` (to follow the stencil's centring/scaling)."""
-        return InputMesh((self.V + np.asarray(shift)) * scale, self.F, self.UV,
-                         self.vertex_attributes, self.colors, self.path, self.kind, self.notes)
+        import dataclasses
+
+        return dataclasses.replace(self, V=(self.V + np.asarray(shift)) * scale,
+                                   scale=self.scale * scale)
 
 
 def _obj_has_vt(path: Path) -> bool:
@@ -137,7 +147,39 @@ def weld_vertices(V, F, tol: float = TOL.merge) -> tuple[np.ndarray, np.ndarray,
     return first[order], rank[np.ravel(inverse)][np.asarray(F)], len(V) - len(first)
 
 
-def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
+def size_factor(V, size: float, name: str = "surface") -> float:
+    """Factor that makes the largest bounding-box extent of ``V`` equal to ``size`` mm.
+
+    Parameters
+    ----------
+    V : (n, 3) float -- the file's coordinates (any unit)
+    size : float, mm
+    name : str -- file named in messages
+
+    Returns
+    -------
+    factor : float
+
+    Raises
+    ------
+    InputError
+        Non-finite coordinates or a surface without extent.
+    """
+    V = np.asarray(V, float)
+    bad = np.flatnonzero(~np.all(np.isfinite(V), axis=1)) if V.ndim == 2 else [0]
+    if len(bad):
+        raise InputError(f"{name}: {len(bad)} vertex coordinate(s) are NaN or infinite "
+                         f"(first: vertex {bad[0]}), so --size cannot measure the surface",
+                         fix="repair or re-export the mesh")
+    extent = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    if not extent > 0:
+        raise InputError(f"{name}: the surface has no extent (all vertices coincide)",
+                         fix="re-export the mesh")
+    return float(size) / extent
+
+
+def load_input(path, scale: float = 1.0, validate: bool = True,
+               size: float | None = None) -> InputMesh:
     """Load a target surface or a stencil OBJ.
 
     Parameters
@@ -146,7 +188,10 @@ def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
     scale : float
         Factor applied to the coordinates (e.g. 10 for a mesh in cm).
     validate : bool
-        Run :func:`validate_surface`.
+        Run :func:`validate_surface` (after scaling: the size check sees millimetres).
+    size : float, mm, optional
+        Scale the coordinates instead so that the largest bounding-box extent is ``size``
+        mm (for unitless meshes); exclusive with ``scale`` (``scale`` must then be 1).
 
     Returns
     -------
@@ -171,8 +216,11 @@ def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
 
         try:
             V, UV, F = read_stencil(path)
+            if size is not None:
+                scale = size_factor(V, size, str(path))
             mesh = InputMesh(V * scale, F, None if UV is None else UV * scale, path=path,
-                             kind="stencil" if UV is not None else "mesh")
+                             kind="stencil" if UV is not None else "mesh", scale=scale,
+                             file_index=np.arange(len(V)), file_vertices=len(V))
             if validate:
                 validate_surface(mesh.V, mesh.F, str(path))
             return mesh
@@ -182,6 +230,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
             notes.append("vt ignored: the texture layout has seams (not a stencil)")
     m = _read_trimesh(path)
     V = np.asarray(m.vertices, float) * scale
+    file_index = np.arange(len(V))
     F = np.asarray(m.faces, dtype=np.int64)
     attrs = {}
     raw = getattr(m, "metadata", {}).get("_ply_raw") if ext == ".ply" else None
@@ -201,6 +250,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
     if n_welded:
         notes.append(f"{n_welded} coincident vertices welded")
         V = V[keep]
+        file_index = file_index[keep]
         attrs = {k: v[keep] for k, v in attrs.items()}
         colors = None if colors is None else colors[keep]
     used = np.unique(F)
@@ -209,9 +259,14 @@ def load_input(path, scale: float = 1.0, validate: bool = True) -> InputMesh:
         remap = -np.ones(len(V), dtype=np.int64)
         remap[used] = np.arange(len(used))
         V, F = V[used], remap[F]
+        file_index = file_index[used]
         attrs = {k: v[used] for k, v in attrs.items()}
         colors = None if colors is None else colors[used]
-    mesh = InputMesh(V, F, None, attrs, colors, path, "mesh", notes)
+    if size is not None:  # measured on the vertices the faces use
+        scale = size_factor(V, size, str(path))
+        V = V * scale
+    mesh = InputMesh(V, F, None, attrs, colors, path, "mesh", notes, scale, file_index,
+                     int(len(m.vertices)))
     if validate:
         validate_surface(mesh.V, mesh.F, str(path))
     return mesh
@@ -255,7 +310,8 @@ def _scale_fix(diag: float, cands) -> str:
     """``re-run with --scale K (Python: scale=K) if the mesh is in <unit> (D mm across), ...``"""
     opts = [f"--scale {k:g} (Python: scale={k:g}) if the mesh is in {u} (it would be "
             f"{diag * k:.0f} mm across)" for k, u in cands]
-    return "re-run with " + "; or ".join(opts) + ", or scale it in your modeller"
+    return ("re-run with " + "; or ".join(opts) + "; or --size MM (the largest extent in mm) "
+            "if the mesh has no unit; or scale it in your modeller")
 
 
 def check_size(V, name: str = "surface") -> float:
@@ -437,5 +493,6 @@ def _nonmanifold_vertices(F, ff, n) -> np.ndarray:
     return np.flatnonzero(fans > 1)
 
 
-__all__ = ["InputMesh", "load_input", "validate_surface", "check_size", "boundary_loops",
+__all__ = ["InputMesh", "load_input", "size_factor", "validate_surface", "check_size",
+           "boundary_loops",
            "SizeWarning", "SUPPORTED"]

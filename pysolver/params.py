@@ -85,6 +85,12 @@ class UnitCell:
         """Bracket length b (mm) of a cell of flat central length l (mm): b = l - 2 r cos(alpha)."""
         return central_length - self.bracket_offset
 
+    def shortest_cell(self) -> float:
+        """Shortest flat central length the scaling rules allow, mm: a flat cell whose
+        bumpers stick out ``min_bumper`` and keep ``min_gap``, ``2 (base_r + min_bumper) +
+        min_gap``."""
+        return 2 * (self.base_r + self.min_bumper) + self.min_gap
+
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -124,6 +130,47 @@ class SimConstants:
     boundary_weakening: float = 0.6
     membrane_max_area: float = 5.0
     membrane_min_angle: float = 20.0
+
+
+@dataclass(frozen=True)
+class SupportFrame:
+    """The support frame printed around each layer (``scad/support_frame.scad``), mm.
+
+    Attributes
+    ----------
+    offset_in, offset_out : float, mm
+        The ring lies between these offsets of the flat outline (reference: 6 and 9);
+        the same values as ``FRAME_OFFSET_IN``/``FRAME_OFFSET_OUT`` of ``scad/params.scad``.
+    connector_w : float, mm
+        Square section of a breakaway connector (``CONNECTOR_W``).
+    connector_r0 : float, mm
+        Connectors start this far from the base centre, inside the base (``CONNECTOR_R0``).
+    spacing : float, mm
+        A boundary base gets a connector only if no connected base lies within this flat
+        distance (greedy in base order, as the reference).
+    connector_max_reach : float, mm
+        Longest connector beyond its base's boundary edge.  Each connector ends in the
+        middle of the ring along its own direction; where the ring is farther (deep in a
+        notch of the outline) or the direction crosses the shell again, the base gets no
+        connector and the next boundary base is tried.
+    step : float, mm
+        Sampling step along a connector when its end in the ring is searched.
+    hole_margin : float, mm
+        Holes of the ring's inner offset (which would leave loose ring islands) are filled
+        grown by this much, to overlap the inner offset whatever its faceting.
+    circle_segments : int
+        Segments per full circle of the round offsets computed in Python (manifold3d).
+    """
+
+    offset_in: float = 6.0
+    offset_out: float = 9.0
+    connector_w: float = 0.5
+    connector_r0: float = 1.0
+    spacing: float = 30.0
+    connector_max_reach: float = 15.0
+    step: float = 0.02
+    hole_margin: float = 0.1
+    circle_segments: int = 256
 
 
 @dataclass(frozen=True)
@@ -172,6 +219,24 @@ class Limits:
         Simulation steps, ``t_end / dt``.
     max_scale : float
         Input scale factor (``--scale``).
+    size_mm : (float, float), mm
+        Range of ``--size`` (largest bounding-box extent of the scaled target); the same
+        band as the unitless-size check of :mod:`pysolver.mesh_input` (bounding-box
+        diagonal 20-2000 mm) applied to one extent.
+    min_bumper_mm : (float, float), mm
+        Range of ``--min-bumper`` (bumper length beyond the base rim, 3D scaling rule).
+        Longer than 2 mm, the bumpers would reach past the bracket's roots.
+    min_gap_mm : (float, float), mm
+        Range of ``--min-gap`` (flat gap between facing bumper tips, 2D scaling rule).
+    max_time_file_bytes : int, bytes
+        Largest ``--time-file`` read (one number per line: millions of vertices).
+    max_cell_length_mm : float, mm
+        Upper bound of ``--max-cell-length`` (flat central length of a unit cell): the
+        bracket model's last measured length (l = 9.0 mm, ``bracket_length_mm`` grid end
+        5.8055 + 3.1945) plus two steps of its 0.25 mm length grid, which is how far the
+        clamped model is used today (cells beyond 9.0 mm are warned about).  The lower
+        bound is the shortest cell the scaling rules allow, ``2 (base_r + min_bumper) +
+        min_gap`` (:meth:`UnitCell.shortest_cell`).
     """
 
     max_vertices: int = 5000
@@ -181,6 +246,11 @@ class Limits:
     min_dt: float = 0.01
     max_steps: int = 20000
     max_scale: float = 1e6
+    size_mm: tuple = (20.0, 2000.0)
+    min_bumper_mm: tuple = (0.0, 2.0)
+    min_gap_mm: tuple = (0.0, 2.0)
+    max_cell_length_mm: float = 9.5
+    max_time_file_bytes: int = 64 * 1024 * 1024
 
 
 LIMITS = Limits()
@@ -320,6 +390,7 @@ class ModelFileRules:
 
 
 UNIT_CELL = UnitCell()
+SUPPORT_FRAME = SupportFrame()
 SIM = SimConstants()
 tol = Tolerances()
 MODEL_FILES = ModelFileRules()
@@ -339,4 +410,5 @@ def layer_sign(layer) -> int:
 
 
 __all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
+           "SupportFrame", "SUPPORT_FRAME",
            "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign"]

@@ -283,7 +283,7 @@ def write_reference_parts(folder, scad_dir) -> list:
     folder.mkdir(parents=True, exist_ok=True)
     brackets = [[0, 7.0, 0.45], [120, 6.5, 0.3], [240, 8.2, 0.65]]
     outline = [[-12.0, -9.0], [10.0, -11.0], [15.0, 2.0], [4.0, 12.5], [-13.0, 8.0]]
-    connectors = [[[-9.0, -6.5], -100.0, 3.0], [[11.0, 0.5], 10.0, 3.2]]
+    connectors = [[[-9.0, -6.5], -100.0, 11.5], [[11.0, 0.5], 10.0, 11.7]]  # lengths, mm
     specs = [
         ("ref_node_top", "node", "top", "unit_node.scad", "unit_node",
          dict(centre=[1.25, -0.5], layer="top", bumpers=_reference_bumpers("top"),

@@ -34,12 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .params import LAYERS, UNIT_CELL, layer_sign
+from .params import LAYERS, SUPPORT_FRAME, UNIT_CELL, layer_sign
 
 SCAD_DIR = Path(__file__).resolve().parent.parent / "scad"
 """The OpenSCAD library shipped with the repository."""
 
-CONNECTOR_SPACING = 30.0
+CONNECTOR_SPACING = SUPPORT_FRAME.spacing
 """mm: a boundary base gets a support-frame connector only if no already connected
 base lies within this flat distance (greedy in base order, as the reference)."""
 
@@ -289,17 +289,118 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
     return kw
 
 
-def frame_connectors(design: dict) -> list:
-    """Support-frame connectors: boundary bases chosen greedily, one per boundary base.
+def frame_holes(outline, frame=SUPPORT_FRAME) -> list:
+    """Holes of the ring's inner offset: places the frame ring must not be printed.
 
-    A boundary base (in base order) gets a connector unless a base already
-    connected lies within :data:`CONNECTOR_SPACING` (flat distance).  The
-    connector leaves the base perpendicular to its (first) boundary edge.
+    The ring is ``offset(offset_out) - offset(offset_in)`` of the outline.  Where a notch
+    of the outline is wider than ``2 offset_in`` inside but narrower at its mouth, the
+    inner offset has a hole there, and the ring would get a loose island around it (a
+    piece held by nothing).  These holes, each grown by ``frame.hole_margin`` so that
+    they overlap the inner offset whatever its faceting, are filled by
+    ``support_frame(holes=...)``.
+
+    Parameters
+    ----------
+    outline : (b, 2) float, mm
+    frame : pysolver.params.SupportFrame
 
     Returns
     -------
-    connectors : list of [[x, y] mm, dir deg, edge_distance mm]
-        Base centre, outward direction, distance from the centre to the edge line.
+    holes : list of (k, 2) float arrays, mm (counter-clockwise)
+    """
+    import manifold3d
+
+    P = np.asarray(outline, float)
+    area = 0.5 * np.sum(P[:, 0] * np.roll(P[:, 1], -1) - np.roll(P[:, 0], -1) * P[:, 1])
+    if area < 0:
+        P = P[::-1]
+    inner = manifold3d.CrossSection([P.tolist()], manifold3d.FillRule.Positive).offset(
+        frame.offset_in, manifold3d.JoinType.Round, 2.0, frame.circle_segments)
+    holes = []
+    for c in inner.to_polygons():
+        c = np.asarray(c, float)
+        a = 0.5 * np.sum(c[:, 0] * np.roll(c[:, 1], -1) - np.roll(c[:, 0], -1) * c[:, 1])
+        if a >= 0:  # an outer contour
+            continue
+        grown = manifold3d.CrossSection([c[::-1].tolist()], manifold3d.FillRule.Positive)
+        for g in grown.offset(frame.hole_margin, manifold3d.JoinType.Round, 2.0,
+                              frame.circle_segments).to_polygons():
+            holes.append(np.asarray(g, float))
+    return holes
+
+
+def ring_reach(outline, centre, direction, edge_dist, frame=SUPPORT_FRAME, holes=()):
+    """Length of a support-frame connector: from the base centre along ``direction`` to the
+    middle of the frame ring, or None when the ring cannot be reached straight.
+
+    The ring is the region between the offsets ``offset_in`` and ``offset_out`` of the flat
+    outline, minus the filled holes (:func:`frame_holes`; ``scad/support_frame.scad``).
+    Along the ray beyond the base's boundary edge the connector ends at the first point
+    of the ring whose distance to the outline is ``(offset_in + offset_out) / 2``; the
+    last ``(offset_out - offset_in) / 2 - step`` of the connector must lie in the ring.  A fixed
+    length would end short of the ring in a concave notch of the outline, where the ring
+    is farther than ``offset_out`` from the base's own edge.
+
+    Parameters
+    ----------
+    outline : (b, 2) float, mm
+        Flat boundary loop of the stencil (``support_frame.csv``).
+    centre : (2,) float, mm
+        Base centre.
+    direction : (2,) float
+        Unit outward normal of the base's boundary edge.
+    edge_dist : float, mm
+        Distance from the centre to that edge.
+    frame : pysolver.params.SupportFrame
+    holes : list of (k, 2) float arrays, mm
+        Filled holes of the inner offset (:func:`frame_holes`), not part of the ring.
+
+    Returns
+    -------
+    length : float, mm, or None
+        Distance from the centre to the connector's end; None when the ray meets the
+        outline's interior again (it would cross the shell, e.g. across a notch), or does
+        not reach the ring within ``connector_max_reach`` beyond the edge.
+    """
+    from matplotlib.path import Path as _Path  # point-in-polygon (a dependency already)
+
+    P = np.asarray(outline, float)
+    c = np.asarray(centre, float)
+    u = np.asarray(direction, float)
+    s = edge_dist + np.arange(0.0, frame.connector_max_reach + frame.step, frame.step)
+    X = c + s[:, None] * u
+    A, B = P, np.roll(P, -1, axis=0)
+    AB = B - A
+    t = np.clip(np.einsum("kij,ij->ki", X[:, None] - A, AB) / np.sum(AB * AB, 1), 0.0, 1.0)
+    dist = np.linalg.norm(X[:, None] - (A + t[..., None] * AB), axis=2).min(axis=1)
+    in_hole = np.zeros(len(s), bool)
+    for h in holes:
+        in_hole |= _Path(np.asarray(h, float)).contains_points(X)
+    target = 0.5 * (frame.offset_in + frame.offset_out)
+    hit = np.flatnonzero((dist >= target) & (dist <= frame.offset_out) & ~in_hole)
+    if not len(hit):
+        return None
+    k = int(hit[0])
+    # (the first samples sit on the base's own edge: only a return into the outline counts)
+    away = dist[: k + 1] > frame.step
+    if np.any(_Path(P).contains_points(X[: k + 1][away])):
+        return None
+    # (one step less: straight out from an edge the distance grows exactly 1 mm per mm)
+    tail = s >= s[k] - 0.5 * (frame.offset_out - frame.offset_in) + frame.step
+    tail[k + 1:] = False
+    if np.any((dist[tail] < frame.offset_in) | in_hole[tail]):
+        return None
+    return float(s[k])
+
+
+def boundary_edges(design) -> list:
+    """Every boundary base with its (first) boundary edge, in base order.
+
+    Returns
+    -------
+    list of (base_id, centre (2,) mm, outward unit normal (2,), edge distance mm)
+        The flat base centre, the outward normal of its boundary edge and the distance
+        from the centre to the edge's line.
     """
     bases, cells, uv = design.bases, design.cells, design.UV
     interior: dict[int, set] = {}
@@ -308,7 +409,7 @@ def frame_connectors(design: dict) -> list:
         interior.setdefault(int(a), set()).add(int(sa))
         interior.setdefault(int(b), set()).add(int(sb))
     F = np.column_stack([bases["v0"], bases["v1"], bases["v2"]]).astype(int)
-    chosen: list = []
+    out = []
     for row, bid in enumerate(np.asarray(bases["base_id"]).astype(int)):
         if not int(bases["boundary"][row]):
             continue
@@ -316,8 +417,6 @@ def frame_connectors(design: dict) -> list:
         if not free:
             continue
         c = np.array([float(bases["flat_x_mm"][row]), float(bases["flat_y_mm"][row])])
-        if any(np.hypot(*(c - np.asarray(q[0]))) < CONNECTOR_SPACING for q in chosen):
-            continue
         j = free[0]
         p, q = uv[F[row, (j + 1) % 3]], uv[F[row, (j + 2) % 3]]
         e = (q - p) / np.linalg.norm(q - p)
@@ -325,7 +424,43 @@ def frame_connectors(design: dict) -> list:
         dist = float(np.dot(p - c, n))
         if dist < 0:
             n, dist = -n, -dist
-        chosen.append([c, math.degrees(math.atan2(n[1], n[0])), dist])
+        out.append((int(bid), c, n, dist))
+    return out
+
+
+def frame_connectors(design, frame=SUPPORT_FRAME, holes=None) -> list:
+    """Support-frame connectors: boundary bases chosen greedily, each reaching the ring.
+
+    A boundary base (in base order) gets a connector unless a base already connected lies
+    within ``frame.spacing`` (flat distance).  The connector leaves the base perpendicular
+    to its (first) boundary edge (:func:`boundary_edges`) and ends in the middle of the
+    frame ring (:func:`ring_reach`); a base from which the ring cannot be reached straight
+    (deep in a notch of the outline, or facing another part of the shell) gets none, and
+    the next base is tried.
+
+    Parameters
+    ----------
+    design : pysolver.tables.Design
+    frame : pysolver.params.SupportFrame
+    holes : list of (k, 2) float arrays, mm, optional
+        :func:`frame_holes` of the outline (computed when not given).
+
+    Returns
+    -------
+    connectors : list of [[x, y] mm, dir deg, length mm]
+        Base centre, outward direction, distance from the centre to the connector's end.
+    """
+    outline = np.asarray(design.support, float)
+    if holes is None:
+        holes = frame_holes(outline, frame)
+    chosen: list = []
+    for _bid, c, n, dist in boundary_edges(design):
+        if any(np.hypot(*(c - np.asarray(q[0]))) < frame.spacing for q in chosen):
+            continue
+        length = ring_reach(outline, c, n, dist, frame, holes)
+        if length is None:
+            continue
+        chosen.append([c, math.degrees(math.atan2(n[1], n[0])), length])
     return chosen
 
 
@@ -391,12 +526,14 @@ def write_part_files(design_dir, out_dir, *, scad_dir=None, actuated: bool = Tru
                     title = f"{name}: base {b}, {layer} layer (flat shell frame)"
                 emit(name, kind, layer, b, _header(title, node_lib) + _call("unit_node", **kw))
     outline = np.asarray(design.support, float)
-    connectors = frame_connectors(design)
+    holes = frame_holes(outline)
+    connectors = frame_connectors(design, holes=holes)
     for layer in LAYERS:
         name = f"frame_{layer}"
         text = _header(f"{name}: support frame, {layer} layer (flat shell frame)",
                        scad_dir / "support_frame.scad")
-        text += _call("support_frame", outline=outline, connectors=connectors, layer=layer)
+        text += _call("support_frame", outline=outline, connectors=connectors, layer=layer,
+                      **({"holes": holes} if holes else {}))
         emit(name, "frame", layer, -1, text)
     text = _header("marker: one marker dot (layer-local frame)", scad_dir / "holes.scad")
     text += "marker_dot();\n"
@@ -421,5 +558,6 @@ def check_library(scad_dir) -> Path:
 
 
 __all__ = ["Part", "SCAD_DIR", "CONNECTOR_SPACING", "scad_literal", "part_text", "read_design",
-           "bracket_owner", "node_arguments", "frame_connectors", "write_part_files",
+           "bracket_owner", "node_arguments", "frame_connectors", "ring_reach", "frame_holes",
+           "boundary_edges", "write_part_files",
            "check_library"]

@@ -407,6 +407,11 @@ class Design:
     meta: dict = field(default_factory=dict)
 
     @property
+    def params(self):
+        """The unit cell of this design (``design.json``), :func:`design_unit_cell`."""
+        return design_unit_cell(self.meta, str(self.folder / "design.json"))
+
+    @property
     def n_bases(self) -> int:
         return len(self.F)
 
@@ -447,6 +452,67 @@ def read_design(folder, check: bool = True) -> Design:
     if check:
         check_design(d)
     return d
+
+
+def design_unit_cell(meta: dict, source="design.json"):
+    """The unit cell a design was made with, from its ``design.json`` (``options.params``).
+
+    Later stages read the design's own tolerances (``min_bumper``, ``min_gap``,
+    ``max_cell_length``, set by ``--min-bumper`` etc.) from here, never the defaults.
+
+    Parameters
+    ----------
+    meta : dict
+        Content of ``design.json`` (``{}`` when the folder has none: the defaults).
+    source : str
+        File named in messages.
+
+    Returns
+    -------
+    pysolver.params.UnitCell
+
+    Raises
+    ------
+    InputError
+        A value that is not a number, or a tolerance outside its range.
+    """
+    import dataclasses
+
+    from .params import UNIT_CELL
+
+    stored = ((meta or {}).get("options") or {}).get("params") or {}
+    if not isinstance(stored, dict):
+        raise InputError(f"{source}: options.params is not an object",
+                         fix="re-run the design stage")
+    known = {f.name for f in dataclasses.fields(UNIT_CELL)}
+    vals = {}
+    for k, v in stored.items():
+        if k not in known:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            raise InputError(f"{source}: options.params.{k} = {v!r} is not a finite number",
+                             fix="re-run the design stage")
+        vals[k] = float(v)
+    params = dataclasses.replace(UNIT_CELL, **vals)
+    from .design import check_unit_cell
+
+    try:
+        check_unit_cell(params)
+    except InputError as e:
+        raise InputError(f"{source}: {e.problem}", fix="re-run the design stage") from None
+    return params
+
+
+def read_unit_cell(folder):
+    """:func:`design_unit_cell` of a design folder's ``design.json`` (defaults without one)."""
+    path = Path(folder) / "design.json"
+    if not path.is_file():
+        return design_unit_cell({})
+    try:
+        meta = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: invalid JSON ({e})", fix="re-run the design stage") from None
+    return design_unit_cell(meta, str(path))
 
 
 def check_design(d: Design) -> None:
@@ -521,4 +587,5 @@ def check_design(d: Design) -> None:
 
 __all__ = ["SCHEMAS", "FILENAMES", "write_table", "read_table", "read_bases", "read_cells",
            "read_bumpers", "read_time_landscape", "read_support_frame", "write_stencil",
-           "read_stencil", "Design", "read_design", "check_design", "round_sig9"]
+           "read_stencil", "Design", "read_design", "check_design", "round_sig9",
+           "design_unit_cell", "read_unit_cell"]

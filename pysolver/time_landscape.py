@@ -245,6 +245,126 @@ def validate_time(t, n: int, what: str = "time landscape") -> np.ndarray:
     return t
 
 
+TIME_FILE_ATTRIBUTE = "time_file"
+"""Name of the vertex attribute that carries ``--time-file`` values on the input mesh, so
+they reach the stencil by the same path as a PLY vertex property (``time='vertex:...'``)."""
+
+
+def read_time_file(path) -> tuple[np.ndarray, str]:
+    """Read a ``--time-file``: CSV, one value (s) per vertex of the input mesh in file order.
+
+    One column; an optional header line (any text that is not a number, e.g. ``time_s``);
+    blank lines are skipped.  Values are parsed as numbers (never evaluated) and checked
+    like every landscape (:func:`validate_time`: finite, >= 0) and against the longest
+    simulation, :attr:`pysolver.params.Limits.max_t_end`.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    values : (k,) float, s
+    sha256 : str
+        Hash of the file's bytes (recorded in ``design.json``).
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, too large or non-text file; more than one column; a value
+        that is not a number (named by line); a value outside the time limits.
+    """
+    import hashlib
+    from pathlib import Path
+
+    from .params import LIMITS
+
+    path = Path(path)
+    fix = ("write one time in seconds per input-mesh vertex, in the mesh file's vertex order, "
+           "one per line (an optional header line such as 'time_s' first)")
+    if not path.is_file():
+        raise InputError(f"--time-file {path}: no such file" if not path.exists() else
+                         f"--time-file {path}: not a regular file", fix=fix)
+    size = path.stat().st_size
+    if size > LIMITS.max_time_file_bytes:
+        raise InputError(f"--time-file {path}: {size} bytes, more than "
+                         f"{LIMITS.max_time_file_bytes} bytes", fix=fix)
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise InputError(f"--time-file {path}: not UTF-8 text ({e.reason} at byte {e.start})",
+                         fix=fix) from None
+    values, first = [], True
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line:
+            continue
+        fields = line.replace(";", ",").replace("\t", ",").split(",")
+        if len(fields) != 1:
+            raise InputError(f"--time-file {path}:{lineno}: {len(fields)} columns "
+                             f"({line[:40]!r}); expected one value per line", fix=fix)
+        try:
+            v = float(line)
+        except ValueError:
+            if first:  # a header
+                first = False
+                continue
+            raise InputError(f"--time-file {path}:{lineno}: {line[:40]!r} is not a number "
+                             "of seconds", fix=fix) from None
+        first = False
+        values.append(v)
+    if not values:
+        raise InputError(f"--time-file {path}: no values", fix=fix)
+    t = np.asarray(values, float)
+    bad = np.flatnonzero(~np.isfinite(t) | (t < 0) | (t > LIMITS.max_t_end))
+    if len(bad):
+        validate_time(t, len(t), f"--time-file {path}")  # names NaN/inf and negative times
+        raise InputError(f"--time-file {path}: {t[bad[0]]:g} s at vertex {bad[0]} is beyond "
+                         f"the longest simulation ({LIMITS.max_t_end:g} s)",
+                         fix="give completion times in seconds under water (the paper's are "
+                             "30-80 s)")
+    return t, hashlib.sha256(data).hexdigest()
+
+
+def time_file_per_vertex(values, mesh, path="--time-file") -> np.ndarray:
+    """``--time-file`` values (file order) as one value per vertex of a loaded input mesh.
+
+    Parameters
+    ----------
+    values : (k,) float, s
+        One value per vertex of the mesh file, in the file's order.
+    mesh : pysolver.mesh_input.InputMesh
+        The loaded input; its vertices may have been welded or unreferenced ones removed
+        (``file_index`` maps them to the file's order).
+    path : str
+        Named in messages.
+
+    Returns
+    -------
+    t : (n,) float, s
+        ``t[i]`` = value of the file vertex that became mesh vertex ``i``.
+
+    Raises
+    ------
+    InputError
+        When the count is not the mesh file's vertex count.
+    """
+    values = np.asarray(values, float).ravel()
+    n_file = int(getattr(mesh, "file_vertices", 0) or len(mesh.V))
+    index = getattr(mesh, "file_index", None)
+    if index is None:
+        index = np.arange(len(mesh.V))
+    if len(values) == n_file:
+        return values[np.asarray(index)]
+    if len(values) == len(mesh.V):  # e.g. an STL: one value per distinct (welded) vertex
+        return values
+    other = f" ({len(mesh.V)} after merging coincident ones)" if len(mesh.V) != n_file else ""
+    raise InputError(f"--time-file {path}: {len(values)} values, but the input mesh "
+                     f"{getattr(mesh, 'path', '') or ''} has {n_file} vertices{other}",
+                     fix="give one time per vertex of the input mesh, in its file order")
+
+
 def resolve_time(time, V_stencil, *, default=None, source_mesh=None) -> tuple[np.ndarray, str]:
     """Turn the ``time`` option into per-stencil-vertex times.
 
@@ -349,6 +469,7 @@ def cell_times(t_vertex, cell_verts) -> np.ndarray:
     return 0.5 * (t[cell_verts[:, 0]] + t[cell_verts[:, 1]])
 
 
-__all__ = ["DEFAULT_TIME_S", "check_time_source", "check_time_option", "parse_expression",
+__all__ = ["DEFAULT_TIME_S", "TIME_FILE_ATTRIBUTE", "read_time_file", "time_file_per_vertex",
+           "check_time_source", "check_time_option", "parse_expression",
            "evaluate_expression",
            "interpolate_to_stencil", "validate_time", "resolve_time", "cell_times"]

@@ -441,7 +441,7 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
         source=source)
 
 
-def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
+def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell | None = None,
                cross_rest: str = "flat") -> ShellModel:
     """Assemble the model of a design folder (``stencil.obj``, ``bases.csv``, ``cells.csv``).
 
@@ -463,6 +463,7 @@ def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell = UNIT_
 
     folder = Path(design_dir)
     d = read_design(folder)
+    unit = d.params if unit is None else unit  # the design's own unit cell (design.json)
     c = d.cells
     th = np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]]
     bad = np.flatnonzero(~np.all(np.isfinite(th) & (th > 0), axis=1))

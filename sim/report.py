@@ -707,8 +707,12 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     col = {"base_base": bc.summary()}
     mc = None
     if M_all is not None and M_all.shape[1]:
+        from pysolver.tables import read_unit_cell
+
+        uc = read_unit_cell(sd.folder)  # the design's own max cell length, not the default
         mc = membrane_collisions(C_all[:n_ok], R_all[:n_ok], M_all[:n_ok], t=t[:n_ok],
                                  tol=th.collision_depth_mm,
+                                 local_radius=uc.base_r + uc.max_cell_length,
                                  flat_vertices=fr.get("flat_membrane_vertices"),
                                  flat_centers=fr.get("flat_base_center"))
         col["membrane_base"] = mc.summary()

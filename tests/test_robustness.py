@@ -312,24 +312,34 @@ def _cap(tmp_path):
     return save_mesh(tmp_path / "cap.obj", m.vertices, m.faces)
 
 
-def test_too_curved_names_the_region_in_input_coordinates(tmp_path):
+def test_too_curved_names_the_region_in_target_mm(tmp_path):
+    """Places are named in mm on the target (stencil.obj v: the input centred at its vertex
+    mean and scaled by the 3D rule), to 0.1 mm, whatever the input's units (issue #19)."""
     from pysolver.build import design_only
+    from pysolver.flatten import compare_flattenings
+    from pysolver.layout import build_layout
+    from pysolver.mesh_input import load_input
 
     out = tmp_path / "out"
+    cap = _cap(tmp_path)
     with pytest.raises(InputError) as e:
-        design_only(str(_cap(tmp_path)), out=out, stencil_order=True, progress=False)
+        design_only(str(cap), out=out, stencil_order=True, progress=False)
     msg = str(e.value)
     _names(msg, r"unprintable design: \d+ unit cell\(s\) longer than 9\.5 mm \(max 1\d\.\d\d mm\)",
-           r"in the input's coordinates: cell \d+ at \(", r"region centred at \(",
+           r"on the target: cell \d+ at \(", r"region centred at \(",
            r"mostly along the rim", r"Fix: .*cut the surface through that region",
            r"--vertices N")
-    # the places named are on the user's sphere (centre (0, 0, 100), radius 50), near its rim
+    # the places named, mapped back to the input, are on the user's sphere (centre
+    # (0, 0, 100), radius 50), near its rim
+    m = load_input(cap)
+    lay = build_layout(m.V, compare_flattenings(m.V, m.F)["cetm"].UV, m.F)
     pts = np.array([[float(v) for v in p] for p in
-                    re.findall(r"\d+ at \((-?\d+), (-?\d+), (-?\d+)\) mm", msg)])
+                    re.findall(r"\d+ at \((-?\d+\.\d), (-?\d+\.\d), (-?\d+\.\d)\) mm", msg)])
     assert len(pts) == 4
-    r = np.linalg.norm(pts - [0, 0, 100.0], axis=1)
-    assert np.all(np.abs(r - 50.0) < 3.0), r          # rounded to 1 mm, chords inside
-    assert np.all(pts[:, 2] < 115.0)                   # the rim, not the pole (z = 150)
+    P = pts / lay.scale3d + m.V.mean(axis=0)
+    r = np.linalg.norm(P - [0, 0, 100.0], axis=1)
+    assert np.all(np.abs(r - 50.0) < 2.0), r           # cell midpoints: chords inside
+    assert np.all(P[:, 2] < 115.0)                     # the rim, not the pole (z = 150)
     assert not out.exists()                            # nothing written
 
 

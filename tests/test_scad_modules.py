@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from pysolver.frames import rotvec_to_matrix
-from pysolver.params import UNIT_CELL
+from pysolver.params import SUPPORT_FRAME, UNIT_CELL
 from pysolver.render import FACET_TOL_MM, load_stl
 from pysolver.scad_io import SCAD_DIR
 
@@ -76,11 +76,16 @@ def test_params_scad_equals_params_py(tmp_path):
     v = _echo(tmp_path, BASE_R="BASE_R", BASE_TH="BASE_TH", BASE_P="BASE_P",
               BRACKET_W="BRACKET_W", CLEARANCE="CLEARANCE", ALIGN_R="ALIGN_R",
               MARKER_R="MARKER_R", MARKER_DEPTH="MARKER_DEPTH", ALPHA_MARGIN="ALPHA_MARGIN",
-              LAYER_H="LAYER_H", ALPHA="ALPHA", FACET_TOL="FACET_TOL")
+              LAYER_H="LAYER_H", ALPHA="ALPHA", FACET_TOL="FACET_TOL",
+              FRAME_OFFSET_IN="FRAME_OFFSET_IN", FRAME_OFFSET_OUT="FRAME_OFFSET_OUT",
+              CONNECTOR_W="CONNECTOR_W", CONNECTOR_R0="CONNECTOR_R0")
     expect = dict(BASE_R=U.base_r, BASE_TH=U.base_th, BASE_P=U.base_p, BRACKET_W=U.bracket_w,
                   CLEARANCE=U.clearance, ALIGN_R=U.align_r, MARKER_R=U.marker_r,
                   MARKER_DEPTH=U.marker_depth, ALPHA_MARGIN=U.alpha_margin_deg,
-                  LAYER_H=U.layer_h, ALPHA=U.alpha_deg, FACET_TOL=FACET_TOL_MM)
+                  LAYER_H=U.layer_h, ALPHA=U.alpha_deg, FACET_TOL=FACET_TOL_MM,
+                  FRAME_OFFSET_IN=SUPPORT_FRAME.offset_in,
+                  FRAME_OFFSET_OUT=SUPPORT_FRAME.offset_out,
+                  CONNECTOR_W=SUPPORT_FRAME.connector_w, CONNECTOR_R0=SUPPORT_FRAME.connector_r0)
     for k, e in expect.items():
         assert v[k] == pytest.approx(e, rel=1e-5), k
 
@@ -204,11 +209,11 @@ def test_bumper_points_lie_on_the_moved_plane(tmp_path):
     assert np.cross(pts[4:] - pts[:4], u) == pytest.approx(np.zeros((4, 3)), abs=1e-4)
 
 
-def test_support_frame_bar_reaches_into_the_ring(tmp_path):
-    v = _echo(tmp_path, b="support_frame_bar([1, 2], 90, 3.5)")
+def test_support_frame_bar_has_the_given_length(tmp_path):
+    v = _echo(tmp_path, b="support_frame_bar([1, 2], 90, 12.5)")
     p0, p1 = np.array(v["b"])
     assert p0 == pytest.approx([1, 3], abs=1e-6)
-    assert p1[1] - 2 == pytest.approx(3.5 + 9 - 0.5, abs=1e-5)
+    assert p1 == pytest.approx([1, 14.5], abs=1e-5)
 
 
 # ------------------------------------------------------------------------------------------
