@@ -222,7 +222,8 @@ def test_two_keyframes_save_and_program(server, small_build):
             # hits a triangle of which it is the nearest corner
             x, y = d.execute_script(
                 "var e = studio.editor, V = e.V, v = arguments[0], c = [0, 0, 0];"
-                "for (var i = 0; i < e.nv; i++) for (var j = 0; j < 3; j++) c[j] += V[3*i+j] / e.nv;"
+                "for (var i = 0; i < e.nv; i++)"
+                "  for (var j = 0; j < 3; j++) c[j] += V[3*i+j] / e.nv;"
                 "var p = new THREE.Vector3(0.92*V[3*v] + 0.08*c[0], 0.92*V[3*v+1] + 0.08*c[1],"
                 " 0.92*V[3*v+2] + 0.08*c[2]).project(e.camera);"
                 "var r = e.canvas.getBoundingClientRect();"
