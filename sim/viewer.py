@@ -6,8 +6,8 @@ classic scripts, so the report can inline them and open from ``file://`` with no
 and no network; the studio serves the same two files.
 
 :func:`viewer_data` turns a loaded design folder (:class:`sim.report.SimData`) into the
-JSON the viewer reads: frames in the *target frame* (every frame moved by the one rigid
-motion that aligns the final base centres to the target, as the report's renders), base
+JSON the viewer reads: frames in the *target frame* (each frame moved by the rigid
+motion that aligns its base centres to the target, as the report's renders), base
 poses as quaternions, the membrane, the target stencil, and per-cell rows (t*, t_done,
 thickness, clamped).  Large arrays are base64 of little-endian float32 (positions
 quantised to uint16 over their bounding box when ``quantise``).
@@ -79,7 +79,24 @@ def _nan_list(a, nd=4) -> list:
     return [None if not np.isfinite(x) else round(float(x), nd) for x in np.asarray(a, float)]
 
 
-def viewer_data(sd, t_done, *, Q=None, s=None, max_frames: int = 80, quantise: bool = True,
+def frame_alignments(C, target):
+    """Rigid motion of every frame onto the target (Kabsch on the base centres, no scaling).
+
+    Parameters
+    ----------
+    C : (n_frames, n_bases, 3) float, mm ; target : (n_bases, 3) float, mm
+
+    Returns
+    -------
+    Q : (n_frames, 3, 3) float ; s : (n_frames, 3) float, mm -- ``x -> Q x + s``
+    """
+    from .scan import rigid_fit
+
+    fits = [rigid_fit(c, target) for c in np.asarray(C, float)]
+    return np.stack([q for q, _ in fits]), np.stack([np.asarray(v, float) for _, v in fits])
+
+
+def viewer_data(sd, t_done, *, max_frames: int = 80, quantise: bool = True,
                 name: str | None = None) -> dict:
     """The viewer's JSON for a simulated design folder.
 
@@ -89,9 +106,6 @@ def viewer_data(sd, t_done, *, Q=None, s=None, max_frames: int = 80, quantise: b
         Loaded design folder (tables, stencil, frames).
     t_done : (n_cells,) float, s
         Simulated completion time per cell (NaN = never), ``sim.report.completion_times``.
-    Q : (3, 3) float, optional ; s : (3,) float, mm, optional
-        Rigid motion ``x -> Q x + s`` into the target frame (default: the Kabsch fit
-        of the final frame's base centres onto the target centres).
     max_frames : int
         Frames kept (evenly spaced, first and last always kept).
     quantise : bool
@@ -103,20 +117,19 @@ def viewer_data(sd, t_done, *, Q=None, s=None, max_frames: int = 80, quantise: b
     -------
     dict (JSON-serialisable); see ``morph_viewer.js`` for the reader.
     """
-    from .scan import rigid_fit
-
     fr = sd.frames
     C = np.asarray(fr["base_center"], float)
     R = np.asarray(fr["base_rotation"], float)
     ok = np.isfinite(C).all(axis=(1, 2)) & np.isfinite(R).all(axis=(1, 2, 3))
     n_ok = len(ok) if ok.all() else int(np.argmin(ok))
     n_ok = max(n_ok, 1)
-    if Q is None or s is None:
-        Q, s = rigid_fit(C[n_ok - 1], sd.target)
     sel = np.unique(np.linspace(0, n_ok - 1, min(max_frames, n_ok)).round().astype(int))
     t = np.asarray(fr["t"], float)[sel]
-    Cd = C[sel] @ np.asarray(Q).T + s
-    Rd = np.einsum("ij,fbjk->fbik", np.asarray(Q), R[sel])
+    # every frame in the target frame by its own rigid fit: the shell does not drift or
+    # spin on screen while it morphs, and the distance to the target is the shape error
+    Q, s = frame_alignments(C[sel], sd.target)
+    Cd = np.einsum("fij,fbj->fbi", Q, C[sel]) + s[:, None]
+    Rd = np.einsum("fij,fbjk->fbik", Q, R[sel])
     pairs = sd.cell_pairs.astype(int)
     cells = sd.cells
     nb = sd.n_bases
@@ -149,7 +162,7 @@ def viewer_data(sd, t_done, *, Q=None, s=None, max_frames: int = 80, quantise: b
     M = fr.get("membrane_vertices")
     tri = fr.get("membrane_triangles")
     if M is not None and tri is not None and np.asarray(tri).size:
-        Md = np.asarray(M, float)[sel] @ np.asarray(Q).T + s
+        Md = np.einsum("fij,fvj->fvi", Q, np.asarray(M, float)[sel]) + s[:, None]
         out["membrane"] = {"tri": _b64(np.asarray(tri), np.uint32),
                            "n_vertices": int(Md.shape[1]), "pos": _positions(Md, quantise)}
     if sd.V is not None and sd.F is not None:
@@ -163,4 +176,5 @@ def viewer_json(data: dict) -> str:
     return json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
 
 
-__all__ = ["STATIC_DIR", "ASSETS", "asset_text", "viewer_data", "viewer_json"]
+__all__ = ["STATIC_DIR", "ASSETS", "asset_text", "frame_alignments", "viewer_data",
+           "viewer_json"]
