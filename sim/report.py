@@ -889,9 +889,9 @@ def _plot_shape_over_time(path, t, rms_t, size, th):
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    from .report_plots import _save
+
+    return _save(fig, path)
 
 
 # --------------------------------------------------------------------------------------------

@@ -78,38 +78,42 @@ def _import_pyvista():
 
 
 def fit_titles(fig, width_chars: int = 200) -> int:
-    """Wrap every axes title (and the figure's suptitle) wider than its figure onto more lines.
+    """Wrap every axes title that sticks out of its figure onto more lines, then lay out.
 
-    A title is measured with the figure's renderer; one wider than the figure is wrapped
-    at word boundaries until it fits.  Returns the number of titles wrapped.
+    A title is measured with the figure's renderer; one that crosses the figure's left or
+    right edge is wrapped at word boundaries, narrower each time, until it fits; the
+    figure is then laid out again (``tight_layout``) so the extra lines stay inside.
+    Returns the number of re-wraps (0 = nothing changed).
     """
     import textwrap
 
     fig.canvas.draw()
     r = fig.canvas.get_renderer()
-    fw = fig.bbox.width
-    texts = [ax.title for ax in fig.axes if ax.get_title()]
-    if getattr(fig, "_suptitle", None) is not None:
-        texts.append(fig._suptitle)
+    box = fig.bbox
     n = 0
-    for t in texts:
+    for t in (ax.title for ax in fig.axes if ax.get_title()):
         text = t.get_text().replace("\n", " ")
         width = width_chars
-        while t.get_window_extent(r).width > 0.98 * fw and width > 10:
-            width = int(width * 0.8)
-            t.set_text("\n".join(textwrap.wrap(text, width)))
+        while width > 10:
+            e = t.get_window_extent(r)
+            if e.x0 >= box.x0 and e.x1 <= box.x1:
+                break
+            width = min(width, len(text)) - max(2, width // 6)
+            t.set_text("\n".join(textwrap.wrap(text, max(width, 10))))
             fig.canvas.draw()
             n += 1
+    if n:
+        fig.tight_layout()
+        fig.canvas.draw()
     return n
 
 
 def titles_fit(fig) -> bool:
-    """Every title lies inside the figure (nothing cut off)."""
+    """Every axes title lies inside the figure (nothing cut off)."""
     fig.canvas.draw()
     r = fig.canvas.get_renderer()
     box = fig.bbox
-    texts = [ax.title for ax in fig.axes if ax.get_title()]
-    for t in texts:
+    for t in (ax.title for ax in fig.axes if ax.get_title()):
         e = t.get_window_extent(r)
         if e.x0 < box.x0 - 0.5 or e.x1 > box.x1 + 0.5 or e.y1 > box.y1 + 0.5:
             return False
@@ -117,8 +121,7 @@ def titles_fit(fig) -> bool:
 
 
 def _save(fig, path):
-    if fit_titles(fig):
-        fig.tight_layout()
+    fit_titles(fig)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
