@@ -216,9 +216,14 @@
       if (c[i] > hi[k]) hi[k] = c[i];
     }
     var mid = new THREE.Vector3((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2);
-    var rad = 0.5 * Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) + 2 * this.data.base_r;
+    var rad = 0;   // farthest base centre from the middle, over the whole morph
+    for (var j = 0; j < c.length; j += 3) {
+      rad = Math.max(rad, Math.hypot(c[j] - mid.x, c[j + 1] - mid.y, c[j + 2] - mid.z));
+    }
+    rad += this.data.base_r + this.data.layer_h;
     this.orbit.target.copy(mid);
-    this.orbit.radius = rad / Math.sin((this.camera.fov / 2) * Math.PI / 180) * 1.02;
+    // the sphere fits the vertical field of view; the canvas is wider than tall
+    this.orbit.radius = rad / Math.sin((this.camera.fov / 2) * Math.PI / 180) * 0.92;
     this.orbit.theta = -Math.PI / 2 + 0.5; this.orbit.phi = 0.75;
     this.orbit.update(false);
   };
