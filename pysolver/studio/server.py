@@ -59,6 +59,13 @@ _TYPES = {".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=ut
           ".html": "text/html; charset=utf-8"}
 
 
+def _read_json(path):
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def _jsonable(a):
     """A float array as a list with None for non-finite values."""
     return [None if not np.isfinite(x) else round(float(x), 4) for x in np.asarray(a, float)]
@@ -219,8 +226,12 @@ class Job:
         try:
             for stage, weight in plan:
                 cmd = [sys.executable, "-m", "pysolver.cli", stage, str(build.folder)]
-                if stage == "simulate":
+                if stage == "simulate":   # the build's own simulated time and step
                     cmd.append("--no-resume")
+                    opts = (_read_json(build.folder / "summary.json") or {}).get("options", {})
+                    for key, flag in (("t_end", "--t-end"), ("dt", "--dt")):
+                        if isinstance(opts.get(key), (int, float)):
+                            cmd += [flag, repr(float(opts[key]))]
                 self._set(message=f"{stage} ...")
                 proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE,
                                         text=True, env=env)
