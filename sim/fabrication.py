@@ -268,6 +268,41 @@ def template_svg(tp: dict, title: str, fab=FABRICATION) -> str:
     return "\n".join(out) + "\n"
 
 
+def template_pdf(tp: dict, path, title: str, fab=FABRICATION):
+    """The template as a one-page PDF at 1:1 (page = the sheet, axes in mm; matplotlib)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = tp["sheet_mm"]
+    fig = plt.figure(figsize=(s / 25.4, s / 25.4))
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.set_xlim(-s / 2, s / 2)
+    ax.set_ylim(-s / 2, s / 2)
+    ax.set_axis_off()
+    pt = 72 / 25.4                                       # points per mm
+    for P, kw in ((tp["outline"], dict(color="#b07000", lw=0.3 * pt)),
+                  (tp["cut"], dict(color="red", lw=0.3 * pt, ls=(0, (1.5, 1))))):
+        Q = np.vstack([P, P[:1]])
+        ax.plot(Q[:, 0], Q[:, 1], **kw)
+    ax.fill(tp["outline"][:, 0], tp["outline"][:, 1], color="#f2d39b", alpha=0.5, lw=0)
+    from matplotlib.patches import Circle
+
+    for x, y in tp["markers"]:
+        ax.add_patch(Circle((x, y), fab.marker_r_mm, color="black"))
+    ax.plot([-4, 4], [0, 0], "k", lw=0.3 * pt)
+    ax.plot([0, 0], [-4, 4], "k", lw=0.3 * pt)
+    y0 = -s / 2 + 6
+    ax.plot([-s / 2 + 6, -s / 2 + 56], [y0, y0], "k", lw=0.4 * pt)
+    ax.text(-s / 2 + 58, y0, "50 mm", fontsize=2.5 * pt, va="center")
+    ax.text(-s / 2 + 4, s / 2 - 4, f"{title}: print at 100 % (1:1); stretch {tp['tau']:g}x "
+            f"onto the {tp['device_d_mm']:.0f} mm star device", fontsize=2.5 * pt, va="top")
+    fig.savefig(path, format="pdf")
+    plt.close(fig)
+    return Path(path)
+
+
 # ----------------------------------------------------------------------- fabrication sheet
 
 
@@ -356,5 +391,6 @@ def fabrication_steps(*, n_align, align_ids, side, template, fab=FABRICATION,
     ]
 
 
-__all__ = ["provenance", "stl_inventory", "stretch_template", "template_svg", "timeline",
+__all__ = ["provenance", "stl_inventory", "stretch_template", "template_svg", "template_pdf",
+           "timeline",
            "top_layer_side", "fabrication_steps", "sha256_file", "STL_PURPOSE"]

@@ -972,6 +972,9 @@ def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
                 fab.template_svg(template, f"{folder.resolve().name}: membrane stretch "
                                            "template"), encoding="utf-8")
             files["stretch_template"] = "stretch_template.svg"
+            fab.template_pdf(template, tmp / "stretch_template.pdf",
+                             f"{folder.resolve().name}: membrane stretch template")
+            files["stretch_template_pdf"] = "stretch_template.pdf"
     align = np.flatnonzero(np.asarray(sd.bases.get("alignment", np.zeros(sd.n_bases)), int))
     t_star = np.asarray(sd.cells["t_star_s"], float)
     t_done = np.asarray(tm["t_done"], float)
@@ -1190,8 +1193,9 @@ def _fabrication_html(r, tmp) -> str:
     tpl = fab.get("template")
     tpl_html = ""
     if tpl and "stretch_template" in r["files"]:
-        tpl_html = ("<p>Membrane stretch template <code>stretch_template.svg</code> (beside "
-                    f"this page; print at 100 %): {tpl['device_d_mm']:.0f} mm star device, "
+        tpl_html = ("<p>Membrane stretch template <code>stretch_template.svg</code> and "
+                    "<code>stretch_template.pdf</code> (beside this page; print at 100 %): "
+                    f"{tpl['device_d_mm']:.0f} mm star device, "
                     f"markers at radius {tpl['marker_radius_mm']:.1f} mm on the unstretched "
                     f"sheet, which stretched {tpl['tau']:g}x land on the teeth.</p>"
                     + _figs(_img(tmp, r["files"]["stretch_template"],

@@ -235,7 +235,7 @@ def test_good_morph_passes_and_report_is_complete(good):
         assert f"id='{s}'" in page, s
     names = [v for k, v in r["files"].items() if isinstance(v, str)] + r["files"]["renders"]
     assert len(names) >= 10
-    embedded = [n for n in names if not n.endswith(".gif")]
+    embedded = [n for n in names if not n.endswith((".gif", ".pdf"))]
     for name in names:
         p = out / name
         assert p.exists() and p.stat().st_size > 500, name

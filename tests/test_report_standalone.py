@@ -168,7 +168,7 @@ def test_plot_titles_fit(petal, tmp_path, monkeypatch):
     plt.close(fig)
 
 
-def test_stretch_template_is_exact_and_1_to_1():
+def test_stretch_template_is_exact_and_1_to_1(tmp_path):
     ang = np.linspace(0, 2 * np.pi, 200, endpoint=False)
     circle = np.c_[50 * np.cos(ang), 50 * np.sin(ang)] + [7.0, -3.0]
     tp = fab.stretch_template(circle, tau=3.0)
@@ -189,8 +189,40 @@ def test_stretch_template_is_exact_and_1_to_1():
     assert len(dots) == FABRICATION.star_teeth
     assert all(math.isclose(math.hypot(float(x) - c, float(y) - c), 200 / 6, abs_tol=3e-3)
                for x, y in dots)
+    pdf = fab.template_pdf(tp, tmp_path / "t.pdf", "t").read_bytes()
+    box = [float(x) for x in re.search(rb"/MediaBox \[ *([\d. ]+)\]", pdf).group(1).split()]
+    assert box[2] - box[0] == pytest.approx(tp["sheet_mm"] * 72 / 25.4, abs=0.01)   # 1:1
     big = fab.stretch_template(circle * 10, tau=3.0)   # 500 mm shell: no device is big enough
     assert not big["fits"] and big["device_d_mm"] == max(FABRICATION.star_diameters_mm)
+
+
+def test_viewer_data_round_trips(petal):
+    """The viewer's JSON decodes to the frames, each aligned rigidly to the target."""
+    import base64
+
+    from sim.report import completion_times, load_sim
+    from sim.viewer import frame_alignments, viewer_data
+
+    sd = load_sim(petal)
+    fr = sd.frames
+    t_done, _ = completion_times(fr["t"], fr["collided"], fr.get("bracket_length"),
+                                 fr.get("collision_length"))
+    v = viewer_data(sd, t_done, max_frames=30)
+    sel = np.asarray(v["frames"])
+    assert len(sel) == 30 and sel[0] == 0 and sel[-1] == len(fr["t"]) - 1
+    c = v["center"]
+    q = np.frombuffer(base64.b64decode(c["data"]), "<u2").reshape(30, sd.n_bases, 3)
+    C = np.asarray(c["lo"]) + q / 65535.0 * np.asarray(c["span"])
+    Q, s = frame_alignments(fr["base_center"][sel], sd.target)
+    want = np.einsum("fij,fbj->fbi", Q, fr["base_center"][sel]) + s[:, None]
+    assert np.abs(C - want).max() <= 0.51 * max(c["span"]) / 65535 + 1e-9
+    # the last frame's distances are the report's shape error
+    dist = np.frombuffer(base64.b64decode(v["distance"]), "<f4").reshape(30, sd.n_bases)
+    js = json.loads((petal / "report" / "report.json").read_text())
+    assert float(np.sqrt(np.mean(dist[-1].astype(float) ** 2))) == pytest.approx(
+        js["metrics"]["shape"]["rms_mm"], rel=1e-5)
+    assert len(v["base_fields"]["completion"]) == sd.n_bases
+    assert v["cells"]["clamped"] == np.asarray(sd.cells["clamped"], int).tolist()
 
 
 @pytest.mark.skipif(not have_browser(), reason="Debian chromium + chromium-driver not installed")
