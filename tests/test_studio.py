@@ -162,6 +162,12 @@ def _wait(driver, cond, what):
         lambda d: cond(d), message=f"timed out waiting for {what}")
 
 
+def _latest_preview(driver) -> bool:
+    """The feasibility shown is the answer to the editor's latest edit."""
+    return driver.find_element("id", "feas").get_attribute("data-seq") == str(
+        driver.execute_script("return studio.editor.seq"))
+
+
 def _open(driver, server):
     driver.get(server.url)
     _wait(driver, lambda d: d.find_element("tag name", "body").get_attribute("data-ready"),
@@ -213,6 +219,9 @@ def test_two_keyframes_save_and_program(server, small_build):
     before = int(read_table(small_build, "cells")["clamped"].sum())
     with chrome() as d:
         _open(d, server)
+        d.find_element("id", "clear").click()      # keyframes of an earlier save are listed
+        _wait(d, lambda d: d.find_element("id", "kf-list").get_attribute("data-count") == "0",
+              "an empty keyframe list")
         canvas = d.find_element("css selector", "#editor-view canvas")
         time_box = d.find_element("id", "kf-time")
         for k, (v, t) in enumerate(((a, 35), (b, 60)), start=1):
@@ -236,8 +245,7 @@ def test_two_keyframes_save_and_program(server, small_build):
         placed = [(int(r.get_attribute("data-vertex")), float(r.get_attribute("data-time")))
                   for r in d.find_elements("css selector", "#kf-list tr")]
         assert placed == [(a, 35.0), (b, 60.0)]
-        _wait(d, lambda d: d.find_element("id", "feas").get_attribute("data-seq") is not None,
-              "the live feasibility")
+        _wait(d, _latest_preview, "the live feasibility of both keyframes")
         live = int(d.find_element("id", "feas").get_attribute("data-n-clamped"))
         land = harmonic_landscape(V, F, [a, b], [35.0, 60.0])
         assert live == int(Feasibility(small_build).evaluate(land)["clamped"].sum()) > 0
@@ -265,3 +273,67 @@ def test_two_keyframes_save_and_program(server, small_build):
         n_points = d.execute_script(
             "return studio.editor.marks.geometry.getAttribute('position').count")
         assert n_points == int(after.sum())
+
+
+@browser
+def test_brush_fixes_a_region(server, small_build):
+    V, _, _ = read_stencil(small_build / "stencil.obj")
+    centre = int(np.argmin(np.linalg.norm(V - V.mean(axis=0), axis=1)))
+    with chrome() as d:
+        _open(d, server)
+        d.find_element("id", "clear").click()      # keyframes of an earlier save are listed
+        _wait(d, lambda d: d.find_element("id", "kf-list").get_attribute("data-count") == "0",
+              "an empty keyframe list")
+        d.find_element("css selector", "input[name=tool][value=brush]").click()
+        for box, value in (("brush-radius", "9"), ("kf-time", "44")):
+            el = d.find_element("id", box)
+            el.clear()
+            el.send_keys(value)
+        x, y = d.execute_script("return studio.editor.screenOf(arguments[0])", centre)
+        canvas = d.find_element("css selector", "#editor-view canvas")
+        from selenium.webdriver.common.action_chains import ActionChains
+
+        ActionChains(d).move_to_element_with_offset(
+            canvas, x - canvas.location["x"] - canvas.size["width"] / 2,
+            y - canvas.location["y"] - canvas.size["height"] / 2).click().perform()
+        _wait(d, _latest_preview, "the brushed landscape")
+        row = d.find_element("css selector", "#kf-list tr")
+        v = int(row.get_attribute("data-vertex"))
+        assert row.text.startswith("brush 9 mm")
+        land = np.asarray(d.execute_script("return studio.editor.landscape"), float)
+        inside = np.linalg.norm(V - V[v], axis=1) <= 9.0
+        assert inside.sum() >= 3 and np.allclose(land[inside], 44.0)
+        assert np.allclose(land, 44.0)       # one fixed time: the whole landscape is 44 s
+
+
+def test_program_and_simulate_job_reloads_the_viewer(server, small_build):
+    """Last in the file: it re-simulates the shared build."""
+    st, data = _request(server, "GET", "/api/build/0/viewer")
+    before = json.loads(data)
+    frames = small_build / "sim" / "frames.npz"
+    mtime = frames.stat().st_mtime_ns
+    st, data = _request(server, "POST", "/api/build/0/run", body={"stages": "program+simulate"})
+    assert st == 200 and json.loads(data)["state"] == "running"
+    st, _ = _request(server, "POST", "/api/build/0/run", body={"stages": "program"})
+    assert st == 400                               # one job at a time
+    seen = []
+    done = threading.Event()
+
+    def poll():
+        while True:
+            j = json.loads(_request(server, "GET", "/api/job")[1])
+            seen.append(j["progress"])
+            if j["state"] != "running":
+                done.job = j
+                done.set()
+                return
+            done.wait(0.3)
+
+    poll()
+    assert done.job["state"] == "done", done.job
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(set(seen)) > 3   # progress moves
+    assert frames.stat().st_mtime_ns != mtime
+    after = json.loads(_request(server, "GET", "/api/build/0/viewer")[1])
+    # the build's own t_end (20 s) and step: the same frame times as before
+    assert after["t"] == before["t"] and after["t"][-1] == 20.0
+    assert (small_build / "report" / "index.html").stat().st_mtime_ns > mtime
