@@ -22,7 +22,8 @@ PYTHON     ?= python3
 VENV       := .venv
 PY         := $(VENV)/bin/python
 STAMP      := $(VENV)/.installed
-APT_PKGS   := openscad libsuitesparse-dev libopenblas0-pthread libegl1 libegl-mesa0 libgl1-mesa-dri
+APT_PKGS   := openscad libsuitesparse-dev libopenblas0-pthread libegl1 libegl-mesa0 libgl1-mesa-dri \
+              chromium chromium-driver
 
 export OMP_THREAD_LIMIT ?= 1
 export VTK_DEFAULT_OPENGL_WINDOW ?= vtkEGLRenderWindow
@@ -56,7 +57,7 @@ BUILD_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
 RUN        := set -f;
 
 .PHONY: all build design sim report test bench clean material membrane-model specimens \
-        system-deps venv lint shapes
+        system-deps venv lint shapes studio studio-shots
 
 all: build
 
@@ -74,6 +75,18 @@ report: $(STAMP)
 
 shapes: $(STAMP)
 	$(PY) -m pysolver.cli shapes
+
+# The browser front end on build/<shape> (built first when missing); ARGS e.g. "--port 8765".
+studio: $(STAMP)
+	@$(RUN) test -f "build/$$MS_NAME/sim/frames.npz" || \
+	  (MS_ARGS=; $(PY) -m pysolver.cli build "$$MS_SOURCE" $(BUILD_OPTS)) || test $$? = 3; \
+	$(PY) -m pysolver.cli studio "build/$$MS_NAME" $$MS_ARGS
+
+# README screenshots of the studio and the report: docs/img/studio.png, docs/img/report.png
+studio-shots: $(STAMP)
+	@$(RUN) test -f "build/$$MS_NAME/report/index.html" || \
+	  $(PY) -m pysolver.cli build "$$MS_SOURCE" $(BUILD_OPTS) || test $$? = 3; \
+	$(PY) -m pysolver.studio.shots "build/$$MS_NAME" docs/img
 
 material: $(STAMP)
 	@$(RUN) $(PY) -m pysolver.cli fit-material $${MS_DATA:+--data "$$MS_DATA"} \

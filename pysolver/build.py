@@ -333,7 +333,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
                   renderer=renderer)
         if simulate:
             from sim.report import make_report
-            stage("report", make_report, staging, progress=progress)
+            stage("report", make_report, staging, progress=progress,
+                  build_info={k: summary[k] for k in ("source", "options", "inputs_sha256")})
         summary["stage_inputs"] = _stage_inputs(staging, material=material, t_end=t_end, dt=dt)
         summary["kept"] = _keep_skipped_outputs(out, staging, summary["stage_inputs"],
                                                 render=render, simulate=simulate,

@@ -41,6 +41,7 @@ stages (each reads and writes plain files in a design folder, build/<shape>/):
   fit-membrane  fit the linearised membrane model from FEM samples
   specimens     printable unit-cell test specimens from the same SCAD modules
   shapes        list the built-in shapes
+  studio        browser front end: morph viewer, time-landscape editor, builds side by side
 """
 
 
@@ -188,6 +189,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, default=None)
 
     add("shapes", help="list the built-in shapes")
+
+    p = add("studio", help="browser front end: morph viewer, time-landscape editor")
+    p.add_argument("dirs", nargs="*", metavar="DIR",
+                   help="build folders, shown side by side (default: every build/<name>)")
+    p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: any free)")
+    p.add_argument("--no-browser", action="store_true", help="do not open a browser")
     return ap
 
 
@@ -304,6 +311,10 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         out = claim_output(args.out, what="--out folder")
         make_specimens(out, jobs=args.jobs)
         write_stamp(out)
+        return EXIT_OK
+    if cmd == "studio":
+        from .studio import serve
+        serve(args.dirs, port=args.port, open_browser=not args.no_browser)
         return EXIT_OK
     if cmd == "shapes":
         from .surfaces import BUILTIN_SHAPES

@@ -412,3 +412,47 @@ def layer_sign(layer) -> int:
 __all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
            "SupportFrame", "SUPPORT_FRAME",
            "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign"]
+
+
+@dataclass(frozen=True)
+class Fabrication:
+    """Numbers of the fabrication procedure (SI Note 5) used by the report's fabrication
+    sheet and the membrane stretch template (``sim/fabrication.py``).
+
+    Attributes
+    ----------
+    star_diameters_mm : tuple of float, mm
+        Tip-circle diameters D of the star-shaped stretching devices the template can be
+        drawn for (the reference's marker script: 200, 400, 500 mm).
+    star_teeth : int
+        Teeth of the device = markers on the sheet (16-point star).
+    release_stretch : float
+        Stretch factor the sheet is released to before cutting ("near 2").
+    cut_margin_mm : float, mm
+        Latex left around the shell when cutting (in the glued, stretched state).
+    sheet_wrap_mm : float, mm
+        Sheet beyond the marker circle, to wrap around the teeth (unstretched).
+    pin_diameter_mm : float, mm
+        Push-pin shaft through the alignment holes (reference push_pin.scad: r 0.4).
+    water_c : float, degC
+        Water temperature of the morphing bath.
+    glue_wait_min, dry_min : float, min
+        Wait after gluing before releasing the sheet; drying after the bath.
+    marker_r_mm : float, mm
+        Radius of a marker dot drawn on the template.
+    """
+
+    star_diameters_mm: tuple = (200.0, 400.0, 500.0)
+    star_teeth: int = 16
+    release_stretch: float = 2.0
+    cut_margin_mm: float = 3.0
+    sheet_wrap_mm: float = 15.0
+    pin_diameter_mm: float = 0.8
+    water_c: float = 56.0
+    glue_wait_min: float = 5.0
+    dry_min: float = 15.0
+    marker_r_mm: float = 1.5
+
+
+FABRICATION = Fabrication()
+__all__ += ["Fabrication", "FABRICATION"]

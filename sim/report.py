@@ -40,8 +40,8 @@ from .collisions import base_collisions, membrane_collisions
 from .collisions import completion_times as _local_completion_times
 from .scan import rigid_fit
 
-SECTIONS = ("verdict", "shape", "timing", "collisions", "solver", "renders", "animation",
-            "layout", "landscape")
+SECTIONS = ("verdict", "viewer", "shape", "timing", "collisions", "solver", "renders",
+            "layout", "landscape", "fabrication", "stls", "provenance")
 """Section ids of ``index.html``, in order."""
 
 FRAME_KEYS = ("t", "base_center", "base_rotation", "bracket_length", "collided")
@@ -604,7 +604,8 @@ def _jsonable(o):
 
 
 def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_dir=None,
-                progress=True, image_px=560, gif_frames=60, renderer="auto") -> dict:
+                progress=True, image_px=560, gif_frames=0, renderer="auto", build_info=None,
+                viewer_frames=80) -> dict:
     """Check a simulated morph and write the HTML/JSON report.
 
     Parameters
@@ -624,9 +625,14 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     image_px : int, px
         Width of the renders (height = 3/4); the GIF is at most 480 px wide.
     gif_frames : int
-        Frames of the animation (at most 60).
+        Frames of an animated GIF written beside the report (at most 60; 0 = none, the
+        default: the page embeds the interactive viewer instead).
     renderer : {"auto", "pyvista", "matplotlib"}
         Shell renderer; "auto" uses pyvista when off-screen rendering works.
+    build_info : dict, optional
+        ``source``, ``options``, ``inputs_sha256`` of the build (provenance).
+    viewer_frames : int
+        Frames of the embedded 3D viewer (evenly spaced, the end kept).
 
     Returns
     -------
@@ -643,10 +649,10 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         raise InputError(f"renderer = {renderer!r}", fix="use 'auto', 'pyvista' or 'matplotlib'")
     if not (16 <= int(image_px) <= 4096):
         raise InputError(f"image_px = {image_px}", fix="use a width between 16 and 4096 px")
-    gif_frames = int(min(max(gif_frames, 2), 60))
+    gif_frames = 0 if not gif_frames else int(min(max(gif_frames, 2), 60))
     t_start = time.perf_counter()
     timings = {}
-    pr = _Progress(progress, 9)
+    pr = _Progress(progress, 10)
 
     def lap(name, t0):
         timings[name] = round(time.perf_counter() - t0, 3)
@@ -739,7 +745,8 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         # ---- 2D plots
         t0 = time.perf_counter()
         files["timing"] = rp.plot_timing(tmp / "timing.png", sd.cells["t_star_s"],
-                                         tm["t_done"], float(t[last])).name
+                                         tm["t_done"], float(t[last]),
+                                         clamped=sd.cells.get("clamped")).name
         files["clearance"] = rp.plot_clearance(
             tmp / "collisions.png", t[:n_ok], bc.min_clearance,
             mc.min_clearance if mc is not None else None, th.collision_depth_mm,
@@ -760,12 +767,17 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         lap("plots", t0)
         pr.step("plots")
 
-        # ---- shell renders (all frames shown in the target frame: x -> Q x + s)
+        # ---- shell renders (each frame in the target frame by its own rigid fit, so the
+        # camera sees the shell from the same side all along the morph)
         t0 = time.perf_counter()
-        Q, s = sh["Q"], sh["s"]
-        C_d = C_all[:n_ok] @ Q.T + s
-        R_d = np.einsum("ij,fbjk->fbik", Q, R_all[:n_ok])
-        M_d = M_all[:n_ok] @ Q.T + s if M_all is not None else None
+        from .viewer import frame_alignments
+
+        Qs, ss = frame_alignments(C_all[:n_ok], sd.target)
+        sh["Qs"], sh["ss"] = Qs, ss
+        C_d = np.einsum("fij,fbj->fbi", Qs, C_all[:n_ok]) + ss[:, None]
+        R_d = np.einsum("fij,fbjk->fbik", Qs, R_all[:n_ok])
+        M_d = (np.einsum("fij,fvj->fvi", Qs, M_all[:n_ok]) + ss[:, None]
+               if M_all is not None else None)
         T_d = np.asarray(tri, np.int64) if tri is not None and M_d is not None else None
         w = int(image_px)
         size = (w, int(round(0.75 * w)))
@@ -788,6 +800,13 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         lap("renders", t0)
         pr.step(f"renders ({ren.backend})")
 
+        # ---- standing alone: viewer, fabrication sheet, template, STLs, provenance
+        t0 = time.perf_counter()
+        extra = _standalone(sd, tm, tmp, folder, build_info, viewer_frames)
+        files.update(extra.pop("files"))
+        lap("standalone", t0)
+        pr.step("viewer, fabrication sheet, provenance")
+
         # ---- json + html
         t0 = time.perf_counter()
         timings["total_before_write"] = round(time.perf_counter() - t_start, 3)
@@ -797,10 +816,13 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
             "renderer": ren.backend, "notes": notes, "files": files, "timings_s": timings,
             "render_frames": {"frames": files.get("render_frames", []),
                               "times_s": [float(t[f]) for f in files.get("render_frames", [])]},
+            "provenance": extra["provenance"], "stls": extra["stls"],
+            "fabrication": extra["fabrication"],
         }
         result = _jsonable(result)
         (tmp / "report.json").write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
-        (tmp / "index.html").write_text(_html(result, tmp, sd), encoding="utf-8")
+        (tmp / "index.html").write_text(_html(result, tmp, sd, extra["viewer"]),
+                                        encoding="utf-8")
         lap("write", t0)
     timings["total"] = round(time.perf_counter() - t_start, 3)
     result["timings_s"] = timings
@@ -812,12 +834,11 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
     """Still renders, error picture, collision picture and the GIF; returns their file names."""
     out = {}
     sel = _nearest_frames(t[:last + 1], times)
-    labels = [f"t = {t[f]:g} s" + (" (end)" if f == last else "") for f in sel]
     names = []
     # each still framed on its own frame (the flat sheet is 2-4x the size of the target, so
-    # one camera for all would leave the end shape small); the GIF keeps one camera
-    stills = [ren.images([f], labels=[lab], fit="these")[0]
-              for f, lab in zip(sel, labels, strict=True)]
+    # one camera for all would leave the end shape small); the GIF keeps one camera.  No
+    # label in the picture: the page's caption gives the time (one caption each)
+    stills = [ren.images([f], fit="these", zoom=1.3)[0] for f in sel]
     for f, img in zip(sel, stills, strict=True):
         name = f"render_f{f:04d}.png"
         rp.save_png(img, tmp / name)
@@ -825,15 +846,14 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
     out["renders"] = names
     out["render_frames"] = sel
     err = sh["err"]
-    img = ren.images([last], labels=[f"final shape error (mm), t = {t[last]:g} s"],
-                     base_scalars=err, clim=(0.0, max(float(err.max()), 1e-3)), cmap="plasma",
-                     scalar_title="error (mm)", fit="these")[0]
+    img = ren.images([last], base_scalars=err, clim=(0.0, max(float(err.max()), 1e-3)),
+                     cmap="plasma", scalar_title="error (mm)", fit="these")[0]
     out["shape_error"] = rp.save_png(img, tmp / "shape_error.png").name
     if bc.count:
         ev = bc.first()
         f = ev["frame"]
         hit = np.unique(bc.pairs[bc.first_frame == f].ravel())
-        point = (np.asarray(ev["point_mm"]) @ sh["Q"].T + sh["s"])[None]
+        point = (np.asarray(ev["point_mm"]) @ sh["Qs"][f].T + sh["ss"][f])[None]
         label = f"first collision, t = {t[f]:g} s: bases {ev['pair'][0]} & {ev['pair'][1]}"
         over = ren.images([f], labels=[label + " (red)"], highlight=hit, fit="these",
                           extra_points=point)[0]
@@ -844,6 +864,8 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
                            normal=ren.R[f, a, :, 2], extra_points=point)[0]
         img = np.concatenate([over, close], axis=1)
         out["collision_frame"] = rp.save_png(img, tmp / "collision_frame.png").name
+    if not gif_frames:
+        return out
     # animation: at most gif_frames frames, at most 480 px wide
     gw = min(w, 480)
     saved = ren.size
@@ -871,9 +893,9 @@ def _plot_shape_over_time(path, t, rms_t, size, th):
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    from .report_plots import _save
+
+    return _save(fig, path)
 
 
 # --------------------------------------------------------------------------------------------
@@ -881,37 +903,53 @@ def _plot_shape_over_time(path, t, rms_t, size, th):
 # --------------------------------------------------------------------------------------------
 
 _CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
-max-width:1100px;color:#222;padding:0 1em}
-h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:1.5em auto;
+max-width:1200px;color:#222;padding:0 1em;line-height:1.4}
+h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;
+margin-top:1.4em}
 .verdict{font-size:2em;font-weight:bold;padding:.2em .6em;display:inline-block;border-radius:6px}
 .PASS{background:#d7f5d7;color:#135e13}.WARN{background:#fff0c2;color:#7a5a00}
 .FAIL{background:#ffd6d6;color:#8a1010}
 table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ddd;padding:.25em .6em;
-text-align:left}th{background:#f4f4f4}
-figure{display:inline-block;margin:.4em;vertical-align:top}
-figcaption{font-size:.85em;color:#555;max-width:560px}img{max-width:100%}
+text-align:left;vertical-align:top}th{background:#f4f4f4}
+.figs{display:grid;grid-template-columns:repeat(auto-fill,minmax(460px,1fr));gap:.8em;
+align-items:start}
+.figs.wide{grid-template-columns:1fr}
+figure{margin:0}figcaption{font-size:.9em;color:#444;margin-top:.2em}img{max-width:100%;
+display:block}
 li.FAIL{color:#8a1010}li.WARN{color:#7a5a00}.note{color:#555;font-size:.9em}
+ol.steps li{margin:.3em 0}code{background:#f4f4f4;padding:0 .2em}
+@media print{.mv,#viewer .note{display:none}.figs{display:block}figure{break-inside:avoid}}
 """
 
 
 def _img(tmp, name, caption):
     p = Path(tmp) / name
-    mime = "image/gif" if name.endswith(".gif") else "image/png"
+    mime = {".gif": "image/gif", ".svg": "image/svg+xml"}.get(p.suffix, "image/png")
     data = base64.b64encode(p.read_bytes()).decode("ascii")
     return (f'<figure><img src="data:{mime};base64,{data}" alt="{html.escape(caption)}" '
             f'data-file="{html.escape(name)}"><figcaption>{html.escape(caption)}</figcaption>'
             "</figure>")
 
 
-def _table(rows):
+def _figs(*items, wide=False):
+    return f"<div class='figs{' wide' if wide else ''}'>" + "".join(items) + "</div>"
+
+
+def _table(rows, head=None):
     out = ["<table>"]
-    for k, v in rows:
-        if isinstance(v, float):
-            v = "n/a" if not math.isfinite(v) else f"{v:.4g}"
-        elif v is None:
-            v = "n/a"
-        out.append(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>")
+    if head:
+        out.append("<tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>")
+    for row in rows:
+        cells = []
+        for k, v in enumerate(row):
+            if isinstance(v, float):
+                v = "n/a" if not math.isfinite(v) else f"{v:.4g}"
+            elif v is None:
+                v = "n/a"
+            tag = "th" if k == 0 and not head else "td"
+            cells.append(f"<{tag}>{html.escape(str(v))}</{tag}>")
+        out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</table>")
     return "\n".join(out)
 
@@ -920,7 +958,71 @@ def _f(x, fmt="{:.3g}"):
     return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
 
-def _html(r, tmp, sd) -> str:
+def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
+    """Viewer data, stretch template, STL list, fabrication sheet and provenance."""
+    from pysolver.tables import read_table
+
+    from . import fabrication as fab
+    from .viewer import viewer_data
+
+    files = {}
+    viewer = viewer_data(sd, tm["t_done"], max_frames=int(viewer_frames))
+    template = None
+    if (folder / "support_frame.csv").exists():
+        sf = read_table(folder, "support_frame")
+        if len(sf["x_mm"]) >= 3:
+            template = fab.stretch_template(np.c_[sf["x_mm"], sf["y_mm"]])
+            (tmp / "stretch_template.svg").write_text(
+                fab.template_svg(template, f"{folder.resolve().name}: membrane stretch "
+                                           "template"), encoding="utf-8")
+            files["stretch_template"] = "stretch_template.svg"
+            fab.template_pdf(template, tmp / "stretch_template.pdf",
+                             f"{folder.resolve().name}: membrane stretch template")
+            files["stretch_template_pdf"] = "stretch_template.pdf"
+    align = np.flatnonzero(np.asarray(sd.bases.get("alignment", np.zeros(sd.n_bases)), int))
+    t_star = np.asarray(sd.cells["t_star_s"], float)
+    t_done = np.asarray(tm["t_done"], float)
+    ok = np.isfinite(t_done)
+    span = (float(np.min(t_done[ok])), float(np.max(t_done[ok]))) if ok.any() else None
+    cell_xyz = sd.target[sd.cell_pairs].mean(axis=1)
+    steps = fab.fabrication_steps(
+        n_align=len(align), align_ids=align.tolist(),
+        side=fab.top_layer_side(sd.target, sd.target_normals),
+        template=template or {"device_d_mm": max(fab.FABRICATION.star_diameters_mm),
+                              "fits": True},
+        t_span=span)
+    fabrication = {"steps": [{"title": a, "text": b} for a, b in steps],
+                   "timeline": fab.timeline(t_star, t_done, cell_xyz,
+                                            sd.cells.get("clamped")),
+                   "alignment_bases": align.tolist(),
+                   "template": None if template is None else {
+                       k: template[k] for k in ("device_d_mm", "fits", "tau", "sheet_mm",
+                                                "marker_radius_mm", "shell_radius_mm")}}
+    return {"files": files, "viewer": viewer, "stls": fab.stl_inventory(folder),
+            "provenance": fab.provenance(folder, build_info), "fabrication": fabrication}
+
+
+def _viewer_html(viewer) -> str:
+    from .viewer import asset_text, viewer_json
+
+    return ("<div id='morph-viewer'></div>"
+            "<noscript><p class='note'>The 3D viewer needs JavaScript; the stills below show "
+            "the same morph.</p></noscript>"
+            f"<style>{asset_text('viewer.css')}</style>"
+            f"<script>{asset_text('three.min.js')}</script>"
+            f"<script>{asset_text('morph_viewer.js')}</script>"
+            f"<script type='application/json' id='viewer-data'>{viewer_json(viewer)}</script>"
+            "<script>(function(){var el=document.getElementById('morph-viewer');"
+            "var d=JSON.parse(document.getElementById('viewer-data').textContent);"
+            "window.morphViewer=new MorphViewer(el,d,{width:Math.min(1100,"
+            "el.parentNode.clientWidth||900),title:''});})();</script>")
+
+
+def _fmt_bytes(n):
+    return f"{n / 1e6:.2f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
+
+
+def _html(r, tmp, sd, viewer=None) -> str:
     m, fl, th = r["metrics"], r["files"], r["thresholds"]
     name = sd.folder.resolve().name
     sh, tm, co, so = m["shape"], m["timing"], m["collisions"], m["solver"]
@@ -931,7 +1033,8 @@ def _html(r, tmp, sd) -> str:
              f"<h1>Simulation check: {html.escape(name)}</h1>",
              f"<p class='note'>{m['n_bases']} bases, {m['n_cells']} unit cells, "
              f"{m['n_frames']} frames to t = {m['t_end_s']:g} s. Renderer: "
-             f"{html.escape(r['renderer'])}. Thresholds: docs/report.md.</p>"]
+             f"{html.escape(r['renderer'])}. Thresholds: docs/report.md. Sections: "
+             + ", ".join(f"<a href='#{s}'>{s}</a>" for s in SECTIONS) + ".</p>"]
     # verdict
     items = "".join(f"<li class='{x['level']}'><b>{x['level']}</b> [{x['check']}] "
                     f"{html.escape(x['message'])}</li>" for x in r["reasons"])
@@ -939,6 +1042,13 @@ def _html(r, tmp, sd) -> str:
                  f"{r['verdict']}</span><ul>{items or '<li>all checks within thresholds</li>'}"
                  "</ul>" + "".join(f"<p class='note'>{html.escape(n)}</p>" for n in r["notes"])
                  + "</section>")
+    # interactive viewer (replaces the GIF; the stills below are kept for print)
+    parts.append("<section id='viewer'><h2>The morph in 3D</h2><p class='note'>Drag to turn, "
+                 "right-drag or shift-drag to pan, wheel to zoom, the slider or play for time; "
+                 "colour by completion time, timing error, thickness or distance to the "
+                 "target; click a base for its unit cells. Each frame is shown aligned "
+                 "rigidly to the target. Works offline (three.js is inside this page).</p>"
+                 + (_viewer_html(viewer) if viewer is not None else "") + "</section>")
     # shape
     parts.append("<section id='shape'><h2>Final shape vs target</h2>"
                  "<p>Base centres of the last frame, rigidly aligned (Kabsch, no scaling) to the "
@@ -959,31 +1069,43 @@ def _html(r, tmp, sd) -> str:
                                       f"{th['normal_fail_deg']} deg; folds WARN RMS > "
                                       f"{th['fold_rms_warn_deg']} deg or any flipped, FAIL > "
                                       f"{100 * th['fold_flip_fail_fraction']:g} % flipped")])
-                 + _img(tmp, fl["shape_error"], "final shell in the target frame, bases "
-                                                "coloured by distance to their target centre")
-                 + _img(tmp, fl["shape_over_time"], "RMS distance to the target over time")
+                 + _figs(_img(tmp, fl["shape_error"], f"final shell (t = {m['t_end_s']:g} s) "
+                                                      "in the target frame, bases coloured by "
+                                                      "their distance to the target (mm)"),
+                         _img(tmp, fl["shape_over_time"], "RMS distance of the base centres to "
+                                                          "the target over time, each frame "
+                                                          "aligned rigidly"))
                  + "</section>")
-    # timing
+    # timing: every cell first, then the programmable ones
     never = ", ".join(map(str, tm["never_due_cells"][:20])) or "none"
+    n_prog = tm["n_cells"] - tm["n_clamped"]
     parts.append("<section id='timing'><h2>Timing</h2><p>A unit cell completes at the first "
                  "frame where all 4 of its bracket springs are at their bumpers, within the "
                  "0.05 mm printing clearance (source: "
-                 f"{html.escape(tm['source'])}). Errors are over the cells whose t* could be "
-                 "programmed; the temporal stage clamped and listed the others.</p>"
+                 f"{html.escape(tm['source'])}). Figures over all cells first; then over the "
+                 f"{n_prog} programmable cells (the temporal stage could reach their t* with "
+                 "0.30-0.65 mm brackets; the verdict uses these).</p>"
                  + _table([("completed cells", f"{tm['n_completed']} / {tm['n_cells']}"),
                            ("never completed (t* <= t_end)", f"{tm['n_never_due']}: {never}"),
+                           ("RMS error vs t*, all cells", f"{_f(tm['rms_all_s'])} s"),
+                           ("mean error (bias), all cells",
+                            f"{_f(tm.get('bias_all_s'), '{:+.3g}')} s"),
+                           ("Spearman rank correlation, all cells", _f(tm["spearman_all"])),
                            ("cells clamped by the temporal stage", f"{tm['n_clamped']}"),
-                           ("RMS error vs t*", f"{_f(tm['rms_s'])} s "
-                                               f"(all cells: {_f(tm['rms_all_s'])} s)"),
-                           ("mean error (bias)", f"{_f(tm['bias_s'], '{:+.3g}')} s"),
-                           ("max |error|", f"{_f(tm['max_abs_s'])} s"),
-                           ("Spearman rank correlation", f"{_f(tm['spearman'])} (all cells: "
-                                                         f"{_f(tm['spearman_all'])})"),
+                           ("RMS error vs t*, programmable cells", f"{_f(tm['rms_s'])} s"),
+                           ("mean error (bias), programmable cells",
+                            f"{_f(tm['bias_s'], '{:+.3g}')} s"),
+                           ("max |error|, programmable cells", f"{_f(tm['max_abs_s'])} s"),
+                           ("Spearman rank correlation, programmable cells",
+                            _f(tm["spearman"])),
                            ("limits", f"WARN RMS > {th['timing_rms_warn_s']} s, Spearman < "
                                       f"{th['spearman_warn']}, any never-completed cell; "
                                       f"FAIL > {100 * th['incomplete_fail_fraction']:g} % "
                                       "never completed")])
-                 + _img(tmp, fl["timing"], "simulated completion vs programmed t* per cell")
+                 + _figs(_img(tmp, fl["timing"], "simulated completion vs programmed t*: "
+                                                 "programmable cells as dots, clamped cells as "
+                                                 "open squares, never-completed cells as red "
+                                                 "crosses on the t_end line"))
                  + "</section>")
     # collisions
     bb = co["base_base"]
@@ -1008,9 +1130,12 @@ def _html(r, tmp, sd) -> str:
                  f"{2 * UNIT_CELL.layer_h:g} mm centred on the membrane; bases sharing a unit "
                  "cell are not checked (their bumpers touch by design). A collision is a "
                  f"penetration deeper than {th['collision_depth_mm']} mm.</p>" + _table(rows)
-                 + _img(tmp, fl["clearance"], "smallest clearance per frame")
-                 + (_img(tmp, fl["collision_frame"], "first collision: colliding bases in red")
-                    if "collision_frame" in fl else "") + "</section>")
+                 + _figs(_img(tmp, fl["clearance"], "smallest clearance between parts per "
+                                                    "frame"),
+                         *([_img(tmp, fl["collision_frame"], "first collision: the colliding "
+                                                             "bases in red, and a close-up")]
+                           if "collision_frame" in fl else []))
+                 + "</section>")
     # solver
     if so["recorded"]:
         srows = [("steps", so["n_steps"]),
@@ -1024,28 +1149,102 @@ def _html(r, tmp, sd) -> str:
                      if so["n_nonconverged"] else "")),
                  ("limit", f"FAIL if a non-converged step ends above {th['residual_fail_N']} N,"
                            " else WARN")]
-        body = _table(srows) + _img(tmp, fl["solver"], "solver statistics per step")
+        body = _table(srows) + _figs(_img(tmp, fl["solver"], "Newton iterations, residual and "
+                                                             "wall time per step"))
     else:
         body = "<p>The frames hold no solver statistics.</p>"
     parts.append(f"<section id='solver'><h2>Solver health</h2>{body}</section>")
-    # renders
-    figs = "".join(_img(tmp, n, f"t = {x:g} s") for n, x in
-                   zip(fl["renders"], r["render_frames"]["times_s"], strict=True))
+    # renders (for print; the viewer above is interactive)
+    figs = "".join(_img(tmp, n, f"t = {x:g} s" + (" (end)" if k == len(fl["renders"]) - 1
+                                                   else ""))
+                   for k, (n, x) in enumerate(zip(fl["renders"], r["render_frames"]["times_s"],
+                                                  strict=True)))
     parts.append("<section id='renders'><h2>Shell at chosen times</h2><p>Top layer amber, "
-                 "bottom layer blue, membrane grey; every frame shown in the target frame "
-                 f"(nearest frames to {html.escape(str(list(r['render_frames']['times_s'])))} s)."
-                 f"</p>{figs}</section>")
-    parts.append("<section id='animation'><h2>Animation</h2>"
-                 + _img(tmp, fl["animation"], "the whole morph") + "</section>")
+                 "bottom layer blue, membrane grey; each frame aligned rigidly to the target "
+                 "and framed on its own (nearest frames to "
+                 f"{html.escape(str(list(r['render_frames']['times_s'])))} s).</p>"
+                 + _figs(figs) + "</section>")
     parts.append("<section id='layout'><h2>Flat layout</h2>"
-                 + _img(tmp, fl["layout"], "bracket thickness per unit cell and layer")
+                 + _figs(_img(tmp, fl["layout"], "bracket thickness per unit cell, top and "
+                                                 "bottom layer"), wide=True)
                  + "</section>")
     parts.append("<section id='landscape'><h2>Time landscape</h2>"
-                 + _img(tmp, fl["landscape"], "programmed time landscape and simulated "
-                                              "completion per cell (same colour scale)")
+                 + _figs(_img(tmp, fl["landscape"], "programmed time landscape on the flat "
+                                                    "stencil, and the simulated completion per "
+                                                    "cell on the same colour scale"), wide=True)
                  + "</section>")
+    parts.append(_fabrication_html(r, tmp))
+    parts.append(_stls_html(r))
+    parts.append(_provenance_html(r))
     parts.append("</body></html>\n")
     return "\n".join(parts)
+
+
+def _fabrication_html(r, tmp) -> str:
+    fab = r.get("fabrication") or {}
+    steps = "".join(f"<li><b>{html.escape(s['title'])}.</b> {html.escape(s['text'])}</li>"
+                    for s in fab.get("steps", []))
+    rows = []
+    for g in fab.get("timeline", []):
+        lo, hi = g["t_star_s"]
+        sim = ("never" if g["sim_range_s"] is None else
+               f"{g['sim_range_s'][0]:.0f}-{g['sim_range_s'][1]:.0f} s "
+               f"(median {g['sim_median_s']:.0f} s)")
+        rows.append((f"{lo:.0f}-{hi:.0f} s", g["cells"], sim, g["never"], g["clamped"],
+                     "({:.0f}, {:.0f}, {:.0f})".format(*g["where_mm"])))
+    tl = _table(rows, head=("programmed t*", "cells", "simulated completion", "never",
+                            "clamped", "where: centre of the group in the target (x, y, z) mm"))
+    tpl = fab.get("template")
+    tpl_html = ""
+    if tpl and "stretch_template" in r["files"]:
+        tpl_html = ("<p>Membrane stretch template <code>stretch_template.svg</code> and "
+                    "<code>stretch_template.pdf</code> (beside this page; print at 100 %): "
+                    f"{tpl['device_d_mm']:.0f} mm star device, "
+                    f"markers at radius {tpl['marker_radius_mm']:.1f} mm on the unstretched "
+                    f"sheet, which stretched {tpl['tau']:g}x land on the teeth.</p>"
+                    + _figs(_img(tmp, r["files"]["stretch_template"],
+                                 "the template (reduced here; the file is 1:1)")))
+    return ("<section id='fabrication'><h2>Fabrication sheet</h2><p>Following the paper's "
+            "procedure (Supplementary Note 5). The whole procedure after printing and before "
+            "drying takes 30-50 minutes.</p>"
+            f"<ol class='steps'>{steps}</ol><h3>Expected timeline in the bath, per region</h3>"
+            "<p>Unit cells grouped by programmed time (equal counts); where each group sits "
+            "and when the simulation completes it.</p>" + tl + tpl_html + "</section>")
+
+
+def _stls_html(r) -> str:
+    stls = r.get("stls") or []
+    if not stls:
+        body = "<p>No STL in this build (rendering skipped: <code>--no-render</code>).</p>"
+    else:
+        body = _table([(s["name"], _fmt_bytes(s["bytes"]), s["triangles"],
+                        " x ".join(f"{v:g}" for v in s["size_mm"]), s["purpose"])
+                       for s in stls],
+                      head=("file", "size", "triangles", "extent (mm)", "what it is for"))
+    return ("<section id='stls'><h2>Printable files</h2><p>In the build folder's "
+            "<code>stl/</code>, in the print frame (bed at z = 0).</p>" + body + "</section>")
+
+
+def _provenance_html(r) -> str:
+    p = r.get("provenance") or {}
+    inp = p.get("input") or {}
+    rows = [("input", f"{inp.get('source')} ({inp.get('kind')})"),
+            ("input sha256", inp.get("sha256")),
+            ("build inputs sha256", p.get("build_inputs_sha256")),
+            ("time landscape", p.get("landscape")),
+            ("refinement rounds", p.get("refine_rounds"))]
+    for k, v in (p.get("models") or {}).items():
+        rows.append((k, f"{v.get('path')} (sha256 {v.get('sha256')})"
+                        + (f", correction {v['correction']}" if v.get("correction") else "")))
+    for k, v in sorted((p.get("options") or {}).items()):
+        rows.append((f"option {k}", json.dumps(v) if not isinstance(v, str) else v))
+    if p.get("unit_cell_params"):
+        rows.append(("unit-cell parameters", json.dumps(p["unit_cell_params"])))
+    for k, v in (p.get("simulation") or {}).items():
+        rows.append((f"simulation {k}", v))
+    rows.append(("versions", ", ".join(f"{k} {v}" for k, v in (p.get("versions") or {}).items())))
+    rows.append(("report date", p.get("date_utc")))
+    return ("<section id='provenance'><h2>Provenance</h2>" + _table(rows) + "</section>")
 
 
 def print_verdict(r, out_dir):

@@ -77,7 +77,51 @@ def _import_pyvista():
     return pv
 
 
+def fit_titles(fig, width_chars: int = 200) -> int:
+    """Wrap every axes title that sticks out of its figure onto more lines, then lay out.
+
+    A title is measured with the figure's renderer; one that crosses the figure's left or
+    right edge is wrapped at word boundaries, narrower each time, until it fits; the
+    figure is then laid out again (``tight_layout``) so the extra lines stay inside.
+    Returns the number of re-wraps (0 = nothing changed).
+    """
+    import textwrap
+
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    box = fig.bbox
+    n = 0
+    for t in (ax.title for ax in fig.axes if ax.get_title()):
+        text = t.get_text().replace("\n", " ")
+        width = width_chars
+        while width > 10:
+            e = t.get_window_extent(r)
+            if e.x0 >= box.x0 and e.x1 <= box.x1:
+                break
+            width = min(width, len(text)) - max(2, width // 6)
+            t.set_text("\n".join(textwrap.wrap(text, max(width, 10))))
+            fig.canvas.draw()
+            n += 1
+    if n:
+        fig.tight_layout()
+        fig.canvas.draw()
+    return n
+
+
+def titles_fit(fig) -> bool:
+    """Every axes title lies inside the figure (nothing cut off)."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    box = fig.bbox
+    for t in (ax.title for ax in fig.axes if ax.get_title()):
+        e = t.get_window_extent(r)
+        if e.x0 < box.x0 - 0.5 or e.x1 > box.x1 + 0.5 or e.y1 > box.y1 + 0.5:
+            return False
+    return True
+
+
 def _save(fig, path):
+    fit_titles(fig)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
@@ -333,13 +377,14 @@ class ShellRenderer:
         return img
 
     # -- public -------------------------------------------------------------------------------
-    def images(self, frames, *, labels=None, fit="all", normal=None, **style):
+    def images(self, frames, *, labels=None, fit="all", normal=None, zoom=None, **style):
         """Render frames with one camera; returns (h, w, 3) uint8 images.
 
         ``labels`` are drawn top-left.  ``fit="all"`` frames the camera on the
         whole morph (same view for every image), ``fit="these"`` on ``frames``,
         ``fit=(lo, hi)`` on that box.  ``normal`` (3,) overrides the direction
-        the view is taken from (default: the target's mean normal).
+        the view is taken from (default: the target's mean normal).  ``zoom`` overrides
+        the camera zoom (pyvista; default 1.25 for ``"all"``, else 1.1).
         """
         frames = list(frames)
         if isinstance(fit, str):
@@ -350,7 +395,8 @@ class ShellRenderer:
         out = []
         if self.backend == "pyvista":
             # the bounding sphere leaves room: zoom in, less for a single frame's box
-            pl, meshes = self._pv_setup(lo, hi, view, 1.25 if fit == "all" else 1.1, **style)
+            z = zoom if zoom is not None else (1.25 if fit == "all" else 1.1)
+            pl, meshes = self._pv_setup(lo, hi, view, z, **style)
             try:
                 for f in frames:
                     self._pv_update(meshes, f)
@@ -400,25 +446,38 @@ def save_gif(images, path, *, frame_ms=120, hold_ms=1200):
 # 2D plots
 # --------------------------------------------------------------------------------------------
 
-def plot_timing(path, t_star, t_done, t_end, *, cell_ids=None):
-    """Scatter of simulated completion vs programmed t* (never-completed cells on top, red)."""
+def plot_timing(path, t_star, t_done, t_end, *, clamped=None):
+    """Simulated completion vs programmed t* of every unit cell.
+
+    Cells the temporal stage could program are dots, clamped ones (t* outside what
+    0.30-0.65 mm brackets reach) open squares; never-completed cells are red crosses
+    drawn on the t_end line.
+    """
     t_star = np.asarray(t_star, float)
     t_done = np.asarray(t_done, float)
     done = np.isfinite(t_done)
-    fig, ax = plt.subplots(figsize=(5.6, 4.6))
+    cl = np.zeros(len(t_star), bool) if clamped is None else np.asarray(clamped, bool)
+    fig, ax = plt.subplots(figsize=(6.4, 5.0))
     hi = max(np.nanmax(t_star) if t_star.size else 1, t_end) * 1.05
     ax.plot([0, hi], [0, hi], color="0.5", lw=1, ls="--", label="simulated = programmed")
-    ax.scatter(t_star[done], t_done[done], s=10, alpha=0.7, label=f"completed ({done.sum()})")
+    ok = done & ~cl
+    ax.scatter(t_star[ok], t_done[ok], s=12, alpha=0.7,
+               label=f"programmable, completed ({ok.sum()})")
+    if (done & cl).any():
+        ax.scatter(t_star[done & cl], t_done[done & cl], s=22, facecolors="none",
+                   edgecolors="tab:orange", label=f"clamped, completed ({(done & cl).sum()})")
     if (~done).any():
-        ax.scatter(t_star[~done], np.full((~done).sum(), t_end * 1.02), s=14, marker="x",
-                   color="red", label=f"never completed ({(~done).sum()})")
+        ax.scatter(t_star[~done], np.full((~done).sum(), t_end), s=16, marker="x",
+                   color="red", clip_on=False,
+                   label=f"never completed, shown at t_end ({(~done).sum()})")
     ax.axhline(t_end, color="0.7", lw=0.8)
     ax.set_xlabel("programmed completion t* (s)")
     ax.set_ylabel("simulated completion (s)")
     ax.set_xlim(0, hi)
     ax.set_ylim(0, hi * 1.04)
-    ax.legend(loc="lower right", fontsize=8)
-    ax.set_title("unit-cell completion times (never completed: on the t_end line)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title("completion time per unit cell: all cells")
     fig.tight_layout()
     return _save(fig, path)
 
@@ -554,4 +613,4 @@ def plot_time_landscape(path, flat_xy, cells_ab, t_star, t_done, *, uv=None, fac
 
 __all__ = ["ShellRenderer", "pyvista_status", "layer_templates", "place", "view_frame",
            "save_png", "save_gif", "plot_timing", "plot_solver", "plot_clearance",
-           "plot_layout_thickness", "plot_time_landscape"]
+           "plot_layout_thickness", "plot_time_landscape", "fit_titles", "titles_fit"]

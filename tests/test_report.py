@@ -235,12 +235,14 @@ def test_good_morph_passes_and_report_is_complete(good):
         assert f"id='{s}'" in page, s
     names = [v for k, v in r["files"].items() if isinstance(v, str)] + r["files"]["renders"]
     assert len(names) >= 10
+    embedded = [n for n in names if not n.endswith((".gif", ".pdf"))]
     for name in names:
         p = out / name
         assert p.exists() and p.stat().st_size > 500, name
+    for name in embedded:        # the GIF is a file beside the page; the page has the viewer
         assert f'data-file="{name}"' in page, name
     # every image is embedded: the page opens offline (no src= pointing to a file)
-    assert len(re.findall(r'src="data:image/(png|gif);base64,', page)) == len(names)
+    assert len(re.findall(r'src="data:image/(png|gif|svg\+xml);base64,', page)) == len(embedded)
     assert not re.search(r'src="(?!data:)', page)
     js = json.loads((out / "report.json").read_text())
     assert js["verdict"] == "PASS" and js["files"]["animation"] == "morph.gif"
