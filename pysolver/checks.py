@@ -35,7 +35,7 @@ class CheckReport:
 
     def raise_if_failed(self):
         if self.errors:
-            msg = "; ".join(e[0] for e in self.errors)
+            msg = "; ".join(e[0] for e in self.errors if e[0])
             fix = " / ".join(e[1] for e in self.errors if e[1])
             raise InputError(f"unprintable design: {msg}", fix=fix or None)
 

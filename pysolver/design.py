@@ -242,6 +242,45 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
         read_time_file(time_file)  # format and values now; the count once the mesh is read
 
 
+def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
+    """What would make an unprintable remeshed stencil printable, measured, for the error's fix.
+
+    Tries the same stencil at the reference's 0.1 mm minimal bumper and names the searched
+    vertex count with the shortest longest cell.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    remesh_info : dict
+        :func:`pysolver.remesh.remesh_surface`'s info (``candidates``).
+    params : UnitCell
+
+    Returns
+    -------
+    fix : str
+    """
+    from dataclasses import replace
+
+    from .remesh import stencil_figures
+
+    lines = []
+    if params.min_bumper > 0.1 + 1e-9:
+        alt = stencil_figures(V, F, replace(params, min_bumper=0.1))
+        ok = alt["max_cell_length_mm"] <= params.max_cell_length
+        lines.append(f"--min-bumper 0.1 (the reference's) gives a longest cell of "
+                     f"{alt['max_cell_length_mm']:.2f} mm on this stencil"
+                     + (" (printable)" if ok else ""))
+    cands = remesh_info.get("candidates") or []
+    if cands:
+        best = min(cands, key=lambda c: c[4])
+        lines.append(f"of the vertex counts tried, --vertices {best[0]} came closest "
+                     f"({best[4]:.2f} mm, scale {best[3]:.2f})")
+    lines.append("a cut through the region named above splits the stretch the flattening "
+                 "needs (SI Note 1)")
+    return "; ".join(lines)
+
+
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
                stencil_order=False, progress=True, plots=True, seed=None,
@@ -376,6 +415,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
 
     dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
     clock.step("checks")
+    if not report.ok and remesh_info.get("remeshed"):
+        report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params)))
     report.raise_if_failed()
 
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -3,6 +3,7 @@ gradient, the vertex-count search, and the paper's petalled cover designed from 
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from autograd import grad
 
 from pysolver import remesh, stencil_opt, surfaces
 from pysolver.design import run_design
+from pysolver.errors import InputError
 from pysolver.flatten import cetm
 from pysolver.layout import build_layout, face_adjacency, face_centroids, unit_cells
 from pysolver.mesh_input import load_input
@@ -140,3 +142,15 @@ def test_paper_cover_designs_printable_from_its_target(tmp_path):
     r = s["remesh"]
     assert r["after_optimisation"]["max_cell_length_mm"] < r["before_optimisation"][
         "max_cell_length_mm"]
+
+
+def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path):
+    params = replace(UNIT_CELL, max_cell_length=6.0)  # far below what the dome needs
+    with pytest.raises(InputError) as e:
+        run_design("dome", tmp_path / "d", params=params, vertices=60, seed=0,
+                   progress=False, plots=False)
+    text = str(e.value)
+    assert "longer than 6.0 mm" in text and "on the target" in text
+    assert re.search(r"at \(-?\d+\.\d, -?\d+\.\d, -?\d+\.\d\)", text)  # where, mm
+    assert "--min-bumper 0.1" in text and "--vertices" in text  # measured alternatives
+    assert not (tmp_path / "d" / "cells.csv").exists()  # nothing half-written
