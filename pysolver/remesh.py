@@ -491,26 +491,35 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     seed_list = [int(seed)] if seed is not None else list(range(settings.seeds))
     limit = params.max_cell_length
     sd0 = seed_list[0]
-    start = [int(target_bases / 2) if target_bases else estimate_vertices(A)]
+    start = [int(target_bases / 2) if target_bases
+             else round(settings.count_start * estimate_vertices(A))]
 
     def search_counts(inset):
         if vertices is not None:
             for sd in seed_list:
                 trial(int(vertices), sd, inset)
             return
+        pts = []  # (log N, log scale3d) of this inset's secant
         n = trial(start[0], sd0, inset)
-        for _ in range(settings.count_steps):  # secant steps on scale3d ~ sqrt(N)
+        for _ in range(settings.count_steps):
             s3 = tried[(n, sd0, float(inset))]["scale3d"]
             if not np.isfinite(s3) or abs(np.log(s3)) < settings.count_tolerance:
                 break
-            n = trial(round(n / s3**2), sd0, inset)
+            pts.append((np.log(n), np.log(s3)))
+            # scale3d ~ N^k: k = 1/2 for a uniform mesh, else the slope of the last two
+            k = 0.5
+            if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > 1e-9:
+                k = float(np.clip((pts[-1][1] - pts[-2][1]) / (pts[-1][0] - pts[-2][0]),
+                                  0.25, 1.0))
+            n = trial(round(n * s3 ** (-1.0 / k)), sd0, inset)
         start[0] = n
         for f in settings.candidates:
             trial(round(n * f), sd0, inset)
         here = {k: c for k, c in tried.items() if k[2] == float(inset)}
         best_n = _pick(here, params, settings.margin)[0]
-        for sd in seed_list[1:]:
-            trial(best_n, sd, inset)
+        if here[(best_n, sd0, float(inset))]["max_cell_length_mm"] > limit - settings.margin:
+            for sd in seed_list[1:]:  # another seed only when the first leaves no margin
+                trial(best_n, sd, inset)
 
     for inset in insets:
         try:
