@@ -220,9 +220,9 @@ class FlatDomain:
         return np.einsum("ij,ij->i", B, self.u[self.F[fi]])
 
     # -- stencil -----------------------------------------------------------------------
-    def spacing(self, n: int, inset: float = 0.0) -> float:
-        """3D edge length h of a regular mesh of ``n`` vertices on this target (the spacing
-        of the stencil before the rim inset), mm."""
+    def spacing(self, n: int) -> float:
+        """3D edge length h (mm) at the rim (u = 0) of a mesh of ``n`` vertices on this target
+        graded as ``exp(u)^(-grading)`` (Euler's formula on the graded area)."""
         g = self.settings.grading
         area = float(np.sum(self.area3 * np.exp(2 * g * self.face_u)))
         return edge_for_count(area, self.perimeter, n)
