@@ -125,7 +125,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         Stencil triangles (positively oriented in the plane); the connectivity is kept.
     params : UnitCell
     settings : StencilSearch
-        ``opt_sharpness``, ``opt_penalty``, ``opt_rounds``, ``opt_iterations``,
+        ``opt_sharpness``, ``opt_s3_weight``, ``opt_rounds``, ``opt_iterations``,
         ``opt_barrier``.
 
     Returns
@@ -133,7 +133,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     P : (n, 2) float, mm
         Optimised flat positions (every triangle still positively oriented).
     info : dict
-        ``rounds``: outer rounds that improved the objective.
+        ``rounds``: outer rounds kept (each improved the objective on the exact lift).
     """
     P = np.array(P, dtype=float)
     F = np.asarray(F, dtype=np.int64)
@@ -153,6 +153,12 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     A0 = _signed_areas(P, F)
     mu = settings.opt_barrier
     rounds = 0
+
+    def exact(Q):  # the objective without barrier, on the exact lift of Q
+        a, b = layout_logs(Q, domain.lift(Q), F, fa, fb, o1, o2, params, settings.opt_sharpness)
+        return float(b + settings.opt_s3_weight * a)
+
+    current = exact(P)
 
     for _ in range(settings.opt_rounds):
         X0 = domain.lift(P)
@@ -183,7 +189,10 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         Pn[free] = res.x.reshape(-1, 2)
         if not np.all(_signed_areas(Pn, F) > 0) or not res.fun < f0:
             break
-        P = Pn
+        new = exact(Pn)
+        if not new < current:
+            break
+        P, current = Pn, new
         rounds += 1
     return P, {"rounds": rounds}
 
