@@ -195,7 +195,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
           refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
           progress: bool = True, renderer=None, keep_failed: bool = False,
-          solver: str = "fast") -> dict:
+          solver: str = "fast", seed=None) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -224,6 +224,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         :data:`pysolver.render.DEFAULT_RENDERER`), see :func:`pysolver.render.render_parts`.
     solver : {"fast", "reference"}
         Linear-algebra path of the simulations (:data:`sim.solver.SOLVERS`; same results).
+    seed : int, optional
+        CVT remeshing seed of the design stage (default: the shape's tuned value, or
+        searched); with ``vertices`` it picks one of several stencils of the same size.
     keep_failed : bool
         Keep the staging folder of a build whose stage fails (``--debug``); by default it
         is removed, so a failed build leaves nothing behind.
@@ -247,6 +250,11 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
                        inputs=[source, material])
     design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
                        stencil_order=stencil_order)
+    if seed is not None:  # (only when given: keeps the hash of earlier builds)
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
+            raise InputError(f"--seed must be a whole number from 0 to 2^32 - 1, got {seed!r}",
+                             fix="give e.g. --seed 1")
+        design_opts["seed"] = seed
     all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
                     program=program, t_end=t_end)
     if dt is not None:  # (only when given: keeps the hash of earlier builds)

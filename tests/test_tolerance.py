@@ -1,0 +1,234 @@
+"""Tolerance analysis and sweeps on Dask (sim.tolerance, pysolver.distributed, pysolver.sweep).
+
+Small on purpose: the regular shell (60 bases, 79 cells), 8 samples simulated to 70 s
+(t* = 60 s), LocalClusters of 1 and 2 single-threaded workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from pysolver.errors import InputError
+from pysolver.params import SIM, UNCERTAINTY
+
+distributed = pytest.importorskip("distributed")
+
+T_END = 70.0
+SAMPLES = 8
+UNC = dataclasses.replace(UNCERTAINTY, material_sd=0.2)   # explicit: no fit-data reading
+SAME = 1e-9
+
+
+@pytest.fixture(scope="module")
+def design(tmp_path_factory):
+    from pysolver.build import build
+
+    out = tmp_path_factory.mktemp("tol") / "regular"
+    build("regular", out=out, render=False, simulate=False, refine=0, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def cluster2():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cl, distributed.Client(cl) as c:
+        yield cl, c
+
+
+def _run(design, out, client=None, workers=None, **kw):
+    from sim.tolerance import tolerance_analysis
+
+    args = dict(samples=SAMPLES, uncertainty=UNC, sensitivity=0, t_end=T_END,
+                out=out, client=client, workers=workers, progress=False, report=False)
+    args.update(kw)
+    return tolerance_analysis(design, **args)
+
+
+def _flat(d, prefix=""):
+    """Every number of a summary (minus the run statistics), by path."""
+    out = {}
+    if isinstance(d, dict):
+        for k, v in d.items():
+            if k != "run":
+                out.update(_flat(v, f"{prefix}/{k}"))
+    elif isinstance(d, list):
+        for i, v in enumerate(d):
+            out.update(_flat(v, f"{prefix}[{i}]"))
+    else:
+        out[prefix] = d
+    return out
+
+
+def _assert_same(a, b, tol=SAME):
+    fa, fb = _flat(a), _flat(b)
+    fa.pop("/design", None), fb.pop("/design", None)
+    assert fa.keys() == fb.keys()
+    for k in fa:
+        x, y = fa[k], fb[k]
+        if isinstance(x, float) and isinstance(y, float):
+            assert abs(x - y) <= tol * max(1.0, abs(x)), (k, x, y)
+        else:
+            assert x == y, (k, x, y)
+
+
+@pytest.fixture(scope="module")
+def two_worker_run(design, cluster2, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tol2") / "tolerance"
+    return out, _run(design, out, client=cluster2[1])
+
+
+# --------------------------------------------------------------------------------------------
+# building blocks
+
+
+def test_vary_model_equals_model_built_with_the_constants(design):
+    from sim.model import load_model, vary_model
+
+    k = dataclasses.replace(SIM, tau=3.17, mu=0.81)
+    ref = load_model(design, consts=k)
+    nom = load_model(design)
+    th = nom.cell_thickness + 0.01
+    v = vary_model(nom, thickness=th, consts=k)
+    np.testing.assert_allclose(v.tri_dm_inv, ref.tri_dm_inv, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(v.tri_rest_area, ref.tri_rest_area, rtol=1e-12, atol=0)
+    assert v.consts == k and np.array_equal(v.cell_thickness, th)
+    assert np.array_equal(nom.cell_thickness + 0.01, th)      # the nominal is untouched
+    with pytest.raises(InputError):
+        vary_model(nom, thickness=th[:-1])
+
+
+def test_compliant_bracket_is_the_stretched_force_curve():
+    from pysolver.material.model import load_bracket_model, poly_force
+    from sim.tolerance import CompliantBracketModel
+
+    base = load_bracket_model()
+    s = 1.3
+    m = CompliantBracketModel(base, s)
+    h, b, t = np.array([0.35, 0.5]), np.array([3.0, 4.5]), np.array([20.0, 60.0])
+    x = np.array([0.4, 1.1])
+    for eta in (0.0, 0.2):
+        f = poly_force(m.coefficients(h, b, t, eta=eta), x)
+        f0 = poly_force(base.coefficients(h, b, t, eta=eta), x / s)
+        np.testing.assert_allclose(f, f0, rtol=1e-12)
+    with pytest.raises(InputError):
+        CompliantBracketModel(base, 0.0)
+
+
+def test_relaxation_factor_from_the_measured_curve():
+    from sim.tolerance import relaxation_curve, relaxation_factor
+
+    curve = relaxation_curve()
+    r = relaxation_factor(np.array([0.0, 600.0, 5400.0, 86000.0]), curve)
+    assert r[0] == pytest.approx(1.0, abs=1e-12)
+    assert np.all(np.diff(r) < 0)                                 # the force relaxes
+    assert 0.8 < r[-1] < 0.9                                      # SI Fig. 10: ~15 % in 24 h
+
+
+def test_material_scatter_from_the_fit_residuals():
+    from sim.tolerance import material_scatter
+
+    m = material_scatter()
+    assert m["n_curves"] >= 60                      # the 80 wet curves of the shipped data
+    assert 0.05 < m["sd_log"] < 1.5
+
+
+# --------------------------------------------------------------------------------------------
+# the bar
+
+
+def test_two_workers_give_the_one_worker_figures(design, two_worker_run, tmp_path):
+    out2, s2 = two_worker_run
+    assert s2["run"]["computed"] == SAMPLES + 1 and not s2["run"]["failed"]
+    assert s2["run"]["workers"] == 2
+    f = s2["figures"]
+    assert f["samples"] == SAMPLES
+    assert f["completion_sd_s_max"] > 0.1                       # the scatter matters
+    assert f["position_sd_mm_max"] > 0.0
+    assert 0.0 <= f["p_pass"] <= f["p_not_fail"] <= 1.0
+    assert len(s2["cells"]) == 79 and len(s2["bases"]) == 60
+    s1 = _run(design, tmp_path / "one", workers=1)
+    assert s1["run"]["workers"] == 1
+    _assert_same(s1, s2)
+    on_disk = json.loads((out2 / "summary.json").read_text())
+    _assert_same(on_disk, s2)
+
+
+def test_killing_a_worker_mid_run_completes_with_the_same_figures(design, two_worker_run,
+                                                                   tmp_path):
+    _, ref = two_worker_run
+    killed = []
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cl, distributed.Client(cl) as c:
+
+        def kill_one(key, result):
+            if not killed:
+                pids = sorted(c.run(os.getpid).values())
+                os.kill(pids[0], signal.SIGKILL)
+                killed.append(pids[0])
+
+        s = _run(design, tmp_path / "killed", client=c, on_result=kill_one)
+    assert killed
+    with pytest.raises(ProcessLookupError):
+        os.kill(killed[0], 0)                                    # the worker is really gone
+    assert s["run"]["computed"] == SAMPLES + 1 and not s["run"]["failed"]
+    _assert_same(s, ref)
+
+
+def test_rerun_computes_only_the_missing_results(design, two_worker_run, cluster2):
+    out, ref = two_worker_run
+    for name in ("sample-00002.json", "sample-00005.json"):
+        (out / "samples" / name).unlink()
+    s = _run(design, out, client=cluster2[1])
+    assert s["run"]["computed"] == 2 and s["run"]["loaded"] == SAMPLES - 1
+    _assert_same(s, ref)
+
+
+def test_zero_sigma_gives_zero_spread(design, cluster2, tmp_path):
+    unc = dataclasses.replace(UNCERTAINTY, thickness_sd=0.0, stretch_sd=0.0,
+                              modulus_rel_sd=0.0, material_sd=0.0)
+    s = _run(design, tmp_path / "zero", client=cluster2[1], samples=3, uncertainty=unc,
+             report=True)
+    f = s["figures"]
+    assert f["completion_sd_s_max"] == 0.0 and f["position_sd_mm_max"] == 0.0
+    assert all(c["t_sd_s"] == 0.0 for c in s["cells"])
+    nominal_t = json.loads((tmp_path / "zero/samples/nominal.json").read_text())["result"]
+    for c in s["cells"]:
+        assert c["t_median_s"] == nominal_t["t_done"][c["cell_id"]]
+    assert f["p_pass"] in (0.0, 1.0) and s["sensitivity"] == []
+    for name in ("report.html", "summary.json", "tolerance_shell.png", "tolerance_timing.png"):
+        assert (tmp_path / "zero" / name).stat().st_size > 0
+
+
+def test_sensitivity_names_the_only_active_factor(design, cluster2, tmp_path):
+    unc = dataclasses.replace(UNCERTAINTY, thickness_sd=0.0, stretch_sd=0.0,
+                              modulus_rel_sd=0.1, material_sd=0.0)
+    s = _run(design, tmp_path / "sens", client=cluster2[1], samples=2, uncertainty=unc,
+             sensitivity=2)
+    assert [r["factor"] for r in s["sensitivity"]] == ["modulus"]
+    assert s["sensitivity"][0]["timing_share"] == 1.0
+    assert s["figures"]["most_influential"] == "modulus"
+
+
+def test_bad_options_are_refused_before_any_work(design, tmp_path):
+    from pysolver.distributed import check_scheduler
+
+    with pytest.raises(InputError):
+        _run(design, tmp_path / "a", samples=0)
+    with pytest.raises(InputError):
+        _run(design, tmp_path / "b", uncertainty=dataclasses.replace(UNC, stretch_sd=-1.0))
+    with pytest.raises(InputError):
+        check_scheduler("tcp://host:8786; rm -rf /")
+    assert check_scheduler("tcp://10.0.0.5:8786") == "tcp://10.0.0.5:8786"
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    with pytest.raises(InputError):
+        _run(design, mine)
+    assert (mine / "notes.txt").read_text() == "keep me"
+    assert not (mine / "samples").exists()
