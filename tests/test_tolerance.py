@@ -232,3 +232,72 @@ def test_bad_options_are_refused_before_any_work(design, tmp_path):
         _run(design, mine)
     assert (mine / "notes.txt").read_text() == "keep me"
     assert not (mine / "samples").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# sweeps
+
+SPEC = """
+name = "tiny"
+
+[base]
+shape = "regular"
+refine = 0
+t_end = 70.0
+
+[grid]
+time = ["60", "64"]
+simulate = [true, false]
+"""
+
+
+def test_sweep_of_four_variants_writes_its_table(cluster2, tmp_path):
+    import csv
+
+    from pysolver.sweep import COLUMNS, run_sweep
+
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(SPEC)
+    out = tmp_path / "sweep"
+    res = run_sweep(spec, out=out, client=cluster2[1], progress=False)
+    assert res["run"]["computed"] == 4 and not res["run"]["failed"]
+    with open(out / "table.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 4 and tuple(rows[0]) == COLUMNS
+    assert len({r["variant"] for r in rows}) == 4
+    for r in rows:
+        assert r["n_bases"] == "60" and r["n_cells"] == "79" and r["exit_code"] in ("0", "3")
+        simulated = r["variant"].endswith("simulate-True")
+        assert (r["verdict"] in ("PASS", "WARN", "FAIL")) == simulated
+        assert (r["shape_rms_pct"] != "") == simulated
+        assert (r["longest_cell_s"] != "") == simulated
+    for name in ("index.html", "sweep.png"):
+        assert (out / name).stat().st_size > 0
+    again = run_sweep(spec, out=out, client=cluster2[1], progress=False)
+    assert again["run"]["computed"] == 0 and again["run"]["loaded"] == 4
+    assert again["rows"] == res["rows"]
+
+
+def test_sweep_spec_is_validated(tmp_path):
+    from pysolver.sweep import load_spec
+
+    bad = {
+        "unknown.toml": '[base]\nshape = "regular"\ncolour = "red"\n',
+        "type.toml": '[base]\nshape = "regular"\nvertices = "many"\n',
+        "grid.toml": '[base]\nshape = "regular"\n[grid]\nseed = 3\n',
+        "syntax.toml": '[base\nshape = "regular"\n',
+        "dup.toml": '[[variant]]\nname="a"\nshape="regular"\n[[variant]]\nname="a"\n'
+                    'shape="dome"\n',
+        "file.toml": '[base]\nshape = "missing/mesh.obj"\n',
+    }
+    for name, text in bad.items():
+        p = tmp_path / name
+        p.write_text(text)
+        with pytest.raises(InputError):
+            load_spec(p)
+    ok = tmp_path / "ok.toml"
+    ok.write_text('[base]\nshape = "regular"\n[grid]\nvertices = [30, 40]\nseed = [0, 1, 2]\n'
+                  '[[variant]]\nshape = "dome"\ntime = "30 + 0.5*z"\n')
+    v = load_spec(ok)["variants"]
+    assert len(v) == 7 and v[0]["name"] == "regular_vertices-30_seed-0"
+    assert v[-1]["shape"] == "dome" and v[-1]["time"] == "30 + 0.5*z"
