@@ -76,7 +76,8 @@ def _check_options(opts: dict, where: str) -> dict:
         types = OPTION_TYPES[k]
         ok = isinstance(v, types) and not (isinstance(v, bool) and bool not in types)
         if not ok:
-            raise InputError(f"{where}: {k} = {v!r} is not a {' or '.join(t.__name__ for t in types)}",
+            kinds = " or ".join(t.__name__ for t in types)
+            raise InputError(f"{where}: {k} = {v!r} is not a {kinds}",
                              fix=f"write {k} as a TOML {types[0].__name__}")
         if isinstance(v, float) and not math.isfinite(v):
             raise InputError(f"{where}: {k} = {v!r}", fix="use a finite number")
@@ -112,7 +113,10 @@ def load_spec(path) -> dict:
     InputError
         Unreadable TOML, unknown keys, wrong types, duplicate names, too many variants.
     """
-    import tomllib
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10: the same parser from PyPI (pyproject.toml)
+        import tomli as tomllib
 
     p = Path(path)
     try:
@@ -364,8 +368,16 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
     dict
         ``rows`` (list of dict, spec order), ``out`` (str), ``run`` (RunStats dict).
     """
-    from .distributed import ResultStore, Task, fingerprint, run_tasks
+    from .distributed import (
+        ResultStore,
+        Task,
+        check_scheduler,
+        check_workers,
+        fingerprint,
+        run_tasks,
+    )
 
+    scheduler, workers = check_scheduler(scheduler), check_workers(workers)
     spec = load_spec(spec_path)
     out = _claim(Path(out) if out is not None else BUILD_ROOT / f"sweep-{spec['name']}")
     out.mkdir(parents=True, exist_ok=True)

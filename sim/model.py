@@ -524,4 +524,5 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
     return dataclasses.replace(model, **changes)
 
 
-__all__ = ["ShellModel", "build_model", "load_model", "vary_model", "membrane_mesh", "CROSS_REST_MODES"]
+__all__ = ["ShellModel", "build_model", "load_model", "vary_model", "membrane_mesh",
+           "CROSS_REST_MODES"]

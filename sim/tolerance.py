@@ -713,9 +713,17 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         ``sensitivity``, ``options``, ``run``).
     """
     from pysolver.atomic import atomic_write_text, write_stamp
-    from pysolver.distributed import ResultStore, Task, fingerprint, run_tasks
+    from pysolver.distributed import (
+        ResultStore,
+        Task,
+        check_scheduler,
+        check_workers,
+        fingerprint,
+        run_tasks,
+    )
     from pysolver.tables import read_table
 
+    scheduler, workers = check_scheduler(scheduler), check_workers(workers)
     if sensitivity is None:
         sensitivity = min(TOLERANCE_RUN.sensitivity_samples, samples)
     _check_options(samples, sensitivity, uncertainty, time_tol_s)

@@ -301,3 +301,42 @@ def test_sweep_spec_is_validated(tmp_path):
     v = load_spec(ok)["variants"]
     assert len(v) == 7 and v[0]["name"] == "regular_vertices-30_seed-0"
     assert v[-1]["shape"] == "dome" and v[-1]["time"] == "30 + 0.5*z"
+
+
+def test_cli_refuses_bad_input_with_exit_code_2(design, tmp_path, capsys):
+    from pysolver.cli import main
+
+    assert main(["tolerance", str(design), "--samples", "0"]) == 2
+    assert main(["tolerance", str(design), "--scheduler", "http://x:1/$(id)"]) == 2
+    assert main(["tolerance", str(tmp_path / "nothing")]) == 2
+    spec = tmp_path / "s.toml"
+    spec.write_text('[base]\nshape = "regular"\nrender = "yes"\n')
+    assert main(["sweep", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("Fix:") + err.count("fix") >= 1
+    assert not (design / "tolerance").exists()
+
+
+def test_new_modules_respect_the_data_flow():
+    """sim must not import the design side; the design side must not import sim."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+
+    def imports(rel):
+        tree = ast.parse((root / rel).read_text())
+        out = set()
+        for n in ast.walk(tree):
+            if isinstance(n, ast.Import):
+                out |= {a.name for a in n.names}
+            elif isinstance(n, ast.ImportFrom) and n.module:
+                out.add(("." * n.level) + n.module)
+        return out
+
+    for rel in ("sim/tolerance.py", "sim/tolerance_report.py"):
+        bad = {m for m in imports(rel) if m.startswith(("pysolver.design", "pysolver.render",
+                                                         "pysolver.temporal"))}
+        assert not bad, (rel, bad)
+    for rel in ("pysolver/distributed.py", "pysolver/sweep.py"):
+        assert not {m for m in imports(rel) if m == "sim" or m.startswith("sim.")}, rel
