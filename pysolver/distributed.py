@@ -81,6 +81,19 @@ def fingerprint(*parts) -> str:
     return h.hexdigest()
 
 
+def code_fingerprint() -> str:
+    """SHA-256 of the project's code (``pysolver/**/*.py``, ``sim/*.py``, ``scad/*.scad``,
+    the committed model files): a stored result is reused only by the same code."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    files = sorted([*root.glob("pysolver/**/*.py"), *root.glob("sim/*.py"),
+                    *root.glob("scad/*.scad"), *root.glob("pysolver/data/*.json")])
+    for f in files:
+        h.update(f.relative_to(root).as_posix().encode() + b"\0")
+        h.update(hashlib.sha256(f.read_bytes()).digest())
+    return h.hexdigest()
+
+
 @dataclass(frozen=True)
 class Task:
     """One unit of work: ``fn(*args)`` on any worker.
@@ -360,4 +373,5 @@ def _compute(client, todo, store, results, stats, progress, label, on_result, t_
 
 
 __all__ = ["Task", "ResultStore", "RunStats", "run_tasks", "dask_client", "fingerprint",
+           "code_fingerprint",
            "check_scheduler", "check_workers"]

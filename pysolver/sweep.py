@@ -373,6 +373,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
         Task,
         check_scheduler,
         check_workers,
+        code_fingerprint,
         fingerprint,
         run_tasks,
     )
@@ -383,6 +384,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
     out.mkdir(parents=True, exist_ok=True)
     write_stamp(out, since=time.time() + 1e9)
     tasks = []
+    code = code_fingerprint()
     for v in spec["variants"]:
         files = {}
         for k in FILE_OPTIONS:
@@ -393,7 +395,8 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
         opts["name"] = v["name"]
         dest = str(out / "builds" / v["name"])
         tasks.append(Task(v["name"], build_variant, (opts, files, dest),
-                          fingerprint(opts, {k: b for k, (_, b) in files.items()}, dest)))
+                          fingerprint(opts, {k: b for k, (_, b) in files.items()}, dest,
+                                      code)))
     results, stats = run_tasks(tasks, ResultStore(out / "results"), client=client,
                                scheduler=scheduler, workers=workers, progress=progress,
                                label="sweep")

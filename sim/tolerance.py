@@ -718,6 +718,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         Task,
         check_scheduler,
         check_workers,
+        code_fingerprint,
         fingerprint,
         run_tasks,
     )
@@ -758,8 +759,9 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     for f in active:
         perts += [make_perturbation(f"oat-{f}-{i:05d}", draws[i], n_cells, only=f, unc=unc)
                   for i in range(sensitivity)]
+    code = code_fingerprint()
     tasks = [Task(p.name, run_sample, (payload, p, settings),
-                  fingerprint(payload.sha, p, settings)) for p in perts]
+                  fingerprint(payload.sha, p, settings, code)) for p in perts]
     store = ResultStore(out / "samples")
     out.mkdir(parents=True, exist_ok=True)
     write_stamp(out, since=time.time() + 1e9)  # claim the folder before the first result

@@ -45,7 +45,7 @@ def plot_shell(path, target, pairs, p_on_time, pos_sd):
     p_on_time : (c,) float -- probability in [0, 1]
     pos_sd : (m,) float, mm -- RMS spread of the final base position
     """
-    fig, ax = plt.subplots(figsize=(7.5, 6.2))
+    fig, ax = plt.subplots(figsize=(7.5, 7.2))
     seg = target[np.asarray(pairs)][:, :, :2]
     lc = LineCollection(seg, cmap="RdYlGn", linewidths=3.0)
     lc.set_array(np.asarray(p_on_time, float))
@@ -53,11 +53,12 @@ def plot_shell(path, target, pairs, p_on_time, pos_sd):
     ax.add_collection(lc)
     sc = ax.scatter(target[:, 0], target[:, 1], c=pos_sd, cmap="viridis", s=36,
                     edgecolors="k", linewidths=0.4, zorder=3)
-    fig.colorbar(lc, ax=ax, fraction=0.04, pad=0.01, label="P(cell completes on time)")
-    fig.colorbar(sc, ax=ax, fraction=0.04, pad=0.08, label="final position spread (mm, RMS)")
+    fig.colorbar(lc, ax=ax, location="right", fraction=0.04, pad=0.02,
+                 label="unit cells: P(completes on time)")
+    fig.colorbar(sc, ax=ax, location="bottom", fraction=0.04, pad=0.1,
+                 label="bases: final position spread (mm, RMS)")
     ax.set_aspect("equal")
     ax.autoscale()
-    ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_title("Target shell from above: unit cells and bases")
     fig.tight_layout()
