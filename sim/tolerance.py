@@ -44,7 +44,9 @@ Outputs in ``<design>/tolerance/`` (``summary.json``, ``report.html``, pictures 
 ``samples/*.json``, one result per task, written atomically so a rerun only computes what
 is missing):
 
-* per cell: probability of completing within ``time_tol_s`` of t*, completion-time spread;
+* per cell: probability of completing within ``time_tol_s`` of t*, completion-time spread
+  (a cell that does not complete within the simulated time counts as completing at ``t_end``
+  in the spread -- right-censored, so the spread is a lower bound -- and is never on time);
 * per base: spread of the final (rigidly aligned) position;
 * P(PASS) and P(not FAIL) of the simulation check, with 95 % Wilson intervals;
 * sensitivity: one-at-a-time runs (each factor alone, the same draws as the first samples,

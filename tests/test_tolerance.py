@@ -128,6 +128,17 @@ def test_relaxation_factor_from_the_measured_curve():
     assert r[0] == pytest.approx(1.0, abs=1e-12)
     assert np.all(np.diff(r) < 0)                                 # the force relaxes
     assert 0.8 < r[-1] < 0.9                                      # SI Fig. 10: ~15 % in 24 h
+    from sim.tolerance import _draw
+
+    unc = dataclasses.replace(UNC, relaxation=True)
+    lo, hi = relaxation_factor(np.array(unc.relaxation_window_s[::-1]), curve)
+    f = [_draw(0, i, 3, unc, 0.2, curve)["relaxation"] for i in range(20)]
+    assert all(lo <= x <= hi for x in f) and len(set(f)) == 20
+    off = [_draw(0, i, 3, UNC, 0.2, None) for i in range(3)]
+    on = [_draw(0, i, 3, unc, 0.2, curve) for i in range(3)]
+    for a, b in zip(off, on, strict=True):           # switching relaxation on changes nothing
+        assert a["relaxation"] == 1.0 and a["stretch"] == b["stretch"]    # else
+        assert np.array_equal(a["thickness"], b["thickness"])
 
 
 def test_material_scatter_from_the_fit_residuals():
