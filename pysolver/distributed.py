@@ -355,7 +355,10 @@ def _compute(client, todo, store, results, stats, progress, label, on_result, t_
                 if on_result is not None:
                     on_result(t.key, res)
         else:
-            exc = fut.exception()
+            try:  # an error, or a cancelled task (the cluster went away)
+                exc = fut.exception()
+            except Exception as e:  # noqa: BLE001
+                exc = e
             stats.failed[t.key] = f"{type(exc).__name__}: {exc}"
             if progress:
                 print(f"{label}: task {t.key} failed: {stats.failed[t.key]}",

@@ -351,3 +351,21 @@ def test_new_modules_respect_the_data_flow():
         assert not bad, (rel, bad)
     for rel in ("pysolver/distributed.py", "pysolver/sweep.py"):
         assert not {m for m in imports(rel) if m == "sim" or m.startswith("sim.")}, rel
+
+
+def test_a_failing_task_is_reported_not_stored_and_retried(cluster2, tmp_path):
+    import math
+
+    from pysolver.distributed import ResultStore, Task, run_tasks
+
+    store = ResultStore(tmp_path / "r")
+    tasks = [Task("ok", math.sqrt, (4.0,), "f-ok"), Task("bad", math.sqrt, (-1.0,), "f-bad")]
+    res, st = run_tasks(tasks, store, client=cluster2[1], progress=False)
+    assert res == {"ok": 2.0} and list(st.failed) == ["bad"] and "ValueError" in st.failed["bad"]
+    assert store.path("ok").is_file() and not store.path("bad").exists()
+    res, st = run_tasks(tasks, store, client=cluster2[1], progress=False)
+    assert st.loaded == 1 and st.computed == 0 and list(st.failed) == ["bad"]
+    # a stored result of other inputs (another fingerprint) is not reused
+    res, st = run_tasks([Task("ok", math.sqrt, (9.0,), "f-ok9")], store, client=cluster2[1],
+                        progress=False)
+    assert res == {"ok": 3.0} and st.computed == 1
