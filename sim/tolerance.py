@@ -733,6 +733,12 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     from .simulate import SimSettings
 
     SimSettings(t_end=float(t_end), dt=float(dt)).times()  # a bad t_end/dt is refused now
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        raise InputError(f"--seed {seed!r}", fix="use a whole number >= 0")
+    if material is not None:  # a bad model file is refused here, not on every worker
+        from pysolver.material.model import load_bracket_model
+
+        material = load_bracket_model(material).path
     folder = Path(design_dir).absolute()
     payload = read_payload(folder, material)
     cells = read_table(folder, "cells")

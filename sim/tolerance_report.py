@@ -152,6 +152,8 @@ def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -
     sens = summary["sensitivity"]
     if sens:
         plot_sensitivity(out / "tolerance_sensitivity.png", sens)
+    else:  # ours (the folder is claimed): a picture of an earlier run must not linger
+        (out / "tolerance_sensitivity.png").unlink(missing_ok=True)
     unc = opt["uncertainty"]
     lo, hi = fig["p_pass_ci95"]
     parts = [f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>morphshell "
