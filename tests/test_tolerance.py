@@ -369,3 +369,19 @@ def test_a_failing_task_is_reported_not_stored_and_retried(cluster2, tmp_path):
     res, st = run_tasks([Task("ok", math.sqrt, (9.0,), "f-ok9")], store, client=cluster2[1],
                         progress=False)
     assert res == {"ok": 3.0} and st.computed == 1
+
+
+def test_scheduler_address_sends_the_work_to_an_existing_cluster(design, cluster2,
+                                                                  two_worker_run, tmp_path):
+    """--scheduler tcp://...: the same tasks on a cluster the run did not start."""
+    address = cluster2[0].scheduler_address
+    assert address.startswith("tcp://")
+    s = _run(design, tmp_path / "remote", scheduler=address, samples=2)
+    assert s["run"]["computed"] == 3 and s["run"]["workers"] == 2
+    # the first two samples are the two-worker run's first two (same seed, same draws)
+    out = tmp_path / "remote" / "samples"
+    for name in ("sample-00000", "sample-00001"):
+        mine = json.loads((out / f"{name}.json").read_text())["result"]
+        theirs = json.loads((two_worker_run[0] / "samples" / f"{name}.json").read_text())
+        assert mine["t_done"] == theirs["result"]["t_done"]
+        assert mine["base_final"] == theirs["result"]["base_final"]
