@@ -207,6 +207,14 @@ def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -
                            f"{100 * r['position_share']:.0f} %", _f(r["p_pass"]))
                           for r in sens]),
                   "<img src='tolerance_sensitivity.png' alt='sensitivity'>"]
+    reg = summary.get("sensitivity_regression") or []
+    if reg:
+        parts += ["<h3>Cross-check from the Monte Carlo samples</h3><p class='note'>R^2 of "
+                  "each factor's draw against the sample's mean completion time and shape "
+                  "error (first-order, linear; thickness as the sample's mean deviation).</p>",
+                  _table(["factor", "R^2 mean completion time", "R^2 shape error"],
+                         [(r["factor"], _f(r["r2_mean_completion"]), _f(r["r2_shape_rms"]))
+                          for r in reg])]
     worst = sorted(cells, key=lambda r: (r["p_on_time"], -r["t_sd_s"]))[:15]
     parts += ["<h2>Least reliable cells</h2>",
               _table(["cell", "t* (s)", "nominal (s)", "P(on time)", "P(complete)", "sd (s)",

@@ -385,3 +385,19 @@ def test_scheduler_address_sends_the_work_to_an_existing_cluster(design, cluster
         theirs = json.loads((two_worker_run[0] / "samples" / f"{name}.json").read_text())
         assert mine["t_done"] == theirs["result"]["t_done"]
         assert mine["base_final"] == theirs["result"]["base_final"]
+
+
+def test_regression_sensitivity_finds_a_linear_driver():
+    from sim.tolerance import Perturbation, regression_sensitivity
+
+    rng = np.random.default_rng(3)
+    perts, res = [], []
+    for i in range(12):
+        tau, mod = 3 + 0.1 * rng.standard_normal(), 1 + 0.1 * rng.standard_normal()
+        perts.append(Perturbation(f"s{i}", ((0.0, 0.0),) * 2, tau, mod, 1.0, 1.0))
+        res.append({"t_done": [60 + 50 * (tau - 3), None], "shape_rms_pct": 0.5})
+    rows = {r["factor"]: r for r in regression_sensitivity(perts, res, t_end=70.0)}
+    assert set(rows) == {"stretch", "modulus"}                 # the others never vary
+    assert rows["stretch"]["r2_mean_completion"] == pytest.approx(1.0, abs=1e-12)
+    assert rows["modulus"]["r2_mean_completion"] < 0.5
+    assert rows["stretch"]["r2_shape_rms"] == 0.0               # a constant output
