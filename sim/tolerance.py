@@ -467,7 +467,13 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
     else:
         out = check_frames(frames, ctx, settings.get("thresholds"))
         steps = int(len(frames["t"]))
+    dth = np.asarray(pert.thickness_delta, float)
     out.update({"name": pert.name, "diverged": diverged, "message": message, "steps": steps,
+                "perturbation": {"tau": pert.tau, "modulus_factor": pert.modulus_factor,
+                                 "relaxation_factor": pert.relaxation_factor,
+                                 "compliance": pert.compliance,
+                                 "thickness_delta_mean_mm": float(dth.mean()),
+                                 "thickness_delta_sd_mm": float(dth.std())},
                 "wall_s": round(time.perf_counter() - t0, 3)})
     return out
 
@@ -613,6 +619,9 @@ def aggregate(results: list, nominal: dict, t_star, time_tol_s: float, oat: dict
         "verdicts": {v: verdicts.count(v) for v in ("PASS", "WARN", "FAIL")},
         "reasons": dict(sorted(checks.items())),
         "diverged": int(sum(bool(r["diverged"]) for r in results)),
+        "diverged_samples": [{"name": r.get("name"), "message": r["message"][:300],
+                              "perturbation": r.get("perturbation")}
+                             for r in results if r["diverged"]][:20],
         "p_all_cells_on_time": float(on_time.all(axis=1).mean()) if S else float("nan"),
         "p_on_time_cell_min": float(on_time.mean(axis=0).min()) if S else float("nan"),
         "p_on_time_cell_mean": float(on_time.mean()) if S else float("nan"),
