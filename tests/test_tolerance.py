@@ -401,3 +401,14 @@ def test_regression_sensitivity_finds_a_linear_driver():
     assert rows["stretch"]["r2_mean_completion"] == pytest.approx(1.0, abs=1e-12)
     assert rows["modulus"]["r2_mean_completion"] < 0.5
     assert rows["stretch"]["r2_shape_rms"] == 0.0               # a constant output
+
+
+def test_the_documented_sweep_example_parses():
+    from pathlib import Path
+
+    from pysolver.sweep import load_spec
+
+    spec = load_spec(Path(__file__).resolve().parents[1] / "docs" / "sweep-example.toml")
+    assert spec["name"] == "dome-stencils" and len(spec["variants"]) == 7
+    assert spec["variants"][0] == {"shape": "dome", "refine": 0, "vertices": 58, "seed": 1,
+                                   "name": "dome_vertices-58_seed-1"}
