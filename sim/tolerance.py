@@ -801,6 +801,13 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     payload = read_payload(folder, material)
     cells = read_table(folder, "cells")
     n_cells = len(cells["cell_id"])
+    th = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
+    ts = np.asarray(cells["t_star_s"], float)
+    bad = np.flatnonzero(~(np.all(np.isfinite(th) & (th > 0), axis=1) & np.isfinite(ts)))
+    if len(bad):  # refused here, not by every worker
+        raise InputError(f"{folder / 'cells.csv'}:{int(bad[0]) + 2}: cell {int(bad[0])} has no "
+                         "programmed thickness or t*", fix="run the program stage first "
+                         "(morphshell build NAME --no-render, or make sim shape=NAME)")
     n_bases = len(read_table(folder, "bases")["base_id"])
     out = _claim(Path(out) if out is not None else folder / "tolerance")
     t_start = time.perf_counter()
