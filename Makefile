@@ -3,6 +3,8 @@
 #   make shape=petal        design, program, render, simulate and report build/petal/
 #   make test               the whole test suite
 #   make bench              benchmarks -> build/bench/*.json
+#   make tolerance shape=petal [SAMPLES=64]   Monte Carlo tolerance analysis (Dask)
+#   make sweep SPEC=file.toml                 build and tabulate design variants (Dask)
 #
 # The first call creates .venv and installs the project; Debian packages that are
 # missing are installed with apt-get when running as root (otherwise the exact
@@ -18,6 +20,10 @@ TIME       ?=
 TIMEFILE   ?=
 JOBS       ?=
 ARGS       ?=
+SAMPLES    ?=
+SCHEDULER  ?=
+WORKERS    ?=
+SPEC       ?=
 PYTHON     ?= python3
 VENV       := .venv
 PY         := $(VENV)/bin/python
@@ -32,7 +38,8 @@ export PYTHONDONTWRITEBYTECODE := 1
 # User values reach the shell only through the environment, quoted ("$$MS_TIME"), never
 # pasted into a recipe: a quote or $(...) in TIME, a path or ARGS is text, not a command.
 # `override X := $(value X)` also stops make itself from expanding $(...) in them.
-USER_VARS  := shape SURFACE MATERIAL DATA VERTICES TIME TIMEFILE REFINE JOBS ARGS OUT
+USER_VARS  := shape SURFACE MATERIAL DATA VERTICES TIME TIMEFILE REFINE JOBS ARGS OUT \
+              SAMPLES SCHEDULER WORKERS SPEC
 $(foreach v,$(USER_VARS),$(eval override $(v) := $$(value $(v))))
 export MS_SOURCE   := $(if $(SURFACE),$(SURFACE),$(shape))
 export MS_NAME     := $(notdir $(basename $(MS_SOURCE)))
@@ -45,6 +52,10 @@ export MS_REFINE   := $(REFINE)
 export MS_JOBS     := $(JOBS)
 export MS_ARGS     := $(ARGS)
 export MS_OUT      := $(OUT)
+export MS_SAMPLES  := $(SAMPLES)
+export MS_SCHEDULER := $(SCHEDULER)
+export MS_WORKERS  := $(WORKERS)
+export MS_SPEC     := $(SPEC)
 unexport $(USER_VARS)
 
 # Options from the variables above, expanded by the shell (set -f: no globbing of ARGS,
@@ -54,10 +65,16 @@ BUILD_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
               $${MS_TIME:+--time "$$MS_TIME"} $${MS_TIMEFILE:+--time-file "$$MS_TIMEFILE"} \
               $${MS_REFINE:+--refine "$$MS_REFINE"} \
               $${MS_JOBS:+--jobs "$$MS_JOBS"} $$MS_ARGS
+DESIGN_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
+              $${MS_VERTICES:+--vertices "$$MS_VERTICES"} \
+              $${MS_TIME:+--time "$$MS_TIME"} $${MS_TIMEFILE:+--time-file "$$MS_TIMEFILE"} \
+              $${MS_REFINE:+--refine "$$MS_REFINE"}
 RUN        := set -f;
+DASK_OPTS  := $${MS_SCHEDULER:+--scheduler "$$MS_SCHEDULER"} \
+              $${MS_WORKERS:+--workers "$$MS_WORKERS"}
 
 .PHONY: all build design sim report test bench clean material membrane-model specimens \
-        system-deps venv lint shapes studio studio-shots
+        system-deps venv lint shapes studio studio-shots tolerance sweep
 
 all: build
 
@@ -72,6 +89,18 @@ sim: $(STAMP)
 
 report: $(STAMP)
 	@$(RUN) $(PY) -m pysolver.cli report "build/$$MS_NAME"
+
+# The design folder is built first (no STLs) when it is missing; ARGS go to 'tolerance'
+# (e.g. ARGS="--relaxation --thickness-sd 0.03").
+tolerance: $(STAMP)
+	@$(RUN) test -f "build/$$MS_NAME/cells.csv" || \
+	  $(PY) -m pysolver.cli build "$$MS_SOURCE" --no-render $(DESIGN_OPTS) || exit $$?; \
+	$(PY) -m pysolver.cli tolerance "build/$$MS_NAME" $${MS_SAMPLES:+--samples "$$MS_SAMPLES"} \
+	  $${MS_MATERIAL:+--material "$$MS_MATERIAL"} $(DASK_OPTS) $$MS_ARGS
+
+sweep: $(STAMP)
+	@$(RUN) test -n "$$MS_SPEC" || { echo 'usage: make sweep SPEC=file.toml'; exit 2; }; \
+	$(PY) -m pysolver.cli sweep "$$MS_SPEC" $${MS_OUT:+--out "$$MS_OUT"} $(DASK_OPTS) $$MS_ARGS
 
 shapes: $(STAMP)
 	$(PY) -m pysolver.cli shapes

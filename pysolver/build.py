@@ -198,7 +198,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
           refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
           progress: bool = True, renderer=None, keep_failed: bool = False,
-          solver: str = "fast", params=None, size=None, time_file=None) -> dict:
+          solver: str = "fast", params=None, size=None, time_file=None,
+          seed=None) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -230,6 +231,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     params : UnitCell, optional
         Unit cell with the user's tolerances (:func:`pysolver.design.unit_cell_options`);
         default :data:`pysolver.params.UNIT_CELL`.  Later stages read it from ``design.json``.
+    seed : int, optional
+        CVT remeshing seed of the design stage (default: searched); with ``vertices`` it
+        picks one of several stencils of the same size.
     keep_failed : bool
         Keep the staging folder of a build whose stage fails (``--debug``); by default it
         is removed, so a failed build leaves nothing behind.
@@ -256,6 +260,11 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
                        inputs=[source, material, time_file])
     design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
                        stencil_order=stencil_order, params=params)
+    if seed is not None:  # (only when given: keeps the hash of earlier builds)
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
+            raise InputError(f"--seed must be a whole number from 0 to 2^32 - 1, got {seed!r}",
+                             fix="give e.g. --seed 1")
+        design_opts["seed"] = seed
     all_opts = dict(design_opts, material=str(material) if material else None, refine=refine,
                     program=program, t_end=t_end)
     all_opts.pop("params")

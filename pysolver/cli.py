@@ -26,7 +26,7 @@ from .errors import (
     EXIT_OK,
     MorphshellError,
 )
-from .params import DEFAULT_REFINE
+from .params import DEFAULT_REFINE, TOLERANCE_RUN, UNCERTAINTY
 
 STAGES_HELP = """\
 stages (each reads and writes plain files in a design folder, build/<shape>/):
@@ -42,6 +42,8 @@ stages (each reads and writes plain files in a design folder, build/<shape>/):
   specimens     printable unit-cell test specimens from the same SCAD modules
   shapes        list the built-in shapes
   studio        browser front end: morph viewer, time-landscape editor, builds side by side
+  tolerance     Monte Carlo over print and material scatter: P(PASS), spreads (on Dask)
+  sweep         build a grid or list of design variants from a TOML spec (on Dask)
 """
 
 
@@ -101,6 +103,14 @@ def _add_solver_option(p: argparse.ArgumentParser) -> None:
                         "before the speed work, kept for comparisons; same results)")
 
 
+def _add_dask_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scheduler", default=None,
+                   help="address of a running Dask scheduler (tcp://host:8786); default: a "
+                        "local cluster sized to this machine")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes of the local cluster (default: one per core)")
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="morphshell",
@@ -126,6 +136,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output folder (default: build/<name>)")
     _add_design_options(p)
     p.add_argument("--material", default=None, help="bracket model file (default: committed one)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="CVT remeshing seed (default: the shape's tuned one, or searched)")
     p.add_argument("--refine", type=int, default=DEFAULT_REFINE,
                    help="K rounds of closing the timing loop: correct t* from the simulation "
                         f"(default {DEFAULT_REFINE}, as make's REFINE; 0 = off)")
@@ -195,6 +207,42 @@ def _parser() -> argparse.ArgumentParser:
                    help="build folders, shown side by side (default: every build/<name>)")
     p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: any free)")
     p.add_argument("--no-browser", action="store_true", help="do not open a browser")
+    p = add("tolerance", help="Monte Carlo tolerance analysis of a design folder (Dask)")
+    p.add_argument("dir", help="programmed design folder (e.g. build/petal)")
+    p.add_argument("--samples", type=int, default=TOLERANCE_RUN.samples,
+                   help=f"Monte Carlo samples (default {TOLERANCE_RUN.samples})")
+    p.add_argument("--seed", type=int, default=TOLERANCE_RUN.seed,
+                   help="seed of the draws (fixed: a rerun gives the same numbers)")
+    p.add_argument("--thickness-sd", type=float, default=UNCERTAINTY.thickness_sd,
+                   help=f"bracket thickness sd, mm (default {UNCERTAINTY.thickness_sd})")
+    p.add_argument("--stretch", type=float, default=UNCERTAINTY.stretch_mean,
+                   help=f"membrane pre-stretch mean (default {UNCERTAINTY.stretch_mean})")
+    p.add_argument("--stretch-sd", type=float, default=UNCERTAINTY.stretch_sd,
+                   help=f"pre-stretch sd (default {UNCERTAINTY.stretch_sd})")
+    p.add_argument("--modulus-sd", type=float, default=UNCERTAINTY.modulus_rel_sd,
+                   help="relative sd of the membrane modulus (default "
+                        f"{UNCERTAINTY.modulus_rel_sd})")
+    p.add_argument("--material-sd", type=float, default=UNCERTAINTY.material_sd,
+                   help="sd of ln(bracket compliance factor) (default: from the material "
+                        "fit residuals; 0 = off)")
+    p.add_argument("--relaxation", action="store_true",
+                   help="also draw membrane stress relaxation from the measured curve")
+    p.add_argument("--time-tol", type=float, default=TOLERANCE_RUN.time_tol_s,
+                   help="a cell is on time within this of t*, s (default "
+                        f"{TOLERANCE_RUN.time_tol_s:g})")
+    p.add_argument("--sensitivity", type=int, default=None,
+                   help="one-at-a-time runs per factor (default "
+                        f"min({TOLERANCE_RUN.sensitivity_samples}, samples); 0 = none)")
+    p.add_argument("--t-end", type=float, default=None, help="simulated time in water, s")
+    p.add_argument("--dt", type=float, default=None, help="time step, s (default 0.5)")
+    p.add_argument("--material", default=None, help="bracket model file")
+    p.add_argument("--out", default=None, help="output folder (default DIR/tolerance)")
+    _add_dask_options(p)
+
+    p = add("sweep", help="build the design variants of a TOML spec and tabulate them (Dask)")
+    p.add_argument("spec", help="sweep spec (TOML; see docs/tolerance.md)")
+    p.add_argument("--out", default=None, help="output folder (default build/sweep-<name>)")
+    _add_dask_options(p)
     return ap
 
 
@@ -229,7 +277,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
                        render=not args.no_render, simulate=not args.no_sim,
                        t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress,
                        renderer=args.renderer, keep_failed=getattr(args, "debug", False),
-                       solver=args.solver, params=_unit_cell(args))
+                       solver=args.solver, params=_unit_cell(args), seed=args.seed)
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
         from .build import design_only
@@ -270,6 +318,25 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
         rep = make_report(Path(args.dir), progress=progress)
         print_verdict(rep, Path(args.dir) / "report")
         return 3 if rep.get("verdict") == "FAIL" else EXIT_OK
+    if cmd == "tolerance":
+        import dataclasses
+
+        from sim.tolerance import tolerance_analysis
+
+        from .build import check_build_options
+
+        check_build_options(t_end=args.t_end, dt=args.dt, render=False)
+        kw = {k: v for k, v in (("t_end", args.t_end), ("dt", args.dt)) if v is not None}
+        unc = dataclasses.replace(UNCERTAINTY, thickness_sd=args.thickness_sd,
+                                  stretch_mean=args.stretch, stretch_sd=args.stretch_sd,
+                                  modulus_rel_sd=args.modulus_sd, material_sd=args.material_sd,
+                                  relaxation=args.relaxation)
+        tolerance_analysis(Path(args.dir), samples=args.samples, uncertainty=unc,
+                           seed=args.seed, time_tol_s=args.time_tol,
+                           sensitivity=args.sensitivity, material=args.material,
+                           out=args.out, scheduler=args.scheduler, workers=args.workers,
+                           progress=progress, **kw)
+        return EXIT_OK
     if cmd == "compare-scan":
         from sim.scan import compare_scan
         compare_scan(Path(args.dir), Path(args.scan), layer=args.layer)
@@ -316,6 +383,11 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         from .studio import serve
         serve(args.dirs, port=args.port, open_browser=not args.no_browser)
         return EXIT_OK
+    if cmd == "sweep":
+        from .sweep import run_sweep
+        res = run_sweep(args.spec, out=args.out, scheduler=args.scheduler,
+                        workers=args.workers, progress=progress)
+        return EXIT_OK if not res["run"]["failed"] else EXIT_INTERNAL
     if cmd == "shapes":
         from .surfaces import BUILTIN_SHAPES
         for name in BUILTIN_SHAPES:

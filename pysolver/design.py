@@ -326,7 +326,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     plots : bool
         Write the PNG pictures (skip in fast tests).
     seed : int, optional
-        CVT remeshing seed (default: searched, or the built-in shape's tuned value).
+        CVT remeshing seed (default: searched).
 
     Returns
     -------

@@ -337,6 +337,80 @@ DEFAULT_REFINE = 1
 ``make`` and :func:`pysolver.build.build`."""
 
 @dataclass(frozen=True)
+class Uncertainty:
+    """Default fabrication and material uncertainty of ``morphshell tolerance``.
+
+    Every sample of the Monte Carlo analysis (:mod:`sim.tolerance`) draws each factor below
+    independently; a standard deviation of 0 switches a factor off.
+
+    Attributes
+    ----------
+    thickness_sd : float, mm
+        Per-bracket printed thickness, normal around the programmed value (FDM prints
+        bracket thickness within about +-0.02 mm).  One draw per cell and layer.
+    stretch_mean, stretch_sd : float
+        Membrane pre-stretch factor tau, normal (set by hand, "near 3").
+    modulus_rel_sd : float
+        Relative standard deviation of the membrane shear modulus mu (+-10 %).
+    material_sd : float or None
+        Standard deviation of the natural log of the bracket compliance factor (the fitted
+        bracket is ``s`` times as compliant: ``F_s(x) = F(x / s)``), one draw per sample.
+        ``None``: derived from the wet fit residuals of the material model
+        (:func:`sim.tolerance.material_scatter`).
+    relaxation : bool
+        Also draw a membrane stress-relaxation factor from the measured curve
+        (``data/material-measurements/rubber_stress_relaxation.csv``, SI Fig. 10).
+    relaxation_window_s : (float, float), s
+        Time between stretching the membrane and the hot-water bath, log-uniform in this
+        window (10 min .. 24 h; after about 1.5 h the curve hardly moves).
+    """
+
+    thickness_sd: float = 0.02
+    stretch_mean: float = 3.0
+    stretch_sd: float = 0.1
+    modulus_rel_sd: float = 0.10
+    material_sd: float | None = None
+    relaxation: bool = False
+    relaxation_window_s: tuple = (600.0, 86400.0)
+
+
+@dataclass(frozen=True)
+class ToleranceRun:
+    """Run settings of ``morphshell tolerance`` and ``morphshell sweep``.
+
+    Attributes
+    ----------
+    samples : int
+        Monte Carlo samples (``--samples``, ``make tolerance SAMPLES=``).
+    max_samples : int
+        Upper bound of ``--samples`` (a typo is refused, not run for days).
+    seed : int
+        Seed of the sample draws (fixed: a rerun gives the same numbers).
+    time_tol_s : float, s
+        A cell is *on time* when it completes within this of its programmed t* (the
+        report's timing RMS warning limit).
+    sensitivity_samples : int
+        One-at-a-time runs per uncertainty factor for the sensitivity table (0 = off).
+    material_robust_k : float
+        MAD-to-standard-deviation factor of a normal distribution (1.4826), used to turn
+        the per-curve fit residuals into :attr:`Uncertainty.material_sd` robustly.
+    max_variants : int
+        Upper bound of the variants of one sweep.
+    progress_every_s : float, s
+        Shortest interval between two progress lines of a distributed run.
+    """
+
+    samples: int = 64
+    max_samples: int = 10000
+    seed: int = 0
+    time_tol_s: float = 10.0
+    sensitivity_samples: int = 8
+    material_robust_k: float = 1.4826
+    max_variants: int = 2000
+    progress_every_s: float = 2.0
+
+
+@dataclass(frozen=True)
 class ModelFileRules:
     """Rules of the model-file validator (:mod:`pysolver.material.validate`).
 
@@ -400,6 +474,8 @@ SUPPORT_FRAME = SupportFrame()
 SIM = SimConstants()
 tol = Tolerances()
 MODEL_FILES = ModelFileRules()
+UNCERTAINTY = Uncertainty()
+TOLERANCE_RUN = ToleranceRun()
 
 LAYERS = ("top", "bottom")
 """Layer names.  ``top`` = +z in the flat print frame = +face-normal side of the
@@ -417,7 +493,8 @@ def layer_sign(layer) -> int:
 
 __all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
            "SupportFrame", "SUPPORT_FRAME",
-           "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign"]
+           "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign",
+           "Uncertainty", "ToleranceRun", "UNCERTAINTY", "TOLERANCE_RUN"]
 
 
 @dataclass(frozen=True)

@@ -479,4 +479,51 @@ def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell | None 
                        source=str(folder))
 
 
-__all__ = ["ShellModel", "build_model", "load_model", "membrane_mesh", "CROSS_REST_MODES"]
+def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None = None
+               ) -> ShellModel:
+    """A copy of ``model`` with other bracket thicknesses and/or simulator constants.
+
+    For the Monte Carlo tolerance analysis (:mod:`sim.tolerance`): the stencil, the membrane
+    mesh and every table stay the nominal design's; only the printed/material values change.
+    The membrane rest shape is the flat mesh divided by the pre-stretch ``tau``
+    (:func:`build_model`), so a new ``tau`` rescales the inverse rest edge matrices by
+    ``tau' / tau`` and the rest areas by ``(tau / tau')^2`` (the same numbers as building
+    the model with the new constants, to round-off; tested).  ``mu`` and the other
+    constants are read by the energies from ``consts`` directly.
+
+    Parameters
+    ----------
+    model : ShellModel
+    thickness : (c, 2) float, mm, optional
+        Bracket thickness per cell and layer (top, bottom); default the model's.
+    consts : SimConstants, optional
+        Default the model's.
+
+    Returns
+    -------
+    ShellModel
+        A new model; the arrays of ``model`` are not modified.
+    """
+    import dataclasses
+
+    changes = {}
+    if thickness is not None:
+        th = np.asarray(thickness, float)
+        if th.shape != model.cell_thickness.shape or not np.all(np.isfinite(th) & (th > 0)):
+            raise InputError(f"thickness has shape {th.shape} or non-positive values, expected "
+                             f"{model.cell_thickness.shape} positive mm",
+                             fix="pass one thickness per cell and layer")
+        changes["cell_thickness"] = th
+    if consts is not None:
+        if not (np.isfinite(consts.tau) and consts.tau > 1.0 and np.isfinite(consts.mu)
+                and consts.mu > 0):
+            raise InputError(f"pre-stretch tau = {consts.tau} and modulus mu = {consts.mu} MPa",
+                             fix="tau must exceed 1 and mu must be positive")
+        r = consts.tau / model.consts.tau
+        changes.update(consts=consts, tri_dm_inv=model.tri_dm_inv * r,
+                       tri_rest_area=model.tri_rest_area / (r * r))
+    return dataclasses.replace(model, **changes)
+
+
+__all__ = ["ShellModel", "build_model", "load_model", "vary_model", "membrane_mesh",
+           "CROSS_REST_MODES"]

@@ -1,0 +1,380 @@
+"""Run many self-contained tasks on Dask (``dask.distributed``), one result file per task.
+
+Used by ``morphshell tolerance`` (:mod:`sim.tolerance`, one simulation per task) and
+``morphshell sweep`` (:mod:`pysolver.sweep`, one build per task).
+
+* **Cluster.**  By default a ``LocalCluster`` sized to the machine (one single-threaded
+  worker process per core: every task runs its linear algebra on one BLAS thread anyway);
+  ``scheduler="tcp://host:8786"`` sends the same tasks to an existing cluster
+  (``docs/tolerance.md`` shows how to start one on several machines).
+* **Self-contained tasks.**  A :class:`Task` is an importable function and its arguments
+  (plain data: arrays, numbers, file contents), so any worker on any machine can run it; the
+  worker needs the same morphshell installed, not the caller's files.
+* **Atomic results, resumable runs.**  The caller (not the worker) writes each result to
+  ``<store>/<key>.json`` through a temporary file and a rename as soon as it arrives, together
+  with the task's input fingerprint.  A rerun after a crash, a Ctrl-C or a lost worker loads
+  the results whose fingerprint matches and computes only the missing ones.  A lost worker's
+  tasks are rescheduled by Dask on the others; results do not depend on where they ran.
+* **Progress.**  One line to stderr at most every few seconds: tasks done (and loaded from an
+  earlier run), failed, ETA, and the Dask dashboard address.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .atomic import atomic_write_text
+from .errors import InputError
+from .params import TOLERANCE_RUN
+
+KEY_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,120}$")
+SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|inproc|ucx)://[A-Za-z0-9_.:\[\]/-]{1,200}$")
+RESULT_FORMAT = "morphshell.task_result"
+
+
+def _soft_import_distributed():
+    """``distributed`` is a declared dependency; a broken install fails here with the fix."""
+    try:
+        import distributed
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise InputError(f"dask.distributed is not installed ({e})",
+                         fix="pip install 'dask[distributed]' (it is in pyproject.toml)") from None
+    return distributed
+
+
+def fingerprint(*parts) -> str:
+    """SHA-256 of a JSON rendering of ``parts`` (sorted keys; bytes hashed by content).
+
+    Parameters
+    ----------
+    *parts : JSON-able values, ``bytes`` or objects with ``to_dict()``
+
+    Returns
+    -------
+    str, 64 hex digits
+    """
+    h = hashlib.sha256()
+
+    def default(o):
+        if isinstance(o, bytes):
+            return {"sha256": hashlib.sha256(o).hexdigest()}
+        if hasattr(o, "to_dict"):
+            return o.to_dict()
+        if hasattr(o, "tolist"):
+            return o.tolist()
+        raise TypeError(f"cannot fingerprint {type(o).__name__}")
+
+    for p in parts:
+        h.update(json.dumps(p, sort_keys=True, default=default).encode())
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def code_fingerprint() -> str:
+    """SHA-256 of the project's code (``pysolver/**/*.py``, ``sim/*.py``, ``scad/*.scad``,
+    the committed model files): a stored result is reused only by the same code."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    files = sorted([*root.glob("pysolver/**/*.py"), *root.glob("sim/*.py"),
+                    *root.glob("scad/*.scad"), *root.glob("pysolver/data/*.json")])
+    for f in files:
+        h.update(f.relative_to(root).as_posix().encode() + b"\0")
+        h.update(hashlib.sha256(f.read_bytes()).digest())
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class Task:
+    """One unit of work: ``fn(*args)`` on any worker.
+
+    Attributes
+    ----------
+    key : str
+        File-safe name, unique in its run (``[A-Za-z0-9_.-]``, starts alphanumeric).
+    fn : callable
+        A module-level function of an installed module (pickled by reference).
+    args : tuple
+        Plain data only (numbers, strings, arrays, bytes, frozen dataclasses of those).
+    fingerprint : str
+        Hash of everything the result depends on; a stored result is reused only when its
+        fingerprint is the same.
+    """
+
+    key: str
+    fn: Callable
+    args: tuple = ()
+    fingerprint: str = ""
+
+    def __post_init__(self):
+        if not KEY_RE.match(self.key):
+            raise InputError(f"task key {self.key!r} is not a file-safe name",
+                             fix="use letters, digits, '_', '.', '-' (at most 121 characters)")
+
+
+class ResultStore:
+    """A folder of per-task JSON results, each written atomically.
+
+    Parameters
+    ----------
+    folder : path-like
+        Created when missing.
+    """
+
+    def __init__(self, folder):
+        self.folder = Path(folder)
+
+    def path(self, key: str) -> Path:
+        return self.folder / f"{key}.json"
+
+    def load(self, task: Task):
+        """The stored result of ``task`` when its fingerprint matches, else ``None``.
+
+        A damaged or foreign file is treated as missing (and replaced when the task runs).
+        """
+        p = self.path(task.key)
+        try:
+            d = json.loads(p.read_text())
+        except (OSError, ValueError):
+            return None
+        if (not isinstance(d, dict) or d.get("format") != RESULT_FORMAT
+                or d.get("key") != task.key or d.get("fingerprint") != task.fingerprint):
+            return None
+        return d.get("result")
+
+    def save(self, task: Task, result) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        text = json.dumps({"format": RESULT_FORMAT, "key": task.key,
+                           "fingerprint": task.fingerprint, "result": result},
+                          sort_keys=True, allow_nan=True)
+        atomic_write_text(self.path(task.key), text + "\n")
+
+
+@dataclass
+class RunStats:
+    """What a :func:`run_tasks` call did.
+
+    Attributes
+    ----------
+    total, loaded, computed : int
+        Tasks, results reused from the store, results computed now.
+    failed : dict of str -> str
+        Task key -> error message (not stored: a rerun tries them again).
+    wall_s : float, s
+    workers : int
+        Workers of the cluster when the run started.
+    dashboard : str or None
+        Dask dashboard address.
+    """
+
+    total: int = 0
+    loaded: int = 0
+    computed: int = 0
+    failed: dict = field(default_factory=dict)
+    wall_s: float = 0.0
+    workers: int = 0
+    dashboard: str | None = None
+
+    def to_dict(self) -> dict:
+        return {"total": self.total, "loaded": self.loaded, "computed": self.computed,
+                "failed": dict(self.failed), "wall_s": round(self.wall_s, 3),
+                "workers": self.workers, "dashboard": self.dashboard}
+
+
+def check_scheduler(address) -> str | None:
+    """Validate a ``--scheduler`` address (``tcp://host:8786``); ``None`` passes."""
+    if address is None:
+        return None
+    a = str(address).strip()
+    if not SCHEDULER_RE.match(a):
+        raise InputError(f"--scheduler {address!r} is not a Dask scheduler address",
+                         fix="use tcp://HOST:8786 (the address 'dask scheduler' prints)")
+    return a
+
+
+def check_workers(workers) -> int | None:
+    if workers is None:
+        return None
+    if not isinstance(workers, int) or isinstance(workers, bool) or not 1 <= workers <= 1024:
+        raise InputError(f"--workers {workers!r}", fix="use a whole number from 1 to 1024")
+    return workers
+
+
+@contextlib.contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None,
+                progress: bool = True):
+    """A ``distributed.Client``: of an existing cluster, or of a new ``LocalCluster``.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        ``tcp://host:port`` of a running ``dask scheduler``.
+    workers : int, optional
+        Worker processes of the local cluster (default: one per core); ignored with
+        ``scheduler``.
+    progress : bool
+        Print the cluster and its dashboard address to stderr.
+
+    Yields
+    ------
+    distributed.Client
+    """
+    distributed = _soft_import_distributed()
+    scheduler = check_scheduler(scheduler)
+    workers = check_workers(workers)
+    cluster = None
+    if scheduler is not None:
+        try:
+            client = distributed.Client(scheduler, timeout="20s")
+        except OSError as e:
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({e})",
+                             fix="start it with 'dask scheduler' and check the address and "
+                                 "the firewall (docs/tolerance.md)") from None
+    else:
+        n = workers or os.cpu_count() or 1
+        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                           dashboard_address=":0",
+                                           silence_logs=logging.ERROR)
+        client = distributed.Client(cluster)
+    try:
+        if progress:
+            nw = len(client.scheduler_info().get("workers", {}))
+            where = scheduler or "local cluster"
+            print(f"dask: {where}, {nw} worker(s), dashboard {client.dashboard_link}",
+                  file=sys.stderr, flush=True)
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _fmt_s(s: float) -> str:
+    if not math.isfinite(s):
+        return "?"
+    s = int(round(s))
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else (
+        f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s")
+
+
+def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
+              scheduler: str | None = None, workers: int | None = None,
+              progress: bool = True, label: str = "tasks",
+              on_result: Callable | None = None) -> tuple[dict, RunStats]:
+    """Run the tasks whose results are not stored yet; store each result as it arrives.
+
+    Parameters
+    ----------
+    tasks : iterable of Task
+        Unique keys.
+    store : ResultStore
+    client : distributed.Client, optional
+        Use this client (tests); else one is made by :func:`dask_client`.
+    scheduler, workers : see :func:`dask_client`
+    progress : bool
+    label : str
+        Prefix of the progress lines.
+    on_result : callable, optional
+        ``on_result(key, result)`` after each computed result is stored (tests use it to
+        kill a worker mid-run).
+
+    Returns
+    -------
+    results : dict of str -> result
+        Every task that has a result (loaded or computed), by key.
+    stats : RunStats
+    """
+    tasks = list(tasks)
+    keys = [t.key for t in tasks]
+    if len(set(keys)) != len(keys):
+        raise InputError("duplicate task keys", fix="give every task its own key")
+    t_start = time.perf_counter()
+    stats = RunStats(total=len(tasks))
+    results = {}
+    todo = []
+    for t in tasks:
+        r = store.load(t)
+        if r is None:
+            todo.append(t)
+        else:
+            results[t.key] = r
+    stats.loaded = len(results)
+    if progress and stats.loaded:
+        print(f"{label}: {stats.loaded}/{stats.total} result(s) from an earlier run "
+              f"in {store.folder}", file=sys.stderr, flush=True)
+    if todo:
+        with contextlib.ExitStack() as stack:
+            if client is None:
+                client = stack.enter_context(dask_client(scheduler, workers, progress))
+            _compute(client, todo, store, results, stats, progress, label, on_result,
+                     t_start)
+    stats.wall_s = time.perf_counter() - t_start
+    if progress:
+        print(f"{label}: {stats.total - len(stats.failed)}/{stats.total} done "
+              f"({stats.computed} computed, {stats.loaded} loaded), {len(stats.failed)} "
+              f"failed, {_fmt_s(stats.wall_s)}", file=sys.stderr, flush=True)
+    return {k: results[k] for k in keys if k in results}, stats
+
+
+def _compute(client, todo, store, results, stats, progress, label, on_result, t_start):
+    distributed = _soft_import_distributed()
+    stats.workers = len(client.scheduler_info().get("workers", {}))
+    stats.dashboard = client.dashboard_link
+    by_key = {}
+    futures = []
+    for t in todo:
+        dkey = f"{label}-{t.key}-{t.fingerprint[:12]}"
+        fut = client.submit(t.fn, *t.args, key=dkey, pure=False)
+        by_key[fut.key] = t
+        futures.append(fut)
+    last = 0.0
+    t_run = time.perf_counter()
+    n = len(todo)
+    done = 0
+    for fut in distributed.as_completed(futures):
+        t = by_key[fut.key]
+        if fut.status == "finished":
+            try:
+                res = fut.result()
+            except Exception as e:  # noqa: BLE001 - a lost result counts as a failure
+                stats.failed[t.key] = f"{type(e).__name__}: {e}"
+            else:
+                store.save(t, res)
+                results[t.key] = res
+                stats.computed += 1
+                if on_result is not None:
+                    on_result(t.key, res)
+        else:
+            try:  # an error, or a cancelled task (the cluster went away)
+                exc = fut.exception()
+            except Exception as e:  # noqa: BLE001
+                exc = e
+            stats.failed[t.key] = f"{type(exc).__name__}: {exc}"
+            if progress:
+                print(f"{label}: task {t.key} failed: {stats.failed[t.key]}",
+                      file=sys.stderr, flush=True)
+        fut.release()
+        done += 1
+        now = time.perf_counter()
+        if progress and (now - last >= TOLERANCE_RUN.progress_every_s or done == n):
+            last = now
+            rate = (now - t_run) / max(stats.computed, 1)
+            eta = rate * (n - done) if stats.computed else float("nan")
+            print(f"{label}: {stats.loaded + done}/{stats.total} done, "
+                  f"{len(stats.failed)} failed, ETA {_fmt_s(eta)}  "
+                  f"(dashboard {stats.dashboard})", file=sys.stderr, flush=True)
+
+
+__all__ = ["Task", "ResultStore", "RunStats", "run_tasks", "dask_client", "fingerprint",
+           "code_fingerprint",
+           "check_scheduler", "check_workers"]

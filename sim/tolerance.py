@@ -1,0 +1,905 @@
+"""Will the printed shell still morph right?  Monte Carlo tolerance analysis of a design.
+
+A printed shell differs from its design.  Each Monte Carlo **sample** is the nominal design
+(its ``cells.csv`` thicknesses, the simulator constants of :data:`pysolver.params.SIM`, the
+bracket model) with these factors drawn independently (defaults in
+:class:`pysolver.params.Uncertainty`, seeds fixed):
+
+``thickness``
+    Every printed bracket (one draw per cell and layer) is ``h + N(0, thickness_sd)`` mm
+    (default 0.02 mm; floored at 0.05 mm).  Note: the bracket model *clamps* thicknesses
+    to its grid (0.30-0.65 mm), so a bracket programmed at 0.30 mm that prints thinner is
+    simulated as 0.30 mm (no measurement supports thinner ones).
+``stretch``
+    The membrane pre-stretch ``tau ~ N(stretch_mean, stretch_sd)`` (default 3 +- 0.1).
+``modulus``
+    The membrane shear modulus ``mu * (1 + N(0, modulus_rel_sd))`` (default +-10 %).
+``material``
+    The bracket material model within its fit residuals.  The wet tests of the fit
+    (``data/material-measurements``) are compared curve by curve with the fitted model:
+    each curve's measured compressions are ``r`` times the model's (least squares over the
+    curve).  The spread of ``ln r`` over the 80 curves is the specimen-to-specimen scatter
+    the fit could not explain; its robust standard deviation (1.4826 x the median absolute
+    deviation) is ``material_sd`` (:func:`material_scatter`).  A sample draws one
+    compliance factor ``s = exp(N(0, material_sd))`` for the whole print (one filament, one
+    printer, one bath) and simulates brackets with ``F_s(x) = F(x / s)``, i.e. force
+    coefficients ``c_k / s^k`` (:class:`CompliantBracketModel`): a bracket that creeps
+    ``s`` times as far under the same load.  The median is kept at the fit (the median
+    bias of the fit is a model error, not scatter).
+``relaxation`` (optional, ``--relaxation``)
+    Membrane stress relaxation (SI Fig. 10, ``rubber_stress_relaxation.csv``): a
+    dog-bone at stretch 3 loses force over hours.  A sample draws the waiting time between
+    stretching and the bath log-uniformly in ``relaxation_window_s`` (10 min .. 24 h) and
+    scales the membrane modulus by the measured ``F(t_peak + wait) / F(t_peak)``
+    (:func:`relaxation_factor`): a scalar pre-stress factor, independent of the simulator.
+
+Everything a simulation needs travels with its task (:class:`DesignPayload`: the design
+folder's files as bytes, the material file as bytes, a :class:`Perturbation`), so any Dask
+worker can run it (:mod:`pysolver.distributed`).  The worker rebuilds the nominal
+:class:`~sim.model.ShellModel` once per design and applies a perturbation with
+:func:`sim.model.vary_model`, simulates (:func:`sim.simulate.simulate_model`) and checks the
+result with the report's own metrics and verdict (:func:`sim.report.decide`).
+
+Outputs in ``<design>/tolerance/`` (``summary.json``, ``report.html``, pictures and
+``samples/*.json``, one result per task, written atomically so a rerun only computes what
+is missing):
+
+* per cell: probability of completing within ``time_tol_s`` of t*, completion-time spread
+  (a cell that does not complete within the simulated time counts as completing at ``t_end``
+  in the spread -- right-censored, so the spread is a lower bound -- and is never on time);
+* per base: spread of the final (rigidly aligned) position;
+* P(PASS) and P(not FAIL) of the simulation check, with 95 % Wilson intervals;
+* sensitivity: one-at-a-time runs (each factor alone, the same draws as the first samples,
+  the others nominal); each factor's share of the summed one-at-a-time variance of the
+  completion times and of the final positions names the factor that drives the spread.  As a
+  cross-check from the samples themselves, :func:`regression_sensitivity` gives each
+  factor's first-order ``R^2`` (Sobol-style, linear) on the mean completion time and the
+  shape error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pysolver.errors import InputError, MorphshellError
+from pysolver.params import SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
+
+FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
+DESIGN_FILES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
+                "support_frame.csv", "design.json")
+SUMMARY_FORMAT = "morphshell.tolerance"
+THICKNESS_FLOOR_MM = 0.05
+_POW = np.arange(1, 5)
+
+
+# ------------------------------------------------------------------------------------------
+# the perturbed material
+
+
+class CompliantBracketModel:
+    """A bracket model ``s`` times as compliant as ``base``: ``F_s(x) = F(x / s)``.
+
+    Parameters
+    ----------
+    base : BracketModel
+        Anything with ``coefficients(h_mm, b_mm, t_s, eta) -> (n, 4)``.
+    scale : float or (n,) float
+        Compliance factor ``s > 0`` (1 = the base model).
+    """
+
+    def __init__(self, base, scale):
+        s = np.asarray(scale, float)
+        if not np.all(np.isfinite(s) & (s > 0)):
+            raise InputError(f"compliance factor {scale!r}", fix="use a positive number")
+        self.base = base
+        self.scale = s
+        self.path = getattr(base, "path", None)
+
+    def coefficients(self, h_mm, b_mm, t_s, eta: float = 0.0):
+        """Force coefficients of ``x^1..x^4`` (N mm^-k), shape ``(n, 4)``."""
+        c = np.asarray(self.base.coefficients(h_mm, b_mm, t_s, eta=eta), float)
+        s = self.scale if self.scale.ndim == 0 else self.scale[:, None]
+        return c / s ** _POW
+
+
+def material_scatter(material=None, data_dir=None) -> dict:
+    """Specimen-to-specimen scatter of the wet creep tests around the bracket model.
+
+    For each wet test curve, ``r`` = least-squares factor between the measured and the
+    modelled compressions (model inverted at the measured load and time); returns the
+    robust standard deviation of ``ln r``.
+
+    Parameters
+    ----------
+    material : BracketModel or path-like, optional
+        Default: the committed model.
+    data_dir : path-like, optional
+        Measurement folder (default ``data/material-measurements``).
+
+    Returns
+    -------
+    dict
+        ``sd_log`` (float), ``median_log`` (float), ``n_curves`` (int), ``method`` (str).
+    """
+    from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
+    from pysolver.material.measurements import load_measurements
+    from pysolver.material.model import load_bracket_model
+
+    mod = material if hasattr(material, "compression_for_force") else load_bracket_model(
+        material)
+    meas = load_measurements(data_dir)
+    obs = wet_eval_rows(meas.wet, 0.7, 120.0)
+    x = mod.compression_for_force(obs.h, obs.b, obs.t * 60.0, obs.F / SPECIMEN_BRACKETS)
+    logs = []
+    for k in np.unique(obs.series):
+        m = (obs.series == k) & np.isfinite(x)
+        den = float(np.sum(x[m] ** 2))
+        if m.sum() >= 3 and den > 0:
+            r = float(np.sum(x[m] * obs.x[m]) / den)
+            if r > 0:
+                logs.append(math.log(r))
+    if len(logs) < 3:
+        raise InputError("too few wet test curves to estimate the material scatter",
+                         fix="pass --material-sd explicitly")
+    logs = np.array(logs)
+    med = float(np.median(logs))
+    sd = TOLERANCE_RUN.material_robust_k * float(np.median(np.abs(logs - med)))
+    return {"sd_log": sd, "median_log": med, "n_curves": int(len(logs)),
+            "method": "per wet curve: ln of the least-squares ratio measured/model "
+                      "compression; 1.4826 x MAD"}
+
+
+def relaxation_curve(path=None):
+    """The measured membrane force after the stretch is reached (SI Fig. 10).
+
+    Parameters
+    ----------
+    path : path-like, optional
+        Default ``data/material-measurements/rubber_stress_relaxation.csv``.
+
+    Returns
+    -------
+    t : (k,) float, s -- time since the peak force
+    ratio : (k,) float -- force / peak force (smoothed over 1 min)
+    """
+    from pysolver.material.measurements import REPO_ROOT
+
+    p = Path(path) if path is not None else (REPO_ROOT / "data" / "material-measurements"
+                                             / "rubber_stress_relaxation.csv")
+    try:
+        d = np.genfromtxt(p, delimiter=",", skip_header=1, usecols=(0, 7))
+    except (OSError, ValueError) as e:
+        raise InputError(f"{p}: cannot read the stress-relaxation curve ({e})",
+                         fix="give the CSV shipped in data/material-measurements") from None
+    if d.ndim != 2 or len(d) < 100 or not np.all(np.isfinite(d)):
+        raise InputError(f"{p}: expected >= 100 numeric rows of time (s) and load (N)")
+    t, F = d[:, 0], d[:, 1]
+    k = 15  # 1 min of 4 s samples: the load cell noise is ~0.01 N
+    Fs = np.convolve(F, np.ones(k) / k, mode="same")
+    i0 = int(np.argmax(Fs[k:-k])) + k
+    return t[i0:] - t[i0], Fs[i0:] / Fs[i0]
+
+
+def relaxation_factor(wait_s, curve=None):
+    """Membrane force ratio after waiting ``wait_s`` seconds at the stretch (<= 1)."""
+    t, r = curve if curve is not None else relaxation_curve()
+    return np.interp(wait_s, t, r)
+
+
+# ------------------------------------------------------------------------------------------
+# data that travel with a task
+
+
+@dataclass(frozen=True)
+class DesignPayload:
+    """A design folder's input files, as bytes (a worker needs no shared file system).
+
+    Attributes
+    ----------
+    files : tuple of (str, bytes)
+    material : bytes
+        The bracket model JSON.
+    sha : str
+        SHA-256 of everything above.
+    """
+
+    files: tuple
+    material: bytes
+    sha: str
+
+    def to_dict(self) -> dict:
+        return {"sha": self.sha}
+
+
+def read_payload(design_dir, material=None) -> DesignPayload:
+    """Read a design folder (and the material file) into a :class:`DesignPayload`."""
+    from pysolver.material.model import DEFAULT_MODEL_PATH
+
+    folder = Path(design_dir)
+    files = []
+    for name in DESIGN_FILES:
+        p = folder / name
+        if p.is_file():
+            files.append((name, p.read_bytes()))
+        elif name in ("stencil.obj", "bases.csv", "cells.csv"):
+            raise InputError(f"{folder}: no {name}", fix="give a programmed design folder "
+                             "(morphshell build NAME --no-render, or make sim shape=NAME)")
+    mpath = Path(material) if material is not None else DEFAULT_MODEL_PATH
+    try:
+        mbytes = mpath.read_bytes()
+    except OSError as e:
+        raise InputError(f"material file {mpath}: {e.strerror}",
+                         fix="give an existing bracket model JSON (--material)") from None
+    h = hashlib.sha256()
+    for name, b in files:
+        h.update(name.encode() + b"\0" + hashlib.sha256(b).digest())
+    h.update(b"material\0" + hashlib.sha256(mbytes).digest())
+    return DesignPayload(tuple(files), mbytes, h.hexdigest())
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """One sample's deviations from the design (all plain numbers: it travels with a task).
+
+    Attributes
+    ----------
+    name : str
+    thickness_delta : tuple of (float, float), mm
+        Added to the programmed (top, bottom) bracket thickness of each cell.
+    tau : float
+        Pre-stretch factor.
+    modulus_factor, relaxation_factor : float
+        Multiply the membrane shear modulus mu.
+    compliance : float
+        Bracket compliance factor ``s`` (:class:`CompliantBracketModel`).
+    """
+
+    name: str
+    thickness_delta: tuple
+    tau: float
+    modulus_factor: float
+    relaxation_factor: float
+    compliance: float
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def _draw(seed: int, i: int, n_cells: int, unc: Uncertainty, sd_mat: float, curve):
+    """All factor draws of sample ``i`` (the same stream whatever is switched off)."""
+    rng = np.random.default_rng([int(seed), int(i)])
+    z_th = rng.standard_normal((n_cells, 2))
+    z_tau, z_mu, z_mat = rng.standard_normal(3)
+    u = rng.random()
+    lo, hi = unc.relaxation_window_s
+    wait = math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo)))
+    relax = (float(relaxation_factor(wait, curve))
+             if unc.relaxation and curve is not None else 1.0)
+    return {"thickness": unc.thickness_sd * z_th,
+            "stretch": unc.stretch_mean + unc.stretch_sd * z_tau,
+            "modulus": max(1.0 + unc.modulus_rel_sd * z_mu, 0.05),
+            "material": math.exp(sd_mat * z_mat),
+            "relaxation": relax}
+
+
+def make_perturbation(name: str, draw: dict, n_cells: int, only: str | None = None,
+                      unc: Uncertainty = UNCERTAINTY) -> Perturbation:
+    """A :class:`Perturbation` from draws; ``only`` keeps one factor, the others nominal."""
+    def use(f):
+        return only is None or only == f
+
+    th = draw["thickness"] if use("thickness") else np.zeros((n_cells, 2))
+    return Perturbation(
+        name=name, thickness_delta=tuple(map(tuple, np.asarray(th, float).tolist())),
+        tau=float(draw["stretch"]) if use("stretch") else float(unc.stretch_mean),
+        modulus_factor=float(draw["modulus"]) if use("modulus") else 1.0,
+        relaxation_factor=float(draw["relaxation"]) if use("relaxation") else 1.0,
+        compliance=float(draw["material"]) if use("material") else 1.0)
+
+
+def nominal_perturbation(n_cells: int, unc: Uncertainty = UNCERTAINTY) -> Perturbation:
+    return Perturbation("nominal", tuple((0.0, 0.0) for _ in range(n_cells)),
+                        float(unc.stretch_mean), 1.0, 1.0, 1.0)
+
+
+# ------------------------------------------------------------------------------------------
+# the worker side
+
+
+_CONTEXTS: dict = {}
+
+
+def _context(payload: DesignPayload) -> dict:
+    """Nominal model, check data and material of a payload, built once per worker process."""
+    ctx = _CONTEXTS.get(payload.sha)
+    if ctx is not None:
+        return ctx
+    from pysolver.material.model import load_bracket_model
+    from pysolver.tables import read_design
+
+    from .model import load_model
+
+    with tempfile.TemporaryDirectory(prefix="morphshell-tol-") as tmp:
+        d = Path(tmp)
+        for name, b in payload.files:
+            (d / name).write_bytes(b)
+        (d / "material.json").write_bytes(payload.material)
+        model = load_model(d)
+        des = read_design(d)
+        material = load_bracket_model(d / "material.json")
+    c, b = des.cells, des.bases
+    ctx = {"model": model, "material": material,
+           "target": np.c_[b["target_x_mm"], b["target_y_mm"], b["target_z_mm"]],
+           "normals": np.c_[b["normal_x"], b["normal_y"], b["normal_z"]],
+           "pairs": np.c_[c["base_a"], c["base_b"]],
+           "t_star": np.asarray(c["t_star_s"], float),
+           "fold": np.asarray(c["fold_angle_deg"], float),
+           "clamped": np.asarray(c["clamped"], bool) if "clamped" in c else None}
+    if len(_CONTEXTS) >= 4:
+        _CONTEXTS.pop(next(iter(_CONTEXTS)))
+    _CONTEXTS[payload.sha] = ctx
+    return ctx
+
+
+def _finite_list(a):
+    return [None if not np.isfinite(v) else float(v) for v in np.ravel(a)]
+
+
+def check_frames(frames: dict, ctx: dict, thresholds=None) -> dict:
+    """The simulation check of ``sim.report`` on in-memory frames.
+
+    Parameters
+    ----------
+    frames : dict
+        As returned by :func:`sim.simulate.simulate_model`.
+    ctx : dict
+        ``target`` (m, 3) mm, ``normals`` (m, 3), ``pairs`` (c, 2), ``t_star`` (c,) s,
+        ``fold`` (c,) deg, ``clamped`` (c,) bool or None.
+
+    Returns
+    -------
+    dict
+        ``verdict``, ``reasons``, figures, ``t_done`` (c,) s (None = never),
+        ``base_final`` (m, 3) mm (final centres rigidly aligned to the target).
+    """
+    from .collisions import base_collisions, membrane_collisions
+    from .report import (
+        Thresholds,
+        decide,
+        fold_metrics,
+        shape_metrics,
+        solver_metrics,
+        timing_metrics,
+    )
+
+    th = Thresholds.coerce(thresholds)
+    t = np.asarray(frames["t"], float)
+    C, R = np.asarray(frames["base_center"], float), np.asarray(frames["base_rotation"], float)
+    M = frames.get("membrane_vertices")
+    last = len(t) - 1
+    metrics = {"t_end_s": float(t[-1])}
+    sh = shape_metrics(C[last], R[last], ctx["target"], ctx["normals"])
+    metrics["shape"] = sh
+    metrics["fold"] = fold_metrics(C[last], R[last], ctx["pairs"], ctx["fold"], th)
+    tm = timing_metrics(t, frames["collided"], ctx["t_star"], th,
+                        frames.get("bracket_length"), frames.get("collision_length"),
+                        ctx["clamped"])
+    metrics["timing"] = tm
+    bc = base_collisions(C, R, ctx["pairs"], t=t, tol=th.collision_depth_mm)
+    col = {"base_base": bc.summary()}
+    if M is not None and np.asarray(M).shape[1]:
+        col["membrane_base"] = membrane_collisions(
+            C, R, M, t=t, tol=th.collision_depth_mm,
+            flat_vertices=frames.get("flat_membrane_vertices"),
+            flat_centers=frames.get("flat_base_center")).summary()
+    metrics["collisions"] = col
+    metrics["solver"] = solver_metrics(frames, th)
+    verdict, reasons = decide(metrics, th)
+    t_done = tm["t_done"]
+    return {"verdict": verdict,
+            "reasons": [f"{r['level']} {r['check']}: {r['message']}" for r in reasons],
+            "shape_rms_pct": sh["rms_pct"], "shape_rms_mm": sh["rms_mm"],
+            "shape_max_mm": sh["max_mm"], "normal_rms_deg": sh["normal_rms_deg"],
+            "fold_rms_deg": metrics["fold"]["rms_deg"],
+            "timing_rms_s": tm["rms_s"], "timing_bias_s": tm["bias_s"],
+            "timing_max_abs_s": tm["max_abs_s"], "n_never_due": tm["n_never_due"],
+            "n_completed": tm["n_completed"],
+            "longest_cell_s": float(np.nanmax(t_done)) if np.isfinite(t_done).any() else None,
+            "t_done": _finite_list(t_done),
+            "base_final": np.asarray(sh["aligned"], float).tolist()}
+
+
+def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> dict:
+    """Simulate and check one perturbed shell (the Dask task).
+
+    Parameters
+    ----------
+    payload : DesignPayload
+    pert : Perturbation
+    settings : dict
+        ``t_end`` (s), ``dt`` (s), ``thresholds`` (dict or None).
+
+    Returns
+    -------
+    dict
+        The figures of :func:`check_frames`, plus ``diverged`` (bool), ``message``,
+        ``steps`` and ``wall_s`` (the only non-reproducible field).
+    """
+    from .model import vary_model
+    from .simulate import simulate_model
+
+    t0 = time.perf_counter()
+    ctx = _context(payload)
+    model = ctx["model"]
+    th = np.maximum(model.cell_thickness + np.asarray(pert.thickness_delta, float),
+                    THICKNESS_FLOOR_MM)
+    consts = dataclasses.replace(model.consts, tau=pert.tau,
+                                 mu=model.consts.mu * pert.modulus_factor
+                                 * pert.relaxation_factor)
+    varied = vary_model(model, thickness=th, consts=consts)
+    material = (ctx["material"] if pert.compliance == 1.0
+                else CompliantBracketModel(ctx["material"], pert.compliance))
+    diverged, message = False, ""
+    try:
+        frames = simulate_model(varied, material, t_end=settings["t_end"], dt=settings["dt"])
+    except MorphshellError as e:  # a diverged sample is a result: it fails the check
+        diverged, message = True, str(e)
+        frames = None
+    if frames is None or len(frames["t"]) < 2:
+        n_c, n_b = model.n_cells, model.n_bases
+        out = {"verdict": "FAIL", "reasons": [f"FAIL solver: {message}"],
+               "t_done": [None] * n_c, "base_final": [[None] * 3] * n_b,
+               "shape_rms_pct": None, "shape_rms_mm": None, "shape_max_mm": None,
+               "normal_rms_deg": None, "fold_rms_deg": None, "timing_rms_s": None,
+               "timing_bias_s": None, "timing_max_abs_s": None, "n_never_due": n_c,
+               "n_completed": 0, "longest_cell_s": None}
+        steps = 0
+    else:
+        out = check_frames(frames, ctx, settings.get("thresholds"))
+        steps = int(len(frames["t"]))
+    dth = np.asarray(pert.thickness_delta, float)
+    out.update({"name": pert.name, "diverged": diverged, "message": message, "steps": steps,
+                "perturbation": {"tau": pert.tau, "modulus_factor": pert.modulus_factor,
+                                 "relaxation_factor": pert.relaxation_factor,
+                                 "compliance": pert.compliance,
+                                 "thickness_delta_mean_mm": float(dth.mean()),
+                                 "thickness_delta_sd_mm": float(dth.std())},
+                "wall_s": round(time.perf_counter() - t0, 3)})
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# the caller side
+
+
+def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
+    if not isinstance(samples, int) or isinstance(samples, bool) or not (
+            1 <= samples <= TOLERANCE_RUN.max_samples):
+        raise InputError(f"--samples {samples!r}",
+                         fix=f"use a whole number from 1 to {TOLERANCE_RUN.max_samples}")
+    if not isinstance(sensitivity, int) or not 0 <= sensitivity <= samples:
+        raise InputError(f"--sensitivity {sensitivity!r}",
+                         fix=f"use a whole number from 0 to --samples ({samples})")
+    for name in ("thickness_sd", "stretch_sd", "modulus_rel_sd"):
+        v = getattr(unc, name)
+        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+            raise InputError(f"{name} = {v!r}", fix="use a finite number >= 0")
+    if unc.material_sd is not None and not (math.isfinite(unc.material_sd)
+                                            and unc.material_sd >= 0):
+        raise InputError(f"material_sd = {unc.material_sd!r}", fix="use a number >= 0")
+    if not (math.isfinite(unc.stretch_mean) and unc.stretch_mean > 1.0):
+        raise InputError(f"pre-stretch mean {unc.stretch_mean!r}", fix="use a number > 1")
+    if unc.stretch_sd > 0.25 * (unc.stretch_mean - 1.0):
+        raise InputError(f"pre-stretch sd {unc.stretch_sd} is too large for a mean of "
+                         f"{unc.stretch_mean}", fix="the stretch must stay well above 1: "
+                         f"use sd <= {0.25 * (unc.stretch_mean - 1.0):g}")
+    if unc.modulus_rel_sd > 0.3:
+        raise InputError(f"modulus sd {unc.modulus_rel_sd:g} (relative)",
+                         fix="use at most 0.3 (30 %); e.g. 0.1 for +-10 %")
+    lo, hi = unc.relaxation_window_s
+    if not (0 <= lo < hi):
+        raise InputError(f"relaxation window {unc.relaxation_window_s}",
+                         fix="use 0 <= start < end seconds")
+    if not (math.isfinite(time_tol_s) and time_tol_s > 0):
+        raise InputError(f"--time-tol {time_tol_s!r}", fix="use a positive number of seconds")
+
+
+def _claim(folder: Path) -> Path:
+    """The tolerance folder: new, or morphshell's (its stamp, or our result files)."""
+    from pysolver.atomic import claim_output, foreign_files
+    from pysolver.distributed import RESULT_FORMAT
+
+    def ours(p: Path) -> bool:
+        if p.suffix != ".json" or p.parent.name != "samples":
+            return False
+        try:
+            return json.loads(p.read_text()).get("format") == RESULT_FORMAT
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    if folder.is_dir() and not folder.is_symlink():
+        foreign = [p for p in foreign_files(folder) if not ours(p)]
+        if foreign:
+            raise InputError(f"{folder} holds files morphshell did not write "
+                             f"({', '.join(str(p.relative_to(folder)) for p in foreign[:3])})",
+                             fix="move them away or give another --out folder; morphshell "
+                                 "never deletes files it did not make")
+        return folder.absolute()
+    return claim_output(folder, what="tolerance folder")
+
+
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
+    """95 % Wilson score interval of a proportion ``k / n``."""
+    if n == 0:
+        return (float("nan"), float("nan"))
+    p = k / n
+    den = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / den
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, c - h), min(1.0, c + h))
+
+
+def _arr(results, key, shape_tail=()):
+    return np.array([[np.nan if v is None else v for v in np.ravel(
+        np.array(r[key], dtype=object))] for r in results], float).reshape(
+        (len(results),) + shape_tail)
+
+
+def _spread(results, n_cells, n_bases, t_end):
+    """Completion-time and final-position variance of a set of results.
+
+    A cell that does not complete within the simulated time counts as completing at
+    ``t_end`` for the variance (right-censored: the spread is then a lower bound).
+    """
+    import warnings
+
+    T = _arr(results, "t_done", (n_cells,))
+    P = _arr(results, "base_final", (n_bases, 3))
+    # variances about a finite sample first (shift-invariant): identical samples give
+    # exactly 0, not round-off of the mean
+    ok = np.flatnonzero(np.isfinite(P).all(axis=(1, 2)))
+    Q = P - P[ok[0]] if len(ok) else P
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # cells no sample completes
+        Tc = np.where(np.isfinite(T), T, t_end)
+        var_t = np.var(Tc, axis=0) if len(T) > 1 else np.zeros(n_cells)
+        dev = Q - np.nanmean(Q, axis=0)
+        var_p = np.nanmean(np.sum(dev ** 2, axis=2), axis=0)
+    return T, P, np.nan_to_num(var_t), np.nan_to_num(var_p)
+
+
+def aggregate(results: list, nominal: dict, t_star, time_tol_s: float, oat: dict,
+              n_cells: int, n_bases: int, t_end: float) -> dict:
+    """Per-cell, per-base and whole-shell figures of the samples (see module docstring)."""
+    S = len(results)
+    T, P, var_t, var_p = _spread(results, n_cells, n_bases, t_end)
+    t_star = np.asarray(t_star, float)
+    import warnings
+
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # cells no sample completes
+        on_time = np.isfinite(T) & (np.abs(T - t_star) <= time_tol_s)
+        done = np.isfinite(T)
+        q = (np.nanpercentile(T, [5, 50, 95], axis=0) if done.any()
+             else np.full((3, n_cells), np.nan))
+    t_nom = np.array([np.nan if v is None else v for v in nominal["t_done"]], float)
+    cells = [{"cell_id": j, "t_star_s": float(t_star[j]),
+              "t_nominal_s": None if not np.isfinite(t_nom[j]) else float(t_nom[j]),
+              "p_on_time": float(on_time[:, j].mean()), "p_complete": float(done[:, j].mean()),
+              "t_sd_s": float(math.sqrt(var_t[j])),
+              "t_p05_s": _num(q[0, j]), "t_median_s": _num(q[1, j]), "t_p95_s": _num(q[2, j])}
+             for j in range(n_cells)]
+    nom_p = np.array(nominal["base_final"], dtype=float)
+    with np.errstate(invalid="ignore"):
+        dmax = np.nanmax(np.linalg.norm(P - nom_p, axis=2), axis=0) if S else np.zeros(n_bases)
+    bases = [{"base_id": i, "position_sd_mm": float(math.sqrt(var_p[i])),
+              "max_from_nominal_mm": _num(dmax[i])} for i in range(n_bases)]
+    verdicts = [r["verdict"] for r in results]
+    n_pass = verdicts.count("PASS")
+    n_ok = n_pass + verdicts.count("WARN")
+    checks = {}
+    for r in results:
+        for msg in r["reasons"]:
+            key = msg.split(":", 1)[0]
+            checks[key] = checks.get(key, 0) + 1
+    figures = {
+        "samples": S, "p_pass": n_pass / S if S else float("nan"),
+        "p_pass_ci95": list(wilson(n_pass, S)),
+        "p_not_fail": n_ok / S if S else float("nan"), "p_not_fail_ci95": list(wilson(n_ok, S)),
+        "verdicts": {v: verdicts.count(v) for v in ("PASS", "WARN", "FAIL")},
+        "reasons": dict(sorted(checks.items())),
+        "diverged": int(sum(bool(r["diverged"]) for r in results)),
+        "diverged_samples": [{"name": r.get("name"), "message": r["message"][:300],
+                              "perturbation": r.get("perturbation")}
+                             for r in results if r["diverged"]][:20],
+        "p_all_cells_on_time": float(on_time.all(axis=1).mean()) if S else float("nan"),
+        "p_on_time_cell_min": float(on_time.mean(axis=0).min()) if S else float("nan"),
+        "p_on_time_cell_mean": float(on_time.mean()) if S else float("nan"),
+        "completion_sd_s_mean": float(np.sqrt(var_t).mean()),
+        "completion_sd_s_max": float(np.sqrt(var_t).max()),
+        "position_sd_mm_mean": float(np.sqrt(var_p).mean()),
+        "position_sd_mm_max": float(np.sqrt(var_p).max()),
+        "longest_cell_s": _stats([r["longest_cell_s"] for r in results]),
+        "shape_rms_pct": _stats([r["shape_rms_pct"] for r in results]),
+        "timing_rms_s": _stats([r["timing_rms_s"] for r in results]),
+        "nominal_verdict": nominal["verdict"],
+    }
+    sens = sensitivity_table(oat, n_cells, n_bases, t_end)
+    if sens:
+        figures["most_influential"] = sens[0]["factor"]
+    return {"figures": figures, "cells": cells, "bases": bases, "sensitivity": sens}
+
+
+def _num(v):
+    return None if v is None or not np.isfinite(v) else float(v)
+
+
+def _stats(vals):
+    a = np.array([np.nan if v is None else v for v in vals], float)
+    a = a[np.isfinite(a)]
+    if not a.size:
+        return {"mean": None, "sd": None, "p05": None, "p95": None}
+    return {"mean": float(a.mean()), "sd": float(a.std()),
+            "p05": float(np.percentile(a, 5)), "p95": float(np.percentile(a, 95))}
+
+
+def sensitivity_table(oat: dict, n_cells: int, n_bases: int, t_end: float) -> list:
+    """One-at-a-time sensitivity: each factor's share of the summed variances.
+
+    Parameters
+    ----------
+    oat : dict of str -> list of result dicts
+        Runs with only that factor perturbed.
+
+    Returns
+    -------
+    list of dict, most influential first
+        ``factor``, ``runs``, ``completion_var_s2`` (mean over cells), ``position_var_mm2``
+        (mean over bases), ``timing_share``, ``position_share``, ``p_pass``.
+    """
+    rows = []
+    for f, res in oat.items():
+        if not res:
+            continue
+        _, _, vt, vp = _spread(res, n_cells, n_bases, t_end)
+        rows.append({"factor": f, "runs": len(res), "completion_var_s2": float(vt.mean()),
+                     "position_var_mm2": float(vp.mean()),
+                     "p_pass": sum(r["verdict"] == "PASS" for r in res) / len(res)})
+    st = sum(r["completion_var_s2"] for r in rows)
+    sp = sum(r["position_var_mm2"] for r in rows)
+    for r in rows:
+        r["timing_share"] = r["completion_var_s2"] / st if st > 0 else 0.0
+        r["position_share"] = r["position_var_mm2"] / sp if sp > 0 else 0.0
+    rows.sort(key=lambda r: (-r["timing_share"], -r["position_share"], r["factor"]))
+    return rows
+
+
+def regression_sensitivity(perts: list, results: list, t_end: float) -> list:
+    """Sobol-style first-order check from the Monte Carlo samples themselves (no extra runs).
+
+    For each factor, the squared correlation ``R^2`` between its draw in a sample and the
+    sample's mean completion time (over cells, censored at ``t_end``) and its shape RMS error:
+    the fraction of the output variance a linear function of that factor alone explains (the
+    first-order Sobol index of a linear model).  Thickness is summarised by the sample's mean
+    thickness deviation, so only its shell-wide part is seen.
+
+    Parameters
+    ----------
+    perts : list of Perturbation
+        The samples' perturbations, in the order of ``results``.
+    results : list of dict
+
+    Returns
+    -------
+    list of dict
+        ``factor``, ``r2_mean_completion``, ``r2_shape_rms``; factors that do not vary are
+        left out.
+    """
+    if len(results) < 3:
+        return []
+    x = {"thickness": [float(np.mean(p.thickness_delta)) for p in perts],
+         "stretch": [p.tau for p in perts], "modulus": [p.modulus_factor for p in perts],
+         "material": [math.log(p.compliance) for p in perts],
+         "relaxation": [p.relaxation_factor for p in perts]}
+    T = np.array([[t_end if v is None else v for v in r["t_done"]] for r in results], float)
+    ys = {"r2_mean_completion": T.mean(axis=1),
+          "r2_shape_rms": np.array([np.nan if r["shape_rms_pct"] is None
+                                    else r["shape_rms_pct"] for r in results], float)}
+    rows = []
+    for f, xv in x.items():
+        xv = np.asarray(xv, float)
+        if np.ptp(xv) == 0:
+            continue
+        row = {"factor": f}
+        for k, y in ys.items():
+            m = np.isfinite(y)
+            ok = m.sum() >= 3 and np.ptp(y[m]) > 0
+            row[k] = float(np.corrcoef(xv[m], y[m])[0, 1] ** 2) if ok else 0.0
+        rows.append(row)
+    rows.sort(key=lambda r: -r["r2_mean_completion"])
+    return rows
+
+
+def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
+                       uncertainty: Uncertainty = UNCERTAINTY, seed: int = TOLERANCE_RUN.seed,
+                       time_tol_s: float = TOLERANCE_RUN.time_tol_s,
+                       sensitivity: int | None = None, t_end: float = SIM.t_end,
+                       dt: float = SIM.dt, material=None, out=None, scheduler=None,
+                       workers=None, client=None, progress: bool = True, report: bool = True,
+                       on_result=None) -> dict:
+    """Monte Carlo tolerance analysis of a programmed design folder.
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder with thicknesses (``cells.csv``).
+    samples : int
+        Monte Carlo samples.
+    uncertainty : Uncertainty
+        Standard deviations (``material_sd=None``: from the fit, :func:`material_scatter`).
+    seed : int
+        Sample ``i`` draws from ``numpy.random.default_rng([seed, i])``.
+    time_tol_s : float, s
+        On-time tolerance around t*.
+    sensitivity : int, optional
+        One-at-a-time runs per active factor (default ``min(8, samples)``; 0 = none).
+    t_end, dt : float, s
+        Simulated time and step.
+    material : path-like, optional
+        Bracket model file (default: the committed one).
+    out : path-like, optional
+        Output folder (default ``<design_dir>/tolerance``).
+    scheduler, workers, client
+        Dask cluster (:func:`pysolver.distributed.dask_client`).
+    progress, report : bool
+        Progress lines; write ``report.html`` and pictures.
+    on_result : callable, optional
+        Passed to :func:`pysolver.distributed.run_tasks`.
+
+    Returns
+    -------
+    dict
+        The content of ``summary.json`` (``figures``, ``cells``, ``bases``,
+        ``sensitivity``, ``options``, ``run``).
+    """
+    from pysolver.atomic import atomic_write_text, write_stamp
+    from pysolver.distributed import (
+        ResultStore,
+        Task,
+        check_scheduler,
+        check_workers,
+        code_fingerprint,
+        fingerprint,
+        run_tasks,
+    )
+    from pysolver.tables import read_table
+
+    scheduler, workers = check_scheduler(scheduler), check_workers(workers)
+    if sensitivity is None:
+        sensitivity = min(TOLERANCE_RUN.sensitivity_samples, samples)
+    _check_options(samples, sensitivity, uncertainty, time_tol_s)
+    from .simulate import SimSettings
+
+    SimSettings(t_end=float(t_end), dt=float(dt)).times()  # a bad t_end/dt is refused now
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        raise InputError(f"--seed {seed!r}", fix="use a whole number >= 0")
+    if material is not None:  # a bad model file is refused here, not on every worker
+        from pysolver.material.model import load_bracket_model
+
+        material = load_bracket_model(material).path
+    folder = Path(design_dir).absolute()
+    payload = read_payload(folder, material)
+    cells = read_table(folder, "cells")
+    n_cells = len(cells["cell_id"])
+    th = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
+    ts = np.asarray(cells["t_star_s"], float)
+    bad = np.flatnonzero(~(np.all(np.isfinite(th) & (th > 0), axis=1) & np.isfinite(ts)))
+    if len(bad):  # refused here, not by every worker
+        raise InputError(f"{folder / 'cells.csv'}:{int(bad[0]) + 2}: cell {int(bad[0])} has no "
+                         "programmed thickness or t*", fix="run the program stage first "
+                         "(morphshell build NAME --no-render, or make sim shape=NAME)")
+    n_bases = len(read_table(folder, "bases")["base_id"])
+    out = _claim(Path(out) if out is not None else folder / "tolerance")
+    t_start = time.perf_counter()
+    unc = uncertainty
+    mat_info = None
+    sd_mat = unc.material_sd
+    if sd_mat is None:
+        mat_info = material_scatter(material)
+        sd_mat = mat_info["sd_log"]
+    unc = dataclasses.replace(unc, material_sd=float(sd_mat))
+    curve = relaxation_curve() if unc.relaxation else None
+    draws = [_draw(seed, i, n_cells, unc, sd_mat, curve) for i in range(samples)]
+    settings = {"t_end": float(t_end), "dt": float(dt), "thresholds": None}
+    active = [f for f, on in (("thickness", unc.thickness_sd > 0),
+                              ("stretch", unc.stretch_sd > 0),
+                              ("modulus", unc.modulus_rel_sd > 0),
+                              ("material", sd_mat > 0), ("relaxation", unc.relaxation))
+              if on]
+    perts = [nominal_perturbation(n_cells, unc)]
+    perts += [make_perturbation(f"sample-{i:05d}", d, n_cells, unc=unc)
+              for i, d in enumerate(draws)]
+    for f in active:
+        perts += [make_perturbation(f"oat-{f}-{i:05d}", draws[i], n_cells, only=f, unc=unc)
+                  for i in range(sensitivity)]
+    code = code_fingerprint()
+    tasks = [Task(p.name, run_sample, (payload, p, settings),
+                  fingerprint(payload.sha, p, settings, code)) for p in perts]
+    store = ResultStore(out / "samples")
+    out.mkdir(parents=True, exist_ok=True)
+    write_stamp(out, since=time.time() + 1e9)  # claim the folder before the first result
+    results, stats = run_tasks(tasks, store, client=client, scheduler=scheduler,
+                               workers=workers, progress=progress, label="tolerance",
+                               on_result=on_result)
+    if stats.failed:
+        raise MorphshellError(
+            f"{len(stats.failed)} of {stats.total} simulations failed (first: "
+            f"{next(iter(stats.failed.items()))}); the {len(results)} finished ones are kept "
+            f"in {store.folder}", fix="re-run the same command: only the missing ones run")
+    nominal = results["nominal"]
+    main = [results[p.name] for p in perts if p.name.startswith("sample-")]
+    oat = {f: [results[p.name] for p in perts if p.name.startswith(f"oat-{f}-")]
+           for f in active}
+    agg = aggregate(main, nominal, cells["t_star_s"], time_tol_s, oat, n_cells, n_bases,
+                    float(t_end))
+    agg["sensitivity_regression"] = regression_sensitivity(
+        [p for p in perts if p.name.startswith("sample-")], main, float(t_end))
+    summary = {"format": SUMMARY_FORMAT, "format_version": 1, "design": str(folder),
+               "design_sha256": payload.sha,
+               "options": {"samples": samples, "seed": seed, "time_tol_s": time_tol_s,
+                           "sensitivity_runs": sensitivity, "t_end_s": float(t_end),
+                           "dt_s": float(dt), "uncertainty": dataclasses.asdict(unc),
+                           "material_scatter": mat_info, "factors": active,
+                           "material": None if material is None else str(material)},
+               "nominal": {k: nominal[k] for k in ("verdict", "shape_rms_pct", "timing_rms_s",
+                                                    "longest_cell_s", "reasons")},
+               **agg,
+               "run": dict(stats.to_dict(), wall_s=round(time.perf_counter() - t_start, 3),
+                           sample_wall_s=_stats([results[p.name]["wall_s"] for p in perts]))}
+    summary = _clean(summary)
+    text = json.dumps(summary, indent=1, sort_keys=True, allow_nan=False) + "\n"
+    atomic_write_text(out / "summary.json", text)
+    if report:
+        from .tolerance_report import write_report
+
+        write_report(out, summary, folder, main, nominal)
+    write_stamp(out)
+    if progress:
+        f = summary["figures"]
+        most = f.get("most_influential", "-")
+        print(f"tolerance: P(PASS) = {f['p_pass']:.2f} (95 % CI {f['p_pass_ci95'][0]:.2f}-"
+              f"{f['p_pass_ci95'][1]:.2f}), P(not FAIL) = {f['p_not_fail']:.2f}, "
+              f"most influential: {most} -> {out}", file=sys.stderr, flush=True)
+    return summary
+
+
+def _clean(o):
+    """JSON-ready copy: numpy scalars and arrays to Python, NaN/inf to None."""
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_clean(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _clean(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+__all__ = ["tolerance_analysis", "run_sample", "check_frames", "Perturbation",
+           "DesignPayload", "read_payload", "CompliantBracketModel", "material_scatter",
+           "relaxation_curve", "relaxation_factor", "aggregate", "sensitivity_table",
+           "regression_sensitivity",
+           "make_perturbation", "nominal_perturbation", "wilson", "FACTORS"]
