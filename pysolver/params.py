@@ -287,6 +287,15 @@ class StencilSearch:
         Log-sum-exp sharpness of the smoothed maxima in the stencil optimisation.
     opt_s3_weight : float
         Weight of log(3D scaling) beside log(longest flat cell) in the objective.
+    opt_min_angle_deg, opt_max_angle_deg, opt_angle_weight : float
+        Flat corner angles outside this range (deg) are penalised with this weight (per
+        rad^2): a base's disc (r 2 mm) must not reach across its triangle's edges (a
+        30-30-120 triangle puts its centroid 1.2 mm from its long edge per 12 mm).
+    opt_centroid_edge_mm : float, mm
+        Smallest distance from a base centre (flat centroid) to its triangle's edges in the
+        scaled layout: a base's disc and bracket roots (r 2 mm) stay inside the membrane
+        region the simulator's and the F_mem correction's meshes give each base (the
+        reference's stencils keep >= 2.6 mm).
     opt_rounds, opt_iterations : int
         Outer rounds (re-lifting onto the target) and L-BFGS iterations per round.
     opt_barrier : float
@@ -319,6 +328,10 @@ class StencilSearch:
     rim_insets: tuple = (0.5, 0.0)
     opt_sharpness: float = 60.0
     opt_s3_weight: float = 0.0
+    opt_min_angle_deg: float = 30.0
+    opt_max_angle_deg: float = 90.0
+    opt_centroid_edge_mm: float = 2.3
+    opt_angle_weight: float = 100.0
     opt_rounds: int = 2
     opt_iterations: int = 50
     opt_barrier: float = 1e-3

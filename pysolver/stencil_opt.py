@@ -56,10 +56,40 @@ def opposite_vertices(F, cells=None):
     return np.c_[F[cells.faces[:, 0], cells.slots[:, 0]], F[cells.faces[:, 1], cells.slots[:, 1]]]
 
 
+def centroid_edge_distances(Q, F):
+    """(m, 3) float: distance from each flat triangle's centroid to its three edges
+    (``2 A / (3 |e|)``), in the units of Q."""
+    A = _signed_areas(Q, F)
+    out = []
+    for k in range(3):
+        e = Q[F[:, (k + 1) % 3]] - Q[F[:, k]]
+        out.append(2.0 * A / (3.0 * anp.sqrt(anp.sum(e * e, axis=1))))
+    return anp.stack(out, axis=1)
+
+
+def _np(x):
+    return np.asarray(x, dtype=float)
+
+
+def _angles_np(Q, F):
+    return _np(corner_angles(np.asarray(Q, float), F))
+
+
 def _signed_areas(Q, F):
     A = Q[F]
     return 0.5 * ((A[:, 1, 0] - A[:, 0, 0]) * (A[:, 2, 1] - A[:, 0, 1])
                   - (A[:, 1, 1] - A[:, 0, 1]) * (A[:, 2, 0] - A[:, 0, 0]))
+
+
+def corner_angles(Q, F):
+    """(m, 3) float, rad: the flat triangles' corner angles (autograd-friendly)."""
+    out = []
+    for k in range(3):
+        a = Q[F[:, (k + 1) % 3]] - Q[F[:, k]]
+        b = Q[F[:, (k + 2) % 3]] - Q[F[:, k]]
+        c = anp.sum(a * b, axis=1) / anp.sqrt(anp.sum(a * a, axis=1) * anp.sum(b * b, axis=1))
+        out.append(anp.arccos(anp.clip(c, -1.0 + 1e-12, 1.0 - 1e-12)))
+    return anp.stack(out, axis=1)
 
 
 def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float):
@@ -85,8 +115,10 @@ def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float):
     -------
     log_s3 : float
         ``~ log(s3)``, the 3D scaling (the shell's size over the target's).
-    log_lmax : float
-        ``~ log(s2 max_c d_c)``, the log of the longest flat cell in mm.
+    log_s2 : float
+        ``~ log(s2)``, the flat scaling (mm per unit of Q).
+    log_dmax : float
+        ``~ log(max_c d_c)``; ``log_s2 + log_dmax`` is the log of the longest flat cell, mm.
     """
     N = anp.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
     N = N / anp.sqrt(anp.sum(N * N, axis=1, keepdims=True))
@@ -101,14 +133,17 @@ def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float):
     r2 = (anp.exp(log_s3) * D / (2.0 * cos_t) + params.layer_h * tan_t
           + params.min_gap / 2.0) / (d / 2.0)
     log_s2 = logsumexp(p * anp.log(r2)) / p
-    return log_s3, log_s2 + logsumexp(p * anp.log(d)) / p
+    return log_s3, log_s2, logsumexp(p * anp.log(d)) / p
 
 
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
                      settings: StencilSearch = STENCIL):
     """Move the interior stencil vertices to shorten the longest flat cell.
 
-    The objective is ``log lmax + opt_s3_weight * log s3`` (plus the orientation barrier).
+    The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
+    corner angles outside ``opt_min_angle_deg``-``opt_max_angle_deg`` and on base centres
+    nearer than ``opt_centroid_edge_mm`` to their triangle's edges, and a log barrier on flat
+    orientation.
     Shortening the longest flat cells mostly enlarges the smallest target cells, which lowers
     the 3D scaling at a given vertex count; the count search of
     :func:`pysolver.remesh.remesh_surface` then restores the size with more vertices.  A
@@ -125,8 +160,9 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         Stencil triangles (positively oriented in the plane); the connectivity is kept.
     params : UnitCell
     settings : StencilSearch
-        ``opt_sharpness``, ``opt_s3_weight``, ``opt_rounds``, ``opt_iterations``,
-        ``opt_barrier``.
+        ``opt_sharpness``, ``opt_s3_weight``, ``opt_min_angle_deg``, ``opt_max_angle_deg``,
+        ``opt_centroid_edge_mm``, ``opt_angle_weight``,
+        ``opt_rounds``, ``opt_iterations``, ``opt_barrier``.
 
     Returns
     -------
@@ -152,11 +188,24 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     perm[order] = np.arange(len(P))
     A0 = _signed_areas(P, F)
     mu = settings.opt_barrier
+    # flat corners within [floor, cap] (or no worse than at the start): each base's printed
+    # disc and bracket roots must stay inside its triangle's neighbourhood, which the
+    # membrane meshes of the simulator and of the per-cell correction assume
+    start = _angles_np(P, F)
+    floor = np.minimum(np.radians(settings.opt_min_angle_deg), start)
+    cap = np.maximum(np.radians(settings.opt_max_angle_deg), start)
+    # and every base centre (flat centroid) at least opt_centroid_edge_mm from its triangle's
+    # edges once scaled (or no nearer than at the start)
+    log_s2_start = float(layout_logs(P, domain.lift(P), F, fa, fb, o1, o2, params,
+                                     settings.opt_sharpness)[1])
+    log_clear = np.minimum(np.log(settings.opt_centroid_edge_mm),
+                           log_s2_start + np.log(_np(centroid_edge_distances(P, F))))
     rounds = 0
 
-    def exact(Q):  # the objective without barrier, on the exact lift of Q
-        a, b = layout_logs(Q, domain.lift(Q), F, fa, fb, o1, o2, params, settings.opt_sharpness)
-        return float(b + settings.opt_s3_weight * a)
+    def exact(Q):  # the objective without penalties, on the exact lift of Q
+        a, b, c = layout_logs(Q, domain.lift(Q), F, fa, fb, o1, o2, params,
+                              settings.opt_sharpness)
+        return float(b + c + settings.opt_s3_weight * a)
 
     current = exact(P)
 
@@ -170,9 +219,14 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
             Q = anp.concatenate([anp.reshape(x, (-1, 2)), Pfix])[perm]
             X = X0 + anp.einsum("nij,nj->ni", J, Q - P0)
             A = _signed_areas(Q, F) / A0
-            log_s3, log_lmax = layout_logs(Q, X, F, fa, fb, o1, o2, params,
-                                           settings.opt_sharpness)
-            return (log_lmax + settings.opt_s3_weight * log_s3
+            log_s3, log_s2, log_d = layout_logs(Q, X, F, fa, fb, o1, o2, params,
+                                                settings.opt_sharpness)
+            ang = corner_angles(Q, F)
+            bad = anp.maximum(floor - ang, 0.0) + anp.maximum(ang - cap, 0.0)
+            near = anp.maximum(log_clear - log_s2 - anp.log(anp.maximum(
+                centroid_edge_distances(Q, F), 1e-30)), 0.0)
+            return (log_s2 + log_d + settings.opt_s3_weight * log_s3
+                    + settings.opt_angle_weight * (anp.sum(bad**2) + anp.sum(near**2))
                     - mu * anp.sum(anp.log(anp.maximum(A, 1e-30))))
 
         fg = value_and_grad(objective)
@@ -197,4 +251,5 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     return P, {"rounds": rounds}
 
 
-__all__ = ["opposite_vertices", "layout_logs", "optimize_stencil"]
+__all__ = ["opposite_vertices", "corner_angles", "centroid_edge_distances", "layout_logs",
+           "optimize_stencil"]

@@ -63,12 +63,12 @@ def test_layout_logs_are_the_scaling_rules(dome_domain):
     cells = unit_cells(F, face_adjacency(F))
     o = stencil_opt.opposite_vertices(F, cells)
     fa, fb = cells.faces[:, 0], cells.faces[:, 1]
-    log_s3, log_l = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL,
-                                            sharpness=1e6)
+    log_s3, log_s2, log_d = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
+                                                    UNIT_CELL, sharpness=1e6)
     lay = build_layout(X, P, F, UNIT_CELL, enforce_gap=False)
     # with the flat layout given (no re-flattening), both rules in closed form
     assert np.exp(log_s3) == pytest.approx(lay.scale3d, rel=1e-5)
-    assert np.exp(log_l) == pytest.approx(lay.central_length.max(), rel=1e-5)
+    assert np.exp(log_s2 + log_d) == pytest.approx(lay.central_length.max(), rel=1e-5)
 
 
 def test_objective_gradient_matches_finite_differences(dome_domain):
@@ -81,8 +81,8 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
 
     def f(Q):  # the optimiser's inner objective: linearised lift, no barrier
         Xq = X + anp.einsum("nij,nj->ni", J, Q - P)
-        a, b = stencil_opt.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
-        return a + b
+        a, b, c = stencil_opt.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
+        return a + b + c
 
     g = grad(f)(P)
     rng = np.random.default_rng(0)
@@ -103,6 +103,9 @@ def test_optimisation_shortens_the_longest_cell(dome_domain):
     assert after["max_cell_length_mm"] < before["max_cell_length_mm"] - 0.2
     A = stencil_opt._signed_areas(Q, F)
     assert np.all(A > 0)  # no flat triangle flipped
+    lay = build_layout(dome_domain.lift(Q), Q, F, UNIT_CELL, enforce_gap=False)
+    clear = stencil_opt.centroid_edge_distances(lay.UV, F)
+    assert clear.min() >= 2.3 - 0.05  # base centres keep clear of their triangle's edges
     bnd = np.asarray(igl.boundary_loop(F))
     assert len(bnd) and np.array_equal(Q[bnd], P[bnd])  # the rim stays where it was
 
