@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from pysolver.errors import InputError
-from pysolver.params import SIM, UNIT_CELL, SimConstants, UnitCell
+from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
 
 CROSS_REST_MODES = ("flat", "zero")
 
@@ -272,13 +272,76 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
     return xy, tris, body
 
 
+def rim_margin(xy, tris, body, base_xy, base_r, width):
+    """Add the latex margin kept at the border when the shell is cut out (SI Note 5 step 7).
+
+    The outer boundary loop of the membrane mesh (the CCW loop of largest area) is offset
+    outward by ``width`` (vertex normals = normalised sum of the two edge normals, the offset
+    divided by the cosine of the half turn, at most 2 ``width``) and the strip is split into
+    two triangles per edge.  New vertices lying inside a base disc are glued to that base
+    (the margin runs under the boundary bases), the others are free.
+
+    Parameters
+    ----------
+    xy : (v, 2) float, mm
+    tris : (t, 3) int, CCW
+    body : (v,) int -- base of each vertex, -1 free
+    base_xy : (m, 2) float, mm -- flat base centres
+    base_r : float, mm
+    width : float, mm
+
+    Returns
+    -------
+    xy, tris, body : the membrane with the strip appended (old ids unchanged)
+    margin : (t',) bool -- triangle belongs to the margin
+    """
+    e = np.r_[tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]
+    key = np.minimum(e[:, 0], e[:, 1]) * len(xy) + np.maximum(e[:, 0], e[:, 1])
+    uk, cnt = np.unique(key, return_counts=True)
+    bnd = e[np.isin(key, uk[cnt == 1])]  # directed boundary edges, interior on the left
+    nxt = -np.ones(len(xy), dtype=np.int64)
+    nxt[bnd[:, 0]] = bnd[:, 1]
+    seen = np.zeros(len(xy), bool)
+    best, best_area = None, -np.inf
+    for v0 in bnd[:, 0]:
+        if seen[v0]:
+            continue
+        loop = [v0]
+        seen[v0] = True
+        while nxt[loop[-1]] != v0 and not seen[nxt[loop[-1]]]:
+            loop.append(int(nxt[loop[-1]]))
+            seen[loop[-1]] = True
+        P = xy[loop]
+        area = 0.5 * np.sum(P[:, 0] * np.roll(P[:, 1], -1) - np.roll(P[:, 0], -1) * P[:, 1])
+        if area > best_area:
+            best, best_area = np.array(loop), area
+    P = xy[best]
+    d = np.roll(P, -1, axis=0) - P
+    n = np.c_[d[:, 1], -d[:, 0]] / np.linalg.norm(d, axis=1)[:, None]  # outward edge normals
+    vn = n + np.roll(n, 1, axis=0)
+    vn /= np.linalg.norm(vn, axis=1)[:, None]
+    cos_half = np.maximum(np.einsum("ij,ij->i", vn, n), 0.5)
+    off = P + vn * (width / cos_half)[:, None]
+    k = len(best)
+    new = len(xy) + np.arange(k)
+    a, b = best, np.roll(best, -1)
+    na, nb = new, np.roll(new, -1)
+    strip = np.r_[np.c_[a, na, nb], np.c_[a, nb, b]]
+    dist = np.linalg.norm(off[:, None, :] - base_xy[None], axis=2)
+    inside = dist.min(axis=1) < base_r
+    nbody = np.where(inside, dist.argmin(axis=1), -1)
+    margin = np.r_[np.zeros(len(tris), bool), np.ones(len(strip), bool)]
+    return np.r_[xy, off], np.r_[tris, strip], np.r_[body, nbody], margin
+
+
 # ------------------------------------------------------------------------------------------------
 # assembly
 
 
 def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collision=None,
                 consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
-                cross_rest: str = "flat", source: str = "") -> ShellModel:
+                cross_rest: str = "flat", source: str = "",
+                physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
     """Assemble a :class:`ShellModel` from a scaled stencil.
 
     Parameters
@@ -306,6 +369,9 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
         configuration, zero force at rest) or ``"zero"`` (the reference code).
     source : str
         Description for messages.
+    physics : PhysicsOptions
+        With ``rim`` on, the membrane gets the latex margin of :func:`rim_margin`, whose
+        triangles rest at ``rim_stretch`` instead of ``consts.tau``.
 
     Returns
     -------
@@ -412,6 +478,11 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     xy, tris, mbody = membrane_mesh(nodes_f[:, :, :, 0, :2], F, ff, cells, vb,
                                     max_area=consts.membrane_max_area,
                                     min_angle=consts.membrane_min_angle)
+    tau = np.full(len(tris), consts.tau)
+    if physics.rim:
+        xy, tris, mbody, margin = rim_margin(xy, tris, mbody, C2, unit.base_r,
+                                             physics.rim_margin_mm)
+        tau = np.where(margin, physics.rim_stretch, consts.tau)
     nm = len(xy)
     mem_flat = np.c_[xy, np.zeros(nm)]
     mem_point = n_nodes + np.arange(nm)
@@ -422,8 +493,11 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     point_free = -np.ones(len(point_body), dtype=np.int64)
     fr = point_body < 0
     point_free[fr] = np.arange(int(fr.sum()))
-    tau = consts.tau
     P = xy[tris]
+    if not physics.rim:
+        tau = consts.tau  # (the scalar: bit-identical to the reference model)
+    else:
+        tau = tau[:, None, None]
     Dm = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2) / tau  # columns = edges
     det = Dm[:, 0, 0] * Dm[:, 1, 1] - Dm[:, 0, 1] * Dm[:, 1, 0]
     dm_inv = np.stack([np.stack([Dm[:, 1, 1], -Dm[:, 0, 1]], 1),
@@ -442,13 +516,15 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
 
 
 def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
-               cross_rest: str = "flat") -> ShellModel:
+               cross_rest: str = "flat", physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
     """Assemble the model of a design folder (``stencil.obj``, ``bases.csv``, ``cells.csv``).
 
     Parameters
     ----------
     design_dir : path-like
         Design folder (``docs/design-folder.md``).
+    physics : PhysicsOptions
+        Only ``rim`` changes the model (the latex margin, see :func:`build_model`).
 
     Returns
     -------
@@ -475,7 +551,7 @@ def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell = UNIT_
     coll = np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
     return build_model(d.V, d.UV, d.F, th, rotvec=rot, bracket_length=c["bracket_length_mm"],
                        collision=coll, consts=consts, unit=unit, cross_rest=cross_rest,
-                       source=str(folder))
+                       source=str(folder), physics=physics)
 
 
 __all__ = ["ShellModel", "build_model", "load_model", "membrane_mesh", "CROSS_REST_MODES"]
