@@ -162,9 +162,16 @@ class ExternalTerms:
         Subtract buoyancy (in water) or not (dry, on a table).
     weight : bool
         Include the weight (False: the plane only).
+    plane : bool
+        Include the plane (placed by :meth:`place_plane`).
+    clamp : sequence of int, optional
+        Bases held at their pose of :meth:`place_plane` (a support frame, a clamp), by
+        springs of stiffness ``clamp_stiffness`` (N/mm) on four points of each (the centre
+        and three points ``base_r`` away along the flat x, y, z axes).
     """
 
-    def __init__(self, model, opts: PhysicsOptions, *, wet: bool, weight: bool = True):
+    def __init__(self, model, opts: PhysicsOptions, *, wet: bool, weight: bool = True,
+                 plane: bool = True, clamp=(), clamp_stiffness: float = 1e6):
         self.model = model
         self.opts = opts
         self.up = np.array([0.0, 0.0, 1.0 if opts.face_down == "bottom" else -1.0])
@@ -182,14 +189,26 @@ class ExternalTerms:
         local = np.r_[np.c_[ring, np.full(n, u.layer_h)], np.c_[ring, np.full(n, -u.layer_h)]]
         self.local = local  # (2n, 3) flat-frame offsets from a base centre
         self.k = opts.ground_stiffness
+        self.plane = plane
         self.z0 = -np.inf  # plane height along up; set by place_plane()
-        self._pos = None
+        self.clamp = np.asarray(clamp, dtype=np.int64).reshape(-1)
+        self.clamp_k = float(clamp_stiffness)
+        r = u.base_r
+        self.clamp_local = np.array([[0, 0, 0], [r, 0, 0], [0, r, 0], [0, 0, r]], float)
+        self.clamp_target = None
 
     def place_plane(self, state) -> float:
         """Put the plane under the lowest contact point of ``state``; returns its height."""
         P = self._points(state)[0]
-        self.z0 = float((P @ self.up).min())
+        self.z0 = float((P @ self.up).min()) if self.plane else -np.inf
+        if len(self.clamp):
+            self.clamp_target = self._clamp_points(state)[0]
         return self.z0
+
+    def _clamp_points(self, state):
+        b = self.clamp
+        v = np.einsum("mij,kj->mki", state.R[b], self.clamp_local)
+        return state.c[b][:, None, :] + v, v
 
     def _points(self, state):
         v = np.einsum("mij,kj->mki", state.R, self.local)  # (m, 2n, 3) rotated offsets
@@ -250,6 +269,20 @@ class ExternalTerms:
                     blk[:, 3:, 3:] += 0.5 * (gv + np.transpose(gv, (0, 2, 1))) - np.einsum(
                         "ni,ni->n", gp, v[hit])[:, None, None] * np.eye(3)
                     np.add.at(Hb, body, blk)
+        if len(self.clamp):
+            P, v = self._clamp_points(state)
+            dx = P - self.clamp_target  # (c, 4, 3)
+            E += 0.5 * self.clamp_k * float((dx * dx).sum())
+            gp = self.clamp_k * dx
+            gb[self.clamp, :3] += gp.sum(axis=1)
+            gb[self.clamp, 3:] += np.cross(v, gp).sum(axis=1)
+            if hessian:
+                K = np.broadcast_to(self.clamp_k * np.eye(3), v.shape + (3,))
+                blk = jtkj(np.ascontiguousarray(K), v, v)
+                gv = gp[..., :, None] * v[..., None, :]
+                blk[..., 3:, 3:] += 0.5 * (gv + np.swapaxes(gv, -1, -2)) - np.einsum(
+                    "...i,...i->...", gp, v)[..., None, None] * np.eye(3)
+                Hb[self.clamp] += blk.sum(axis=1)
         return E, gb, Hb
 
     def energy(self, state, X) -> float:
