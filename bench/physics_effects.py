@@ -17,7 +17,7 @@ coloured by displacement).
 
 Usage::
 
-    .venv/bin/python bench/bench_physics.py [--shapes regular,petal,...] [--effects ...]
+    .venv/bin/python bench/physics_effects.py [--shapes regular,petal,...] [--effects ...]
 """
 
 from __future__ import annotations
