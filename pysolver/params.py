@@ -295,6 +295,17 @@ class PhysicsOptions:
         Width of the latex margin kept at the border (flat, as cut).
     rim_stretch : float
         Pre-stretch of the margin after the release ("near 2").
+    contact : bool
+        Barrier contact between bases that are not neighbours (IPC Toolkit, ``ipctk``):
+        every base a closed prism; no two non-neighbouring prisms pass through each other.
+    contact_dhat_mm : float, mm
+        Distance below which the barrier acts (below the 0.6 mm that bumpers keep between
+        neighbours).
+    contact_stiffness : float, N/mm
+        Barrier stiffness kappa (energy ``kappa * -(d - dhat)^2 ln(d / dhat)``; 10 N/mm gives
+        ~1 N at a tenth of dhat, the scale of the membrane's pull on a cell).
+    contact_sides : int
+        Sides of the prism that stands for a base disc.
     """
 
     relaxation: bool = False
@@ -312,8 +323,12 @@ class PhysicsOptions:
     rim: bool = False
     rim_margin_mm: float = 1.0
     rim_stretch: float = 2.0
+    contact: bool = False
+    contact_dhat_mm: float = 0.1
+    contact_stiffness: float = 10.0
+    contact_sides: int = 8
 
-    SWITCHES = ("relaxation", "gravity", "dry_rest", "rim")
+    SWITCHES = ("relaxation", "gravity", "dry_rest", "rim", "contact")
 
     @property
     def any(self) -> bool:

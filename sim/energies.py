@@ -477,6 +477,7 @@ class ShellEnergy:
         # terms (weight, plane); 1.0 and None reproduce the reference model bit for bit
         self.mu_scale = 1.0
         self.external = None
+        self.contact = None  # sim.contact.BaseContact: barrier between non-neighbour bases
         self._ext_pos = None
         m, c = model.n_bases, model.n_cells
         self.m = m
@@ -578,6 +579,9 @@ class ShellEnergy:
         if self.external is not None:
             d["external"] = self.external.energy(state, X)
             d["total"] += d["external"]
+        if self.contact is not None:
+            d["contact"] = self.contact.evaluate(state, False)[0]
+            d["total"] += d["contact"]
         return d
 
     def energy(self, state: State) -> float:
@@ -588,7 +592,7 @@ class ShellEnergy:
         """Sum of absolute element energies: the scale of the energy's round-off error."""
         d = self.energy_parts(state)
         return (abs(d["springs"]) + abs(d["cross"]) + abs(d["membrane"])
-                + abs(d.get("external", 0.0)))
+                + abs(d.get("external", 0.0)) + abs(d.get("contact", 0.0)))
 
     def _reduce_gradient(self, G, v):
         m = self.m
@@ -639,6 +643,13 @@ class ShellEnergy:
         g = self._reduce_gradient(G, v)
         if ext is not None:
             g[: 6 * self.m] += ext[1].ravel()
+        con = None
+        if self.contact is not None:
+            con = self.contact.evaluate(state, hessian)
+            E += con[0]
+            self.last_energy_scale += abs(con[0])
+            if con[1] is not None:
+                g += con[1]
         if not hessian:
             return E, g, None
         V = np.zeros((md.n_points, 3))
@@ -650,7 +661,17 @@ class ShellEnergy:
             H = self._assemble_numpy(V, Ks, parts, Hm, rot)
         if ext is not None:
             H.data[self._external_positions()] += ext[2][:, self._lo[0], self._lo[1]].ravel()
+        if con is not None and con[2] is not None:
+            H = (H + con[2]).tocsc()
+            H.sort_indices()
         return E, g, H
+
+    def step_limit(self, state: State, p, alpha_max: float) -> float:
+        """Largest safe multiple of the step ``p``: ``alpha_max``, or less when a contact
+        barrier (:mod:`sim.contact`) would be crossed."""
+        if self.contact is None:
+            return alpha_max
+        return self.contact.step_limit(state, p, alpha_max)
 
     def _external_positions(self) -> np.ndarray:
         """CSC positions of the lower triangle of every base's 6x6 diagonal block."""

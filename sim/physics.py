@@ -38,7 +38,7 @@ def check_physics(opts: PhysicsOptions) -> PhysicsOptions:
     if not isinstance(opts, PhysicsOptions):
         raise InputError(f"physics options must be a PhysicsOptions, got {type(opts).__name__}")
     pos = ("print_density", "water_density", "latex_density", "gravity_mm_s2",
-           "ground_stiffness", "rim_margin_mm")
+           "ground_stiffness", "rim_margin_mm", "contact_dhat_mm", "contact_stiffness")
     for k in pos:
         v = getattr(opts, k)
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
@@ -57,6 +57,12 @@ def check_physics(opts: PhysicsOptions) -> PhysicsOptions:
                          fix="pass --face-down bottom or --face-down top")
     if not (isinstance(opts.ground_points, int) and 3 <= opts.ground_points <= 64):
         raise InputError(f"ground_points = {opts.ground_points!r} must be an int in 3..64")
+    if not (isinstance(opts.contact_sides, int) and 3 <= opts.contact_sides <= 64):
+        raise InputError(f"contact_sides = {opts.contact_sides!r} must be an int in 3..64")
+    if opts.contact_dhat_mm >= 0.6:
+        raise InputError(f"contact_dhat_mm = {opts.contact_dhat_mm} mm reaches neighbouring "
+                         "bases (bumpers keep them >= 0.6 mm apart)",
+                         fix="pass --contact-dhat-mm below 0.6 (default 0.1)")
     return opts
 
 

@@ -190,6 +190,10 @@ class Simulation:
 
             self.energy.external = ExternalTerms(model, ph, wet=True)
             self.energy.external.place_plane(self.state)
+        if ph.contact:
+            from .contact import BaseContact
+
+            self.energy.contact = BaseContact(model, ph)
 
     # -- helpers -------------------------------------------------------------------------------
     def spring_lengths(self, state: State | None = None) -> np.ndarray:

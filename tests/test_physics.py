@@ -15,6 +15,9 @@ Tolerances:
   a cantilevered cell (one base clamped) sags linearly in the load (0.1 %) and by the amount
   Clapeyron's theorem fixes: the elastic energy it stores is half the work of the load
   (0.1 %);
+* contact: a base dragged onto a non-neighbour interpenetrates it without contact and stays
+  apart (0 < distance < dhat) with it; barrier gradient (1e-5) and Hessian (1e-3) against
+  finite differences; no contact within reach = bit-identical energy, gradient, Hessian;
 * rim: the margin's membrane energy at the flat state is the closed-form equibiaxial
   neo-Hookean energy at the rim stretch (1e-12 relative), and the strip covers the
   outline's length times the margin width (10 %).
@@ -285,3 +288,92 @@ def test_rim_margin_is_prestretched_to_the_rim_stretch(patch_dir):
     lam = 2.0
     psi = SIM.mu / 2 * (2 * lam**2 + lam**-4 - 3)
     assert Em.sum() == pytest.approx(SIM.membrane_h * psi * area.sum() / lam**2, rel=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# contact between non-neighbours
+
+
+def test_contact_keeps_non_neighbours_apart(patch_dir):
+    """A base dragged onto a non-neighbouring base (a stiff clamp pulls it to 1 mm above the
+    other's centre): without contact the two prisms interpenetrate; with contact (ipctk
+    barrier) the solve converges with them apart and the barrier carrying the pull."""
+    pytest.importorskip("ipctk")
+    from sim.contact import BaseContact
+
+    model = load_model(patch_dir)
+    c = model.base_flat
+    nb = {tuple(sorted(x)) for x in model.cell_bases.tolist()}
+    D = np.linalg.norm(c[:, None] - c[None], axis=2)
+    i, j = min(((a, b) for a in range(len(c)) for b in range(a + 1, len(c))
+                if (a, b) not in nb), key=lambda ab: D[ab])
+    con = BaseContact(model, parse_physics("contact"))
+    mat = StandInBracketModel()
+    out = {}
+    for use in (False, True):
+        e = ShellEnergy(model)
+        e.spring_coef = mat.coefficients(model.spring_thickness, model.spring_bracket_length,
+                                         120.0)
+        ext = ExternalTerms(model, PHYSICS_OFF, wet=False, weight=False, plane=False,
+                            clamp=[i], clamp_stiffness=1e3)
+        target = State.flat(model)
+        target.c[i] = c[j] + np.array([0.0, 0.0, 1.0])
+        ext.place_plane(target)
+        e.external = ext
+        e.contact = con if use else None
+        pb = StaticProblem(e, State.flat(model))
+        res = newton(pb, tol=1e-6, max_iter=300)
+        assert res.converged
+        out[use] = pb.state
+    assert con.intersecting(out[False])  # the case collides
+    assert not con.intersecting(out[True])
+    d = con.min_distance(out[True])
+    assert 0 < d < con.dhat  # held apart, inside the barrier's range
+    # the prisms' circumscribed spheres would overlap without contact
+    assert np.linalg.norm(out[False].c[i] - out[False].c[j]) < np.linalg.norm(
+        out[True].c[i] - out[True].c[j])
+
+
+def test_contact_off_by_distance_is_exact(patch_dir):
+    """With contact on but no non-neighbours within reach (the flat shell), the energy,
+    gradient and Hessian are those without contact, bit for bit."""
+    pytest.importorskip("ipctk")
+    from sim.contact import BaseContact
+
+    model = load_model(patch_dir)
+    s = State.flat(model)
+    e0, e1 = ShellEnergy(model), ShellEnergy(model)
+    e1.contact = BaseContact(model, parse_physics("contact"))
+    E0, g0, H0 = e0.evaluate(s)
+    E1, g1, H1 = e1.evaluate(s)
+    assert E0 == E1 and np.array_equal(g0, g1) and np.array_equal(H0.data, H1.data)
+
+
+def test_contact_gradient_and_hessian_fd():
+    pytest.importorskip("ipctk")
+    from sim.contact import BaseContact
+
+    model = _cell_model()
+    con = BaseContact(model, parse_physics("contact"))
+    con.neighbour = set()  # treat the two bases as strangers
+    s = State.flat(model)
+    s.c[1] = s.c[0] + np.array([4.03, 0.4, 0.1])  # octagon corners 0.03 mm apart
+    s.R = rodrigues(np.array([[0.0, 0.0, 0.05], [0.02, -0.03, 0.0]]))
+    E, g, H = con.evaluate(s, True)
+    assert 0 < E < np.inf and np.abs(g).max() > 0
+    H = full_from_lower(H).toarray()
+    n = model.n_dof
+    eye = np.eye(n)
+    eps = 1e-7
+    idx = np.arange(12)
+    gf = np.array([(con.evaluate(s.moved(eye[i], eps), False)[0]
+                    - con.evaluate(s.moved(eye[i], -eps), False)[0]) / (2 * eps) for i in idx])
+    assert np.linalg.norm(gf - g[idx]) / np.linalg.norm(g[idx]) < 1e-5
+    rng = np.random.default_rng(0)
+    eps = 1e-5
+    for _ in range(4):
+        p = np.zeros(n)
+        p[idx] = rng.normal(size=12)
+        d2 = (con.evaluate(s.moved(p, eps), False)[0] - 2 * E
+              + con.evaluate(s.moved(p, -eps), False)[0]) / eps**2
+        assert d2 == pytest.approx(p @ H @ p, rel=1e-3)
