@@ -140,6 +140,7 @@ def _parser() -> argparse.ArgumentParser:
     p = add("program", help="bracket thicknesses from the time landscape")
     p.add_argument("dir", help="design folder")
     p.add_argument("--material", default=None)
+    _add_physics_options(p)
 
     p = add("render", help="render the STLs of a design folder")
     p.add_argument("dir")
@@ -233,7 +234,8 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
     cmd = args.command
     if cmd == "program":
         from .temporal import program_design
-        program_design(Path(args.dir), material=args.material, progress=progress)
+        program_design(Path(args.dir), material=args.material, progress=progress,
+                       physics=_physics_from_args(args))
         return EXIT_OK
     if cmd == "render":
         from .render import render_design

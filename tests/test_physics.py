@@ -377,3 +377,26 @@ def test_contact_gradient_and_hessian_fd():
         d2 = (con.evaluate(s.moved(p, eps), False)[0] - 2 * E
               + con.evaluate(s.moved(p, -eps), False)[0]) / eps**2
         assert d2 == pytest.approx(p @ H @ p, rel=1e-3)
+
+
+def test_rim_in_the_fmem_correction(patch_dir):
+    """The design's F_mem correction with the same margin: boundary cells, whose free edge
+    the margin now pulls outward, carry more (above the free-edge factor); interior cells
+    change by < 2 %; a per-triangle pre-stretch equal to tau is the scalar model to 1e-12."""
+    from pysolver import tables
+    from pysolver.membrane_model import PlaneMembrane
+    from pysolver.temporal import _membrane, membrane_factors
+
+    cells = tables.read_table(patch_dir, "cells")
+    mem = _membrane(None)
+    f0, _ = membrane_factors(patch_dir, cells, mem)
+    f1, info = membrane_factors(patch_dir, cells, mem, rim=(1.0, 2.0))
+    b = np.asarray(cells["boundary"], bool)
+    assert info["rim"] == {"margin_mm": 1.0, "stretch": 2.0}
+    assert np.all(f1[b] >= f0[b] - 1e-9) and np.median(f1[b] - f0[b]) > 0.003
+    assert np.allclose(f1[~b], f0[~b], rtol=0.02)
+    X = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 3.0], [3.0, 3.0]])
+    tri = np.array([[0, 1, 2], [1, 3, 2]])
+    a, c = PlaneMembrane(X, tri), PlaneMembrane(X, tri, tau=np.full(2, SIM.tau))
+    x = X * 0.8
+    assert c.energy(x) == pytest.approx(a.energy(x), rel=1e-12)
