@@ -11,13 +11,16 @@ effect, and compare
   reference's: median and max |difference| (s), cells that complete in one and not the other;
 * for ``dry_rest``: the resting shape on the table against the final frame in water (the sag).
 
-Writes ``build/physics/effects.json`` and per shape and effect a picture of the displacement
+Writes ``build/physics/effects.json``, per shape and effect a picture of the displacement
 (``build/physics/<shape>_<effect>.png``: final shape seen from above and the side, markers
-coloured by displacement).
+coloured by displacement) and its data (``<shape>_<effect>.npz``: aligned marker tips
+``P`` (k, 3) mm, displacement ``d`` (k,) mm); ``--figures DIR`` then draws one picture per
+effect with every shape (``DIR/<effect>.png``, used by ``docs/physics.md``).
 
 Usage::
 
     .venv/bin/python bench/physics_effects.py [--shapes regular,petal,...] [--effects ...]
+    .venv/bin/python bench/physics_effects.py --figures docs/physics
 """
 
 from __future__ import annotations
@@ -97,12 +100,79 @@ def picture(fr_ref, fr, d, png, title, rest=False):
     plt.close(fig)
 
 
+def figures(src: Path, dst: Path, shapes=SHAPES, effects=EFFECTS) -> None:
+    """One picture per effect: every shape's final markers (top view), coloured by the
+    displacement the effect causes (mm, own colour scale per shape)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    dst.mkdir(parents=True, exist_ok=True)
+    label = {"dry_rest": "dry rest on a table vs final shape in water"}
+    for eff in effects:
+        fig, axs = plt.subplots(2, 3, figsize=(10, 6.4))
+        for ax, shape in zip(axs.ravel(), shapes, strict=True):
+            f = src / f"{shape}_{eff}.npz"
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if not f.exists():
+                ax.set_title(f"{shape}: not run", fontsize=9)
+                continue
+            z = np.load(f)
+            P, d = z["P"], z["d"]
+            sc = ax.scatter(P[:, 0], P[:, 1], c=d, s=5, cmap="viridis", vmin=0)
+            ax.set_aspect("equal")
+            ax.set_title(f"{shape}: max {d.max():.3g} mm", fontsize=9)
+            fig.colorbar(sc, ax=ax, shrink=0.7, label="mm")
+        fig.suptitle(f"{eff}: {label.get(eff, 'on vs off, final marker tips, rigidly aligned')}",
+                     fontsize=10)
+        fig.tight_layout()
+        fig.savefig(dst / f"{eff}.png", dpi=72)
+        plt.close(fig)
+
+
+def table(results: dict, shapes=SHAPES, effects=EFFECTS) -> str:
+    """The markdown table of ``docs/physics.md`` from ``effects.json``."""
+    rows = ["| shape (size) | effect | final shape: RMS / max displacement, mm (RMS % of size) "
+            "| timing: median / max abs change of completion, s | cells completed (off -> on) "
+            "| wall s (off -> on) |", "|---|---|---|---|---|---|"]
+    for sh in shapes:
+        v = results.get(sh)
+        if not v:
+            continue
+        for eff in effects:
+            x = v.get(eff)
+            if x is None:
+                continue
+            head = f"{sh} ({v['size_mm']:.0f} mm)"
+            if eff == "dry_rest":
+                y = x["sag_vs_wet_final"]
+                rows.append(f"| {head} | dry rest (vs final in water) | {y['rms_mm']:.3f} / "
+                            f"{y['max_mm']:.3f} ({y['rms_pct_size']:.2f} %) | - | - | "
+                            f"{v['wall_off_s']:.1f} -> {x['wall_s']:.1f} |")
+                continue
+            rows.append(f"| {head} | {eff} | {x['rms_mm']:.3f} / {x['max_mm']:.3f} "
+                        f"({x['rms_pct_size']:.2f} %) | {x['dt_median_s']:+.1f} / "
+                        f"{x['dt_abs_max_s']:.1f} | {x['completed_ref']} -> {x['completed']} of "
+                        f"{x['cells']} | {v['wall_off_s']:.1f} -> {x['wall_s']:.1f} |")
+    return "\n".join(rows) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shapes", default=",".join(SHAPES))
     ap.add_argument("--effects", default=",".join(EFFECTS))
     ap.add_argument("--out", default=str(ROOT / "build" / "physics"))
+    ap.add_argument("--figures", default=None, help="draw the per-effect pictures into DIR")
+    ap.add_argument("--table", action="store_true", help="print the markdown table")
     args = ap.parse_args(argv)
+    if args.table:
+        print(table(json.loads((Path(args.out) / "effects.json").read_text())))
+        return 0
+    if args.figures:
+        figures(Path(args.out), Path(args.figures))
+        return 0
     from pysolver.build import build
     from pysolver.material.model import load_bracket_model
     from pysolver.params import PHYSICS_OFF
@@ -144,6 +214,8 @@ def main(argv=None) -> int:
                 picture(ref, fr, d, out / f"{shape}_{eff}.png",
                         f"{shape}: {eff} on vs off (final shape, rigidly aligned)")
             res[eff] = r
+            P = kabsch(markers(fr, eff == "dry_rest"), markers(fr if eff == "dry_rest" else ref))
+            np.savez_compressed(out / f"{shape}_{eff}.npz", P=P, d=d)
             print(shape, eff, json.dumps(r), file=sys.stderr, flush=True)
             jpath.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
     return 0
