@@ -87,6 +87,11 @@ class BaseContact:
         self.barrier = self.ipc.BarrierPotential(self.dhat, self.kappa)
         self.n_dof = model.n_dof
         self.last_pairs = 0
+        # one collision mesh for every pair (two prisms): the topology is fixed, the rest
+        # positions only seed ipctk's adjacency, so it is built once and reused
+        F = np.r_[self.faces, self.faces + self.nv].astype(np.int32)
+        X = np.r_[self.local, self.local + [4 * self.reach, 0.0, 0.0]]
+        self._pair_mesh = self.ipc.CollisionMesh(np.asfortranarray(X), self.ipc.edges(F), F)
 
     # -- geometry --------------------------------------------------------------------------
     def close_pairs(self, c, reach=None) -> np.ndarray:
@@ -108,6 +113,8 @@ class BaseContact:
         GIL; per-pair meshes avoid it.)"""
         v = np.einsum("bij,kj->bki", R[bases], self.local)  # (nb, nv, 3)
         X = (c[bases][:, None, :] + v).reshape(-1, 3)
+        if len(bases) == 2:
+            return X, v.reshape(-1, 3), self._pair_mesh
         F = (self.faces[None] + self.nv * np.arange(len(bases))[:, None, None]).reshape(-1, 3)
         F = np.ascontiguousarray(F, dtype=np.int32)
         mesh = self.ipc.CollisionMesh(np.asfortranarray(X), self.ipc.edges(F), F)
@@ -194,9 +201,12 @@ class BaseContact:
         m = self.m
         body = np.asarray(p[: 6 * m]).reshape(m, 6) * alpha_max
         r_out = float(np.linalg.norm(self.local[0]))
-        motion = (np.linalg.norm(body[:, :3], axis=1)
-                  + np.linalg.norm(body[:, 3:], axis=1) * r_out).max(initial=0.0)
-        pairs = self.close_pairs(state.c, self.reach + 2 * motion)
+        # per base: an upper bound of how far any of its prism points moves in the step
+        motion = np.linalg.norm(body[:, :3], axis=1) + np.linalg.norm(body[:, 3:], axis=1) * r_out
+        pairs = self.close_pairs(state.c, self.reach + 2 * motion.max(initial=0.0))
+        if len(pairs):
+            gap = np.linalg.norm(state.c[pairs[:, 0]] - state.c[pairs[:, 1]], axis=1)
+            pairs = pairs[gap < self.reach + motion[pairs[:, 0]] + motion[pairs[:, 1]]]
         if len(pairs) == 0:
             return alpha_max
         s1 = state.moved(p, alpha_max)
