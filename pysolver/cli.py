@@ -77,7 +77,8 @@ def _add_physics_options(p: argparse.ArgumentParser) -> None:
     """``--physics`` and its parameters (pysolver.params.PhysicsOptions, docs/physics.md)."""
     p.add_argument("--physics", default=None, metavar="EFFECTS",
                    help="effects beyond the reference simulator, comma-separated: relaxation, "
-                        "gravity, dry-rest, rim, contact (or all, none; default none)")
+                        "gravity, dry-rest, rim, contact, bracket-bending (or all, none; default "
+                        "none)")
     for name, unit in (("stretch-to-glue-min", "min"), ("glue-to-water-min", "min"),
                        ("print-density", "g/cm^3"), ("water-density", "g/cm^3"),
                        ("latex-density", "g/cm^3"), ("rim-margin-mm", "mm"),

@@ -306,6 +306,10 @@ class PhysicsOptions:
         ~1 N at a tenth of dhat, the scale of the membrane's pull on a cell).
     contact_sides : int
         Sides of the prism that stands for a base disc.
+    bracket_bending : bool
+        Out-of-plane bending of the brackets (the 1 mm x h section): a rotational spring on
+        the relative tilt of the two bases of every cell, its stiffness estimated from the
+        brackets' current in-plane stiffness (``sim.physics.bending_stiffness``).
     """
 
     relaxation: bool = False
@@ -327,8 +331,9 @@ class PhysicsOptions:
     contact_dhat_mm: float = 0.1
     contact_stiffness: float = 10.0
     contact_sides: int = 8
+    bracket_bending: bool = False
 
-    SWITCHES = ("relaxation", "gravity", "dry_rest", "rim", "contact")
+    SWITCHES = ("relaxation", "gravity", "dry_rest", "rim", "contact", "bracket_bending")
 
     @property
     def any(self) -> bool:

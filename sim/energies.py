@@ -478,6 +478,7 @@ class ShellEnergy:
         self.mu_scale = 1.0
         self.external = None
         self.contact = None  # sim.contact.BaseContact: barrier between non-neighbour bases
+        self.bending = None  # sim.physics.BracketBending: brackets bent out of plane
         self._ext_pos = None
         m, c = model.n_bases, model.n_cells
         self.m = m
@@ -582,6 +583,9 @@ class ShellEnergy:
         if self.contact is not None:
             d["contact"] = self.contact.evaluate(state, False)[0]
             d["total"] += d["contact"]
+        if self.bending is not None:
+            d["bending"] = self.bending.evaluate(state, False)[0]
+            d["total"] += d["bending"]
         return d
 
     def energy(self, state: State) -> float:
@@ -592,7 +596,8 @@ class ShellEnergy:
         """Sum of absolute element energies: the scale of the energy's round-off error."""
         d = self.energy_parts(state)
         return (abs(d["springs"]) + abs(d["cross"]) + abs(d["membrane"])
-                + abs(d.get("external", 0.0)) + abs(d.get("contact", 0.0)))
+                + abs(d.get("external", 0.0)) + abs(d.get("contact", 0.0))
+                + abs(d.get("bending", 0.0)))
 
     def _reduce_gradient(self, G, v):
         m = self.m
@@ -650,6 +655,12 @@ class ShellEnergy:
             self.last_energy_scale += abs(con[0])
             if con[1] is not None:
                 g += con[1]
+        bend = None
+        if self.bending is not None:
+            bend = self.bending.evaluate(state, hessian, self.pattern)
+            E += bend[0]
+            self.last_energy_scale += abs(bend[0])
+            g[: 6 * self.m] += bend[1].ravel()
         if not hessian:
             return E, g, None
         V = np.zeros((md.n_points, 3))
@@ -661,6 +672,8 @@ class ShellEnergy:
             H = self._assemble_numpy(V, Ks, parts, Hm, rot)
         if ext is not None:
             H.data[self._external_positions()] += ext[2][:, self._lo[0], self._lo[1]].ravel()
+        if bend is not None:
+            bend[2](H.data)
         if con is not None and con[2] is not None:
             H = (H + con[2]).tocsc()
             H.sort_indices()

@@ -298,3 +298,110 @@ class ExternalTerms:
 
 __all__ = ["check_physics", "parse_physics", "physics_json", "base_volumes",
            "membrane_vertex_masses", "ExternalTerms", "DENSITY_TO_T_MM3"]
+
+
+# ------------------------------------------------------------------------------------------------
+# bracket bending out of plane
+
+
+def bending_stiffness(model, c1) -> np.ndarray:
+    """Out-of-plane bending stiffness of every unit cell (N mm / rad) from the brackets'
+    in-plane stiffness.
+
+    Each bracket is taken as two arms of length ``a = b / (2 cos alpha)`` bending in plane as
+    cantilevers, so its measured in-plane stiffness is ``c1 ~ 3 E I_in / a^3``.  The section
+    is ``h`` (in plane) by ``w = bracket_w`` (out of plane): ``I_out = I_in (w / h)^2``.  Bent
+    out of plane along its whole length ``2 a`` by an end rotation ``theta``, a bracket stores
+    ``E I_out theta^2 / (2 * 2a)``, i.e. a rotational stiffness ``c1 a^2 (w/h)^2 / 6``.  The
+    four brackets of a cell act in parallel.  An order-of-magnitude model: the beam formula
+    and the V geometry are not checked against a measurement.
+
+    Parameters
+    ----------
+    model : ShellModel
+    c1 : (4c,) float, N/mm -- in-plane stiffness of every bracket spring (``coef[:, 0]``)
+
+    Returns
+    -------
+    k : (c,) float, N mm / rad
+    """
+    u = model.unit
+    a = model.spring_bracket_length / (2 * math.cos(u.alpha_rad))
+    kb = np.asarray(c1, float) * a**2 * (u.bracket_w / model.spring_thickness) ** 2 / 6.0
+    return kb.reshape(-1, 4).sum(axis=1)
+
+
+class BracketBending:
+    """Resistance of the brackets to bending out of the layer plane
+    (``PhysicsOptions.bracket_bending``).
+
+    Energy ``sum_cells k_c / 2 |n_a - n_b|^2`` with ``n = R e_z`` the normals of the cell's two
+    bases (``|n_a - n_b| = 2 sin(theta / 2)`` for a relative tilt ``theta``): the brackets,
+    glued to both bases, bend when the bases fold or twist against each other.  ``k`` is set
+    per time step from the brackets' current stiffness (:func:`bending_stiffness`).
+    """
+
+    def __init__(self, model):
+        self.model = model
+        self.a, self.b = model.cell_bases[:, 0], model.cell_bases[:, 1]
+        self.k = np.zeros(model.n_cells)
+        self._pos = None
+
+    def positions(self, pattern):
+        """CSC positions of the rotation blocks (a,a), (b,b), (b,a) of every cell (lower)."""
+        if self._pos is None:
+            out = []
+            for p, q in ((self.a, self.a), (self.b, self.b), (self.b, self.a),
+                         (self.a, self.b)):
+                rows = 6 * p[:, None, None] + 3 + np.arange(3)[None, :, None]
+                cols = 6 * q[:, None, None] + 3 + np.arange(3)[None, None, :]
+                rows, cols = np.broadcast_arrays(rows, cols)
+                keep = rows >= cols
+                out.append((keep, pattern.positions(rows[keep], cols[keep])))
+            self._pos = out
+        return self._pos
+
+    def evaluate(self, state, hessian: bool, pattern=None):
+        """Energy (N mm), reduced gradient on the bases (m, 6), and (with ``hessian``) a
+        function adding the Hessian to CSC data of ``pattern``."""
+        from .energies import skew
+
+        na, nb = state.R[self.a, :, 2], state.R[self.b, :, 2]
+        d = na - nb
+        k = self.k
+        E = 0.5 * float(k @ np.einsum("ci,ci->c", d, d))
+        ga = k[:, None] * d  # dE/dn_a; dE/dn_b = -ga
+        m = len(state.c)
+        gb = np.zeros((m, 6))
+        ta, tb = np.cross(na, ga), np.cross(nb, -ga)
+        for j in range(3):
+            gb[:, 3 + j] = (np.bincount(self.a, ta[:, j], m) + np.bincount(self.b, tb[:, j], m))
+        if not hessian:
+            return E, gb, None
+        I3 = np.eye(3)
+        Sa, Sb = skew(na), skew(nb)
+        kk = k[:, None, None]
+        # dn/dtheta = -[n]x; J^T K J with K = k I, plus the second-order term of each base
+        Haa = kk * (np.transpose(Sa, (0, 2, 1)) @ Sa)
+        Hbb = kk * (np.transpose(Sb, (0, 2, 1)) @ Sb)
+        Hba = -kk * (np.transpose(Sb, (0, 2, 1)) @ Sa)
+
+        def second(g, n):
+            gv = g[:, :, None] * n[:, None, :]
+            return 0.5 * (gv + np.transpose(gv, (0, 2, 1))) - np.einsum(
+                "ci,ci->c", g, n)[:, None, None] * I3
+
+        Haa = Haa + second(ga, na)
+        Hbb = Hbb + second(-ga, nb)
+
+        def add(data):
+            (ka, pa), (kb_, pb), (kba, pba), (kab, pab) = self.positions(pattern)
+            np.add.at(data, pa, Haa[ka])
+            np.add.at(data, pb, Hbb[kb_])
+            np.add.at(data, pba, Hba[kba])
+            np.add.at(data, pab, np.transpose(Hba, (0, 2, 1))[kab])
+
+        return E, gb, add
+
+
+__all__ += ["bending_stiffness", "BracketBending"]

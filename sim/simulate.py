@@ -194,6 +194,10 @@ class Simulation:
             from .contact import BaseContact
 
             self.energy.contact = BaseContact(model, ph)
+        if ph.bracket_bending:
+            from .physics import BracketBending
+
+            self.energy.bending = BracketBending(model)
 
     # -- helpers -------------------------------------------------------------------------------
     def spring_lengths(self, state: State | None = None) -> np.ndarray:
@@ -208,6 +212,7 @@ class Simulation:
         coef = np.asarray(self.material.coefficients(md.spring_thickness,
                                                      md.spring_bracket_length, t, eta=eta),
                           float).reshape(-1, 4)
+        coef0 = coef[:, 0].copy()  # the brackets' own stiffness (before bumper contact)
         if not dry and self.prev_lengths is not None:
             ps = self.prev_lengths
             L0 = md.spring_rest0
@@ -218,6 +223,10 @@ class Simulation:
         self.energy.spring_rest = self.rest
         self.energy.spring_coef = coef
         ph = self.settings.physics
+        if ph.bracket_bending:
+            from .physics import bending_stiffness
+
+            self.energy.bending.k = bending_stiffness(md, coef0)
         if ph.relaxation:
             from pysolver.material.relaxation import relaxation_factor
 
@@ -412,6 +421,10 @@ class Simulation:
         coef = np.asarray(self.material.coefficients(md.spring_thickness,
                                                      md.spring_bracket_length, 0.0, eta=0.0),
                           float).reshape(-1, 4)
+        if self.energy.bending is not None:
+            from .physics import bending_stiffness
+
+            self.energy.bending.k = bending_stiffness(md, coef[:, 0])
         rest = L.copy()
         rest[self.contact] = md.spring_collision[self.contact]
         coef[self.contact] = (k.kappa_c, 0.0, 0.0, 0.0)

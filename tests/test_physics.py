@@ -400,3 +400,57 @@ def test_rim_in_the_fmem_correction(patch_dir):
     a, c = PlaneMembrane(X, tri), PlaneMembrane(X, tri, tau=np.full(2, SIM.tau))
     x = X * 0.8
     assert c.energy(x) == pytest.approx(a.energy(x), rel=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# bracket bending out of plane
+
+
+def test_bracket_bending_energy_torque_and_derivatives(patch_dir):
+    from sim.physics import BracketBending, bending_stiffness
+
+    # closed form: one cell folded by theta about its hinge: E = k/2 (2 sin(theta/2))^2,
+    # torque k sin(theta) on each base
+    model = _cell_model()
+    bb = BracketBending(model)
+    bb.k = np.array([7.0])
+    th = 0.3
+    s = State.flat(model)
+    s.R[1] = rodrigues(np.array([[0.0, th, 0.0]]))[0]
+    E, gb, _ = bb.evaluate(s, False)
+    assert E == pytest.approx(0.5 * 7.0 * (2 * np.sin(th / 2)) ** 2, rel=1e-12)
+    assert np.linalg.norm(gb[1, 3:]) == pytest.approx(7.0 * np.sin(th), rel=1e-12)
+    assert np.allclose(gb[0, 3:], -gb[1, 3:])
+    # stiffness estimate: c1 a^2 (w/h)^2 / 6 per bracket, four per cell
+    c1 = np.full(4, 2.0)
+    a = model.spring_bracket_length / (2 * np.cos(model.unit.alpha_rad))
+    assert bending_stiffness(model, c1)[0] == pytest.approx(
+        float((2.0 * a**2 * (1.0 / 0.45) ** 2 / 6).sum()), rel=1e-12)
+    # reduced gradient and Hessian vs finite differences on a random patch state
+    model = load_model(patch_dir)
+    rng = np.random.default_rng(5)
+    s = State.flat(model)
+    s.R = rodrigues(rng.normal(size=(model.n_bases, 3)) * 0.3)
+    e0, e1 = ShellEnergy(model), ShellEnergy(model)
+    e1.bending = BracketBending(model)
+    e1.bending.k = rng.uniform(1, 10, model.n_cells)
+    _, g0, H0 = e0.evaluate(s)
+    _, g1, H1 = e1.evaluate(s)
+    g, H = g1 - g0, (full_from_lower(H1) - full_from_lower(H0)).toarray()
+
+    def Eb(st):
+        return e1.energy(st) - e0.energy(st)
+
+    n = model.n_dof
+    eye = np.eye(n)
+    idx = np.arange(6 * model.n_bases)
+    eps = 1e-6
+    gf = np.array([(Eb(s.moved(eye[i], eps)) - Eb(s.moved(eye[i], -eps))) / (2 * eps)
+                   for i in idx])
+    assert np.linalg.norm(gf - g[idx]) / np.linalg.norm(g[idx]) < 1e-6
+    eps = 1e-4
+    for _ in range(5):
+        p = np.zeros(n)
+        p[idx] = rng.normal(size=len(idx))
+        d2 = (Eb(s.moved(p, eps)) - 2 * Eb(s) + Eb(s.moved(p, -eps))) / eps**2
+        assert d2 == pytest.approx(p @ H @ p, rel=1e-5)
