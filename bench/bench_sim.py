@@ -22,7 +22,7 @@ Usage::
 
     .venv/bin/python bench/bench_sim.py [--shape petal:size=1.7] [--t-end 120] [--out build/bench]
                                         [--solver both|fast|reference]
-                                        [--effects relaxation,gravity,dry_rest,rim,contact|none]
+                                        [--effects relaxation,gravity,...|none]
 
 Fallbacks: if the design stage cannot build the shape, a synthetic 546-base regular patch on a
 spherical cap is used; if the fitted bracket model is missing, a stand-in force law (recorded
@@ -138,7 +138,7 @@ def main(argv=None) -> int:
     ap.add_argument("--top", type=int, default=30, help="profile entries to keep")
     ap.add_argument("--solver", choices=("both", "fast", "reference"), default="both",
                     help="solver path(s) to time (default: both, and their ratio)")
-    ap.add_argument("--effects", default="relaxation,gravity,dry_rest,rim,contact",
+    ap.add_argument("--effects", default="relaxation,gravity,dry_rest,rim,contact,bracket_bending",
                     help="physics options to time one by one on the fast path (or none)")
     ap.add_argument("--prepare-only", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)

@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 SHAPES = ("regular", "petal", "dome", "saddle", "spiral", "weave")
-EFFECTS = ("relaxation", "gravity", "dry_rest", "rim", "contact")
+EFFECTS = ("relaxation", "gravity", "dry_rest", "rim", "contact", "bracket_bending")
 
 
 def kabsch(P, Q):
