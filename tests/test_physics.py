@@ -18,6 +18,8 @@ Tolerances:
 * contact: a base dragged onto a non-neighbour interpenetrates it without contact and stays
   apart (0 < distance < dhat) with it; barrier gradient (1e-5) and Hessian (1e-3) against
   finite differences; no contact within reach = bit-identical energy, gradient, Hessian;
+* bracket bending: a folded cell's energy and torque in closed form (1e-12), gradient (1e-6)
+  and Hessian (1e-5) against finite differences;
 * rim: the margin's membrane energy at the flat state is the closed-form equibiaxial
   neo-Hookean energy at the rim stretch (1e-12 relative), and the strip covers the
   outline's length times the margin width (10 %).
