@@ -13,12 +13,17 @@ its lattice cells are 5.9 mm, so only 4138 triangles.)  Writes
   machine load; under ``solvers`` the same for each path timed, and with both paths (the
   default) ``speedup_vs_reference`` and the largest difference of their final base centres
   (mm) and completion times (s);
-* ``build/bench/sim_profile_<solver>.txt`` -- cProfile, top entries by internal time.
+* ``build/bench/sim_profile_<solver>.txt`` -- cProfile, top entries by internal time;
+* under ``physics`` in ``sim.json``: the cost of each physics option (issue #18,
+  ``docs/physics.md``), each switched on alone on the default (``fast``) path after the
+  runs above: its wall time, Newton iterations and ``wall_ratio`` to the run with every
+  effect off (``--effects none`` skips them).
 
 Usage::
 
     .venv/bin/python bench/bench_sim.py [--shape petal:size=1.6] [--t-end 120] [--out build/bench]
                                         [--solver both|fast|reference]
+                                        [--effects relaxation,gravity,...|none]
 
 Fallbacks: if the design stage cannot build the shape, a synthetic 546-base regular patch on a
 spherical cap is used; if the fitted bracket model is missing, a stand-in force law (recorded
@@ -134,6 +139,8 @@ def main(argv=None) -> int:
     ap.add_argument("--top", type=int, default=30, help="profile entries to keep")
     ap.add_argument("--solver", choices=("both", "fast", "reference"), default="both",
                     help="solver path(s) to time (default: both, and their ratio)")
+    ap.add_argument("--effects", default="relaxation,gravity,dry_rest,rim,contact,bracket_bending",
+                    help="physics options to time one by one on the fast path (or none)")
     ap.add_argument("--prepare-only", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     out = Path(args.out)
@@ -191,16 +198,38 @@ def main(argv=None) -> int:
         res["final_position_difference_mm"] = float(np.abs(a[0] - b[0]).max())
         res["completion_time_difference_s"] = float(np.nanmax(np.abs(a[1] - b[1]))
                                                     if np.isfinite(a[1]).any() else 0.0)
+    if args.effects != "none" and "fast" in runs:
+        import dataclasses
+
+        from pysolver.params import PHYSICS_OFF
+
+        res["physics"] = {}
+        for eff in args.effects.split(","):
+            ph = dataclasses.replace(PHYSICS_OFF, **{eff: True})
+            r, _ = _simulate(folder, mat, "fast", args, out, log, physics=ph, tag=eff)
+            res["physics"][eff] = {
+                "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
+                "wall_ratio": round(r["wall_s"] / runs["fast"]["wall_s"], 3),
+                "newton_iterations": r["newton_iterations"]["total"],
+                "converged_steps": r["converged_steps"], "steps": r["steps"],
+                "completed_cells": r["completed_cells"],
+                "dry_rest": r["summary"].get("dry_rest"),
+                "loadavg_start": r["loadavg_start"]}
     (out / "sim.json").write_text(json.dumps(res, indent=2, default=float) + "\n")
     log(" | ".join(f"{k}: wall {v['wall_s']:.1f} s ({v['split_s']})" for k, v in runs.items())
         + f" -> {out / 'sim.json'}")
     return 0
 
 
-def _simulate(folder: Path, mat, solver: str, args, out: Path, log) -> tuple[dict, tuple]:
-    """Simulate the benchmark design with one solver path; returns its figures and (final base
-    centres (n, 3) mm, completion times (n_cells,) s)."""
+def _simulate(folder: Path, mat, solver: str, args, out: Path, log, physics=None,
+              tag=None) -> tuple[dict, tuple]:
+    """Simulate the benchmark design with one solver path (and physics options); returns its
+    figures and (final base centres (n, 3) mm, completion times (n_cells,) s)."""
+    from pysolver.params import PHYSICS_OFF
     from sim.simulate import completion_times, simulate_design
+
+    physics = PHYSICS_OFF if physics is None else physics
+    tag = tag or solver
 
     load0 = os.getloadavg()
     prof = cProfile.Profile()
@@ -209,7 +238,8 @@ def _simulate(folder: Path, mat, solver: str, args, out: Path, log) -> tuple[dic
     # settle_mm=0: no early stop once the shell has settled -- every run simulates all
     # 240 increments, like the paper's timing, so figures stay comparable across designs
     summary = simulate_design(folder, t_end=args.t_end, material=mat, progress=True,
-                              resume=False, checkpoint_every=0, settle_mm=0.0, solver=solver)
+                              resume=False, checkpoint_every=0, settle_mm=0.0, solver=solver,
+                              physics=physics)
     prof.disable()
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     load1 = os.getloadavg()
@@ -251,8 +281,8 @@ def _simulate(folder: Path, mat, solver: str, args, out: Path, log) -> tuple[dic
     }
     s = io.StringIO()
     pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(args.top)
-    (out / f"sim_profile_{solver}.txt").write_text(s.getvalue())
-    log(f"{solver}: wall {wall:.1f} s (cpu {cpu:.1f} s), {steps} steps, {it.sum()} Newton "
+    (out / f"sim_profile_{tag}.txt").write_text(s.getvalue())
+    log(f"{tag}: wall {wall:.1f} s (cpu {cpu:.1f} s), {steps} steps, {it.sum()} Newton "
         f"iterations, {lin['factorizations']} factorisations, peak {peak_mb:.0f} MB")
     return res, (final, tc)
 

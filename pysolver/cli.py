@@ -111,6 +111,29 @@ def _add_dask_options(p: argparse.ArgumentParser) -> None:
                    help="worker processes of the local cluster (default: one per core)")
 
 
+def _add_physics_options(p: argparse.ArgumentParser) -> None:
+    """``--physics`` and its parameters (pysolver.params.PhysicsOptions, docs/physics.md)."""
+    p.add_argument("--physics", default=None, metavar="EFFECTS",
+                   help="effects beyond the reference simulator, comma-separated: relaxation, "
+                        "gravity, dry-rest, rim, contact, bracket-bending (or all, none; default "
+                        "none)")
+    for name, unit in (("stretch-to-glue-min", "min"), ("glue-to-water-min", "min"),
+                       ("print-density", "g/cm^3"), ("water-density", "g/cm^3"),
+                       ("latex-density", "g/cm^3"), ("rim-margin-mm", "mm"),
+                       ("rim-stretch", "")):
+        p.add_argument(f"--{name}", type=float, default=None, help=f"physics parameter ({unit})")
+    p.add_argument("--face-down", choices=("bottom", "top"), default=None,
+                   help="layer on the tank floor / table (gravity, dry-rest)")
+
+
+def _physics_from_args(args: argparse.Namespace):
+    from sim.physics import parse_physics
+
+    keys = ("stretch_to_glue_min", "glue_to_water_min", "print_density", "water_density",
+            "latex_density", "rim_margin_mm", "rim_stretch", "face_down")
+    return parse_physics(args.physics, **{k: getattr(args, k) for k in keys})
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="morphshell",
@@ -158,6 +181,7 @@ def _parser() -> argparse.ArgumentParser:
     p = add("program", help="bracket thicknesses from the time landscape")
     p.add_argument("dir", help="design folder")
     p.add_argument("--material", default=None)
+    _add_physics_options(p)
 
     p = add("render", help="render the STLs of a design folder")
     p.add_argument("dir")
@@ -170,6 +194,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=None, help="time step, s (default 0.5)")
     p.add_argument("--material", default=None)
     p.add_argument("--no-resume", action="store_true", help="start over, ignore a checkpoint")
+    _add_physics_options(p)
     _add_solver_option(p)
 
     p = add("report", help="simulation check report of a design folder")
@@ -295,7 +320,8 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
     cmd = args.command
     if cmd == "program":
         from .temporal import program_design
-        program_design(Path(args.dir), material=args.material, progress=progress)
+        program_design(Path(args.dir), material=args.material, progress=progress,
+                       physics=_physics_from_args(args))
         return EXIT_OK
     if cmd == "render":
         from .render import render_design
@@ -310,7 +336,8 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
         check_build_options(t_end=args.t_end, dt=args.dt, render=False)
         kw = {k: v for k, v in (("t_end", args.t_end), ("dt", args.dt)) if v is not None}
         simulate_design(Path(args.dir), material=args.material, progress=progress,
-                        resume=not args.no_resume, solver=args.solver, **kw)
+                        resume=not args.no_resume, solver=args.solver,
+                        physics=_physics_from_args(args), **kw)
         return EXIT_OK
     if cmd == "report":
         from sim.report import make_report, print_verdict

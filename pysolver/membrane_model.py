@@ -478,9 +478,15 @@ class PlaneMembrane:
 
     def __init__(self, X, tri, tau=SIM.tau, mu=SIM.mu, h=SIM.membrane_h):
         self.tri = np.asarray(tri)
-        Xr = np.asarray(X, dtype=float) / tau
-        Dm = np.stack([Xr[self.tri[:, 1]] - Xr[self.tri[:, 0]],
-                       Xr[self.tri[:, 2]] - Xr[self.tri[:, 0]]], axis=-1)      # (m, 2, 2)
+        if np.ndim(tau) == 0:
+            Xr = np.asarray(X, dtype=float) / tau
+            Dm = np.stack([Xr[self.tri[:, 1]] - Xr[self.tri[:, 0]],
+                           Xr[self.tri[:, 2]] - Xr[self.tri[:, 0]]], axis=-1)  # (m, 2, 2)
+        else:  # a pre-stretch per triangle (the rim margin, pysolver.rim)
+            X = np.asarray(X, dtype=float)
+            Dm = np.stack([X[self.tri[:, 1]] - X[self.tri[:, 0]],
+                           X[self.tri[:, 2]] - X[self.tri[:, 0]]], axis=-1)
+            Dm = Dm / np.asarray(tau, float)[:, None, None]
         self.Dm_inv = np.linalg.inv(Dm)
         self.area = 0.5 * np.abs(np.linalg.det(Dm))                            # rest area
         self.mu, self.h = mu, h
@@ -666,7 +672,7 @@ def sample_patch(l0: float, d_values, rings: int = PATCH_RINGS,
 
 
 def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = None,
-                          max_area: float = FACTOR_MESH_AREA) -> dict:
+                          max_area: float = FACTOR_MESH_AREA, rim=None) -> dict:
     """Per-cell correction of ``F_mem`` from an FEM membrane on the design's own flat stencil.
 
     The linear model describes an interior cell of a regular lattice.  Here the
@@ -685,6 +691,9 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
         ``vertex_b``, ``central_length_mm``)
     b0, d1 : (n_cells,) float, mm -- flat bracket length, target shortening
     model : MembraneModel, optional (default: the committed model)
+    rim : (float, float), optional
+        ``(margin_mm, stretch)``: the membrane as fabricated at the rim
+        (:func:`pysolver.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
 
     Returns
     -------
@@ -709,7 +718,19 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
     lc = np.asarray(cells["central_length_mm"], float)
     s = 1.0 - float(np.median(np.asarray(d1, float) / lc))
     s = min(max(s, 0.5), 1.0)
-    mem = PlaneMembrane(mesh.X, mesh.tri)
+    if rim is None:
+        mem = PlaneMembrane(mesh.X, mesh.tri)
+    else:
+        import dataclasses
+
+        from .rim import rim_margin
+
+        X, tri, body, margin = rim_margin(mesh.X, mesh.tri, mesh.body, mesh.centers,
+                                          UNIT_CELL.base_r, float(rim[0]))
+        mesh = dataclasses.replace(mesh, X=X, tri=tri, body=body,
+                                   tri_face=np.r_[mesh.tri_face, -np.ones(int(margin.sum()),
+                                                                          int)])
+        mem = PlaneMembrane(X, tri, tau=np.where(margin, float(rim[1]), SIM.tau))
     free = np.flatnonzero(mesh.body < 0)
     att = np.flatnonzero(mesh.body >= 0)
     cb = mesh.centers[mesh.body[att]]

@@ -482,9 +482,121 @@ class ModelFileRules:
     boundary_factor_range: tuple = (0.0, 1.0)
 
 
+@dataclass(frozen=True)
+class PhysicsOptions:
+    """Physics beyond the reference simulator (issue #18), each switchable, all off by default.
+
+    With every switch off the simulation is the reference model, bit for bit.  Units: mm, N,
+    s, MPa; densities in g/cm^3 (= 1e-9 t/mm^3; weights are ``rho * 1e-9 * V * g`` in N
+    for ``V`` in mm^3 and ``g`` in mm/s^2).  What each effect does and what it changed on
+    the built-in shapes: ``docs/physics.md``.
+
+    Attributes
+    ----------
+    relaxation : bool
+        Membrane stress relaxation (SI Note 5 step 2, SI Fig. 10): the membrane modulus is
+        scaled by the measured relaxation function ``g(t)`` (:data:`RELAXATION_PRONY`) of the
+        time since stretching, ``stretch_to_glue_min + glue_to_water_min`` plus the time in
+        water.
+    stretch_to_glue_min : float, min
+        Stretching the sheet to gluing the lattices (SI Note 5 steps 2-5; assumed).
+    glue_to_water_min : float, min
+        Gluing to immersion (steps 6-8: 5 min wait, release, cutting out; assumed).
+    gravity : bool
+        Weight and buoyancy in water; the shell rests on the tank floor (a plane).
+    dry_rest : bool
+        After the morph, the dry resting shape on a table: brackets frozen at their final
+        lengths with their dry stiffness, full weight, contact with the plane.
+    print_density : float, g/cm^3
+        Printed parts (Stratasys J750 photopolymers are 1.15-1.20; VeroClear 1.18).
+    water_density : float, g/cm^3
+        Water at 56 C.
+    latex_density : float, g/cm^3
+        Natural-rubber latex sheet.
+    gravity_mm_s2 : float, mm/s^2
+    face_down : {"bottom", "top"}
+        The layer that faces the floor and the table (the flat shell lies on it).
+    ground_stiffness : float, N/mm^3
+        Cubic penalty of the plane contact ``E = k/3 max(0, -d)^3`` (d = height above the
+        plane); 1e3 N/mm^3 lets a 1 mN point load sink by 1e-3 mm.
+    ground_points : int
+        Contact points per base face: the rim of each far face (radius ``base_r``).
+    rim : bool
+        The membrane as fabricated at the rim (SI Note 5 step 7): a strip of latex
+        ``rim_margin_mm`` wide around the outline, cut from the sheet after its release to
+        ``rim_stretch`` (instead of the free edge of the reference).
+    rim_margin_mm : float, mm
+        Width of the latex margin kept at the border (flat, as cut).
+    rim_stretch : float
+        Pre-stretch of the margin after the release ("near 2").
+    contact : bool
+        Barrier contact between bases that are not neighbours (IPC Toolkit, ``ipctk``):
+        every base a closed prism; no two non-neighbouring prisms pass through each other.
+    contact_dhat_mm : float, mm
+        Distance below which the barrier acts (below the 0.6 mm that bumpers keep between
+        neighbours).
+    contact_stiffness : float, N/mm
+        Barrier stiffness kappa (energy ``kappa * -(d - dhat)^2 ln(d / dhat)``; 10 N/mm gives
+        ~1 N at a tenth of dhat, the scale of the membrane's pull on a cell).
+    contact_sides : int
+        Sides of the prism that stands for a base disc.
+    bracket_bending : bool
+        Out-of-plane bending of the brackets (the 1 mm x h section): a rotational spring on
+        the relative tilt of the two bases of every cell, its stiffness estimated from the
+        brackets' current in-plane stiffness (``sim.physics.bending_stiffness``).
+    """
+
+    relaxation: bool = False
+    stretch_to_glue_min: float = 10.0
+    glue_to_water_min: float = 10.0
+    gravity: bool = False
+    dry_rest: bool = False
+    print_density: float = 1.18
+    water_density: float = 0.985
+    latex_density: float = 0.93
+    gravity_mm_s2: float = 9810.0
+    face_down: str = "bottom"
+    ground_stiffness: float = 1e3
+    ground_points: int = 8
+    rim: bool = False
+    rim_margin_mm: float = 1.0
+    rim_stretch: float = 2.0
+    contact: bool = False
+    contact_dhat_mm: float = 0.1
+    contact_stiffness: float = 10.0
+    contact_sides: int = 8
+    bracket_bending: bool = False
+
+    SWITCHES = ("relaxation", "gravity", "dry_rest", "rim", "contact", "bracket_bending")
+
+    @property
+    def any(self) -> bool:
+        """Any effect switched on."""
+        return any(getattr(self, k) for k in self.SWITCHES)
+
+    def switched_on(self) -> list:
+        return [k for k in self.SWITCHES if getattr(self, k)]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+RELAXATION_PRONY = (
+    (1.0e1, 3.16227766e1, 1.0e2, 3.16227766e2, 1.0e3, 3.16227766e3, 1.0e4, 3.16227766e4, 1.0e5),
+    (0.80176665, 0.02033809, 0.00262854, 0.02778007, 0.02581137, 0.05390961, 0.02105795, 0.0,
+     0.01616499, 0.03054273),
+)
+"""Membrane stress relaxation at stretch 3 (SI Fig. 10,
+``data/material-measurements/rubber_stress_relaxation.csv``), normalised Prony series
+``g(t) = g_inf + sum_i g_i exp(-t / tau_i)``, ``g(0) = 1``: ``(tau_i (s), (g_inf, g_i...))``.
+Fitted by :func:`pysolver.material.relaxation.fit_relaxation` (NNLS, relaxation times fixed at
+half decades, samples weighted by ``1/sqrt(t)``); a test refits it from the CSV."""
+
+
 UNIT_CELL = UnitCell()
 SUPPORT_FRAME = SupportFrame()
 SIM = SimConstants()
+PHYSICS_OFF = PhysicsOptions()
 tol = Tolerances()
 MODEL_FILES = ModelFileRules()
 UNCERTAINTY = Uncertainty()
@@ -506,6 +618,7 @@ def layer_sign(layer) -> int:
 
 __all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
            "SupportFrame", "SUPPORT_FRAME",
+           "PhysicsOptions", "PHYSICS_OFF", "RELAXATION_PRONY",
            "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign",
            "Uncertainty", "ToleranceRun", "UNCERTAINTY", "TOLERANCE_RUN"]
 

@@ -409,7 +409,8 @@ def _fix_message(ach) -> str:
     return msg + "."
 
 
-def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORRECTION):
+def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORRECTION,
+                     rim=None):
     """Per-cell factors on ``F_mem`` for a correction rule (:data:`CORRECTIONS`).
 
     Returns
@@ -434,14 +435,18 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
     _, d1 = target_compressions(b0, cells["collision_length_top_mm"],
                                 cells["collision_length_bottom_mm"])
     try:
-        r = cell_membrane_factors(UV, F, cells, b0, d1, membrane)
+        r = cell_membrane_factors(UV, F, cells, b0, d1, membrane, rim=rim)
     except (InputError, RuntimeError, ValueError) as e:
         # the FEM on this stencil failed (degenerate boundary geometry): the paper's rule
         info.update({"fallback": "boundary", "reason": f"{type(e).__name__}: {e}",
                      "boundary_factor": float(membrane.boundary_factor)})
         return np.where(bnd, membrane.boundary_factor, 1.0), info
     fem = r["factor"]
-    f = np.where(bnd, np.minimum(membrane.boundary_factor, fem), fem)
+    # with the rim modelled (issue #18) the FEM factor replaces the paper's 0.6 cap
+    f = fem if rim is not None else np.where(bnd, np.minimum(membrane.boundary_factor, fem),
+                                             fem)
+    if rim is not None:
+        info["rim"] = {"margin_mm": float(rim[0]), "stretch": float(rim[1])}
     info.update({"fem_contraction": r["s"], "fem_triangles": r["n_triangles"],
                  "factor_range_interior": [float(fem[~bnd].min()), float(fem[~bnd].max())]
                  if (~bnd).any() else None,
@@ -452,7 +457,7 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
 
 def program_design(design_dir, *, material=None, membrane=None, progress: bool = True,
                    correction: str = DEFAULT_CORRECTION, t_request=None,
-                   picture: bool = True, fit_landscape: bool = False) -> dict:
+                   picture: bool = True, fit_landscape: bool = False, physics=None) -> dict:
     """Set the bracket thicknesses of a design folder from its time landscape.
 
     Reads ``cells.csv`` and ``time_landscape.csv``, writes ``thickness_top_mm``,
@@ -474,6 +479,10 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         Program these times instead of ``t*`` (used by :func:`refine_design`).
     picture : bool
         Draw the feasibility picture.
+    physics : PhysicsOptions, optional
+        With ``rim`` on, the ``F_mem`` correction meshes the latex margin kept at the rim
+        (as the simulator does with the same option) and uses its FEM factor on boundary
+        cells instead of the paper's 0.6 cap.
     fit_landscape : bool
         Map the landscape linearly (order kept) onto the achievable range that clamps
         the fewest cells before programming, and rewrite ``time_landscape.csv``.  The
@@ -504,7 +513,9 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
     t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
-    factor, finfo = membrane_factors(design_dir, cells, mem, correction)
+    rim = ((physics.rim_margin_mm, physics.rim_stretch)
+           if physics is not None and physics.rim else None)
+    factor, finfo = membrane_factors(design_dir, cells, mem, correction, rim=rim)
     res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
                         cells["collision_length_bottom_mm"], cells["boundary"], t_star,
                         material=mat, membrane=mem, t_request=t_request, factor=factor)

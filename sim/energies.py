@@ -366,6 +366,7 @@ class SparsePattern:
             self._shapes.append(keep.shape)
         diag = np.arange(n, dtype=np.int64)
         allk = np.unique(np.concatenate(keys + [diag * n + diag]))
+        self._allk = allk
         self.nnz = len(allk)
         self.indices = (allk % n).astype(np.int32)
         cols = allk // n
@@ -390,6 +391,15 @@ class SparsePattern:
     def assemble(self, blocks) -> sp.csc_matrix:
         """Sum element blocks (list aligned with ``groups``) into a lower-triangle CSC matrix."""
         return self.matrix(self.assemble_data(blocks))
+
+    def positions(self, rows, cols) -> np.ndarray:
+        """CSC data positions of entries ``(rows, cols)`` (int arrays, row >= col), which must
+        be in the pattern."""
+        key = np.asarray(cols, dtype=np.int64) * self.n + np.asarray(rows, dtype=np.int64)
+        pos = np.searchsorted(self._allk, key)
+        if np.any(pos >= self.nnz) or np.any(self._allk[np.minimum(pos, self.nnz - 1)] != key):
+            raise ValueError("entries outside the sparsity pattern")
+        return pos
 
     def position_map(self, i: int) -> np.ndarray:
         """(k, a, b) int: CSC data position of every entry of group ``i``'s blocks, -1 = dropped."""
@@ -463,6 +473,13 @@ class ShellEnergy:
         self.model = model
         self.consts = model.consts
         self.last_energy_scale = None  # energy_scale of the state last evaluated (N mm)
+        # physics options (sim.physics): membrane modulus factor (relaxation) and external
+        # terms (weight, plane); 1.0 and None reproduce the reference model bit for bit
+        self.mu_scale = 1.0
+        self.external = None
+        self.contact = None  # sim.contact.BaseContact: barrier between non-neighbour bases
+        self.bending = None  # sim.physics.BracketBending: brackets bent out of plane
+        self._ext_pos = None
         m, c = model.n_bases, model.n_cells
         self.m = m
         self.n = model.n_dof
@@ -536,24 +553,39 @@ class ShellEnergy:
         if self.backend == "numba" and not psd:
             from .kernels import membrane_kernel
 
-            E = membrane_kernel(X, md.tri_points, md.tri_dm_inv, md.tri_rest_area, k.mu,
+            E = membrane_kernel(X, md.tri_points, md.tri_dm_inv, md.tri_rest_area, self.mu,
                                 k.membrane_h, G, self._Hm, hessian)
             return float(E), (self._Hm if hessian else None)
-        em, gm, Hm = membrane_terms(X[md.tri_points], md.tri_dm_inv, md.tri_rest_area, k.mu,
+        em, gm, Hm = membrane_terms(X[md.tri_points], md.tri_dm_inv, md.tri_rest_area, self.mu,
                                     k.membrane_h, hessian=hessian, psd=psd)
         _accumulate(G, md.tri_points, gm)
         if Hm is not None and self.backend == "numba":
             Hm = np.transpose(Hm, (0, 1, 3, 2, 4)).reshape(-1, 9, 9)
         return float(em.sum()), Hm
 
+    @property
+    def mu(self) -> float:
+        """Membrane shear modulus in use, MPa (``consts.mu`` times the relaxation factor)."""
+        return self.consts.mu if self.mu_scale == 1.0 else self.consts.mu * self.mu_scale
+
     def energy_parts(self, state: State) -> dict:
-        """Energy per kind (N mm): ``springs``, ``cross``, ``membrane``, ``total``."""
+        """Energy per kind (N mm): ``springs``, ``cross``, ``membrane``, ``total`` (and
+        ``external`` when weight or a plane is on)."""
         X, _ = self.positions(state)
         (es, _, _), (ex, _, _) = self._discrete(X, False, False)
         G = np.zeros((self.model.n_points, 3))
         em, _ = self._membrane(X, G, False, False)
         d = {"springs": float(es.sum()), "cross": float(ex.sum()), "membrane": em}
         d["total"] = d["springs"] + d["cross"] + d["membrane"]
+        if self.external is not None:
+            d["external"] = self.external.energy(state, X)
+            d["total"] += d["external"]
+        if self.contact is not None:
+            d["contact"] = self.contact.evaluate(state, False)[0]
+            d["total"] += d["contact"]
+        if self.bending is not None:
+            d["bending"] = self.bending.evaluate(state, False)[0]
+            d["total"] += d["bending"]
         return d
 
     def energy(self, state: State) -> float:
@@ -563,7 +595,9 @@ class ShellEnergy:
     def energy_scale(self, state: State) -> float:
         """Sum of absolute element energies: the scale of the energy's round-off error."""
         d = self.energy_parts(state)
-        return abs(d["springs"]) + abs(d["cross"]) + abs(d["membrane"])
+        return (abs(d["springs"]) + abs(d["cross"]) + abs(d["membrane"])
+                + abs(d.get("external", 0.0)) + abs(d.get("contact", 0.0))
+                + abs(d.get("bending", 0.0)))
 
     def _reduce_gradient(self, G, v):
         m = self.m
@@ -606,7 +640,27 @@ class ShellEnergy:
         E = float(es.sum() + ex.sum()) + em
         # the round-off scale of this energy, as energy_scale(state) computes it
         self.last_energy_scale = abs(float(es.sum())) + abs(float(ex.sum())) + abs(em)
+        ext = None
+        if self.external is not None:
+            ext = self.external.evaluate(state, X, G, hessian)
+            E += ext[0]
+            self.last_energy_scale += abs(ext[0])
         g = self._reduce_gradient(G, v)
+        if ext is not None:
+            g[: 6 * self.m] += ext[1].ravel()
+        con = None
+        if self.contact is not None:
+            con = self.contact.evaluate(state, hessian)
+            E += con[0]
+            self.last_energy_scale += abs(con[0])
+            if con[1] is not None:
+                g += con[1]
+        bend = None
+        if self.bending is not None:
+            bend = self.bending.evaluate(state, hessian, self.pattern)
+            E += bend[0]
+            self.last_energy_scale += abs(bend[0])
+            g[: 6 * self.m] += bend[1].ravel()
         if not hessian:
             return E, g, None
         V = np.zeros((md.n_points, 3))
@@ -616,7 +670,30 @@ class ShellEnergy:
             H = self._assemble_numba(V, Ks, parts, Hm, rot)
         else:
             H = self._assemble_numpy(V, Ks, parts, Hm, rot)
+        if ext is not None:
+            H.data[self._external_positions()] += ext[2][:, self._lo[0], self._lo[1]].ravel()
+        if bend is not None:
+            bend[2](H.data)
+        if con is not None and con[2] is not None:
+            H = (H + con[2]).tocsc()
+            H.sort_indices()
         return E, g, H
+
+    def step_limit(self, state: State, p, alpha_max: float) -> float:
+        """Largest safe multiple of the step ``p``: ``alpha_max``, or less when a contact
+        barrier (:mod:`sim.contact`) would be crossed."""
+        if self.contact is None:
+            return alpha_max
+        return self.contact.step_limit(state, p, alpha_max)
+
+    def _external_positions(self) -> np.ndarray:
+        """CSC positions of the lower triangle of every base's 6x6 diagonal block."""
+        if self._ext_pos is None:
+            self._lo = np.tril_indices(6)
+            base = 6 * np.arange(self.m)[:, None]
+            self._ext_pos = self.pattern.positions((base + self._lo[0]).ravel(),
+                                                   (base + self._lo[1]).ravel())
+        return self._ext_pos
 
     def _rotation_term(self, G, v, psd):
         """Second-order term of the rigid map per base: sum_p g_p . d2x_p / dtheta2 (m, 3, 3)."""

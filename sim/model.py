@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from pysolver.errors import InputError
-from pysolver.params import SIM, UNIT_CELL, SimConstants, UnitCell
+from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
+from pysolver.rim import rim_margin
 
 CROSS_REST_MODES = ("flat", "zero")
 
@@ -278,7 +279,8 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
 
 def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collision=None,
                 consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
-                cross_rest: str = "flat", source: str = "") -> ShellModel:
+                cross_rest: str = "flat", source: str = "",
+                physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
     """Assemble a :class:`ShellModel` from a scaled stencil.
 
     Parameters
@@ -306,6 +308,9 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
         configuration, zero force at rest) or ``"zero"`` (the reference code).
     source : str
         Description for messages.
+    physics : PhysicsOptions
+        With ``rim`` on, the membrane gets the latex margin of :func:`rim_margin`, whose
+        triangles rest at ``rim_stretch`` instead of ``consts.tau``.
 
     Returns
     -------
@@ -412,6 +417,11 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     xy, tris, mbody = membrane_mesh(nodes_f[:, :, :, 0, :2], F, ff, cells, vb,
                                     max_area=consts.membrane_max_area,
                                     min_angle=consts.membrane_min_angle)
+    tau = np.full(len(tris), consts.tau)
+    if physics.rim:
+        xy, tris, mbody, margin = rim_margin(xy, tris, mbody, C2, unit.base_r,
+                                             physics.rim_margin_mm)
+        tau = np.where(margin, physics.rim_stretch, consts.tau)
     nm = len(xy)
     mem_flat = np.c_[xy, np.zeros(nm)]
     mem_point = n_nodes + np.arange(nm)
@@ -422,8 +432,11 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     point_free = -np.ones(len(point_body), dtype=np.int64)
     fr = point_body < 0
     point_free[fr] = np.arange(int(fr.sum()))
-    tau = consts.tau
     P = xy[tris]
+    if not physics.rim:
+        tau = consts.tau  # (the scalar: bit-identical to the reference model)
+    else:
+        tau = tau[:, None, None]
     Dm = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2) / tau  # columns = edges
     det = Dm[:, 0, 0] * Dm[:, 1, 1] - Dm[:, 0, 1] * Dm[:, 1, 0]
     dm_inv = np.stack([np.stack([Dm[:, 1, 1], -Dm[:, 0, 1]], 1),
@@ -442,13 +455,15 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
 
 
 def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell | None = None,
-               cross_rest: str = "flat") -> ShellModel:
+               cross_rest: str = "flat", physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
     """Assemble the model of a design folder (``stencil.obj``, ``bases.csv``, ``cells.csv``).
 
     Parameters
     ----------
     design_dir : path-like
         Design folder (``docs/design-folder.md``).
+    physics : PhysicsOptions
+        Only ``rim`` changes the model (the latex margin, see :func:`build_model`).
 
     Returns
     -------
@@ -476,7 +491,7 @@ def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell | None 
     coll = np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
     return build_model(d.V, d.UV, d.F, th, rotvec=rot, bracket_length=c["bracket_length_mm"],
                        collision=coll, consts=consts, unit=unit, cross_rest=cross_rest,
-                       source=str(folder))
+                       source=str(folder), physics=physics)
 
 
 def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None = None
@@ -525,5 +540,5 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
     return dataclasses.replace(model, **changes)
 
 
-__all__ = ["ShellModel", "build_model", "load_model", "vary_model", "membrane_mesh",
+__all__ = ["ShellModel", "build_model", "load_model", "vary_model", "membrane_mesh", "rim_margin",
            "CROSS_REST_MODES"]

@@ -64,11 +64,12 @@ import numpy as np
 
 from pysolver.atomic import atomic_file, atomic_write_text
 from pysolver.errors import InputError, MorphshellError
-from pysolver.params import SIM, UNIT_CELL
+from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
 
 from .energies import ShellEnergy, State
 from .model import ShellModel, load_model
+from .physics import physics_json
 from .solver import SOLVERS, LinearSolver, StaticProblem, newton
 
 FRAMES_NAME = "frames.npz"
@@ -100,6 +101,8 @@ class SimSettings:
         Linear-algebra threading of the Newton solves (:data:`sim.solver.SOLVERS`): ``fast``
         runs every solve on one BLAS thread, ``reference`` as before it was measured.  Same
         results; the reference path is kept for ``make bench``'s comparison.
+    physics : PhysicsOptions
+        Effects beyond the reference simulator (``docs/physics.md``); all off by default.
     """
 
     t_end: float = SIM.t_end
@@ -113,8 +116,12 @@ class SimSettings:
     checkpoint_every: int = 20
     predictor: bool | str = True
     solver: str = "fast"
+    physics: PhysicsOptions = PHYSICS_OFF
 
     def __post_init__(self):
+        from .physics import check_physics
+
+        check_physics(self.physics)
         if self.solver not in SOLVERS:
             raise InputError(f"solver {self.solver!r} is not one of {', '.join(SOLVERS)}",
                              fix="use --solver fast (the default) or --solver reference")
@@ -176,6 +183,21 @@ class Simulation:
         }
         self.stopped_early = False
         self._free_hist = []  # free vertices of the last two frames, oldest first
+        self.rest_frame = None  # dry resting shape on a table (physics.dry_rest)
+        ph = settings.physics
+        if ph.gravity:
+            from .physics import ExternalTerms
+
+            self.energy.external = ExternalTerms(model, ph, wet=True)
+            self.energy.external.place_plane(self.state)
+        if ph.contact:
+            from .contact import BaseContact
+
+            self.energy.contact = BaseContact(model, ph)
+        if ph.bracket_bending:
+            from .physics import BracketBending
+
+            self.energy.bending = BracketBending(model)
 
     # -- helpers -------------------------------------------------------------------------------
     def spring_lengths(self, state: State | None = None) -> np.ndarray:
@@ -190,6 +212,7 @@ class Simulation:
         coef = np.asarray(self.material.coefficients(md.spring_thickness,
                                                      md.spring_bracket_length, t, eta=eta),
                           float).reshape(-1, 4)
+        coef0 = coef[:, 0].copy()  # the brackets' own stiffness (before bumper contact)
         if not dry and self.prev_lengths is not None:
             ps = self.prev_lengths
             L0 = md.spring_rest0
@@ -199,6 +222,16 @@ class Simulation:
             coef[self.contact] = (k.kappa_c, 0.0, 0.0, 0.0)
         self.energy.spring_rest = self.rest
         self.energy.spring_coef = coef
+        ph = self.settings.physics
+        if ph.bracket_bending:
+            from .physics import bending_stiffness
+
+            self.energy.bending.k = bending_stiffness(md, coef0)
+        if ph.relaxation:
+            from pysolver.material.relaxation import relaxation_factor
+
+            age = 60.0 * (ph.stretch_to_glue_min + ph.glue_to_water_min) + t
+            self.energy.mu_scale = float(relaxation_factor(age))
 
     def _record(self, t, res, L) -> None:
         md, s, k, fr = self.model, self.state, self.k, self.frames
@@ -223,6 +256,8 @@ class Simulation:
 
     def _recentre(self) -> None:
         shift = self.state.c.mean(axis=0) - self.model.base_flat.mean(axis=0)
+        if self.energy.external is not None:
+            shift = shift * (1.0 - np.abs(self.energy.external.up))  # the plane fixes height
         self.state.c = self.state.c - shift
         self.state.f = self.state.f - shift
 
@@ -360,8 +395,59 @@ class Simulation:
             "flat_membrane_vertices": md.mem_flat.copy(),
             "membrane_base": md.mem_body.copy(),
             "stopped_early": np.array(self.stopped_early),
+            "physics": np.array(physics_json(self.settings.physics)),
         })
+        if self.rest_frame is not None:
+            out.update(self.rest_frame)
         return out
+
+    # -- dry resting shape (physics.dry_rest) ----------------------------------------------------
+    def dry_rest(self):
+        """The dry shell resting on a table after the morph; fills :attr:`rest_frame`.
+
+        The brackets cool and stiffen at their final shape: every spring's rest length is its
+        final length and its force law the dry one (material model at t = 0, no plasticity);
+        springs at their bumpers stay in contact.  The shell gets its full (dry) weight and a
+        frictionless table under its lowest point; the static equilibrium is solved.
+
+        Returns
+        -------
+        NewtonResult
+        """
+        from .physics import ExternalTerms
+
+        md, k = self.model, self.model.consts
+        L = self.spring_lengths()
+        coef = np.asarray(self.material.coefficients(md.spring_thickness,
+                                                     md.spring_bracket_length, 0.0, eta=0.0),
+                          float).reshape(-1, 4)
+        if self.energy.bending is not None:
+            from .physics import bending_stiffness
+
+            self.energy.bending.k = bending_stiffness(md, coef[:, 0])
+        rest = L.copy()
+        rest[self.contact] = md.spring_collision[self.contact]
+        coef[self.contact] = (k.kappa_c, 0.0, 0.0, 0.0)
+        self.energy.spring_rest, self.energy.spring_coef = rest, coef
+        ext = ExternalTerms(md, self.settings.physics, wet=False)
+        ext.place_plane(self.state)
+        self.energy.external = ext
+        problem = StaticProblem(self.energy, self.state.copy())
+        res = newton(problem, tol=self.settings.tol, linear=self.linear,
+                     max_iter=self.settings.max_iter_dry)
+        s = problem.state
+        s.orthonormalize()
+        X, _ = self.energy.positions(s)
+        h = md.unit.layer_h
+        self.rest_frame = {
+            "rest_base_center": s.c.copy(), "rest_base_rotation": s.R.copy(),
+            "rest_membrane_vertices": X[md.mem_point].copy(),
+            "rest_marker_top": s.c + s.R[:, :, 2] * h, "rest_marker_bottom": s.c - s.R[:, :, 2] * h,
+            "rest_converged": np.array(res.converged), "rest_residual": np.array(res.residual),
+            "rest_plane_height": np.array(ext.z0), "rest_weight_N": np.array(ext.weight_total()),
+            "rest_contact_force_N": np.array(float(ext.contact_forces(s).sum())),
+        }
+        return res
 
     # -- checkpoints ----------------------------------------------------------------------------
     def checkpoint_arrays(self, fingerprint: str) -> dict:
@@ -461,9 +547,20 @@ def run_simulation(sim: Simulation, *, progress: bool = True, label: str = "sim"
                 sim.k - last_ckpt >= st.checkpoint_every) and not sim.done:
             _atomic_savez(checkpoint, sim.checkpoint_arrays(fingerprint))
             last_ckpt = sim.k
+    extra = {}
+    if st.physics.any:
+        extra["physics"] = st.physics.to_dict()
+    if st.physics.dry_rest and sim.rest_frame is None:
+        t0 = time.perf_counter()
+        res = sim.dry_rest()
+        extra["dry_rest"] = {"converged": bool(res.converged), "residual_N": res.residual,
+                             "newton_iterations": res.iterations,
+                             "wall_s": round(time.perf_counter() - t0, 3)}
+        _log(f"{label}: dry rest on a table: newton {res.iterations} |g| {res.residual:.1e} N"
+             f"{'' if res.converged else '  NOT CONVERGED'}", progress)
     fr = sim.frames
     nf = sim.k
-    return {"steps": nf, "wall_s": round(time.perf_counter() - t_start, 3),
+    return {**extra, "steps": nf, "wall_s": round(time.perf_counter() - t_start, 3),
             "converged_steps": int(fr["converged"][:nf].sum()),
             "nonconverged_steps": [int(i) for i in np.flatnonzero(~fr["converged"][:nf])],
             "newton_iterations_total": int(fr["newton_iterations"][:nf].sum()),
@@ -526,7 +623,7 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     """
     folder = Path(design_dir)
     mat = _resolve_material(material)  # a bad model file is refused before anything else
-    model = load_model(folder)
+    model = load_model(folder, physics=settings.get("physics", PHYSICS_OFF))
     st = SimSettings(t_end=float(t_end), dt=float(dt), checkpoint_every=checkpoint_every,
                      **settings)
     sim = Simulation(model, mat, st)

@@ -277,6 +277,10 @@ class StaticProblem:
     def accept(self, trial) -> None:
         self.state = trial
 
+    def step_limit(self, p, alpha_max: float) -> float:
+        """``alpha_max``, or the collision-free fraction of it (contact barriers)."""
+        return self.energy.step_limit(self.state, p, alpha_max)
+
     def residual(self, g) -> float:
         return self.energy.residual(g)
 
@@ -472,6 +476,9 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
                     continue
             alpha_max = _step_limit(p, problem.trans_dofs, problem.rot_dofs, max_step_mm,
                                     max_rot_rad)
+            limit = getattr(problem, "step_limit", None)
+            if limit is not None:  # contact barriers: the collision-free part of the step
+                alpha_max = limit(p, alpha_max)
             alpha, trial, accepted, E_trial, g_trial = _wolfe(problem, p, E, g, eps_E,
                                                               alpha_max, c1, c2, max_halvings)
             if accepted:
