@@ -317,6 +317,34 @@ def _vertex_depth(F, bnd):
     return depth
 
 
+def _check_segments_kept(tri, S, cells, edge_nodes, C, V, F) -> None:
+    """Every input segment must be an edge of the triangulation.  Triangle splits crossing
+    segments; they cross when a base's disc (r = base_r around its flat centroid) reaches
+    over its triangle's edges, which a stencil with a triangle too thin or too obtuse does."""
+    e = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    have = set(map(tuple, e))
+    missing = [k for k, (i, j) in enumerate(np.sort(S, axis=1)) if (i, j) not in have]
+    if not missing:
+        return
+    i, j = (int(x) for x in np.sort(S[missing[0]]))
+    ci = next((c for c, n in enumerate(edge_nodes)
+               if any({int(a), int(b)} == {i, j} for a, b in zip(n[:-1], n[1:], strict=True))),
+              None)
+    where = ""
+    if ci is not None:
+        fa, fb = int(cells[ci][0]), int(cells[ci][1])
+        d = [float(np.min([abs(np.cross(V[F[f, (k + 1) % 3]] - V[F[f, k]], C[f] - V[F[f, k]]))
+                           / np.linalg.norm(V[F[f, (k + 1) % 3]] - V[F[f, k]])
+                           for k in range(3)])) for f in (fa, fb)]
+        where = (f" at cell {ci} (bases {fa}, {fb}: their centres are {d[0]:.2f} and "
+                 f"{d[1]:.2f} mm from their triangles' edges)")
+    raise InputError(f"the stencil's bases reach across its edges{where}: a flat triangle is "
+                     "too thin or too obtuse for a 4 mm base at its centroid",
+                     fix="let morphshell remesh the surface (its stencils keep every base centre "
+                         ">= 2.3 mm from its triangle's edges), or improve that region of your "
+                         "stencil")
+
+
 def stencil_membrane_mesh(V, F, max_area: float = MESH_MAX_AREA, uc=UNIT_CELL,
                           l0: float = float("nan")) -> PatchMesh:
     """Membrane mesh of a flat stencil following the simulator's construction.
@@ -422,6 +450,7 @@ def stencil_membrane_mesh(V, F, max_area: float = MESH_MAX_AREA, uc=UNIT_CELL,
     tri = np.asarray(out["triangles"], dtype=int)
     if not np.allclose(X[:len(P)], P):
         raise RuntimeError("Triangle reordered the input vertices")  # pragma: no cover
+    _check_segments_kept(tri, S, cells, edge_nodes, C, V, F)
     body = np.full(len(X), -1, dtype=int)
     body[:len(P)] = mark
     # orient counter-clockwise
