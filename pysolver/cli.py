@@ -160,7 +160,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_design_options(p)
     p.add_argument("--material", default=None, help="bracket model file (default: committed one)")
     p.add_argument("--seed", type=int, default=None,
-                   help="CVT remeshing seed (default: the shape's tuned one, or searched)")
+                   help="CVT remeshing seed (default: searched)")
     p.add_argument("--refine", type=int, default=DEFAULT_REFINE,
                    help="K rounds of closing the timing loop: correct t* from the simulation "
                         f"(default {DEFAULT_REFINE}, as make's REFINE; 0 = off)")

@@ -26,7 +26,7 @@ from .cellnodes import bracket_nodes, collision_lengths
 from .checks import check_layout
 from .errors import InputError
 from .layout import Layout, build_layout
-from .params import LIMITS, UNIT_CELL, UnitCell
+from .params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell
 from .time_landscape import (
     cell_times,
     check_time_option,
@@ -265,17 +265,19 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
     from .remesh import stencil_figures
 
     lines = []
-    if params.min_bumper > 0.1 + 1e-9:
-        alt = stencil_figures(V, F, replace(params, min_bumper=0.1))
-        ok = alt["max_cell_length_mm"] <= params.max_cell_length
-        lines.append(f"--min-bumper 0.1 (the reference's) gives a longest cell of "
-                     f"{alt['max_cell_length_mm']:.2f} mm on this stencil"
-                     + (" (printable)" if ok else ""))
-    cands = remesh_info.get("candidates") or []
+    low = REFERENCE_MIN_BUMPER_MM
+    if params.min_bumper > low + 1e-9:
+        alt = stencil_figures(V, F, replace(params, min_bumper=low))
+        if alt["max_cell_length_mm"] is not None:
+            ok = alt["max_cell_length_mm"] <= params.max_cell_length
+            lines.append(f"--min-bumper {low:g} (the reference's) gives a longest cell of "
+                         f"{alt['max_cell_length_mm']:.2f} mm on this stencil"
+                         + (" (printable)" if ok else ""))
+    cands = [c for c in remesh_info.get("candidates") or [] if c[4] is not None]
     if cands:
         best = min(cands, key=lambda c: c[4])
-        lines.append(f"of the vertex counts tried, --vertices {best[0]} came closest "
-                     f"({best[4]:.2f} mm, scale {best[3]:.2f})")
+        lines.append(f"of the stencils tried, --vertices {best[0]} --seed {best[1]} came "
+                     f"closest ({best[4]:.2f} mm, scale {best[3]:.2f})")
     lines.append("a cut through the region named above splits the stretch the flattening "
                  "needs (SI Note 1)")
     return "; ".join(lines)
@@ -415,7 +417,17 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
 
     dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
     clock.step("checks")
-    if not report.ok and remesh_info.get("remeshed"):
+    if remesh_info.get("remeshed") and remesh_info.get("rim_inset_mm"):
+        from .remesh import surface_area
+
+        cover = surface_area(V0, F0) / remesh_info["area_mm2"]
+        remesh_info["area_covered"] = round(cover, 4)
+        report.warnings.append(
+            f"the stencil stops {remesh_info['rim_inset_mm'] * lay.scale3d:.1f} mm inside the "
+            f"target's rim and covers {100 * cover:.0f} % of its area (a CVT's outer sites lie "
+            "inside its domain; the reference's stencils cover 80-88 %)")
+    if (remesh_info.get("remeshed")
+            and lay.central_length.max() > params.max_cell_length):
         report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params)))
     report.raise_if_failed()
 

@@ -264,6 +264,8 @@ class StencilSearch:
     ----------
     dense_faces : int
         User meshes are resampled to about this many well-shaped faces before flattening.
+    min_boundary_points : int
+        Fewest points on the stencil's rim.
     lloyd_iterations : int
         Weighted Lloyd iterations of the CVT in the conformal plane.
     relax_iterations : int
@@ -296,6 +298,12 @@ class StencilSearch:
         scaled layout: a base's disc and bracket roots (r 2 mm) stay inside the membrane
         region the simulator's and the F_mem correction's meshes give each base (the
         reference's stencils keep >= 2.6 mm).
+    opt_clearance_weight : float
+        Weight of the squared log shortfall of a base centre's clearance.
+    opt_clearance_slack : float
+        Log shortfall of the clearance (2 %) a round may leave and still be kept.
+    opt_tiny : float
+        Floor of the arguments of the barrier's and penalties' logarithms.
     opt_rounds, opt_iterations : int
         Outer rounds (re-lifting onto the target) and L-BFGS iterations per round.
     opt_barrier : float
@@ -319,6 +327,7 @@ class StencilSearch:
     """
 
     dense_faces: int = 6000
+    min_boundary_points: int = 6
     lloyd_iterations: int = 40
     relax_iterations: int = 100
     relax_retriangulate: int = 5
@@ -332,6 +341,9 @@ class StencilSearch:
     opt_max_angle_deg: float = 90.0
     opt_centroid_edge_mm: float = 2.3
     opt_angle_weight: float = 100.0
+    opt_clearance_weight: float = 1000.0
+    opt_clearance_slack: float = 0.02
+    opt_tiny: float = 1e-30
     opt_rounds: int = 2
     opt_iterations: int = 50
     opt_barrier: float = 1e-3
@@ -344,6 +356,10 @@ class StencilSearch:
 
 
 STENCIL = StencilSearch()
+
+REFERENCE_MIN_BUMPER_MM = 0.1
+"""The minimal bumper of most of the reference's examples (the paper says 0.3 mm), offered as
+a measured alternative when a target cannot be printed."""
 
 DEFAULT_REFINE = 1
 """Rounds of timing refinement from the simulation, the one default of ``morphshell build``,

@@ -6,27 +6,32 @@ log-scale 0, :func:`pysolver.flatten.cetm`):
 1. **Boundary**: points along the target's boundary, or along a curve inset from it by a
    fraction of a cell spacing (``StencilSearch.rim_insets``), equally spaced in 3D arc length.
 2. **CVT**: weighted Lloyd iterations of the interior points.  A 2D CVT of density ``rho``
-   spaces its points as ``rho^(-1/4)``; to be uniform *on the target* the density must be
-   ``exp(-4u)`` (u = conformal log-scale, flat = exp(u) 3D).  The reference used
-   ``exp(-2u)``, which only half compensates the conformal scale (``pipeline.md`` §2.2).
+   spaces its points as ``rho^(-1/4)``; the density ``exp(-4 (1 - g) u)`` (u = conformal
+   log-scale, flat = exp(u) 3D) spaces them as ``exp(u)^(1 - g)`` in the plane, i.e.
+   ``exp(u)^(-g)`` on the target.  ``g = StencilSearch.grading``: 0 = uniform on the target
+   (the reference used ``exp(-2u)``, which only half compensates the conformal scale,
+   ``pipeline.md`` §2.2); the default 1 = uniform in the plane, which needs fewer bases at
+   the target's size (measured on cover, 0.1 mm bumper: about 640 bases and a longest flat
+   cell of 8.2 mm, against 700 and 7.6 mm for g = 0).  Either way the
+   triangles are isotropic on the target, because the map is conformal.
 3. **Relaxation**: Persson and Strang's spring relaxation (DistMesh): repulsive springs of
-   rest length 1.2 x the mean, with the desired spacing in the plane ``exp(u)^(1 - grading)``,
-   Delaunay re-triangulation (Shewchuk's Triangle) every few steps.  It removes most of the
-   valence defects a Lloyd iteration from random seeds leaves behind.
+   rest length 1.2 x the RMS length, scaled by the desired spacing, Delaunay
+   re-triangulation (Shewchuk's Triangle) every few steps.  It removes most of the valence
+   defects a Lloyd iteration from random seeds leaves behind.
 4. **Ears**: triangles with two boundary edges are removed.
 5. **Optimisation** (:mod:`pysolver.stencil_opt`): the interior vertices move in the plane
    to minimise the longest flat cell after both scaling rules.
 6. **Lift**: every flat point is mapped to 3D through its dense flat triangle.
 
-Because the map is conformal, triangles that are near-equilateral in the plane are
-near-equilateral on the target.  Method ``"pymeshlab"`` (pymeshlab's isotropic explicit
+Method ``"pymeshlab"`` (pymeshlab's isotropic explicit
 remeshing in 3D) is kept for comparison; at the stencil's coarse resolution its triangles are
 much less regular.
 
-Vertex count: ``vertices=N`` or searched: secant steps on the 3D scaling (which grows as
-``sqrt(N)``) toward 1, so that the shell keeps the size of its target, then neighbouring counts
-and seeds; among the candidates whose longest flat cell is within the limit the one with the
-scaling closest to 1 wins (:func:`remesh_surface`).  Nothing is tuned per shape.
+Vertex count: ``vertices=N`` or searched: secant steps on the 3D scaling (about
+``sqrt(N)``) toward 1, so that the shell keeps the size of its target, then another seed when
+the first leaves no margin, then the next rim inset when nothing is printable; among the
+candidates whose longest flat cell is within the limit the one with the scaling closest to 1
+wins (:func:`remesh_surface`).  Nothing is tuned per shape.
 """
 
 from __future__ import annotations
@@ -124,7 +129,7 @@ def resample_dense(V, F, faces: int = STENCIL.dense_faces):
 # the conformal plane of the dense target
 
 
-class RimInsetError(ValueError):
+class RimInsetError(InputError):
     """A rim inset does not leave one connected region (a neck narrower than twice the inset);
     the search then tries the next inset."""
 
@@ -220,12 +225,14 @@ class FlatDomain:
         return np.einsum("ij,ij->i", B, self.u[self.F[fi]])
 
     # -- stencil -----------------------------------------------------------------------
-    def spacing(self, n: int) -> float:
-        """3D edge length h (mm) at the rim (u = 0) of a mesh of ``n`` vertices on this target
-        graded as ``exp(u)^(-grading)`` (Euler's formula on the graded area)."""
+    def spacing(self, n: int, inside=None, rim_length=None) -> float:
+        """3D edge length h (mm) at the rim (u = 0) of a mesh of ``n`` vertices graded as
+        ``exp(u)^(-grading)`` (Euler's formula on the graded area) on this target, or on the
+        part of it whose quadrature points are ``inside`` (mask) with rim length (mm)."""
         g = self.settings.grading
-        area = float(np.sum(self.area3 * np.exp(2 * g * self.face_u)))
-        return edge_for_count(area, self.perimeter, n)
+        wq = np.tile(self.area3 * np.exp(2 * g * self.face_u), 4) / 4
+        area = float(wq.sum() if inside is None else wq[inside].sum())
+        return edge_for_count(area, self.perimeter if rim_length is None else rim_length, n)
 
     def boundary_polygon(self, inset_mm: float = 0.0) -> np.ndarray:
         """(r, 2) float: the flat boundary, or the curve ``inset_mm`` inside it (the boundary
@@ -236,7 +243,7 @@ class FlatDomain:
         poly = Polygon(C).buffer(-float(inset_mm), join_style="round", quad_segs=8)
         if poly.is_empty or poly.geom_type != "Polygon":
             raise RimInsetError(f"an inset of {inset_mm:.2f} mm from the rim splits or empties "
-                                "the target")
+                                "the target", fix="use a smaller inset (0 keeps the rim)")
         R = np.asarray(poly.exterior.coords)
         if LinearRing(R).is_ccw != LinearRing(C).is_ccw:
             R = R[::-1]
@@ -256,11 +263,12 @@ class FlatDomain:
         n_boundary : int
         """
         st = self.settings
-        h = self.spacing(n)
         C = self.boundary_polygon(inset)
         X = self.lift(C)
         length = float(np.sum(np.linalg.norm(np.diff(X, axis=0), axis=1)))
-        nb = max(int(round(length / h)), 6)
+        inside = PolygonPath(C).contains_points(self.quad)
+        h = self.spacing(n, inside, length)  # of the region the points go to
+        nb = max(int(round(length / h)), st.min_boundary_points)
         B = _polyline_by_length(C, X, nb)
         inside = PolygonPath(B).contains_points(self.quad)
         quad = self.quad[inside]
@@ -328,20 +336,6 @@ class FlatDomain:
         P, F = remove_ears(P, F)
         return P, F
 
-    def remesh(self, n: int, seed: int = 0, inset: float = 0.0, params: UnitCell = UNIT_CELL,
-               optimize: bool = True):
-        """Stencil with about ``n`` vertices (before ear removal) on the target.
-
-        Returns
-        -------
-        V : (k, 3) float, mm
-        F : (f, 3) int
-        """
-        P, F = self.stencil(n, seed=seed, inset=inset)
-        if optimize:
-            P, _ = optimize_stencil(self, P, F, params, self.settings)
-        return self.lift(P), F
-
 
 def edge_for_count(area: float, perimeter: float, n: int) -> float:
     """Edge length h of a regular triangle mesh with ``n`` vertices on a disk of the given
@@ -349,13 +343,6 @@ def edge_for_count(area: float, perimeter: float, n: int) -> float:
     a, b = 2 * area / np.sqrt(3), perimeter / 2
     x = (-b + np.sqrt(b * b + 4 * a * n)) / (2 * a)  # x = 1/h
     return float(1.0 / x)
-
-
-def _regular_count(area, params: UnitCell, perimeter=0.0):
-    """Vertices of a regular mesh whose centroid spacing just meets the flat min-bumper rule."""
-    D = 2 * (params.base_r + params.min_bumper)  # centroid distance
-    h = D * np.sqrt(3)  # edge
-    return int(round(2 * area / (np.sqrt(3) * h**2) + perimeter / (2 * h)))
 
 
 # --------------------------------------------------------------------------------------
@@ -368,7 +355,7 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
     Returns
     -------
     dict
-        ``scale3d``; ``max_cell_length_mm`` (inf when the layout fails);
+        ``scale3d``; ``max_cell_length_mm``; (both None, and ``error``, when the layout fails);
         ``bumper_mm`` [min, max] target bumper length beyond the rim; ``edge_spread``
         (95th / 5th percentile of the 3D edge length, after scaling), ``min_angle_deg``
         (smallest 3D triangle angle).
@@ -382,8 +369,9 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
     try:
         UV, _, _ = cetm(V, F)
         lay = build_layout(V, UV, F, params)
-    except InputError:
-        out.update(scale3d=np.inf, max_cell_length_mm=np.inf, bumper_mm=[np.nan, np.nan])
+    except InputError as e:
+        out.update(scale3d=None, max_cell_length_mm=None, bumper_mm=None,
+                   error=str(e).splitlines()[0])
         return out
     bump = lay.bumpers.length - params.base_r
     out.update(scale3d=round(float(lay.scale3d), 6),
@@ -392,9 +380,17 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
     return out
 
 
+def _laid_out(c: dict) -> bool:
+    return c.get("max_cell_length_mm") is not None
+
+
 def _pick(tried: dict, params: UnitCell, margin: float):
     """Best candidate: 3D scaling closest to 1 among those whose longest flat cell keeps
-    ``margin`` below the limit; else below the limit; else the shortest longest cell."""
+    ``margin`` below the limit; else below the limit; else the shortest longest cell.
+    Candidates whose layout failed are never picked (None if all failed)."""
+    tried = {k: c for k, c in tried.items() if _laid_out(c)}
+    if not tried:
+        return None
     for lim in (params.max_cell_length - margin, params.max_cell_length):
         ok = [k for k, c in tried.items() if c["max_cell_length_mm"] <= lim]
         if ok:
@@ -418,7 +414,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     seed : int, optional
         Seed of the CVT initialisation; otherwise ``settings.seeds`` seeds are tried.
     target_bases : int, optional
-        Start of the search (about 2 N); default from the min-bumper rule on a regular mesh.
+        Start of the search (about 2 N); default ``count_start`` x the paper's estimate.
     params : UnitCell
     settings : StencilSearch
     method : {"cvt", "pymeshlab"}
@@ -484,11 +480,17 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             meshes[key] = (V2, F2, before)
             if progress is not None:
                 c = tried[key]
-                progress(f"N={n} seed={sd} rim inset {inset:g} mm: scale3d {c['scale3d']:.3f}, "
-                         f"longest flat cell {c['max_cell_length_mm']:.2f} mm")
+                what = (f"scale3d {c['scale3d']:.3f}, longest flat cell "
+                        f"{c['max_cell_length_mm']:.2f} mm" if _laid_out(c)
+                        else f"no layout ({c['error']})")
+                progress(f"N={n} seed={sd} rim inset {inset:g} mm: {what}")
         return n
 
-    seed_list = [int(seed)] if seed is not None else list(range(settings.seeds))
+    if not len(insets):
+        raise InputError("settings.rim_insets is empty", fix="give at least one inset (0 = none)")
+    seed_list = ([int(seed)] if seed is not None
+                 else [0] if method == "pymeshlab"  # (it has no seed)
+                 else list(range(settings.seeds)))
     limit = params.max_cell_length
     sd0 = seed_list[0]
     start = [int(target_bases / 2) if target_bases
@@ -503,7 +505,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         n = trial(start[0], sd0, inset)
         for _ in range(settings.count_steps):
             s3 = tried[(n, sd0, float(inset))]["scale3d"]
-            if not np.isfinite(s3) or abs(np.log(s3)) < settings.count_tolerance:
+            if s3 is None or abs(np.log(s3)) < settings.count_tolerance:
                 break
             pts.append((np.log(n), np.log(s3)))
             # scale3d ~ N^k: k = 1/2 for a uniform mesh, else the slope of the last two
@@ -516,22 +518,26 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         for f in settings.candidates:
             trial(round(n * f), sd0, inset)
         here = {k: c for k, c in tried.items() if k[2] == float(inset)}
-        best_n = _pick(here, params, settings.margin)[0]
-        if here[(best_n, sd0, float(inset))]["max_cell_length_mm"] > limit - settings.margin:
+        best = _pick(here, params, settings.margin)
+        if best is None or here[best]["max_cell_length_mm"] > limit - settings.margin:
             for sd in seed_list[1:]:  # another seed only when the first leaves no margin
-                trial(best_n, sd, inset)
+                trial(best[0] if best else n, sd, inset)
 
     for inset in insets:
         try:
             search_counts(inset)
         except RimInsetError:
             continue
-        if any(c["max_cell_length_mm"] <= limit - settings.margin for c in tried.values()):
+        if any(_laid_out(c) and c["max_cell_length_mm"] <= limit - settings.margin
+               for c in tried.values()):
             break
-    if not tried:
-        raise InputError("every rim inset splits the target into pieces",
-                         fix="use a larger target (--size) or a smoother outline")
     best = _pick(tried, params, settings.margin)
+    if best is None:
+        why = "; ".join(sorted({c["error"] for c in tried.values() if "error" in c}))
+        why = why or "every rim inset splits the target"
+        raise InputError(f"no stencil of this target could be laid out ({why})",
+                         fix="check the target (it may fold sharply or be too small for 4 mm "
+                             "bases), or give --vertices")
     V2, F2, before = meshes[best]
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
                 rim_inset_mm=float(best[2]), scale3d=tried[best]["scale3d"],

@@ -11,8 +11,9 @@ and the longest flat cell is ``s2 max_c d_c``.  A cell's centroid distance is a 
 distance between the two vertices opposite its edge, so every quantity is a smooth function
 of the stencil vertices away from the max.  :func:`optimize_stencil` minimises that longest
 flat cell over the interior vertex positions in the conformal plane of the dense target (so
-the vertices stay on the target), with the three maxima smoothed by log-sum-exp and a log
-barrier that keeps every flat triangle positively oriented.  The target positions are the
+the vertices stay on the target), with the three maxima smoothed by log-sum-exp, penalties
+that keep flat corners within 30-90 deg and every base centre clear of its triangle's edges,
+and a log barrier that keeps every flat triangle positively oriented.  The target positions are the
 exact lift of the flat points, linearised per vertex (the Jacobian of the dense piecewise
 linear map) inside each of a few outer rounds and lifted again after each.
 
@@ -72,7 +73,7 @@ def _np(x):
 
 
 def _angles_np(Q, F):
-    return _np(corner_angles(np.asarray(Q, float), F))
+    return _np(flat_corner_angles(np.asarray(Q, float), F))
 
 
 def _signed_areas(Q, F):
@@ -81,8 +82,9 @@ def _signed_areas(Q, F):
                   - (A[:, 1, 1] - A[:, 0, 1]) * (A[:, 2, 0] - A[:, 0, 0]))
 
 
-def corner_angles(Q, F):
-    """(m, 3) float, rad: the flat triangles' corner angles (autograd-friendly)."""
+def flat_corner_angles(Q, F):
+    """(m, 3) float, rad: the flat triangles' corner angles (autograd-friendly; numpy
+    version: :func:`pysolver.flatten.corner_angles`)."""
     out = []
     for k in range(3):
         a = Q[F[:, (k + 1) % 3]] - Q[F[:, k]]
@@ -92,7 +94,7 @@ def corner_angles(Q, F):
     return anp.stack(out, axis=1)
 
 
-def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float):
+def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float | None):
     """Smoothed logs of the 3D scaling and of the longest flat cell after both scaling rules.
 
     Parameters
@@ -107,9 +109,9 @@ def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float):
     o1, o2 : (c,) int
         Vertices opposite each cell's edge (:func:`opposite_vertices`).
     params : UnitCell
-    sharpness : float
+    sharpness : float or None
         Log-sum-exp sharpness on log quantities (a max over c cells is over-estimated by
-        at most ``log(c) / sharpness``).
+        at most ``log(c) / sharpness``); None takes the exact maxima (not smooth).
 
     Returns
     -------
@@ -122,18 +124,21 @@ def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float):
     """
     N = anp.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
     N = N / anp.sqrt(anp.sum(N * N, axis=1, keepdims=True))
+    # (the layout refuses folds over 178 deg; -0.99 keeps tan finite before that)
     cphi = anp.clip(anp.sum(N[fa] * N[fb], axis=1), -0.99, 1.0)
     cos_t = anp.sqrt((1.0 + cphi) / 2.0)
-    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 1e-15) / (1.0 + cphi))
+    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + 1e-30)
     D = anp.sqrt(anp.sum((X[o1] - X[o2]) ** 2, axis=1)) / 3.0
     d = anp.sqrt(anp.sum((Q[o1] - Q[o2]) ** 2, axis=1)) / 3.0
-    p = sharpness
+    def smax(v):  # log of the (smoothed) maximum of positive v
+        return anp.max(anp.log(v)) if sharpness is None else \
+            logsumexp(sharpness * anp.log(v)) / sharpness
+
     r3 = (params.base_r + params.layer_h * tan_t + params.min_bumper) * 2.0 * cos_t / D
-    log_s3 = logsumexp(p * anp.log(r3)) / p
+    log_s3 = smax(r3)
     r2 = (anp.exp(log_s3) * D / (2.0 * cos_t) + params.layer_h * tan_t
           + params.min_gap / 2.0) / (d / 2.0)
-    log_s2 = logsumexp(p * anp.log(r2)) / p
-    return log_s3, log_s2, logsumexp(p * anp.log(d)) / p
+    return log_s3, smax(r2), smax(d)
 
 
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
@@ -196,18 +201,19 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     cap = np.maximum(np.radians(settings.opt_max_angle_deg), start)
     # and every base centre (flat centroid) at least opt_centroid_edge_mm from its triangle's
     # edges once scaled (or no nearer than at the start)
-    log_s2_start = float(layout_logs(P, domain.lift(P), F, fa, fb, o1, o2, params,
-                                     settings.opt_sharpness)[1])
+    log_s2_start = float(layout_logs(P, domain.lift(P), F, fa, fb, o1, o2, params, None)[1])
     log_clear = np.minimum(np.log(settings.opt_centroid_edge_mm),
                            log_s2_start + np.log(_np(centroid_edge_distances(P, F))))
     rounds = 0
 
-    def exact(Q):  # the objective without penalties, on the exact lift of Q
-        a, b, c = layout_logs(Q, domain.lift(Q), F, fa, fb, o1, o2, params,
-                              settings.opt_sharpness)
-        return float(b + c + settings.opt_s3_weight * a)
+    def exact(Q):  # the objective and the worst clearance shortfall, on the exact lift of Q
+        X = domain.lift(Q)
+        a, b, c = layout_logs(Q, X, F, fa, fb, o1, o2, params, settings.opt_sharpness)
+        s2 = float(layout_logs(Q, X, F, fa, fb, o1, o2, params, None)[1])
+        short = float(np.max(log_clear - s2 - np.log(_np(centroid_edge_distances(Q, F)))))
+        return float(b + c + settings.opt_s3_weight * a), max(short, 0.0)
 
-    current = exact(P)
+    current, short_now = exact(P)
 
     for _ in range(settings.opt_rounds):
         X0 = domain.lift(P)
@@ -221,13 +227,16 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
             A = _signed_areas(Q, F) / A0
             log_s3, log_s2, log_d = layout_logs(Q, X, F, fa, fb, o1, o2, params,
                                                 settings.opt_sharpness)
-            ang = corner_angles(Q, F)
+            ang = flat_corner_angles(Q, F)
             bad = anp.maximum(floor - ang, 0.0) + anp.maximum(ang - cap, 0.0)
-            near = anp.maximum(log_clear - log_s2 - anp.log(anp.maximum(
-                centroid_edge_distances(Q, F), 1e-30)), 0.0)
+            # the clearance takes the exact flat scaling (the smoothed one over-estimates it)
+            log_s2_exact = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)[1]
+            near = anp.maximum(log_clear - log_s2_exact - anp.log(anp.maximum(
+                centroid_edge_distances(Q, F), settings.opt_tiny)), 0.0)
             return (log_s2 + log_d + settings.opt_s3_weight * log_s3
-                    + settings.opt_angle_weight * (anp.sum(bad**2) + anp.sum(near**2))
-                    - mu * anp.sum(anp.log(anp.maximum(A, 1e-30))))
+                    + settings.opt_angle_weight * anp.sum(bad**2)
+                    + settings.opt_clearance_weight * anp.sum(near**2)
+                    - mu * anp.sum(anp.log(anp.maximum(A, settings.opt_tiny))))
 
         fg = value_and_grad(objective)
 
@@ -243,13 +252,13 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         Pn[free] = res.x.reshape(-1, 2)
         if not np.all(_signed_areas(Pn, F) > 0) or not res.fun < f0:
             break
-        new = exact(Pn)
-        if not new < current:
+        new, short = exact(Pn)
+        if not new < current or short > max(short_now, settings.opt_clearance_slack):
             break
-        P, current = Pn, new
+        P, current, short_now = Pn, new, short
         rounds += 1
     return P, {"rounds": rounds}
 
 
-__all__ = ["opposite_vertices", "corner_angles", "centroid_edge_distances", "layout_logs",
+__all__ = ["opposite_vertices", "flat_corner_angles", "centroid_edge_distances", "layout_logs",
            "optimize_stencil"]

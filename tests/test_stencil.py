@@ -43,12 +43,12 @@ def test_opposite_vertices_give_the_centroid_distance(dome_domain):
 
 def test_relaxed_stencil_is_regular_on_the_target(dome_domain):
     # grading 0: the spacing is uniform on the target, so 3D edges should be nearly equal
-    lloyd_only = replace(dome_domain.settings, relax_iterations=0)
+    dom0 = remesh.FlatDomain(dome_domain.V, dome_domain.F,
+                             replace(dome_domain.settings, relax_iterations=0))
     relaxed, plain = [], []
     for seed in range(3):
         P, F = dome_domain.stencil(70, seed=seed)
         relaxed.append(remesh.stencil_figures(dome_domain.lift(P), F))
-        dom0 = remesh.FlatDomain(dome_domain.V, dome_domain.F, lloyd_only)
         P0, F0 = dom0.stencil(70, seed=seed)
         plain.append(remesh.stencil_figures(dom0.lift(P0), F0)["edge_spread"])
     spread = [r["edge_spread"] for r in relaxed]
@@ -63,12 +63,15 @@ def test_layout_logs_are_the_scaling_rules(dome_domain):
     cells = unit_cells(F, face_adjacency(F))
     o = stencil_opt.opposite_vertices(F, cells)
     fa, fb = cells.faces[:, 0], cells.faces[:, 1]
-    log_s3, log_s2, log_d = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
-                                                    UNIT_CELL, sharpness=1e6)
     lay = build_layout(X, P, F, UNIT_CELL, enforce_gap=False)
-    # with the flat layout given (no re-flattening), both rules in closed form
-    assert np.exp(log_s3) == pytest.approx(lay.scale3d, rel=1e-5)
-    assert np.exp(log_s2 + log_d) == pytest.approx(lay.central_length.max(), rel=1e-5)
+    # with the flat layout given (no re-flattening), both rules in closed form: exact maxima
+    log_s3, log_s2, log_d = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
+                                                    UNIT_CELL, sharpness=None)
+    assert np.exp(log_s3) == pytest.approx(lay.scale3d, rel=1e-8)
+    assert np.exp(log_s2 + log_d) == pytest.approx(lay.central_length.max(), rel=1e-8)
+    # smoothed maxima over-estimate by at most log(cells) / sharpness
+    sm = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, sharpness=60.0)
+    assert 0 <= sm[0] - log_s3 <= np.log(len(fa)) / 60 + 1e-12
 
 
 def test_objective_gradient_matches_finite_differences(dome_domain):
@@ -112,19 +115,37 @@ def test_optimisation_shortens_the_longest_cell(dome_domain):
 
 def test_count_search_picks_a_printable_neighbour():
     s = surfaces.builtin("dome")
-    params = replace(UNIT_CELL, max_cell_length=7.0)  # tight enough that some counts fail
-    V2, F2, info = remesh.remesh_surface(s.V, s.F, params=params, seed=0,
+    lim = 8.8  # tight enough that some counts fail (unoptimised stencils: 8.3-9.0 mm)
+    params = replace(UNIT_CELL, max_cell_length=lim)
+    V2, F2, info = remesh.remesh_surface(s.V, s.F, params=params, seed=0, optimize=False,
                                          settings=replace(STENCIL, candidates=(0.8, 0.9, 1.1)))
     cands = info["candidates"]
-    assert info["max_cell_length_mm"] <= 7.0
-    assert any(c[4] > 7.0 for c in cands), cands  # a neighbouring count does not print
-    chosen = [c for c in cands if c[0] == info["requested"] and c[2] == info["rim_inset_mm"]]
-    assert chosen and chosen[0][4] <= 7.0
+    assert info["max_cell_length_mm"] <= lim
+    n = info["requested"]
+    same = [c for c in cands if c[2] == info["rim_inset_mm"]]
+    counts = sorted(c[0] for c in same)
+    k = counts.index(n)
+    neighbours = [c for c in same if c[0] in counts[max(k - 1, 0):k + 2] and c[0] != n]
+    assert any(c[4] > lim for c in neighbours), cands  # a neighbouring count does not print
     # among the printable candidates, the chosen one keeps the target's size best
-    ok = [c for c in cands if c[4] <= 7.0 - STENCIL.margin] or [c for c in cands if c[4] <= 7.0]
+    ok = [c for c in cands if c[4] <= lim - STENCIL.margin] or [c for c in cands if c[4] <= lim]
     assert abs(np.log(info["scale3d"])) <= min(abs(np.log(c[3])) for c in ok) + 1e-3
     lay = build_layout(V2, cetm(V2, F2)[0], F2, params)
-    assert lay.central_length.max() <= 7.0 + 1e-6
+    assert lay.central_length.max() <= lim + 1e-6
+
+
+def test_pick_prefers_size_among_printable_and_never_a_failed_layout():
+    P = UNIT_CELL  # limit 9.5, margin 0.3
+    ok = {"scale3d": 1.2, "max_cell_length_mm": 8.0}
+    near = {"scale3d": 1.01, "max_cell_length_mm": 9.4}  # printable, but inside the margin
+    failed = {"scale3d": None, "max_cell_length_mm": None, "error": "flipped"}
+    assert remesh._pick({(1, 0, 0.0): ok, (2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) \
+        == (1, 0, 0.0)
+    assert remesh._pick({(2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) == (2, 0, 0.0)
+    long_ = {"scale3d": 1.0, "max_cell_length_mm": 9.9}
+    longer = {"scale3d": 1.0, "max_cell_length_mm": 10.5}
+    assert remesh._pick({(4, 0, 0.0): longer, (5, 0, 0.0): long_}, P, 0.3) == (5, 0, 0.0)
+    assert remesh._pick({(3, 0, 0.0): failed}, P, 0.3) is None
 
 
 def test_paper_cover_designs_printable_from_its_target(tmp_path):
