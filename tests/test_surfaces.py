@@ -17,10 +17,10 @@ from pysolver.time_landscape import evaluate_expression, resolve_time
 # shapes come from the automatic vertex-count search (nothing tuned per shape)
 GOLDEN = {
     "regular": (60, 7.0),
-    "dome": (124, 7.56),
-    "saddle": (130, 7.41),
-    "petal": (207, 8.57),
-    "spiral": (155, 8.49),
+    "dome": (101, 7.31),
+    "saddle": (113, 7.13),
+    "petal": (200, 7.59),
+    "spiral": (146, 8.15),
     "weave": (255, 5.86),
 }
 
