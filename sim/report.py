@@ -1019,7 +1019,7 @@ def _viewer_html(viewer) -> str:
 
 
 def _fmt_bytes(n):
-    return f"{n / 1e6:.2f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
+    return f"{n / 1e6:.2f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB"
 
 
 def _html(r, tmp, sd, viewer=None) -> str:

@@ -199,8 +199,9 @@ def test_bumpers_meet_in_3d(which, request):
 @pytest.mark.parametrize("which", ["dome_design", "regular_design"])
 def test_flat_gaps_with_manifold3d(which, request):
     """Independent check with exact 2D booleans (manifold3d CrossSection): per layer, the
-    footprints (disc + bumper rectangles) of different bases, each grown by
-    (min_gap - 1e-3)/2, never overlap."""
+    printed footprints (disc + bumper rectangles, each bumper shortened by the printing
+    clearance, docs/design-folder.md) of different bases, each grown by (min_gap - 1e-3)/2,
+    never overlap."""
     from manifold3d import CrossSection, JoinType
     from scipy.spatial import cKDTree
 
@@ -218,7 +219,8 @@ def test_flat_gaps_with_manifold3d(which, request):
                 a = np.radians(b["dir_deg"][k])
                 u = np.array([np.cos(a), np.sin(a)])
                 w = np.array([-u[1], u[0]])
-                L = b["length_mm"][k]  # far-face length = the longest point of the bumper
+                # far-face length = the longest point of the bumper, as printed
+                L = b["length_mm"][k] - P.clearance
                 h = P.base_th / 2
                 pts = [C2[i] - h * w, C2[i] + L * u - h * w, C2[i] + L * u + h * w,
                        C2[i] + h * w]
