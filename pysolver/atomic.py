@@ -393,6 +393,41 @@ def build_lock(target):
         f.close()
 
 
+def claim_result_folder(folder, is_ours, *, what: str) -> Path:
+    """Claim an output folder that may already hold this command's own results, so that a
+    rerun resumes there: new, stamped by morphshell, or holding only files ``is_ours``
+    accepts.
+
+    Parameters
+    ----------
+    folder : path-like
+    is_ours : callable(Path) -> bool
+        Whether a file under ``folder`` that no stamp lists is one of our results.
+    what : str
+        How the message names the folder.
+
+    Returns
+    -------
+    Path
+        ``folder``, absolute.
+
+    Raises
+    ------
+    InputError
+        The folder holds files morphshell did not write (see :func:`claim_output`).
+    """
+    folder = Path(folder)
+    if folder.is_dir() and not folder.is_symlink():
+        foreign = [p for p in foreign_files(folder) if not is_ours(p)]
+        if foreign:
+            raise InputError(f"{what} {folder} holds files morphshell did not write "
+                             f"({', '.join(str(p.relative_to(folder)) for p in foreign[:3])})",
+                             fix="move them away or give another --out folder; morphshell "
+                                 "never deletes files it did not make")
+        return folder.absolute()
+    return claim_output(folder, what=what)
+
+
 def claim_output_file(path, *, what: str = "output file") -> Path:
     """Check that morphshell may write (and replace) the model file ``path``: it does not
     exist, or it is a JSON model file morphshell wrote (an object with ``provenance``).

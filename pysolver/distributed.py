@@ -43,6 +43,17 @@ SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|inproc|ucx)://[A-Za-z0-9_.:\[\]/-]{
 RESULT_FORMAT = "morphshell.task_result"
 
 
+def is_result_file(path) -> bool:
+    """Whether ``path`` is a task result this module wrote (JSON with our format tag)."""
+    p = Path(path)
+    if p.suffix != ".json":
+        return False
+    try:
+        return json.loads(p.read_text()).get("format") == RESULT_FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def _soft_import_distributed():
     """``distributed`` is a declared dependency; a broken install fails here with the fix."""
     try:

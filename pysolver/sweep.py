@@ -39,7 +39,6 @@ import csv
 import html
 import io
 import itertools
-import json
 import math
 import re
 import sys
@@ -47,7 +46,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .atomic import atomic_write_text, claim_output, write_stamp
+from .atomic import atomic_write_text, write_stamp
 from .errors import InputError, MorphshellError
 from .params import TOLERANCE_RUN
 
@@ -324,29 +323,16 @@ def _plot(path: Path, rows: list) -> None:
 
 def _claim(out: Path) -> Path:
     """The sweep folder: new, stamped by morphshell, or holding only our results/builds."""
-    from .atomic import foreign_files
-    from .distributed import RESULT_FORMAT
+    from .atomic import claim_result_folder
+    from .distributed import is_result_file
 
     def ours(p: Path) -> bool:
         rel = p.relative_to(out).parts
         if rel[0] == "builds":
             return True  # each build folder is checked by build() itself (claim_output)
-        if rel[0] == "results" and p.suffix == ".json":
-            try:
-                return json.loads(p.read_text()).get("format") == RESULT_FORMAT
-            except (OSError, ValueError, AttributeError):
-                return False
-        return False
+        return rel[0] == "results" and is_result_file(p)
 
-    if out.is_dir() and not out.is_symlink():
-        foreign = [p for p in foreign_files(out) if not ours(p)]
-        if foreign:
-            raise InputError(f"sweep folder {out} holds files morphshell did not write "
-                             f"({', '.join(str(p.relative_to(out)) for p in foreign[:3])})",
-                             fix="give another --out folder; morphshell never deletes files "
-                                 "it did not make")
-        return out.absolute()
-    return claim_output(out, what="sweep folder")
+    return claim_result_folder(out, ours, what="sweep folder")
 
 
 def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,

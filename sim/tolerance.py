@@ -516,26 +516,11 @@ def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
 
 def _claim(folder: Path) -> Path:
     """The tolerance folder: new, or morphshell's (its stamp, or our result files)."""
-    from pysolver.atomic import claim_output, foreign_files
-    from pysolver.distributed import RESULT_FORMAT
+    from pysolver.atomic import claim_result_folder
+    from pysolver.distributed import is_result_file
 
-    def ours(p: Path) -> bool:
-        if p.suffix != ".json" or p.parent.name != "samples":
-            return False
-        try:
-            return json.loads(p.read_text()).get("format") == RESULT_FORMAT
-        except (OSError, ValueError, AttributeError):
-            return False
-
-    if folder.is_dir() and not folder.is_symlink():
-        foreign = [p for p in foreign_files(folder) if not ours(p)]
-        if foreign:
-            raise InputError(f"{folder} holds files morphshell did not write "
-                             f"({', '.join(str(p.relative_to(folder)) for p in foreign[:3])})",
-                             fix="move them away or give another --out folder; morphshell "
-                                 "never deletes files it did not make")
-        return folder.absolute()
-    return claim_output(folder, what="tolerance folder")
+    return claim_result_folder(folder, lambda p: p.parent.name == "samples" and is_result_file(p),
+                               what="tolerance folder")
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple:

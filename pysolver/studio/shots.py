@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import os
 import shutil
 import sys
 import tempfile
@@ -25,27 +26,37 @@ CHROMEDRIVER = Path("/usr/bin/chromedriver")
 FLAGS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
          "--disable-default-apps", "--disable-extensions", "--use-angle=swiftshader",
-         "--enable-unsafe-swiftshader", "--mute-audio", "--hide-scrollbars")
+         "--enable-unsafe-swiftshader", "--mute-audio")
 MAX_PNG_BYTES = 300_000
 
 
-def _driver(width, height, profile):
+def have_browser() -> bool:
+    """Debian's chromium and chromium-driver are installed."""
+    return CHROMIUM.is_file() and CHROMEDRIVER.is_file()
+
+
+def chromium_driver(width: int, height: int, profile, *, extra=()):
+    """A headless Debian chromium WebDriver (Selenium with the system chromedriver, so
+    selenium-manager never downloads a browser), window ``width`` x ``height`` px, profile
+    folder ``profile``.  The flags keep an offline machine quiet and give WebGL a software
+    rasteriser (SwiftShader), so canvases really render."""
     try:
         from selenium import webdriver
         from selenium.webdriver.chrome.service import Service
     except ImportError:
         raise InputError("selenium is not installed",
                          fix="pip install -e '.[dev]' (make does it)") from None
-    if not (CHROMIUM.is_file() and CHROMEDRIVER.is_file()):
+    if not have_browser():
         raise InputError("Debian chromium and chromium-driver are needed for screenshots",
                          fix="sudo apt-get install -y chromium chromium-driver (make does it)")
     opts = webdriver.ChromeOptions()
     opts.binary_location = str(CHROMIUM)
-    for a in FLAGS:
+    for a in (*FLAGS, *extra):
         opts.add_argument(a)
     opts.add_argument(f"--window-size={width},{height}")
     opts.add_argument(f"--user-data-dir={profile}")
-    return webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
+    env = dict(os.environ, SE_OFFLINE="true")
+    return webdriver.Chrome(service=Service(str(CHROMEDRIVER), env=env), options=opts)
 
 
 def _wait(driver, cond, what, timeout=120):
@@ -88,7 +99,7 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> list[Path]:
     profile = tempfile.mkdtemp(prefix="morphshell-shots-")
     out = []
     try:
-        d = _driver(1400, 1500, profile)
+        d = chromium_driver(1400, 1500, profile, extra=("--hide-scrollbars",))
         try:
             d.get(srv.url)
             _wait(d, lambda d: d.find_element("tag name", "body").get_attribute("data-ready"),
