@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pysolver.design import run_design, unit_cell_options  # noqa: E402
-from pysolver.mesh_input import load_input  # noqa: E402
+from pysolver.design.mesh_input import load_input  # noqa: E402
 from pysolver.tables import read_cells  # noqa: E402
 from pysolver.temporal import program_design  # noqa: E402
 

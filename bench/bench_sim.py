@@ -84,7 +84,7 @@ def _design(shape: str, folder: Path, log) -> str:
         desc = f"design stage: {shape}"
     except (ImportError, InputError) as e:
         log(f"design of {shape!r} failed ({e}); using a synthetic regular patch")
-        from sim.synthetic import regular_stencil, write_design
+        from synthetic import regular_stencil, write_design
 
         write_design(folder, regular_stencil(22, 14, central_length=7.0, radius=90.0), 0.45)
         desc = "synthetic regular patch 22x14 on a spherical cap (R = 90 mm)"
@@ -102,7 +102,7 @@ def _load_material(log):
         mat = load_bracket_model()
         return mat, str(mat.path)
     except (ImportError, InputError) as e:
-        from sim.synthetic import StandInBracketModel
+        from synthetic import StandInBracketModel
 
         log(f"no fitted bracket model ({e}); using the stand-in force law")
         return StandInBracketModel(t_soft=20.0), "stand-in (sim.synthetic)"
@@ -116,7 +116,7 @@ def _material(folder: Path, log):
 
         mat = load_bracket_model()
     except (ImportError, InputError) as e:
-        from sim.synthetic import StandInBracketModel
+        from synthetic import StandInBracketModel
 
         log(f"no fitted bracket model ({e}); using the stand-in force law")
         return StandInBracketModel(t_soft=20.0), "stand-in (sim.synthetic)", "design default"
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
     mat, mat_desc = _load_material(log)
     t_prep = time.perf_counter() - t0
 
-    from sim import kernels
+    from sim.model import kernels
     from sim.model import load_model
 
     t0 = time.perf_counter()
@@ -226,7 +226,7 @@ def _simulate(folder: Path, mat, solver: str, args, out: Path, log, physics=None
     """Simulate the benchmark design with one solver path (and physics options); returns its
     figures and (final base centres (n, 3) mm, completion times (n_cells,) s)."""
     from pysolver.params import PHYSICS_OFF
-    from sim.simulate import completion_times, simulate_design
+    from sim.model.simulate import completion_times, simulate_design
 
     physics = PHYSICS_OFF if physics is None else physics
     tag = tag or solver

@@ -52,7 +52,7 @@ def main() -> int:
     a = ap.parse_args()
     from pysolver.atomic import atomic_write_text
     from pysolver.build import build
-    from sim.tolerance import tolerance_analysis
+    from pysolver.tolerance import tolerance_analysis
 
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

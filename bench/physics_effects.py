@@ -61,7 +61,7 @@ def markers(fr, rest=False):
 
 
 def compare(ref, fr, size, rest=False, ref_rest=False):
-    from sim.simulate import completion_times
+    from sim.model.simulate import completion_times
 
     P, Q = markers(fr, rest), markers(ref, ref_rest)
     d = np.linalg.norm(kabsch(P, Q) - Q, axis=1)
@@ -177,7 +177,7 @@ def main(argv=None) -> int:
     from pysolver.material.model import load_bracket_model
     from pysolver.params import PHYSICS_OFF
     from sim.model import load_model
-    from sim.simulate import simulate_model
+    from sim.model.simulate import simulate_model
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -56,7 +56,7 @@ def shape_name(source: str) -> str:
         If ``source`` is neither a built-in shape (with valid options, e.g.
         ``dome:size=1.5``) nor an existing file.
     """
-    from .surfaces import BUILTIN_SHAPES, check_spec
+    from .design.surfaces import BUILTIN_SHAPES, check_spec
 
     source = str(source)
     p = Path(source)
@@ -181,8 +181,8 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, refine=None, render: 
     if steps > LIMITS.max_steps:
         raise InputError(f"--t-end / --dt = {steps:.0f} simulation steps, more than "
                          f"{LIMITS.max_steps}.", fix="use a larger --dt or a shorter --t-end.")
-    if simulate and (t_end is not None or dt is not None) and _has_module("sim.simulate"):
-        from sim.simulate import SimSettings
+    if simulate and (t_end is not None or dt is not None) and _has_module("sim.model.simulate"):
+        from sim.model.simulate import SimSettings
 
         kw = {k: float(v) for k, v in (("t_end", t_end), ("dt", dt)) if v is not None}
         SimSettings(**kw).times()  # t_end must be a multiple of dt
@@ -271,7 +271,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     if size is not None:  # (only when given, as dt and params)
         design_opts["size"] = all_opts["size"] = size
     if time_file is not None:  # the file's content is an input: its hash goes into the digest
-        from .time_landscape import read_time_file
+        from .design.time_landscape import read_time_file
 
         design_opts["time_file"] = all_opts["time_file"] = str(time_file)
         all_opts["time_file_sha256"] = read_time_file(time_file)[1]
@@ -323,7 +323,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             stage("program", program_design, staging, material=material, progress=progress,
                   fit_landscape=time is None and time_file is None)
         if simulate:
-            from sim.simulate import simulate_design
+            from sim.model.simulate import simulate_design
             kw = {} if t_end is None else {"t_end": t_end}
             sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
             stage("simulate", simulate_design, staging, material=material, progress=progress,
@@ -393,7 +393,7 @@ def _stage_inputs(folder: Path, *, material=None, t_end=None, dt=None) -> dict:
     """Hash of what the render and the simulation (+ report) stages read: the design tables
     and stencil, plus the SCAD library (render) or the material model and time settings
     (simulate).  Equal hashes mean a skipped stage's earlier outputs are still right."""
-    from .render import SCAD_DIR
+    from .render.scad_io import SCAD_DIR
 
     h = hashlib.sha256()
     for f in sorted(folder.glob("*.csv")) + [folder / "stencil.obj"]:

@@ -127,7 +127,7 @@ def _add_physics_options(p: argparse.ArgumentParser) -> None:
 
 
 def _physics_from_args(args: argparse.Namespace):
-    from sim.physics import parse_physics
+    from sim.model.physics import parse_physics
 
     keys = ("stretch_to_glue_min", "glue_to_water_min", "print_density", "water_density",
             "latex_density", "rim_margin_mm", "rim_stretch", "face_down")
@@ -329,7 +329,7 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
                       renderer=args.renderer)
         return EXIT_OK
     if cmd == "simulate":
-        from sim.simulate import simulate_design
+        from sim.model.simulate import simulate_design
 
         from .build import check_build_options
 
@@ -348,7 +348,7 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
     if cmd == "tolerance":
         import dataclasses
 
-        from sim.tolerance import tolerance_analysis
+        from pysolver.tolerance import tolerance_analysis
 
         from .build import check_build_options
 
@@ -365,7 +365,7 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
                            progress=progress, **kw)
         return EXIT_OK
     if cmd == "compare-scan":
-        from sim.scan import compare_scan
+        from sim.report.scan import compare_scan
         compare_scan(Path(args.dir), Path(args.scan), layer=args.layer)
         return EXIT_OK
     raise AssertionError(cmd)
@@ -393,7 +393,7 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         print(f"material model: {res['model_file']} (use it with MATERIAL={res['model_file']})")
         return EXIT_OK
     if cmd == "fit-membrane":
-        from .membrane_model import fit_membrane_model
+        from .temporal.membrane_model import fit_membrane_model
         if args.out is not None:
             claim_output_file(args.out, what="--out model file")
         if args.report is not None:
@@ -416,7 +416,7 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
                         workers=args.workers, progress=progress)
         return EXIT_OK if not res["run"]["failed"] else EXIT_INTERNAL
     if cmd == "shapes":
-        from .surfaces import BUILTIN_SHAPES
+        from .design.surfaces import BUILTIN_SHAPES
         for name in BUILTIN_SHAPES:
             print(name)
         return EXIT_OK

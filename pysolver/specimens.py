@@ -34,7 +34,7 @@ from .render import (
     to_manifold,
     union,
 )
-from .scad_io import SCAD_DIR, Part, check_library, part_text
+from .render.scad_io import SCAD_DIR, Part, check_library, part_text
 
 AUTHORS_THICKNESSES_SHORT = (0.30, 0.40, 0.50, 0.60)
 """mm: bracket thicknesses of the authors' specimen grid for l <= 7 mm."""

@@ -517,7 +517,7 @@ def read_unit_cell(folder):
 
 def check_design(d: Design) -> None:
     """Cross-check a loaded design; raises InputError naming the first inconsistency."""
-    from .layout import unit_cells  # local: layout imports nothing from here
+    from .design.layout import unit_cells  # local: layout imports nothing from here
     from .params import UNIT_CELL
 
     f = d.folder

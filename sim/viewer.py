@@ -90,7 +90,7 @@ def frame_alignments(C, target):
     -------
     Q : (n_frames, 3, 3) float ; s : (n_frames, 3) float, mm -- ``x -> Q x + s``
     """
-    from .scan import rigid_fit
+    from .report.scan import rigid_fit
 
     fits = [rigid_fit(c, target) for c in np.asarray(C, float)]
     return np.stack([q for q, _ in fits]), np.stack([np.asarray(v, float) for _, v in fits])

@@ -15,44 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pysolver.design.surfaces import regular_grid
 from pysolver.params import UNIT_CELL
-
-
-def regular_grid(nx: int, ny: int, edge: float = 1.0):
-    """Rectangular patch of equilateral triangles.
-
-    Parameters
-    ----------
-    nx, ny : int
-        Vertices per row and number of rows.
-    edge : float
-        Triangle edge length.
-
-    Returns
-    -------
-    UV : (nx * ny, 2) float
-    F : (2 (nx - 1) (ny - 1), 3) int, CCW
-    """
-    j, i = np.mgrid[0:ny, 0:nx]
-    x = edge * (i + 0.5 * (j % 2))
-    y = edge * np.sqrt(3) / 2 * j
-    UV = np.c_[x.ravel(), y.ravel()]
-    vid = lambda ii, jj: jj * nx + ii  # noqa: E731
-    F = []
-    for jj in range(ny - 1):
-        for ii in range(nx - 1):
-            a, b = vid(ii, jj), vid(ii + 1, jj)
-            c, d = vid(ii, jj + 1), vid(ii + 1, jj + 1)
-            if jj % 2 == 0:
-                F += [[a, b, c], [b, d, c]]
-            else:
-                F += [[a, d, c], [a, b, d]]
-    F = np.array(F, dtype=np.int64)
-    P = UV[F]
-    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
-    F[cw] = F[cw][:, [0, 2, 1]]
-    return UV, F
 
 
 def cap_map(UV, radius: float, bulge: int = 1):
@@ -95,7 +59,7 @@ def regular_stencil(nx: int = 5, ny: int = 4, *, central_length: float = 6.0,
     layout : pysolver.layout.Layout
         ``V``, ``UV``, ``F`` (mm), ``rotvec``, ``cells`` ...
     """
-    from pysolver.layout import build_layout
+    from pysolver.design.layout import build_layout
 
     UV, F = regular_grid(nx, ny, 1.0)
     V = cap_map(UV, radius, bulge)
@@ -144,7 +108,7 @@ def write_design(out_dir, layout, thickness=0.45, t_star: float = 60.0):
     """
     from pathlib import Path
 
-    from pysolver.cellnodes import bracket_nodes, collision_lengths
+    from pysolver.design.cellnodes import bracket_nodes, collision_lengths
     from pysolver.design import write_design_tables
 
     out = Path(out_dir)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from pysolver import surfaces
+from pysolver.design import surfaces
 from pysolver.build import build
 
 

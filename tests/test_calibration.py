@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pysolver import temporal
+from pysolver.temporal import program as temporal
 from pysolver.design import run_design
 from pysolver.material import load_bracket_model
 from pysolver.material.fit import fit_material

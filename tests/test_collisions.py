@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from test_report import make_synthetic_design
 
-from sim.collisions import (
+from sim.model.collisions import (
     _pair_penetration,
     base_collisions,
     cylinder_samples,

@@ -14,7 +14,7 @@ import subprocess
 
 import pytest
 
-from pysolver import render_fast
+from pysolver.render import fast as render_fast
 
 
 def test_openscad_runs():
@@ -31,7 +31,7 @@ def test_python_dependency_imports(module):
 
 
 def test_project_backends_use_them():
-    from sim.kernels import HAVE_NUMBA
-    from sim.solver import HAVE_CHOLMOD
+    from sim.model.kernels import HAVE_NUMBA
+    from sim.model.solver import HAVE_CHOLMOD
 
     assert HAVE_NUMBA and HAVE_CHOLMOD and render_fast.available()

@@ -8,7 +8,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.spatial.transform import Rotation
 
-from pysolver.flatten import (
+from pysolver.design.flatten import (
     _cetm_energy,
     _cetm_state,
     cetm,
@@ -18,8 +18,8 @@ from pysolver.flatten import (
     lobachevsky,
     lscm,
 )
-from pysolver.layout import signed_areas_2d
-from pysolver.surfaces import _disk_mesh
+from pysolver.design.layout import signed_areas_2d
+from pysolver.design.surfaces import _disk_mesh
 
 
 def disk(radius=30.0, area=12.0):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from pysolver import tables
-from pysolver.cellnodes import bracket_nodes, collision_lengths
+from pysolver.design.cellnodes import bracket_nodes, collision_lengths
 from pysolver.errors import InputError
-from pysolver.frames import rotvec_to_matrix
-from pysolver.layout import (
+from pysolver.geometry import rotvec_to_matrix
+from pysolver.design.layout import (
     alignment_bases,
     build_layout,
     convex_polygon_distance,
@@ -302,7 +302,7 @@ def star(shear=0.0, stretch=1.0):
 
 
 def test_check_refuses_long_cells_naming_them():
-    from pysolver.checks import check_layout
+    from pysolver.design.checks import check_layout
 
     V, UV, F = star(stretch=2.4)
     lay = build_layout(V, UV, F)
@@ -315,12 +315,12 @@ def test_check_refuses_long_cells_naming_them():
 
 
 def test_check_refuses_flat_overlaps_and_gap_enforcement_fixes_them():
-    from pysolver.checks import check_layout
+    from pysolver.design.checks import check_layout
 
     V, UV, F = star(shear=0.8)  # bumpers point off their flat neighbours
     lay = build_layout(V, UV, F, enforce_gap=False)  # closed-form 2D rule only
     assert lay.gaps is None
-    from pysolver.layout import footprint_gaps
+    from pysolver.design.layout import footprint_gaps
 
     lay.gaps = footprint_gaps(lay.bumpers, lay.C2)
     assert lay.gaps.gap.min() < P.min_gap

@@ -25,8 +25,8 @@ from pysolver.material.validate import (
     validate_membrane_model_file,
     validate_model_files,
 )
-from pysolver.membrane_model import MODEL_PATH as MEMBRANE_PATH
-from pysolver.membrane_model import load_membrane_model
+from pysolver.temporal.membrane_model import MODEL_PATH as MEMBRANE_PATH
+from pysolver.temporal.membrane_model import load_membrane_model
 
 REPO = Path(__file__).resolve().parent.parent
 GOOD = json.loads(Path(DEFAULT_MODEL_PATH).read_text())

@@ -35,12 +35,12 @@ import pytest
 
 from pysolver.errors import InputError
 from pysolver.params import PHYSICS_OFF, RELAXATION_PRONY, SIM, PhysicsOptions
-from sim.energies import ShellEnergy, State, full_from_lower, rodrigues
+from sim.model.energies import ShellEnergy, State, full_from_lower, rodrigues
 from sim.model import build_model, load_model
-from sim.physics import ExternalTerms, base_volumes, parse_physics
-from sim.simulate import SimSettings, Simulation, simulate_model
-from sim.solver import StaticProblem, newton
-from sim.synthetic import StandInBracketModel, regular_stencil, single_cell_stencil, write_design
+from sim.model.physics import ExternalTerms, base_volumes, parse_physics
+from sim.model.simulate import SimSettings, Simulation, simulate_model
+from sim.model.solver import StaticProblem, newton
+from synthetic import StandInBracketModel, regular_stencil, single_cell_stencil, write_design
 
 DATA = Path(__file__).parent / "data"
 MEAS = Path(__file__).resolve().parents[1] / "data" / "material-measurements"
@@ -283,7 +283,7 @@ def test_rim_margin_is_prestretched_to_the_rim_stretch(patch_dir):
     # energy at the flat state: equibiaxial neo-Hookean at stretch 2, per flat area
     e = ShellEnergy(m1)
     X, _ = e.positions(State.flat(m1))
-    from sim.energies import membrane_terms
+    from sim.model.energies import membrane_terms
 
     Em, _, _ = membrane_terms(X[m1.tri_points[margin]], m1.tri_dm_inv[margin],
                               m1.tri_rest_area[margin], SIM.mu, SIM.membrane_h, hessian=False)
@@ -301,7 +301,7 @@ def test_contact_keeps_non_neighbours_apart(patch_dir):
     other's centre): without contact the two prisms interpenetrate; with contact (ipctk
     barrier) the solve converges with them apart and the barrier carrying the pull."""
     pytest.importorskip("ipctk")
-    from sim.contact import BaseContact
+    from sim.model.contact import BaseContact
 
     model = load_model(patch_dir)
     c = model.base_flat
@@ -340,7 +340,7 @@ def test_contact_off_by_distance_is_exact(patch_dir):
     """With contact on but no non-neighbours within reach (the flat shell), the energy,
     gradient and Hessian are those without contact, bit for bit."""
     pytest.importorskip("ipctk")
-    from sim.contact import BaseContact
+    from sim.model.contact import BaseContact
 
     model = load_model(patch_dir)
     s = State.flat(model)
@@ -353,7 +353,7 @@ def test_contact_off_by_distance_is_exact(patch_dir):
 
 def test_contact_gradient_and_hessian_fd():
     pytest.importorskip("ipctk")
-    from sim.contact import BaseContact
+    from sim.model.contact import BaseContact
 
     model = _cell_model()
     con = BaseContact(model, parse_physics("contact"))
@@ -386,8 +386,8 @@ def test_rim_in_the_fmem_correction(patch_dir):
     the margin now pulls outward, carry more (above the free-edge factor); interior cells
     change by < 2 %; a per-triangle pre-stretch equal to tau is the scalar model to 1e-12."""
     from pysolver import tables
-    from pysolver.membrane_model import PlaneMembrane
-    from pysolver.temporal import _membrane, membrane_factors
+    from pysolver.temporal.membrane_model import PlaneMembrane
+    from pysolver.temporal.program import _membrane, membrane_factors
 
     cells = tables.read_table(patch_dir, "cells")
     mem = _membrane(None)
@@ -409,7 +409,7 @@ def test_rim_in_the_fmem_correction(patch_dir):
 
 
 def test_bracket_bending_energy_torque_and_derivatives(patch_dir):
-    from sim.physics import BracketBending, bending_stiffness
+    from sim.model.physics import BracketBending, bending_stiffness
 
     # closed form: one cell folded by theta about its hinge: E = k/2 (2 sin(theta/2))^2,
     # torque k sin(theta) on each base

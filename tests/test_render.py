@@ -17,12 +17,13 @@ import numpy as np
 import pytest
 from _shared import section_width
 
-from pysolver import render, tables
+from pysolver import tables
+from pysolver.render import parts as render
 from pysolver.errors import ExternalToolError, InputError
-from pysolver.frames import apply_transform, print_transform
+from pysolver.geometry import apply_transform, print_transform
 from pysolver.params import LAYERS, SIM, UNIT_CELL, layer_sign, tol
 from pysolver.render import from_manifold, load_stl, render_design, to_manifold
-from pysolver.scad_io import SCAD_DIR
+from pysolver.render.scad_io import SCAD_DIR
 
 U = UNIT_CELL
 ALPHA = math.radians(U.alpha_deg)
@@ -30,7 +31,7 @@ ALPHA = math.radians(U.alpha_deg)
 
 def _design(folder):
     from pysolver.design import run_design
-    from pysolver.surfaces import regular
+    from pysolver.design.surfaces import regular
 
     run_design(regular(rows=2, cols=3), folder, progress=False)
     cells = tables.read_table(folder, "cells")
@@ -133,7 +134,7 @@ def test_summary_and_part_files(built):
 def test_each_flat_bracket_has_one_owner(built):
     """Flat nodes list every cell once per layer, at the lower base id, pointing at the other
     base (its whole bracket); actuated nodes list every cell of their base (own arms)."""
-    from pysolver.scad_io import bracket_owner, node_arguments
+    from pysolver.render.scad_io import bracket_owner, node_arguments
 
     d = built["d"]
     ids = [int(b) for b in d.bases["base_id"]]
@@ -273,7 +274,7 @@ def test_node_agrees_with_independent_cadquery_model(built):
     """One node per layer rebuilt with cadquery from the tables: symmetric difference < 1 %."""
     import cadquery as cq
 
-    from pysolver.scad_io import Part
+    from pysolver.render.scad_io import Part
 
     d = built["d"]
     # an interior base (3 neighbours) and an alignment base (through-hole, 2 neighbours)

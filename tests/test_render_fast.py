@@ -16,11 +16,13 @@ import warnings
 import numpy as np
 import pytest
 
-from pysolver import render, render_fast, tables
+from pysolver import tables
+from pysolver.render import parts as render
+from pysolver.render import fast as render_fast
 from pysolver.errors import ExternalToolError, InputError
 from pysolver.params import LAYERS
 from pysolver.render import load_stl, render_design, render_parts, to_manifold
-from pysolver.scad_io import Part
+from pysolver.render.scad_io import Part
 
 VOLUME_RTOL = 1e-4
 SYMDIFF_RTOL = 1e-3
@@ -29,7 +31,7 @@ SYMDIFF_RTOL = 1e-3
 @pytest.fixture(scope="module")
 def both(tmp_path_factory):
     from pysolver.design import run_design
-    from pysolver.surfaces import regular
+    from pysolver.design.surfaces import regular
 
     root = tmp_path_factory.mktemp("render_fast")
     design = root / "design"

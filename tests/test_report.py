@@ -21,7 +21,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pysolver.errors import InputError
-from pysolver.layout import (
+from pysolver.design.layout import (
     base_rotations,
     face_adjacency,
     face_centroids,
@@ -324,7 +324,7 @@ def test_bad_frames_are_refused(tmp_path):
 
 
 def test_completion_times_first_frame_all_four():
-    from sim.collisions import completion_times
+    from sim.model.collisions import completion_times
 
     t = np.array([0.0, 0.5, 1.0, 1.5])
     c = np.zeros((4, 2, 4), bool)

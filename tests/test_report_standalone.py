@@ -16,7 +16,7 @@ from _browser import chrome, have_browser
 
 from pysolver.params import FABRICATION, SIM
 from pysolver.tables import read_table
-from sim import fabrication as fab
+from sim.report import fabrication as fab
 
 
 class _Page(HTMLParser):
@@ -145,7 +145,7 @@ def test_fabrication_sheet_follows_note_5(petal):
 def test_plot_titles_fit(petal, tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
-    from sim import report_plots as rp
+    from sim.report import plots as rp
     from sim.report import make_report
 
     checked = []

@@ -38,7 +38,7 @@ from pysolver.errors import (
     InputError,
     MorphshellError,
 )
-from pysolver.mesh_input import SizeWarning, load_input
+from pysolver.design.mesh_input import SizeWarning, load_input
 
 REPO = Path(__file__).resolve().parent.parent
 HAS_OPENSCAD = shutil.which("openscad") is not None
@@ -316,9 +316,9 @@ def test_too_curved_names_the_region_in_target_mm(tmp_path):
     """Places are named in mm on the target (stencil.obj v: the input centred at its vertex
     mean and scaled by the 3D rule), to 0.1 mm, whatever the input's units (issue #19)."""
     from pysolver.build import design_only
-    from pysolver.flatten import compare_flattenings
-    from pysolver.layout import build_layout
-    from pysolver.mesh_input import load_input
+    from pysolver.design.flatten import compare_flattenings
+    from pysolver.design.layout import build_layout
+    from pysolver.design.mesh_input import load_input
 
     out = tmp_path / "out"
     cap = _cap(tmp_path)
@@ -495,7 +495,7 @@ def test_render_refuses_hand_edited_thickness(regular_dir, tmp_path):
 
 
 def test_openscad_missing_named_with_install_fix(regular_dir, tmp_path, monkeypatch):
-    from pysolver import render
+    from pysolver.render import parts as render
 
     monkeypatch.setenv(render.OPENSCAD_ENV, str(tmp_path / "no-openscad"))
     with pytest.raises(ExternalToolError) as e:
@@ -545,7 +545,7 @@ with open(out, "wb") as f:
 
 
 def test_openscad_failing_on_one_part_names_it_and_keeps_the_rest(tmp_path, monkeypatch):
-    from pysolver import render
+    from pysolver.render import parts as render
 
     d = tmp_path / "design"
     run_design("regular:rows=1,cols=2", d, progress=False, plots=False)    # 4 bases
@@ -591,7 +591,7 @@ class _SofteningMaterial:
 
 
 def test_diverging_simulation_stops_keeps_frames_names_step_and_cause(tmp_path):
-    from sim.simulate import simulate_design
+    from sim.model.simulate import simulate_design
 
     d = tmp_path / "design"
     run_design("regular:rows=2,cols=3", d, progress=False, plots=False)

@@ -21,10 +21,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from pysolver.frames import rotvec_to_matrix
+from pysolver.geometry import rotvec_to_matrix
 from pysolver.params import SUPPORT_FRAME, UNIT_CELL
 from pysolver.render import FACET_TOL_MM, load_stl
-from pysolver.scad_io import SCAD_DIR
+from pysolver.render.scad_io import SCAD_DIR
 
 U = UNIT_CELL
 GAP = 0.05       # APEX_GAP of scad/params.scad: gap between opened arms (actuated preview)

@@ -17,10 +17,10 @@ import numpy as np
 from scipy.optimize import brentq
 
 from pysolver.params import SIM
-from sim.energies import ShellEnergy, State
+from sim.model.energies import ShellEnergy, State
 from sim.model import build_model
-from sim.simulate import completion_times, simulate_model
-from sim.synthetic import StandInBracketModel, single_cell_stencil
+from sim.model.simulate import completion_times, simulate_model
+from synthetic import StandInBracketModel, single_cell_stencil
 
 
 def test_single_cell_matches_1d_force_balance():

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pysolver.params import SIM
-from sim.energies import (
+from sim.model.energies import (
     ShellEnergy,
     State,
     cross_hessian,
@@ -21,9 +21,9 @@ from sim.energies import (
     rodrigues,
     spring_terms,
 )
-from sim.kernels import HAVE_NUMBA
+from sim.model.kernels import HAVE_NUMBA
 from sim.model import build_model
-from sim.synthetic import StandInBracketModel, regular_stencil
+from synthetic import StandInBracketModel, regular_stencil
 
 REL = 1e-5
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from sim.model import build_model
-from sim.simulate import completion_times, simulate_model
-from sim.synthetic import StandInBracketModel, regular_stencil
+from sim.model.simulate import completion_times, simulate_model
+from synthetic import StandInBracketModel, regular_stencil
 
 
 def _model(top, bottom):

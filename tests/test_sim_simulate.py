@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from pysolver.errors import InputError, MorphshellError
-from sim import simulate as S
-from sim.synthetic import StandInBracketModel, regular_stencil, write_design
+from sim.model import simulate as S
+from synthetic import StandInBracketModel, regular_stencil, write_design
 
 
 @pytest.fixture()

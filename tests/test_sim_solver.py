@@ -11,10 +11,10 @@ import pytest
 import scipy.sparse as sp
 
 from pysolver.params import tol
-from sim.energies import ShellEnergy, State, rodrigues
+from sim.model.energies import ShellEnergy, State, rodrigues
 from sim.model import build_model
-from sim.solver import HAVE_CHOLMOD, LinearSolver, NotPositiveDefinite, StaticProblem, newton
-from sim.synthetic import StandInBracketModel, regular_stencil
+from sim.model.solver import HAVE_CHOLMOD, LinearSolver, NotPositiveDefinite, StaticProblem, newton
+from synthetic import StandInBracketModel, regular_stencil
 
 
 def _spd(n=60, seed=0, shift=1.0):

@@ -18,7 +18,7 @@ from _shared import section_width
 from pysolver.errors import InputError
 from pysolver.params import UNIT_CELL
 from pysolver.render import load_stl
-from pysolver.scad_io import SCAD_DIR
+from pysolver.render.scad_io import SCAD_DIR
 from pysolver.specimens import (
     make_specimens,
     plate_layout,

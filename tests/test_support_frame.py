@@ -17,7 +17,7 @@ from matplotlib.path import Path as MplPath
 
 from pysolver.params import SUPPORT_FRAME as SF
 from pysolver.params import UNIT_CELL as U
-from pysolver.scad_io import (
+from pysolver.render.scad_io import (
     boundary_edges,
     frame_connectors,
     frame_holes,

@@ -7,7 +7,7 @@ import pytest
 
 from pysolver import tables
 from pysolver.errors import InputError
-from pysolver.frames import (
+from pysolver.geometry import (
     apply_transform,
     flat_to_target,
     frames_to_rotation,

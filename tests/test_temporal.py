@@ -17,7 +17,7 @@ import pytest
 
 from pysolver import tables
 from pysolver.errors import InputError
-from pysolver.membrane_model import (
+from pysolver.temporal.membrane_model import (
     MODEL_PATH,
     MembraneModel,
     load_membrane_model,
@@ -132,7 +132,7 @@ def test_more_compression_gets_thinner_bracket(mat):
 
 
 def _write_patch(folder: Path, t_vertex_fn, rings: int = 2, l0: float = 7.0, x=(1.2, 1.2)):
-    from pysolver.membrane_model import _stencil_cells
+    from pysolver.temporal.membrane_model import _stencil_cells
 
     V2, F, _ = regular_patch(l0, rings)
     cells, bnd = _stencil_cells(F)
@@ -365,7 +365,7 @@ def test_refine_design_reduces_timing_error(tmp_path):
     c = tables.read_table(d, "cells")
     assert np.array_equal(c["t_star_s"], t_star)                # targets unchanged
     # the kept thicknesses and frames are the best iteration's
-    from sim.collisions import completion_times
+    from sim.model.collisions import completion_times
 
     z = np.load(d / "sim" / "frames.npz")
     err = timing_errors(t_star, completion_times(z["t"], z["collided"]), c["clamped"])
@@ -393,7 +393,7 @@ about a minute; the full petal is simulated by ``make shape=petal``."""
 @pytest.mark.slow
 def test_petal_completion_follows_the_landscape(tmp_path):
     from pysolver.design import run_design
-    from sim.simulate import simulate_design
+    from sim.model.simulate import simulate_design
 
     d = tmp_path / "petal"
     run_design(PETAL, d, progress=False)

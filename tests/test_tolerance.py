@@ -42,7 +42,7 @@ def cluster2():
 
 
 def _run(design, out, client=None, workers=None, **kw):
-    from sim.tolerance import tolerance_analysis
+    from pysolver.tolerance import tolerance_analysis
 
     args = dict(samples=SAMPLES, uncertainty=UNC, sensitivity=0, t_end=T_END,
                 out=out, client=client, workers=workers, progress=False, report=False)
@@ -105,7 +105,7 @@ def test_vary_model_equals_model_built_with_the_constants(design):
 
 def test_compliant_bracket_is_the_stretched_force_curve():
     from pysolver.material.model import load_bracket_model, poly_force
-    from sim.tolerance import CompliantBracketModel
+    from pysolver.tolerance import CompliantBracketModel
 
     base = load_bracket_model()
     s = 1.3
@@ -121,14 +121,14 @@ def test_compliant_bracket_is_the_stretched_force_curve():
 
 
 def test_relaxation_factor_from_the_measured_curve():
-    from sim.tolerance import relaxation_curve, relaxation_factor
+    from pysolver.tolerance import relaxation_curve, relaxation_factor
 
     curve = relaxation_curve()
     r = relaxation_factor(np.array([0.0, 600.0, 5400.0, 86000.0]), curve)
     assert r[0] == pytest.approx(1.0, abs=1e-12)
     assert np.all(np.diff(r) < 0)                                 # the force relaxes
     assert 0.8 < r[-1] < 0.9                                      # SI Fig. 10: ~15 % in 24 h
-    from sim.tolerance import _draw
+    from pysolver.tolerance import _draw
 
     unc = dataclasses.replace(UNC, relaxation=True)
     lo, hi = relaxation_factor(np.array(unc.relaxation_window_s[::-1]), curve)
@@ -142,7 +142,7 @@ def test_relaxation_factor_from_the_measured_curve():
 
 
 def test_material_scatter_from_the_fit_residuals():
-    from sim.tolerance import material_scatter
+    from pysolver.tolerance import material_scatter
 
     m = material_scatter()
     assert m["n_curves"] >= 60                      # the 80 wet curves of the shipped data
@@ -388,7 +388,7 @@ def test_scheduler_address_sends_the_work_to_an_existing_cluster(design, cluster
 
 
 def test_regression_sensitivity_finds_a_linear_driver():
-    from sim.tolerance import Perturbation, regression_sensitivity
+    from pysolver.tolerance import Perturbation, regression_sensitivity
 
     rng = np.random.default_rng(3)
     perts, res = [], []

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .frames import rotvec_to_matrix
+from ..geometry import rotvec_to_matrix
 from .layout import (
     Cells,
     base_rotations,
@@ -29,7 +29,7 @@ from .layout import (
     face_normals,
     unit_cells,
 )
-from .params import UNIT_CELL, UnitCell
+from ..params import UNIT_CELL, UnitCell
 
 
 def bracket_nodes(V, UV, F, params: UnitCell = UNIT_CELL, *, ff=None, rotvec=None):

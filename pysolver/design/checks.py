@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .layout import Layout, signed_areas_2d
-from .params import UNIT_CELL, UnitCell
+from ..params import UNIT_CELL, UnitCell
 
 # cells longer than this fraction of max_cell_length are reported as "near the limit"
 NEAR_LIMIT = 0.95

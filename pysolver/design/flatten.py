@@ -29,8 +29,8 @@ import scipy.sparse as sp
 import scipy.special as sps
 from scipy.sparse.linalg import spsolve
 
-from .errors import InputError
-from .params import UNIT_CELL, UnitCell
+from ..errors import InputError
+from ..params import UNIT_CELL, UnitCell
 
 
 @dataclass

@@ -32,9 +32,9 @@ import igl
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import InputError
-from .frames import frames_to_rotation, matrix_to_rotvec
-from .params import UNIT_CELL, UnitCell
+from ..errors import InputError
+from ..geometry import frames_to_rotation, matrix_to_rotvec
+from ..params import UNIT_CELL, UnitCell
 
 # --------------------------------------------------------------------------------------
 # connectivity
@@ -697,7 +697,7 @@ def build_layout(V, UV, F, params: UnitCell = UNIT_CELL, *, central_length=None,
             lk = np.linalg.norm(C2u[i] - C2u[j]) * s2
             s2 *= 1 + (params.min_gap - worst + 1e-6) / lk
     # round to what the files store, then derive everything from the rounded stencil
-    from .tables import round_sig9
+    from ..tables import round_sig9
 
     V = round_sig9(V)
     UV = round_sig9(UV * s2)

@@ -21,8 +21,8 @@ from pathlib import Path
 import igl
 import numpy as np
 
-from .errors import InputError
-from .params import tol as TOL
+from ..errors import InputError
+from ..params import tol as TOL
 
 SUPPORTED = (".obj", ".stl", ".ply", ".off")
 # a shell smaller or larger than this (bounding-box diagonal, mm) is probably in other units:
@@ -212,7 +212,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
         raise InputError(f"{path}: empty file", fix="re-export the mesh")
     notes = []
     if ext == ".obj" and _obj_has_vt(path):
-        from .tables import read_stencil
+        from ..tables import read_stencil
 
         try:
             V, UV, F = read_stencil(path)

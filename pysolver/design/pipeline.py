@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import tables
+from .. import tables
 from .cellnodes import bracket_nodes, collision_lengths
 from .checks import check_layout
-from .errors import InputError
+from ..errors import InputError
 from .layout import Layout, build_layout
-from .params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell
+from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell
 from .time_landscape import (
     cell_times,
     check_time_option,
@@ -438,7 +438,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
                        flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
     if plots:
-        from .design_plots import write_design_plots
+        from .plots import write_design_plots
 
         pics = write_design_plots(lay, out_dir, t_vertex, th)
         clock.step("plots")

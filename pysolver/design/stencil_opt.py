@@ -34,7 +34,7 @@ from autograd.scipy.special import logsumexp
 from scipy.optimize import minimize
 
 from .layout import face_adjacency, unit_cells
-from .params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 
 
 def opposite_vertices(F, cells=None):

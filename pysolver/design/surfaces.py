@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import triangle as tr
 
-from .errors import InputError
+from ..errors import InputError
 
 
 @dataclass
@@ -53,6 +53,43 @@ class Surface:
 
 # --------------------------------------------------------------------------------------
 # helpers
+
+
+def regular_grid(nx: int, ny: int, edge: float = 1.0):
+    """Rectangular patch of equilateral triangles.
+
+    Parameters
+    ----------
+    nx, ny : int
+        Vertices per row and number of rows.
+    edge : float
+        Triangle edge length.
+
+    Returns
+    -------
+    UV : (nx * ny, 2) float
+    F : (2 (nx - 1) (ny - 1), 3) int, CCW
+    """
+    j, i = np.mgrid[0:ny, 0:nx]
+    x = edge * (i + 0.5 * (j % 2))
+    y = edge * np.sqrt(3) / 2 * j
+    UV = np.c_[x.ravel(), y.ravel()]
+    vid = lambda ii, jj: jj * nx + ii  # noqa: E731
+    F = []
+    for jj in range(ny - 1):
+        for ii in range(nx - 1):
+            a, b = vid(ii, jj), vid(ii + 1, jj)
+            c, d = vid(ii, jj + 1), vid(ii + 1, jj + 1)
+            if jj % 2 == 0:
+                F += [[a, b, c], [b, d, c]]
+            else:
+                F += [[a, d, c], [a, b, d]]
+    F = np.array(F, dtype=np.int64)
+    P = UV[F]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    F[cw] = F[cw][:, [0, 2, 1]]
+    return UV, F
 
 
 def _disk_mesh(boundary_xy: np.ndarray, max_area: float) -> tuple[np.ndarray, np.ndarray]:
@@ -153,7 +190,7 @@ def regular(rows: int = 6, cols: int = 5, central_length: float = 7.0) -> Surfac
                    options=dict(rows=rows, cols=cols))
 
 
-__all__ = ["Surface", "regular", "petal", "saddle", "dome", "weave", "spiral", "BUILTIN",
+__all__ = ["regular_grid", "Surface", "regular", "petal", "saddle", "dome", "weave", "spiral", "BUILTIN",
            "BUILTIN_SHAPES", "builtin", "check_spec", "is_builtin"]
 
 

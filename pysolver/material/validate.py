@@ -407,7 +407,7 @@ def check_membrane_model(d: dict, path=None) -> dict:
         ``terms`` tuple of str, ``coef`` (k,) float, ``boundary_factor`` float,
         ``residual_rms_N``, ``residual_max_N`` float (N), ``samples`` dict of (n,) float.
     """
-    from ..membrane_model import TERMS, _design_matrix
+    from ..temporal.membrane_model import TERMS, _design_matrix
 
     f = _File(path if path is not None else "<model>", MEMBRANE_KIND, MEMBRANE_FIX)
     terms = _get(f, d, "terms", "terms")
@@ -495,7 +495,7 @@ def validate_model_files(material=None, membrane=None) -> None:
     InputError
         The first rule a file breaks.
     """
-    from ..membrane_model import MODEL_PATH
+    from ..temporal.membrane_model import MODEL_PATH
     from .model import DEFAULT_MODEL_PATH
 
     if material is None or isinstance(material, str | os.PathLike):

@@ -324,12 +324,12 @@ class _Worker:
         env = dict(os.environ)
         if ast_dir is not None:
             env["OPENSCAD_PARSER_CACHE_DIR"] = str(ast_dir)
-        root = str(Path(__file__).resolve().parent.parent)
+        root = str(Path(__file__).resolve().parents[2])
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH")
                                     else "")
         self.log = tempfile.TemporaryFile(mode="w+b")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "pysolver.render_fast"], stdin=subprocess.PIPE,
+            [sys.executable, "-m", "pysolver.render.fast"], stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, stderr=self.log, text=True, bufsize=1, env=env)
         self.ready = False
 

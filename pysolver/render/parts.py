@@ -57,9 +57,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_dir, public_mode
-from .errors import ExternalToolError, InputError
-from .params import LAYERS, SIM, UNIT_CELL, layer_sign
+from ..atomic import atomic_dir, public_mode
+from ..errors import ExternalToolError, InputError
+from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
 from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files
 
 OPENSCAD_ENV = "MORPHSHELL_OPENSCAD"
@@ -282,7 +282,7 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
 
     from tqdm import tqdm
 
-    from . import render_fast
+    from . import fast as render_fast
 
     seconds: dict[str, float] = {}
     failures: list[tuple[Part, str]] = []
@@ -402,7 +402,7 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
         exe = exe or find_openscad()
         oversion = version = openscad_version(exe)
     else:
-        from . import render_fast
+        from . import fast as render_fast
 
         version = render_fast.version()
         if version is None:
@@ -509,7 +509,7 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
     ExternalToolError
         OpenSCAD is missing.
     """
-    from . import render_fast
+    from . import fast as render_fast
 
     fversion = render_fast.version()
     if fversion is None:
@@ -679,7 +679,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     InputError
         Bad or missing tables.
     """
-    from .frames import print_transform, rotvec_to_matrix
+    from ..geometry import print_transform, rotvec_to_matrix
 
     t_start = time.perf_counter()
     design_dir = Path(design_dir).resolve()

@@ -36,22 +36,22 @@ K_PRESCRIBE = 1e4  # N/mm, stiffness of the length-prescribing springs
 
 @lru_cache(maxsize=16)
 def _patch(b0: float, nx: int, ny: int, max_area: float):
-    from .energies import ShellEnergy
-    from .model import build_model
-    from .synthetic import regular_grid
+    from sim.model.energies import ShellEnergy
+    from sim.model import build_model
+    from pysolver.design.surfaces import regular_grid
 
     l0 = b0 + UNIT_CELL.bracket_offset
     UV, F = regular_grid(nx, ny, l0 * np.sqrt(3))  # centroid distance = edge / sqrt 3
     UV = UV - UV.mean(axis=0)
     V = np.c_[UV, np.zeros(len(UV))]
-    from pysolver.layout import unit_cells
+    from pysolver.design.layout import unit_cells
 
     nc = len(unit_cells(F).faces)
     consts = dataclasses.replace(SIM, membrane_max_area=max_area)
     model = build_model(V, UV, F, np.full((nc, 2), 0.45), consts=consts,
                         source="membrane_traction patch")
     # most interior cell: farthest (flat) from the free boundary vertices
-    from pysolver.layout import boundary_vertex_mask, face_adjacency
+    from pysolver.design.layout import boundary_vertex_mask, face_adjacency
 
     vb = boundary_vertex_mask(F, face_adjacency(F), len(UV))
     mid = 0.5 * (model.base_flat[model.cell_bases[:, 0]] + model.base_flat[model.cell_bases[:, 1]])
@@ -86,8 +86,8 @@ def membrane_traction(l0_mm, d_mm, *, nx: int = 7, ny: int = 6,
         Total force of the cell's four brackets (positive = the membrane compresses them).
     details : list of dict, optional
     """
-    from .energies import State
-    from .solver import StaticProblem, newton
+    from sim.model.energies import State
+    from sim.model.solver import StaticProblem, newton
 
     l0, d = np.broadcast_arrays(np.asarray(l0_mm, float), np.asarray(d_mm, float))
     out = np.empty(l0.shape)

@@ -55,10 +55,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import InputError
-from .params import SIM, UNIT_CELL
+from ..errors import InputError
+from ..params import SIM, UNIT_CELL
 
-MODEL_PATH = Path(__file__).resolve().parent / "data" / "membrane_model.json"
+MODEL_PATH = Path(__file__).resolve().parents[1] / "data" / "membrane_model.json"
 """The committed membrane model (written by :func:`fit_membrane_model`)."""
 
 DEFAULT_REPORT_DIR = Path("build") / "membrane"
@@ -177,7 +177,7 @@ def load_membrane_model(path=None) -> MembraneModel:
     """
     if isinstance(path, MembraneModel):
         return path
-    from .material.validate import validate_membrane_model_file
+    from ..material.validate import validate_membrane_model_file
 
     p = Path(path) if path is not None else MODEL_PATH
     v = validate_membrane_model_file(p)
@@ -752,7 +752,7 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
     else:
         import dataclasses
 
-        from .rim import rim_margin
+        from sim.model.rim import rim_margin
 
         X, tri, body, margin = rim_margin(mesh.X, mesh.tri, mesh.body, mesh.centers,
                                           UNIT_CELL.base_r, float(rim[0]))
@@ -924,7 +924,7 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
         "provenance": dict(_code_version(), command="morphshell fit-membrane",
                            fit_seconds=round(time.perf_counter() - t0, 2)),
     }
-    from .atomic import atomic_write_text
+    from ..atomic import atomic_write_text
 
     atomic_write_text(out_path, json.dumps(model, indent=1) + "\n")
     png = plot_membrane_fit(model, report_dir / "membrane_fit.png")

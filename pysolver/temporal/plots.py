@@ -34,7 +34,7 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.tri import Triangulation
 
-    from .tables import read_stencil
+    from ..tables import read_stencil
 
     png = Path(png)
     _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")

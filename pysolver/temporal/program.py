@@ -62,8 +62,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .params import SIM, UNIT_CELL
+from ..errors import InputError
+from ..params import SIM, UNIT_CELL
 
 PICTURE = "temporal_feasibility.png"
 """Time landscape picture with the clamped cells marked (in the design folder)."""
@@ -103,7 +103,7 @@ def _material(material):
     """A bracket model object (has ``force``), loaded from a path or the committed default."""
     if material is not None and hasattr(material, "force"):
         return material
-    from .material import load_bracket_model
+    from ..material import load_bracket_model
 
     return load_bracket_model(material)
 
@@ -428,7 +428,7 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
         info["boundary_factor"] = float(membrane.boundary_factor)
         return f, info
     from .membrane_model import cell_membrane_factors
-    from .tables import read_stencil
+    from ..tables import read_stencil
 
     _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")
     b0 = np.asarray(cells["bracket_length_mm"], float)
@@ -504,7 +504,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         More than half of the cells cannot reach their time (the message names the
         achievable range); missing or inconsistent tables.
     """
-    from . import tables
+    from .. import tables
 
     t0 = time.perf_counter()
     design_dir = Path(design_dir)
@@ -576,7 +576,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         "landscape_rescaled": rescaled,
     }
     if picture and n:
-        from .temporal_plots import plot_feasibility
+        from .plots import plot_feasibility
 
         png = plot_feasibility(design_dir, land, cells, res, design_dir / PICTURE)
         summary["picture"] = png.name
@@ -604,7 +604,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     out["clamped"] = res["clamped"]
     tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
     summary["seconds"] = round(time.perf_counter() - t0, 3)
-    from .atomic import atomic_write_text
+    from ..atomic import atomic_write_text
 
     record = {"summary": summary, "membrane_factor": [float(v) for v in factor],
               "t_program_s": [float(v) for v in res["t_program"]]}
@@ -684,7 +684,7 @@ def simulated_completion(frames, tol_mm: float = COMPLETION_TOL_MM):
         with np.load(p, allow_pickle=False) as z:
             frames = {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
                       if k in z.files}
-    from sim.simulate import completion_times
+    from sim.model.simulate import completion_times
 
     t = np.asarray(frames["t"], float)
     return completion_times(frames, rule="clearance", tol_mm=tol_mm), t
@@ -727,7 +727,7 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
         (iteration index, 0 = before refinement; chosen by ``rms_incl_never_s``),
         ``before``/``after`` metrics.
     """
-    from . import tables
+    from .. import tables
 
     design_dir = Path(design_dir)
     if int(iterations) != iterations or iterations < 0:
@@ -739,7 +739,7 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
         raise InputError(f"{frames_path} does not exist: refine needs a simulated design.",
                          fix="run the simulate stage first (morphshell simulate DIR).")
     if simulate is None:
-        from sim.simulate import simulate_design as simulate
+        from sim.model.simulate import simulate_design as simulate
     sim_kw = {"progress": progress}
     if material is not None:
         sim_kw["material"] = material
@@ -810,7 +810,7 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
               "note": "rms_s: cells whose t* is achievable (clamped excluded) and that "
                       "complete; rms_incl_never_s also counts cells that never complete as "
                       "finishing at the last simulated time (used to pick the best)."}
-    from .atomic import atomic_write_text
+    from ..atomic import atomic_write_text
 
     atomic_write_text(design_dir / "sim" / REFINE_LOG, json.dumps(result, indent=1) + "\n")
     return result

@@ -327,7 +327,7 @@ def _context(payload: DesignPayload) -> dict:
     from pysolver.material.model import load_bracket_model
     from pysolver.tables import read_design
 
-    from .model import load_model
+    from sim.model import load_model
 
     with tempfile.TemporaryDirectory(prefix="morphshell-tol-") as tmp:
         d = Path(tmp)
@@ -372,8 +372,8 @@ def check_frames(frames: dict, ctx: dict, thresholds=None) -> dict:
         ``verdict``, ``reasons``, figures, ``t_done`` (c,) s (None = never),
         ``base_final`` (m, 3) mm (final centres rigidly aligned to the target).
     """
-    from .collisions import base_collisions, membrane_collisions
-    from .report import (
+    from sim.model.collisions import base_collisions, membrane_collisions
+    from sim.report import (
         Thresholds,
         decide,
         fold_metrics,
@@ -435,8 +435,8 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
         The figures of :func:`check_frames`, plus ``diverged`` (bool), ``message``,
         ``steps`` and ``wall_s`` (the only non-reproducible field).
     """
-    from .model import vary_model
-    from .simulate import simulate_model
+    from sim.model import vary_model
+    from sim.model.simulate import simulate_model
 
     t0 = time.perf_counter()
     ctx = _context(payload)
@@ -773,7 +773,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     if sensitivity is None:
         sensitivity = min(TOLERANCE_RUN.sensitivity_samples, samples)
     _check_options(samples, sensitivity, uncertainty, time_tol_s)
-    from .simulate import SimSettings
+    from sim.model.simulate import SimSettings
 
     SimSettings(t_end=float(t_end), dt=float(dt)).times()  # a bad t_end/dt is refused now
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
@@ -855,7 +855,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     text = json.dumps(summary, indent=1, sort_keys=True, allow_nan=False) + "\n"
     atomic_write_text(out / "summary.json", text)
     if report:
-        from .tolerance_report import write_report
+        from .report import write_report
 
         write_report(out, summary, folder, main, nominal)
     write_stamp(out)

@@ -32,7 +32,7 @@ import numpy as np
 
 from pysolver.errors import InputError
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
-from pysolver.rim import rim_margin
+from sim.model.rim import rim_margin
 
 CROSS_REST_MODES = ("flat", "zero")
 
@@ -316,8 +316,8 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     -------
     ShellModel
     """
-    from pysolver.cellnodes import bracket_nodes
-    from pysolver.layout import (
+    from pysolver.design.cellnodes import bracket_nodes
+    from pysolver.design.layout import (
         boundary_vertex_mask,
         face_adjacency,
         face_centroids,
@@ -350,11 +350,11 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     base_flat = np.c_[C2, np.zeros(m)]
     base_target = face_centroids(V, F)
     if rotvec is None:
-        from pysolver.layout import base_rotations
+        from pysolver.design.layout import base_rotations
 
         Rt, _ = base_rotations(V, UV, F, ff)
     else:
-        from pysolver.frames import rotvec_to_matrix
+        from pysolver.geometry import rotvec_to_matrix
 
         Rt = rotvec_to_matrix(np.asarray(rotvec, float).reshape(-1, 3))
 

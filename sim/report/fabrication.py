@@ -113,7 +113,7 @@ def provenance(folder, build_info=None) -> dict:
         models["material (bracket) model"] = {"path": mat, "sha256": sha256_file(mat)}
     elif mat:
         models["material (bracket) model"] = {"path": mat, "sha256": None}
-    from pysolver.membrane_model import MODEL_PATH
+    from pysolver.temporal.membrane_model import MODEL_PATH
 
     if MODEL_PATH.is_file():
         corr = (temporal.get("membrane_correction") or {}).get("correction")

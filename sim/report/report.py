@@ -36,8 +36,8 @@ from scipy import stats
 from pysolver.errors import InputError
 from pysolver.params import UNIT_CELL
 
-from .collisions import base_collisions, membrane_collisions
-from .collisions import completion_times as _local_completion_times
+from ..model.collisions import base_collisions, membrane_collisions
+from ..model.collisions import completion_times as _local_completion_times
 from .scan import rigid_fit
 
 SECTIONS = ("verdict", "viewer", "shape", "timing", "collisions", "solver", "renders",
@@ -305,7 +305,7 @@ def completion_times(t, collided, bracket_length=None, collision_length=None):
     source : str
     """
     try:
-        from sim.simulate import completion_times as sim_ct
+        from sim.model.simulate import completion_times as sim_ct
     except Exception:  # the simulator is optional for the report
         sim_ct = None
     if sim_ct is not None:
@@ -367,7 +367,7 @@ def fold_metrics(C, R, cell_pairs, target_fold_deg, th: Thresholds):
     """
     from types import SimpleNamespace
 
-    from pysolver.layout import fold_angles_deg
+    from pysolver.design.layout import fold_angles_deg
 
     fold = fold_angles_deg(C, R[:, :, 2], SimpleNamespace(faces=np.asarray(cell_pairs)))
     tgt = np.asarray(target_fold_deg, float)
@@ -642,7 +642,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     """
     from pysolver.atomic import atomic_dir
 
-    from . import report_plots as rp
+    from . import plots as rp
 
     th = Thresholds.coerce(thresholds)
     if renderer not in ("auto", "pyvista", "matplotlib"):
@@ -770,7 +770,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         # ---- shell renders (each frame in the target frame by its own rigid fit, so the
         # camera sees the shell from the same side all along the morph)
         t0 = time.perf_counter()
-        from .viewer import frame_alignments
+        from ..viewer import frame_alignments
 
         Qs, ss = frame_alignments(C_all[:n_ok], sd.target)
         sh["Qs"], sh["ss"] = Qs, ss
@@ -893,7 +893,7 @@ def _plot_shape_over_time(path, t, rms_t, size, th):
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    from .report_plots import _save
+    from .plots import _save
 
     return _save(fig, path)
 
@@ -963,7 +963,7 @@ def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
     from pysolver.tables import read_table
 
     from . import fabrication as fab
-    from .viewer import viewer_data
+    from ..viewer import viewer_data
 
     files = {}
     viewer = viewer_data(sd, tm["t_done"], max_frames=int(viewer_frames))
@@ -1003,7 +1003,7 @@ def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
 
 
 def _viewer_html(viewer) -> str:
-    from .viewer import asset_text, viewer_json
+    from ..viewer import asset_text, viewer_json
 
     return ("<div id='morph-viewer'></div>"
             "<noscript><p class='note'>The 3D viewer needs JavaScript; the stills below show "

@@ -1,0 +1,27 @@
+"""The design stage: target surface -> stencil -> flat layout -> the design tables.
+
+Modules: :mod:`.mesh_input` (input meshes), :mod:`.surfaces` (built-in shapes),
+:mod:`.time_landscape` (the user's time landscape), :mod:`.remesh` and :mod:`.stencil_opt`
+(the stencil), :mod:`.flatten` (conformal flattening), :mod:`.layout` (scaling rules, bases,
+bumpers), :mod:`.cellnodes` (bracket nodes and the simulator's ``model.npz``), :mod:`.checks`,
+:mod:`.plots`, and :mod:`.pipeline` (:func:`run_design`, which writes the design folder).
+"""
+from .pipeline import (
+    FLATTENINGS,
+    check_design_options,
+    check_unit_cell,
+    design_layout,
+    run_design,
+    unit_cell_options,
+    write_design_tables,
+)
+
+__all__ = [
+    "FLATTENINGS",
+    "check_design_options",
+    "check_unit_cell",
+    "design_layout",
+    "run_design",
+    "unit_cell_options",
+    "write_design_tables",
+]

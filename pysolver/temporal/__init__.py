@@ -1,0 +1,46 @@
+"""The temporal-programming stage: bracket thicknesses from the time landscape.
+
+Modules: :mod:`.program` (force balance, thickness solve, :func:`program_design`),
+:mod:`.membrane_model` (the linearised membrane model ``F_mem`` and its fit),
+:mod:`.cell_membrane` (membrane traction samples from the simulator, an offline fitting
+tool) and :mod:`.plots`.
+"""
+from .program import (
+    COMPLETION_TOL_MM,
+    CORRECTIONS,
+    PICTURE,
+    STAGE_FILE,
+    bracket_target_force,
+    cell_target_times,
+    completion_time,
+    membrane_factors,
+    program_cells,
+    program_design,
+    refine_design,
+    simulated_completion,
+    solve_thickness,
+    target_compressions,
+    time_limit,
+    time_ranges,
+    timing_errors,
+)
+
+__all__ = [
+    "COMPLETION_TOL_MM",
+    "CORRECTIONS",
+    "PICTURE",
+    "STAGE_FILE",
+    "bracket_target_force",
+    "cell_target_times",
+    "completion_time",
+    "membrane_factors",
+    "program_cells",
+    "program_design",
+    "refine_design",
+    "simulated_completion",
+    "solve_thickness",
+    "target_compressions",
+    "time_limit",
+    "time_ranges",
+    "timing_errors",
+]

@@ -1,0 +1,43 @@
+"""Monte Carlo tolerance analysis over print and material scatter (on Dask).
+
+Modules: :mod:`.analysis` (:func:`tolerance_analysis`) and :mod:`.report`.
+"""
+from .analysis import (
+    CompliantBracketModel,
+    DesignPayload,
+    FACTORS,
+    Perturbation,
+    aggregate,
+    check_frames,
+    make_perturbation,
+    material_scatter,
+    nominal_perturbation,
+    read_payload,
+    regression_sensitivity,
+    relaxation_curve,
+    relaxation_factor,
+    run_sample,
+    sensitivity_table,
+    tolerance_analysis,
+    wilson,
+)
+
+__all__ = [
+    "CompliantBracketModel",
+    "DesignPayload",
+    "FACTORS",
+    "Perturbation",
+    "aggregate",
+    "check_frames",
+    "make_perturbation",
+    "material_scatter",
+    "nominal_perturbation",
+    "read_payload",
+    "regression_sensitivity",
+    "relaxation_curve",
+    "relaxation_factor",
+    "run_sample",
+    "sensitivity_table",
+    "tolerance_analysis",
+    "wilson",
+]

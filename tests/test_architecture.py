@@ -1,0 +1,195 @@
+"""The import graph of the project, read from the source with ``ast`` (nothing is imported).
+
+The pipeline's stages are packages, and the design folder is the only contract between
+them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests keep it so:
+
+* no import cycle among the project's modules (a submodule import also counts as an import
+  of every enclosing package, whose ``__init__`` runs first);
+* every import runs from a stage to itself or to a lower layer (:data:`LAYERS`);
+* the simulator (``sim``) imports nothing from ``pysolver`` but the core (table reader,
+  ``params``, ``errors``, ``atomic``, ``geometry``) and the runtime material model;
+  ``design`` does not import ``sim``;
+* project modules are imported at module level: an import inside a function hides an edge
+  of the graph.  The one exception is the command line (:mod:`pysolver.cli`), whose
+  subcommands import their stage when they run so that ``morphshell --help`` is instant;
+  every such import carries a ``# lazy:`` comment.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TOP_PACKAGES = ("pysolver", "sim")
+
+# Layers, lowest first: a module may import its own group and any group of a lower rank.
+LAYERS = {
+    "core": 0,        # errors, params, atomic, geometry, tables: used by every stage
+    "material": 1,    # runtime bracket material model
+    "design": 2,      # target surface -> stencil -> layout -> design tables, model.npz
+    "sim": 2,         # the simulator: reads the design folder only
+    "fitting": 3,     # offline fitting tools (material fit and its report)
+    "report": 3,      # simulation report, scan comparison, viewer data
+    "temporal": 3,    # temporal programming; may use the simulator's membrane
+    "render": 3,      # OpenSCAD part files and STLs
+    "front": 4,       # orchestrator (build), command line, studio, sweep, tolerance, specimens
+}
+
+CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.atomic",
+        "pysolver.geometry", "pysolver.tables"}
+FITTING = {"pysolver.material.fit", "pysolver.material.report"}
+LAZY_ALLOWED = {"pysolver.cli"}  # see the module docstring
+
+
+def group(mod: str) -> str:
+    """The layer group of a project module."""
+    if mod in CORE:
+        return "core"
+    if mod in FITTING:
+        return "fitting"
+    for prefix, g in (("pysolver.material", "material"), ("pysolver.design", "design"),
+                      ("pysolver.temporal", "temporal"), ("pysolver.render", "render"),
+                      ("sim.report", "report"), ("sim.viewer", "report"),
+                      ("sim.model", "sim")):
+        if mod == prefix or mod.startswith(prefix + "."):
+            return g
+    if mod == "sim":
+        return "sim"
+    return "front"
+
+
+def project_modules() -> dict[str, Path]:
+    mods = {}
+    for top in TOP_PACKAGES:
+        for p in sorted((ROOT / top).rglob("*.py")):
+            parts = list(p.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            mods[".".join(parts)] = p
+    return mods
+
+
+MODULES = project_modules()
+
+
+def _resolve(mod: str, path: Path, node: ast.ImportFrom) -> str:
+    if not node.level:
+        return node.module
+    base = mod.split(".")
+    if path.name != "__init__.py":
+        base = base[:-1]
+    base = base[:len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _with_parents(name: str) -> list[str]:
+    """``a.b.c`` -> the project modules ``a``, ``a.b``, ``a.b.c`` that exist."""
+    parts = name.split(".")
+    return [m for m in (".".join(parts[:i]) for i in range(1, len(parts) + 1)) if m in MODULES]
+
+
+def imports() -> list[tuple[str, str, int, bool, str]]:
+    """Every project import: (importer, imported, line, nested, source line)."""
+    out = []
+    for mod, path in MODULES.items():
+        src = path.read_text()
+        lines = src.splitlines()
+        tree = ast.parse(src)
+        top_level = {id(n) for n in tree.body}
+        for n in tree.body:  # imports under a module-level if/try are module level too
+            if isinstance(n, (ast.If, ast.Try)):
+                top_level |= {id(c) for c in ast.walk(n)}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = _resolve(mod, path, node)
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base
+                           for a in node.names]
+            else:
+                continue
+            for t in targets:
+                for m in _with_parents(t):
+                    if m != mod:
+                        out.append((mod, m, node.lineno, id(node) not in top_level,
+                                    lines[node.lineno - 1]))
+    return out
+
+
+IMPORTS = imports()
+
+
+def test_every_import_is_resolved():
+    assert MODULES, "no project modules found"
+    assert len(IMPORTS) > 100  # the parser sees the graph (a guard against a silent no-op)
+
+
+def test_no_import_cycle():
+    graph: dict[str, set[str]] = {m: set() for m in MODULES}
+    for a, b, *_ in IMPORTS:
+        graph[a].add(b)
+    # Tarjan's strongly connected components
+    index, low, stack, on, sccs = {}, {}, [], set(), []
+    counter = [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                sccs.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    assert not sccs, "import cycles: " + "; ".join(" <-> ".join(c) for c in sccs)
+
+
+def test_imports_run_downward():
+    bad = []
+    for a, b, line, _, text in IMPORTS:
+        ga, gb = group(a), group(b)
+        if ga != gb and LAYERS[gb] >= LAYERS[ga]:
+            bad.append(f"{a}:{line} ({ga}) imports {b} ({gb}): {text.strip()}")
+    assert not bad, "imports from a lower layer to a higher one:\n" + "\n".join(bad)
+
+
+def test_sim_reads_only_the_contract():
+    allowed = {"core", "material", "sim", "report"}
+    bad = [f"{a}:{line} imports {b}: {text.strip()}" for a, b, line, _, text in IMPORTS
+           if a.split(".")[0] == "sim" and group(b) not in allowed]
+    assert not bad, "sim imports more of pysolver than the design-folder contract:\n" + \
+        "\n".join(bad)
+
+
+def test_design_does_not_import_sim():
+    bad = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
+           if group(a) == "design" and b.split(".")[0] == "sim"]
+    assert not bad, "\n".join(bad)
+
+
+def test_project_imports_at_module_level():
+    bad = [f"{a}:{line}: {text.strip()}" for a, b, line, nested, text in IMPORTS
+           if nested and not (a in LAZY_ALLOWED and "# lazy:" in text)]
+    assert not bad, ("project imports inside functions hide edges of the graph; move them to "
+                     "module level:\n" + "\n".join(sorted(set(bad))))
+
+
+def test_layer_table_knows_every_module():
+    assert {group(m) for m in MODULES} <= set(LAYERS)
