@@ -35,9 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pysolver import tables  # noqa: E402
-from pysolver.render import parts as render  # noqa: E402
 from pysolver.design import run_design  # noqa: E402
 from pysolver.render import load_stl, render_design, render_parts, to_manifold  # noqa: E402
+from pysolver.render import parts as render  # noqa: E402
 from pysolver.render.scad_io import write_part_files  # noqa: E402
 
 VOLUME_RTOL = 1e-4

@@ -165,8 +165,7 @@ def main(argv=None) -> int:
     mat, mat_desc = _load_material(log)
     t_prep = time.perf_counter() - t0
 
-    from sim.model import kernels
-    from sim.model import load_model
+    from sim.model import kernels, load_model
 
     t0 = time.perf_counter()
     kernels.warm_up()  # numba compilation (cached on disk after the first run)

@@ -14,9 +14,11 @@ OpenSCAD and key libraries, and a hash of the inputs.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.metadata
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -24,7 +26,14 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+from sim.model.simulate import SimSettings, simulate_design, simulated_completion
+from sim.report import make_report, print_verdict
+
+from . import tables
 from .atomic import (
+    atomic_dir,
     atomic_write_text,
     build_lock,
     claim_output,
@@ -35,8 +44,29 @@ from .atomic import (
     staging_dir,
     write_stamp,
 )
+from .design import check_design_options, run_design
+from .design.surfaces import BUILTIN_SHAPES, check_spec
+from .design.time_landscape import read_time_file
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
-from .params import DEFAULT_REFINE, LIMITS, SIM
+from .material.model import DEFAULT_MODEL_PATH
+from .material.validate import validate_bracket_model_file
+from .params import DEFAULT_REFINE, LIMITS, SIM, UNIT_CELL
+from .render import DEFAULT_RENDERER, check_renderer, find_openscad, render_design
+from .render.scad_io import SCAD_DIR
+from .tables import read_bases, read_cells
+from .temporal import (
+    COMPLETION_TOL_MM,
+    REFINE_DAMPING,
+    REFINE_LOG,
+    STAGE_FILE,
+    load_material,
+    program_cells,
+    program_design,
+    time_limit,
+    timing_errors,
+)
+from .temporal.membrane_model import MODEL_PATH as MEMBRANE_MODEL_PATH
+from .temporal.membrane_model import load_membrane_model, validate_membrane_model_file
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 BUILD_ROOT = Path("build")
@@ -56,8 +86,6 @@ def shape_name(source: str) -> str:
         If ``source`` is neither a built-in shape (with valid options, e.g.
         ``dome:size=1.5``) nor an existing file.
     """
-    from .design.surfaces import BUILTIN_SHAPES, check_spec
-
     source = str(source)
     p = Path(source)
     if p.is_file():
@@ -120,20 +148,8 @@ def tool_versions() -> dict:
     return v
 
 
-def _has_module(name: str) -> bool:
-    import importlib.util
-
-    try:
-        return importlib.util.find_spec(name) is not None
-    except ModuleNotFoundError:
-        return False
-
-
 def design_only(source: str, *, out=None, progress: bool = True, **options) -> dict:
     """Run only the design stage into ``out`` (default ``build/<name>``), atomically."""
-    from .atomic import atomic_dir
-    from .design import check_design_options, run_design
-
     check_design_options(**{k: v for k, v in options.items()
                             if k in ("vertices", "time", "scale", "flattening", "params",
                                      "size", "time_file")})
@@ -160,8 +176,6 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, refine=None, render: 
         Naming the option, its value and the rule; ``ExternalToolError`` when rendering is
         requested and OpenSCAD is missing.
     """
-    import math
-
     if jobs is not None and (int(jobs) != jobs or not 1 <= jobs <= LIMITS.max_jobs):
         raise InputError(f"--jobs must be a whole number from 1 to {LIMITS.max_jobs}, got "
                          f"{jobs}.",
@@ -181,14 +195,10 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, refine=None, render: 
     if steps > LIMITS.max_steps:
         raise InputError(f"--t-end / --dt = {steps:.0f} simulation steps, more than "
                          f"{LIMITS.max_steps}.", fix="use a larger --dt or a shorter --t-end.")
-    if simulate and (t_end is not None or dt is not None) and _has_module("sim.model.simulate"):
-        from sim.model.simulate import SimSettings
-
+    if simulate and (t_end is not None or dt is not None):
         kw = {k: float(v) for k, v in (("t_end", t_end), ("dt", dt)) if v is not None}
         SimSettings(**kw).times()  # t_end must be a multiple of dt
     if render:
-        from .render import DEFAULT_RENDERER, check_renderer, find_openscad
-
         if check_renderer(renderer or DEFAULT_RENDERER) != "fast":
             find_openscad()  # missing OpenSCAD: say so now, not after the design stage
 
@@ -243,12 +253,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     summary : dict
         The content of ``summary.json`` plus ``exit_code``.
     """
-    from .material.validate import validate_model_files
-
     validate_model_files(material)  # material + membrane model files, before any stage
-    from .design import check_design_options
-    from .params import UNIT_CELL
-
     params = UNIT_CELL if params is None else params
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
                          params=params, size=size, time_file=time_file)
@@ -271,8 +276,6 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     if size is not None:  # (only when given, as dt and params)
         design_opts["size"] = all_opts["size"] = size
     if time_file is not None:  # the file's content is an input: its hash goes into the digest
-        from .design.time_landscape import read_time_file
-
         design_opts["time_file"] = all_opts["time_file"] = str(time_file)
         all_opts["time_file_sha256"] = read_time_file(time_file)[1]
     if params != UNIT_CELL:  # (only when changed: keeps the hash of earlier builds)
@@ -314,34 +317,26 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
             return res
 
-        from .design import run_design
         stage("design", run_design, source, staging, progress=progress, **design_opts)
-        if program and _has_module("pysolver.temporal"):
-            from .temporal import program_design
+        if program:
             # A shape's own landscape gives the order of completion; its seconds are mapped
             # onto what the material can achieve.  A user's landscape is only checked.
             stage("program", program_design, staging, material=material, progress=progress,
                   fit_landscape=time is None and time_file is None)
         if simulate:
-            from sim.model.simulate import simulate_design
             kw = {} if t_end is None else {"t_end": t_end}
             sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
             stage("simulate", simulate_design, staging, material=material, progress=progress,
                   solver=solver, **sim_kw)
             if refine and program:
-                import functools
-
-                from .temporal import refine_design
                 hook = {"simulate": functools.partial(simulate_design, solver=solver,
                                                       **({} if dt is None else {"dt": dt}))}
                 stage("refine", refine_design, staging, iterations=refine, material=material,
                       progress=progress, **kw, **hook)
         if render:  # after refinement, so the STLs carry the final thicknesses
-            from .render import render_design
             stage("render", render_design, staging, jobs=jobs, progress=progress,
                   renderer=renderer)
         if simulate:
-            from sim.report import make_report
             stage("report", make_report, staging, progress=progress,
                   build_info={k: summary[k] for k in ("source", "options", "inputs_sha256")})
         summary["stage_inputs"] = _stage_inputs(staging, material=material, t_end=t_end, dt=dt)
@@ -362,11 +357,165 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         remove_staging(staging)
     _log(f"{name}: build complete in {summary['timings_s']['total']:.1f} s -> {out}", progress)
     if "report" in stages:
-        from sim.report import print_verdict
         print_verdict(stages["report"], out / "report")
     verdict = stages.get("report", {}).get("verdict")
     summary["exit_code"] = EXIT_CHECK_FAILED if verdict == "FAIL" else EXIT_OK
     return summary
+
+
+# ----------------------------------------------------------------------------------------------
+# closing the timing loop: temporal programming <-> simulation (the orchestrator's job)
+# ----------------------------------------------------------------------------------------------
+
+
+def _log_refine(msg: str, progress: bool) -> None:
+    if progress:
+        print(f"[temporal] {msg}", file=sys.stderr, flush=True)
+
+
+def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
+                  progress: bool = True, t_end=None, damping: float = REFINE_DAMPING,
+                  tol_mm: float = COMPLETION_TOL_MM, simulate=None) -> dict:
+    """Correct the programmed times from simulated completion times and re-simulate.
+
+    Needs a programmed and simulated design folder (``sim/frames.npz``).  Each
+    iteration moves the requested time of every cell by ``damping * (t* - t_sim)``
+    (cells that never complete count as ``t_end``), clamps it to the cell's
+    achievable range, re-solves the thicknesses (``t_star_s`` stays the user's
+    target), and re-simulates.  After ``iterations`` rounds the iteration with the
+    lowest RMS timing error (clamped cells excluded, cells that never complete counted
+    as finishing at the last frame) is kept: its thicknesses in ``cells.csv`` and its
+    frames in ``sim/frames.npz``.
+
+    Parameters
+    ----------
+    design_dir : path-like
+    iterations : int
+        Number of correct + re-simulate rounds K.
+    material, membrane : optional
+        As :func:`program_design`; ``material`` is also passed to the simulator.
+    t_end : float, s, optional
+        Simulated time (default: the simulator's default).
+    damping : float
+        Fraction of the timing error corrected per round (0 < damping <= 1).
+    tol_mm : float, mm
+        Completion tolerance (:func:`simulated_completion`).
+    simulate : callable, optional
+        ``simulate(design_dir, **kw)`` replacing :func:`sim.model.simulate.simulate_design`
+        (tests).
+
+    Returns
+    -------
+    dict
+        ``history`` (per iteration: RMS/max error, Spearman, thickness range), ``best``
+        (iteration index, 0 = before refinement; chosen by ``rms_incl_never_s``),
+        ``before``/``after`` metrics.
+    """
+    design_dir = Path(design_dir)
+    if int(iterations) != iterations or iterations < 0:
+        raise InputError(f"iterations must be a non-negative integer, got {iterations!r}.")
+    if not 0 < damping <= 1:
+        raise InputError(f"damping must be in (0, 1], got {damping!r}.")
+    frames_path = design_dir / "sim" / "frames.npz"
+    if not frames_path.is_file():
+        raise InputError(f"{frames_path} does not exist: refine needs a simulated design.",
+                         fix="run the simulate stage first (morphshell simulate DIR).")
+    if simulate is None:
+        simulate = simulate_design
+    sim_kw = {"progress": progress}
+    if material is not None:
+        sim_kw["material"] = material
+    if t_end is not None:
+        sim_kw["t_end"] = t_end
+    mat = load_material(material)
+    mem = load_membrane_model(membrane)
+
+    cells = tables.read_table(design_dir, "cells")
+    t_star = cells["t_star_s"].copy()
+    factor = None
+    rec = design_dir / STAGE_FILE
+    if rec.is_file():
+        f = json.loads(rec.read_text()).get("membrane_factor")
+        if f is not None and len(f) == len(t_star):
+            factor = np.asarray(f, float)
+    clamped = cells["clamped"].astype(bool)
+    t_lo, t_hi = cells["t_min_s"], cells["t_max_s"]
+    t_sim, t_frames = simulated_completion(design_dir, tol_mm)
+    t_last = float(t_frames[-1]) if len(t_frames) else float(SIM.t_end)
+    keep_dir = design_dir / "sim" / "refine"
+    keep_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(frames_path, keep_dir / "frames_0.npz")
+    th0 = np.column_stack([cells["thickness_top_mm"], cells["thickness_bottom_mm"]])
+    hist = [dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=0,
+                 thickness_mm=[float(th0.min()), float(th0.max())])]
+    thick = [th0]
+    _log_refine(f"{design_dir.name}: before refinement rms {hist[0]['rms_s']:.2f} s, spearman "
+         f"{hist[0]['spearman']:.3f}, {hist[0]['n_never']} never complete", progress)
+    lo_ok = np.where(np.isfinite(t_lo), t_lo, 0.0)
+    hi_ok = np.where(np.isfinite(t_hi), t_hi, time_limit(mat))
+    t_req = np.clip(t_star, lo_ok, np.maximum(lo_ok, hi_ok))
+    for k in range(1, int(iterations) + 1):
+        t0 = time.perf_counter()
+        ts = np.where(np.isfinite(t_sim), t_sim, t_last)
+        t_req = np.clip(t_req + damping * (t_star - ts), lo_ok, np.maximum(lo_ok, hi_ok))
+        res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
+                            cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+                            material=mat, membrane=mem, t_request=t_req, factor=factor)
+        out = dict(cells)
+        out["thickness_top_mm"] = res["thickness"][:, 0]
+        out["thickness_bottom_mm"] = res["thickness"][:, 1]
+        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        simulate(design_dir, **sim_kw)
+        t_sim, t_frames = simulated_completion(design_dir, tol_mm)
+        shutil.copy2(frames_path, keep_dir / f"frames_{k}.npz")
+        th = res["thickness"]
+        thick.append(th)
+        hist.append(dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=k,
+                         thickness_mm=[float(th.min()), float(th.max())],
+                         seconds=round(time.perf_counter() - t0, 1)))
+        _log_refine(f"{design_dir.name}: refine {k}/{iterations}: rms {hist[-1]['rms_s']:.2f} s, "
+             f"spearman {hist[-1]['spearman']:.3f}, {hist[-1]['n_never']} never complete "
+             f"({hist[-1]['seconds']:.0f} s)", progress)
+    rms = np.array([h["rms_incl_never_s"] for h in hist])
+    best = int(np.nanargmin(np.where(np.isfinite(rms), rms, np.inf))) if len(rms) else 0
+    if best != len(hist) - 1:
+        out = dict(cells)
+        out["thickness_top_mm"] = thick[best][:, 0]
+        out["thickness_bottom_mm"] = thick[best][:, 1]
+        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        shutil.copy2(keep_dir / f"frames_{best}.npz", frames_path)
+    for f in keep_dir.glob("frames_*.npz"):
+        f.unlink()
+    keep_dir.rmdir()
+    result = {"iterations": int(iterations), "damping": damping, "history": hist,
+              "best": best, "before": hist[0], "after": hist[best],
+              "note": "rms_s: cells whose t* is achievable (clamped excluded) and that "
+                      "complete; rms_incl_never_s also counts cells that never complete as "
+                      "finishing at the last simulated time (used to pick the best)."}
+    atomic_write_text(design_dir / "sim" / REFINE_LOG, json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def validate_model_files(material=None, membrane=None) -> None:
+    """Check every model file a build will read, before any stage runs.
+
+    Parameters
+    ----------
+    material : path-like or bracket model object, optional
+        ``--material FILE``; None checks the committed bracket model; an object (already a
+        model) is not a file and is skipped.
+    membrane : path-like, optional
+        Membrane model file (default: the committed one).
+
+    Raises
+    ------
+    InputError
+        The first rule a file breaks.
+    """
+    if material is None or isinstance(material, str | os.PathLike):
+        validate_bracket_model_file(DEFAULT_MODEL_PATH if material is None else material)
+    if membrane is None or isinstance(membrane, str | os.PathLike):
+        validate_membrane_model_file(MEMBRANE_MODEL_PATH if membrane is None else membrane)
 
 
 def _now() -> float:
@@ -393,8 +542,6 @@ def _stage_inputs(folder: Path, *, material=None, t_end=None, dt=None) -> dict:
     """Hash of what the render and the simulation (+ report) stages read: the design tables
     and stencil, plus the SCAD library (render) or the material model and time settings
     (simulate).  Equal hashes mean a skipped stage's earlier outputs are still right."""
-    from .render.scad_io import SCAD_DIR
-
     h = hashlib.sha256()
     for f in sorted(folder.glob("*.csv")) + [folder / "stencil.obj"]:
         h.update(f.name.encode() + b"\0" + (f.read_bytes() if f.is_file() else b"") + b"\0")
@@ -455,8 +602,6 @@ def _key_figures(folder: Path, stages: dict) -> dict:
     """A few headline numbers collected from the stage results and the tables."""
     fig: dict = {}
     try:
-        from .tables import read_bases, read_cells
-
         bases = read_bases(folder / "bases.csv")
         cells = read_cells(folder / "cells.csv")
         fig["n_bases"] = len(bases["base_id"])
@@ -474,8 +619,6 @@ def _key_figures(folder: Path, stages: dict) -> dict:
 
 
 def _json_default(o):
-    import numpy as np
-
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):

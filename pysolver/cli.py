@@ -83,7 +83,7 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
 
 def _unit_cell(args: argparse.Namespace):
     """The design's unit cell from --min-bumper, --min-gap, --max-cell-length (checked)."""
-    from .design import unit_cell_options
+    from .design import unit_cell_options  # lazy: the stage loads when its subcommand runs
 
     return unit_cell_options(min_bumper=args.min_bumper, min_gap=args.min_gap,
                              max_cell_length=args.max_cell_length)
@@ -127,7 +127,7 @@ def _add_physics_options(p: argparse.ArgumentParser) -> None:
 
 
 def _physics_from_args(args: argparse.Namespace):
-    from sim.model.physics import parse_physics
+    from sim.model.physics import parse_physics  # lazy: the stage loads when its subcommand runs
 
     keys = ("stretch_to_glue_min", "glue_to_water_min", "print_density", "water_density",
             "latex_density", "rim_margin_mm", "rim_stretch", "face_down")
@@ -293,7 +293,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
     """The subcommands that make new outputs (no design-folder argument)."""
     cmd = args.command
     if cmd == "build":
-        from .build import build
+        from .build import build  # lazy: the stage loads when its subcommand runs
         result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
                        scale=args.scale, size=args.size, flattening=args.flattening,
                        time_file=args.time_file,
@@ -305,7 +305,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
                        solver=args.solver, params=_unit_cell(args), seed=args.seed)
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
-        from .build import design_only
+        from .build import design_only  # lazy: the stage loads when its subcommand runs
         design_only(args.shape, out=args.out, vertices=args.vertices, time=args.time,
                     scale=args.scale, size=args.size, flattening=args.flattening,
                     time_file=args.time_file,
@@ -319,19 +319,19 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
     """The subcommands that run one stage on an existing design folder ``args.dir``."""
     cmd = args.command
     if cmd == "program":
-        from .temporal import program_design
+        from .temporal import program_design  # lazy: the stage loads when its subcommand runs
         program_design(Path(args.dir), material=args.material, progress=progress,
                        physics=_physics_from_args(args))
         return EXIT_OK
     if cmd == "render":
-        from .render import render_design
+        from .render import render_design  # lazy: the stage loads when its subcommand runs
         render_design(Path(args.dir), jobs=args.jobs, progress=progress,
                       renderer=args.renderer)
         return EXIT_OK
     if cmd == "simulate":
-        from sim.model.simulate import simulate_design
+        from sim.model.simulate import simulate_design  # lazy: loads with its subcommand
 
-        from .build import check_build_options
+        from .build import check_build_options  # lazy: the stage loads when its subcommand runs
 
         check_build_options(t_end=args.t_end, dt=args.dt, render=False)
         kw = {k: v for k, v in (("t_end", args.t_end), ("dt", args.dt)) if v is not None}
@@ -340,7 +340,7 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
                         physics=_physics_from_args(args), **kw)
         return EXIT_OK
     if cmd == "report":
-        from sim.report import make_report, print_verdict
+        from sim.report import make_report, print_verdict  # lazy: loads with its subcommand
 
         rep = make_report(Path(args.dir), progress=progress)
         print_verdict(rep, Path(args.dir) / "report")
@@ -348,9 +348,9 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
     if cmd == "tolerance":
         import dataclasses
 
-        from pysolver.tolerance import tolerance_analysis
+        from pysolver.tolerance import tolerance_analysis  # lazy: loads with its subcommand
 
-        from .build import check_build_options
+        from .build import check_build_options  # lazy: the stage loads when its subcommand runs
 
         check_build_options(t_end=args.t_end, dt=args.dt, render=False)
         kw = {k: v for k, v in (("t_end", args.t_end), ("dt", args.dt)) if v is not None}
@@ -365,7 +365,7 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
                            progress=progress, **kw)
         return EXIT_OK
     if cmd == "compare-scan":
-        from sim.report.scan import compare_scan
+        from sim.report.scan import compare_scan  # lazy: the stage loads when its subcommand runs
         compare_scan(Path(args.dir), Path(args.scan), layer=args.layer)
         return EXIT_OK
     raise AssertionError(cmd)
@@ -375,7 +375,7 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
     """Material and membrane fits, specimens, the shape list."""
     cmd = args.command
     if cmd == "fit-material":
-        from .material.fit import fit_material
+        from .material.fit import fit_material  # lazy: the stage loads when its subcommand runs
         out, report = args.out, args.report
         if args.data is not None:  # a user's data never overwrites the committed default model
             stem = Path(args.data).resolve().name or "material"
@@ -393,7 +393,7 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         print(f"material model: {res['model_file']} (use it with MATERIAL={res['model_file']})")
         return EXIT_OK
     if cmd == "fit-membrane":
-        from .temporal.membrane_model import fit_membrane_model
+        from .temporal.membrane_model import fit_membrane_model  # lazy: loads with its subcommand
         if args.out is not None:
             claim_output_file(args.out, what="--out model file")
         if args.report is not None:
@@ -401,22 +401,22 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         fit_membrane_model(out_path=args.out, report_dir=args.report)
         return EXIT_OK
     if cmd == "specimens":
-        from .specimens import make_specimens
+        from .specimens import make_specimens  # lazy: the stage loads when its subcommand runs
         out = claim_output(args.out, what="--out folder")
         make_specimens(out, jobs=args.jobs)
         write_stamp(out)
         return EXIT_OK
     if cmd == "studio":
-        from .studio import serve
+        from .studio import serve  # lazy: the stage loads when its subcommand runs
         serve(args.dirs, port=args.port, open_browser=not args.no_browser)
         return EXIT_OK
     if cmd == "sweep":
-        from .sweep import run_sweep
+        from .sweep import run_sweep  # lazy: the stage loads when its subcommand runs
         res = run_sweep(args.spec, out=args.out, scheduler=args.scheduler,
                         workers=args.workers, progress=progress)
         return EXIT_OK if not res["run"]["failed"] else EXIT_INTERNAL
     if cmd == "shapes":
-        from .design.surfaces import BUILTIN_SHAPES
+        from .design.surfaces import BUILTIN_SHAPES  # lazy: loads with its subcommand
         for name in BUILTIN_SHAPES:
             print(name)
         return EXIT_OK

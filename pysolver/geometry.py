@@ -1,4 +1,6 @@
-"""Frames and rotations: the one place where sign conventions live.
+"""Geometry every stage uses: mesh topology, frames and rotations, rigid fits.
+
+Frames and rotations are the one place where sign conventions live.
 
 * :func:`print_transform` maps the flat shell frame to the print frame of a
   layer (``docs/design-folder.md``, "Print frame").
@@ -13,6 +15,9 @@ All rotations act on column vectors: ``p' = R @ p``.
 """
 
 from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -139,5 +144,240 @@ def target_to_flat(P_target, R, c_target, c_flat) -> np.ndarray:
     return (np.asarray(P_target, float) - np.asarray(c_target, float)) @ np.asarray(R) + c0
 
 
+# ----------------------------------------------------------------------------------
+# mesh topology: faces, unit cells (interior edges), boundary
+
+
+def face_adjacency(F: np.ndarray) -> np.ndarray:
+    """Face across the edge opposite each corner.
+
+    Parameters
+    ----------
+    F : (m, 3) int
+        Triangles.
+
+    Returns
+    -------
+    ff : (m, 3) int
+        ``ff[i, j]`` = face sharing edge ``(F[i,(j+1)%3], F[i,(j+2)%3])`` with
+        face ``i``, or -1 on the boundary.
+
+    Raises
+    ------
+    InputError
+        If an edge is used by more than two faces or twice in the same direction
+        (non-manifold or inconsistently oriented faces).
+    """
+    F = np.asarray(F, dtype=np.int64)
+    m = len(F)
+    a = F[:, [1, 2, 0]].ravel()  # slot j: edge from F[j+1] to F[j+2]
+    b = F[:, [2, 0, 1]].ravel()
+    face = np.repeat(np.arange(m), 3)
+    slot = np.tile(np.arange(3), m)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo * (F.max() + 1 if m else 1) + hi
+    order = np.lexsort((face, key))
+    ks = key[order]
+    ff = -np.ones((m, 3), dtype=np.int64)
+    # groups of equal keys
+    starts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    counts = np.diff(np.r_[starts, len(ks)])
+    if np.any(counts > 2):
+        bad = order[starts[counts > 2][0]]
+        raise InputError(
+            f"non-manifold edge ({a[bad]}, {b[bad]}): shared by more than two triangles "
+            f"({int(counts.max())})",
+            fix="repair the mesh (e.g. MeshLab: Cleaning > Repair non-manifold edges)")
+    two = starts[counts == 2]
+    e0, e1 = order[two], order[two + 1]
+    same_dir = a[e0] == a[e1]
+    if np.any(same_dir):
+        k = e0[same_dir][0]
+        raise InputError(
+            f"faces {face[k]} and {face[e1[same_dir][0]]} traverse edge ({a[k]}, {b[k]}) in the "
+            "same direction: the faces are not consistently oriented (or the surface is "
+            "non-orientable)",
+            fix="re-orient the faces consistently (MeshLab: Re-orient all faces coherently)")
+    ff[face[e0], slot[e0]] = face[e1]
+    ff[face[e1], slot[e1]] = face[e0]
+    return ff
+
+
+@dataclass
+class Cells:
+    """Unit cells (interior edges) in the reference's face-major order.
+
+    Attributes
+    ----------
+    faces : (c, 2) int
+        ``(base_a, base_b)`` with ``base_a < base_b``.
+    slots : (c, 2) int
+        Slot of the shared edge in each base.
+    verts : (c, 2) int
+        Shared edge ``F[a,(slot_a+1)%3], F[a,(slot_a+2)%3]``.
+    cell_of : (m, 3) int
+        Cell id of (face, slot), -1 on the boundary.
+    boundary : (c,) bool
+        An endpoint of the shared edge is a boundary vertex (FFb).
+    """
+
+    faces: np.ndarray
+    slots: np.ndarray
+    verts: np.ndarray
+    cell_of: np.ndarray
+    boundary: np.ndarray
+
+
+def unit_cells(F: np.ndarray, ff: np.ndarray | None = None) -> Cells:
+    """Enumerate unit cells face-major (faces ascending, slots 0..2, neighbour > face).
+
+    Parameters
+    ----------
+    F : (m, 3) int
+    ff : (m, 3) int, optional
+        From :func:`face_adjacency`.
+    """
+    F = np.asarray(F, dtype=np.int64)
+    if ff is None:
+        ff = face_adjacency(F)
+    m = len(F)
+    ii, jj = np.nonzero(ff > np.arange(m)[:, None])  # row-major = face-major order
+    nb = ff[ii, jj]
+    # slot in the neighbour that points back
+    back = np.argmax(ff[nb] == ii[:, None], axis=1)
+    cell_of = -np.ones((m, 3), dtype=np.int64)
+    ids = np.arange(len(ii))
+    cell_of[ii, jj] = ids
+    cell_of[nb, back] = ids
+    verts = np.stack([F[ii, (jj + 1) % 3], F[ii, (jj + 2) % 3]], axis=1)
+    vb = boundary_vertex_mask(F, ff)
+    boundary = vb[verts[:, 0]] | vb[verts[:, 1]]
+    return Cells(faces=np.stack([ii, nb], 1), slots=np.stack([jj, back], 1), verts=verts,
+                 cell_of=cell_of, boundary=boundary)
+
+
+def boundary_vertex_mask(F: np.ndarray, ff: np.ndarray, n_vertices: int | None = None):
+    """(n,) bool: vertex lies on a boundary edge."""
+    F = np.asarray(F)
+    n = int(F.max()) + 1 if n_vertices is None else n_vertices
+    mask = np.zeros(n, dtype=bool)
+    i, j = np.nonzero(ff < 0)
+    mask[F[i, (j + 1) % 3]] = True
+    mask[F[i, (j + 2) % 3]] = True
+    return mask
+
+
+def face_centroids(X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(m, d) float: face centroids of ``X : (n, d)``."""
+    return np.asarray(X, float)[np.asarray(F)].mean(axis=1)
+
+
+def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(m, 3) float: unit normals ``(V1-V0) x (V2-V0)`` normalised; raises on degenerate faces."""
+    P = np.asarray(V, float)[np.asarray(F)]
+    N = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    n = np.linalg.norm(N, axis=1)
+    scale = max(np.ptp(V, axis=0).max(), 1e-300)
+    bad = np.flatnonzero(n <= 1e-12 * scale**2)
+    if len(bad):
+        raise InputError(f"{len(bad)} degenerate triangle(s) (zero area), e.g. face {bad[0]}",
+                         fix="remove degenerate faces (MeshLab: Remove zero-area faces) or remesh")
+    return N / n[:, None]
+
+
+def signed_areas_2d(UV: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(m,) float: signed area of each flat triangle (positive = CCW)."""
+    P = np.asarray(UV, float)[np.asarray(F)]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+# ----------------------------------------------------------------------------------
+# rigid poses and fits
+
+
+def reference_slots(ff: np.ndarray) -> np.ndarray:
+    """(m,) int: first slot with a neighbour (the reference neighbour); raises if none."""
+    has = ff >= 0
+    if not np.all(has.any(axis=1)):
+        i = int(np.flatnonzero(~has.any(axis=1))[0])
+        raise InputError(f"face {i} has no neighbour (an isolated triangle)",
+                         fix="remove isolated triangles or use a connected surface")
+    return np.argmax(has, axis=1)
+
+
+def base_rotations(V, UV, F, ff=None):
+    """Rotation of every base from its flat pose to its target pose.
+
+    ``R_i`` maps flat +z onto the face normal ``n_i`` and the flat direction to the
+    reference neighbour onto the 3D direction to it (orthogonalised against n_i).
+
+    Returns
+    -------
+    R : (m, 3, 3) float
+    ref_slot : (m,) int
+    """
+    F = np.asarray(F, dtype=np.int64)
+    if ff is None:
+        ff = face_adjacency(F)
+    ref = reference_slots(ff)
+    nb = ff[np.arange(len(F)), ref]
+    Fc = face_centroids(V, F)
+    C2 = face_centroids(UV, F)
+    N = face_normals(V, F)
+    m = len(F)
+    z = np.tile([0.0, 0.0, 1.0], (m, 1))
+    flat_dir = np.c_[C2[nb] - C2, np.zeros(m)]
+    R = frames_to_rotation(z, flat_dir, N, Fc[nb] - Fc)
+    return R, ref
+
+
+def fold_angles_deg(Fc, N, cells: Cells) -> np.ndarray:
+    """Signed fold angle (deg) per cell: angle between the normals, + when the fold closes
+    toward the top (+normal) side, i.e. the top side is concave."""
+    a, b = cells.faces[:, 0], cells.faces[:, 1]
+    ang = np.degrees(np.arccos(np.clip(np.sum(N[a] * N[b], 1), -1, 1)))
+    sgn = -np.sign(np.sum((N[b] - N[a]) * (Fc[b] - Fc[a]), 1))
+    return ang * sgn
+
+
+def rigid_fit(A, B, weights=None):
+    """Rigid motion (rotation + translation, no scaling) taking ``A`` onto ``B`` (Kabsch).
+
+    Minimises ``sum_i w_i |Q a_i + s - b_i|^2``.
+
+    Parameters
+    ----------
+    A, B : (n, 3) float, mm
+        Corresponding points, n >= 3 (n = 2 gives a rotation about the pair's axis
+        chosen by scipy).
+    weights : (n,) float, optional
+
+    Returns
+    -------
+    Q : (3, 3) float
+        Rotation matrix (det +1).
+    s : (3,) float, mm
+    """
+    A = np.asarray(A, float)
+    B = np.asarray(B, float)
+    if A.shape != B.shape or A.ndim != 2 or A.shape[1] != 3 or len(A) < 2:
+        raise InputError(f"rigid_fit: point sets of shapes {A.shape} and {B.shape}",
+                         fix="pass two (n, 3) arrays of corresponding points, n >= 2")
+    w = np.ones(len(A)) if weights is None else np.asarray(weights, float)
+    w = w / w.sum()
+    ca = w @ A
+    cb = w @ B
+    # scipy's align_vectors(a, b) finds R minimising sum w |a - R b|^2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "optimal rotation is not uniquely defined"
+        rot, _ = Rotation.align_vectors(B - cb, A - ca, weights=w)
+    Q = rot.as_matrix()
+    return Q, cb - Q @ ca
+
+
 __all__ = ["print_transform", "apply_transform", "rotvec_to_matrix", "matrix_to_rotvec",
-           "frames_to_rotation", "flat_to_target", "target_to_flat"]
+           "frames_to_rotation", "flat_to_target", "target_to_flat", "face_adjacency", "Cells",
+           "unit_cells", "boundary_vertex_mask", "face_centroids", "face_normals",
+           "signed_areas_2d", "reference_slots", "base_rotations", "fold_angles_deg",
+           "rigid_fit"]

@@ -13,6 +13,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .errors import InputError
 
 
 @dataclass(frozen=True)
@@ -632,7 +635,42 @@ def layer_sign(layer) -> int:
     raise ValueError(f"layer must be 0/'top' or 1/'bottom', got {layer!r}")
 
 
-__all__ = ["DEFAULT_REFINE", "LIMITS", "Limits", "UnitCell", "SimConstants", "Tolerances",
+DATA_DIR = Path(__file__).resolve().parent / "data"
+"""The committed model files (``bracket_model.json``, ``membrane_model.json``)."""
+MEMBRANE_MODEL_FILE = DATA_DIR / "membrane_model.json"
+"""The committed membrane model (``make membrane-model`` re-fits it)."""
+
+
+def check_unit_cell(params: UnitCell) -> None:
+    """Check the user-variable tolerances of a unit cell against :class:`~pysolver.params.Limits`.
+
+    Raises
+    ------
+    InputError
+        Naming the option, its value, the allowed range and a fix.
+    """
+    for opt, v, (lo, hi), why in (
+            ("--min-bumper", params.min_bumper, LIMITS.min_bumper_mm,
+             "the paper uses 0.3 mm, most reference examples 0.1 mm"),
+            ("--min-gap", params.min_gap, LIMITS.min_gap_mm,
+             "the paper and the reference examples use 0.1 mm")):
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise InputError(f"{opt} {v!r} mm is outside {lo:g}-{hi:g} mm",
+                             fix=f"give a length in that range ({why})")
+    lo, hi = params.shortest_cell(), LIMITS.max_cell_length_mm
+    v = params.max_cell_length
+    if not (math.isfinite(v) and lo < v <= hi):
+        raise InputError(
+            f"--max-cell-length {v!r} mm is outside {lo:g}-{hi:g} mm: no cell is shorter than "
+            f"2 (base radius + min bumper) + min gap = {lo:g} mm, and the bracket model is "
+            f"measured up to 9 mm (used up to {hi:g} mm)",
+            fix=f"give a length above {lo:g} and up to {hi:g} mm (default "
+                f"{UNIT_CELL.max_cell_length:g} mm)")
+
+
+__all__ = ["check_unit_cell", "DATA_DIR", "MEMBRANE_MODEL_FILE", "DEFAULT_REFINE", "LIMITS",
+           "Limits", "UnitCell", "SimConstants",
+           "Tolerances",
            "SupportFrame", "SUPPORT_FRAME",
            "PhysicsOptions", "PHYSICS_OFF", "RELAXATION_PRONY",
            "ModelFileRules", "UNIT_CELL", "SIM", "tol", "MODEL_FILES", "LAYERS", "layer_sign",

@@ -46,7 +46,18 @@ import tempfile
 import time
 from pathlib import Path
 
-from .atomic import atomic_write_text, write_stamp
+from .atomic import atomic_file, atomic_write_text, claim_result_folder, write_stamp
+from .build import build
+from .distributed import (
+    ResultStore,
+    Task,
+    check_scheduler,
+    check_workers,
+    code_fingerprint,
+    fingerprint,
+    is_result_file,
+    run_tasks,
+)
 from .errors import InputError, MorphshellError
 from .params import TOLERANCE_RUN
 
@@ -214,7 +225,6 @@ def build_variant(opts: dict, files: dict, out: str) -> dict:
     dict
         One row of :data:`COLUMNS`.
     """
-    from .build import build
 
     t0 = time.perf_counter()
     kw = {k: v for k, v in opts.items() if k != "name"}
@@ -295,7 +305,6 @@ def _plot(path: Path, rows: list) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from .atomic import atomic_file
 
     names = [r["variant"] for r in rows]
     y = np.arange(len(rows))
@@ -323,8 +332,6 @@ def _plot(path: Path, rows: list) -> None:
 
 def _claim(out: Path) -> Path:
     """The sweep folder: new, stamped by morphshell, or holding only our results/builds."""
-    from .atomic import claim_result_folder
-    from .distributed import is_result_file
 
     def ours(p: Path) -> bool:
         rel = p.relative_to(out).parts
@@ -354,15 +361,6 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
     dict
         ``rows`` (list of dict, spec order), ``out`` (str), ``run`` (RunStats dict).
     """
-    from .distributed import (
-        ResultStore,
-        Task,
-        check_scheduler,
-        check_workers,
-        code_fingerprint,
-        fingerprint,
-        run_tasks,
-    )
 
     scheduler, workers = check_scheduler(scheduler), check_workers(workers)
     spec = load_spec(spec_path)

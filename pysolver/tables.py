@@ -15,15 +15,20 @@ Main entry points
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import math
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .geometry import unit_cells
+from .params import UNIT_CELL, check_unit_cell
 
 # column -> type: "int", "float", "bool" (0/1), or a tuple of allowed strings
 SCHEMAS: dict[str, dict[str, object]] = {
@@ -476,10 +481,6 @@ def design_unit_cell(meta: dict, source="design.json"):
     InputError
         A value that is not a number, or a tolerance outside its range.
     """
-    import dataclasses
-
-    from .params import UNIT_CELL
-
     stored = ((meta or {}).get("options") or {}).get("params") or {}
     if not isinstance(stored, dict):
         raise InputError(f"{source}: options.params is not an object",
@@ -494,8 +495,6 @@ def design_unit_cell(meta: dict, source="design.json"):
                              fix="re-run the design stage")
         vals[k] = float(v)
     params = dataclasses.replace(UNIT_CELL, **vals)
-    from .design import check_unit_cell
-
     try:
         check_unit_cell(params)
     except InputError as e:
@@ -517,9 +516,6 @@ def read_unit_cell(folder):
 
 def check_design(d: Design) -> None:
     """Cross-check a loaded design; raises InputError naming the first inconsistency."""
-    from .design.layout import unit_cells  # local: layout imports nothing from here
-    from .params import UNIT_CELL
-
     f = d.folder
     m, n = len(d.F), len(d.V)
     c = d.cells
@@ -585,7 +581,104 @@ def check_design(d: Design) -> None:
                          "(2 layers x 2 bases x cells)")
 
 
+# ----------------------------------------------------------------------------------------------
+# model.npz: the simulator's geometry, written by the design stage
+
+
+MODEL_FILE = "model.npz"
+"""The bracket nodes and unit-cell topology the simulator reads (``docs/design-folder.md``)."""
+
+# array -> (shape in m faces, c cells, n vertices, dtype kind)
+MODEL_ARRAYS: dict[str, tuple[tuple, str]] = {
+    "face_adjacency": (("m", 3), "i"),
+    "cell_bases": (("c", 2), "i"), "cell_slots": (("c", 2), "i"), "cell_verts": (("c", 2), "i"),
+    "cell_of": (("m", 3), "i"), "cell_boundary": (("c",), "b"),
+    "boundary_vertex": (("n",), "b"),
+    "nodes_target": (("m", 3, 2, 2, 3), "f"), "nodes_flat": (("m", 3, 2, 2, 3), "f"),
+}
+_MODEL_FIX = "re-run the design stage (morphshell design ...), which writes model.npz"
+
+
+def model_inputs_hash(folder, params) -> str:
+    """sha256 of what ``model.npz`` is computed from: ``stencil.obj``, ``bases.csv`` and the
+    unit cell (``params``, a :class:`pysolver.params.UnitCell`)."""
+    folder = Path(folder)
+    h = hashlib.sha256()
+    for name in ("stencil.obj", FILENAMES["bases"]):
+        h.update((folder / name).read_bytes())
+    h.update(json.dumps(params.to_dict(), sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def write_model(folder, arrays: dict, inputs_sha256: str) -> Path:
+    """Write ``model.npz`` (uncompressed, fixed zip timestamps: same arrays, same bytes).
+
+    Parameters
+    ----------
+    folder : path-like
+        Design folder.
+    arrays : dict of ndarray
+        Every array of :data:`MODEL_ARRAYS`.
+    inputs_sha256 : str
+        :func:`model_inputs_hash` of the tables the arrays were computed from.
+    """
+    missing = [k for k in MODEL_ARRAYS if k not in arrays]
+    if missing:
+        raise InputError(f"write_model: missing array(s) {missing}")
+    path = Path(folder) / MODEL_FILE
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    items = [(k, np.ascontiguousarray(arrays[k])) for k in MODEL_ARRAYS]
+    items.append(("inputs_sha256", np.array(inputs_sha256)))
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
+        for name, a in items:
+            with zf.open(zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0)),
+                         "w") as fh:
+                np.lib.format.write_array(fh, a, allow_pickle=False)
+    os.replace(tmp, path)
+    return path
+
+
+def read_model(folder, *, n_vertices: int, n_faces: int, n_cells: int, params) -> dict:
+    """Read and check ``model.npz`` against the design's sizes and tables.
+
+    Returns
+    -------
+    dict of ndarray
+        The arrays of :data:`MODEL_ARRAYS`.
+
+    Raises
+    ------
+    InputError
+        A missing file or array, a wrong shape, or tables edited after the design stage.
+    """
+    folder = Path(folder)
+    path = folder / MODEL_FILE
+    if not path.is_file():
+        raise InputError(f"{path} does not exist (design folders from before model.npz, or a "
+                         "hand-made folder)", fix=_MODEL_FIX)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as e:
+        raise InputError(f"{path}: unreadable ({e})", fix=_MODEL_FIX) from None
+    size = {"m": n_faces, "c": n_cells, "n": n_vertices}
+    for k, (shape, kind) in MODEL_ARRAYS.items():
+        if k not in data:
+            raise InputError(f"{path}: no array {k!r}", fix=_MODEL_FIX)
+        want = tuple(size.get(d, d) for d in shape)
+        if data[k].shape != want or data[k].dtype.kind != kind:
+            raise InputError(f"{path}: {k} has shape {data[k].shape} ({data[k].dtype}), "
+                             f"expected {want} ({kind})", fix=_MODEL_FIX)
+    stored = str(data.get("inputs_sha256", ""))
+    if stored != model_inputs_hash(folder, params):
+        raise InputError(f"{path} was computed from another stencil.obj, bases.csv or unit "
+                         "cell than the folder now holds (edited after the design stage)",
+                         fix=_MODEL_FIX)
+    return {k: data[k] for k in MODEL_ARRAYS}
+
+
 __all__ = ["SCHEMAS", "FILENAMES", "write_table", "read_table", "read_bases", "read_cells",
            "read_bumpers", "read_time_landscape", "read_support_frame", "write_stencil",
            "read_stencil", "Design", "read_design", "check_design", "round_sig9",
-           "design_unit_cell", "read_unit_cell"]
+           "design_unit_cell", "read_unit_cell", "MODEL_FILE", "MODEL_ARRAYS", "write_model",
+           "read_model", "model_inputs_hash"]

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pysolver.geometry import rigid_fit
 from pysolver.params import UNIT_CELL
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -90,7 +91,6 @@ def frame_alignments(C, target):
     -------
     Q : (n_frames, 3, 3) float ; s : (n_frames, 3) float, mm -- ``x -> Q x + s``
     """
-    from .report.scan import rigid_fit
 
     fits = [rigid_fit(c, target) for c in np.asarray(C, float)]
     return np.stack([q for q, _ in fits]), np.stack([np.asarray(v, float) for _, v in fits])

@@ -108,8 +108,8 @@ def write_design(out_dir, layout, thickness=0.45, t_star: float = 60.0):
     """
     from pathlib import Path
 
-    from pysolver.design.cellnodes import bracket_nodes, collision_lengths
     from pysolver.design import write_design_tables
+    from pysolver.design.cellnodes import bracket_nodes, collision_lengths
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pysolver.design import surfaces
 from pysolver.build import build
+from pysolver.design import surfaces
 
 
 def _nonmanifold_edges(m: trimesh.Trimesh) -> int:

@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pysolver.temporal import program as temporal
 from pysolver.design import run_design
 from pysolver.material import load_bracket_model
 from pysolver.material.fit import fit_material
 from pysolver.material.measurements import DEFAULT_DATA_DIR
 from pysolver.material.model import DEFAULT_MODEL_PATH
 from pysolver.tables import read_cells
+from pysolver.temporal import program as temporal
 
 REPO = Path(__file__).resolve().parent.parent
 REMOVED = "0.50_6"  # dry specimen h = 0.5 mm, l = 6 mm (and its wet series 0.5_6_*)

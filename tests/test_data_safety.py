@@ -26,11 +26,11 @@ import trimesh
 from pysolver import build as build_module
 from pysolver.atomic import STALE_STAGING_S, STAMP_NAME, claim_output, foreign_files
 from pysolver.cli import _parser, main
-from pysolver.errors import EXIT_BAD_INPUT, InputError
 from pysolver.design.mesh_input import load_input
+from pysolver.design.time_landscape import evaluate_expression, parse_expression
+from pysolver.errors import EXIT_BAD_INPUT, InputError
 from pysolver.params import DEFAULT_REFINE, LIMITS
 from pysolver.tables import read_stencil
-from pysolver.design.time_landscape import evaluate_expression, parse_expression
 
 REPO = Path(__file__).resolve().parent.parent
 SHAPE = "regular:rows=2,cols=2"          # 8 bases; design + program in about a second

@@ -17,8 +17,8 @@ import pytest
 
 from pysolver.cli import main
 from pysolver.design import run_design, unit_cell_options
-from pysolver.errors import InputError
 from pysolver.design.mesh_input import load_input
+from pysolver.errors import InputError
 from pysolver.params import LIMITS, UNIT_CELL
 from pysolver.tables import read_design, read_unit_cell, write_stencil
 

@@ -18,8 +18,8 @@ from pysolver.design.flatten import (
     lobachevsky,
     lscm,
 )
-from pysolver.design.layout import signed_areas_2d
 from pysolver.design.surfaces import _disk_mesh
+from pysolver.geometry import signed_areas_2d
 
 
 def disk(radius=30.0, area=12.0):

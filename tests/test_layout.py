@@ -7,15 +7,9 @@ import pytest
 
 from pysolver import tables
 from pysolver.design.cellnodes import bracket_nodes, collision_lengths
+from pysolver.design.layout import alignment_bases, build_layout, convex_polygon_distance
 from pysolver.errors import InputError
-from pysolver.geometry import rotvec_to_matrix
-from pysolver.design.layout import (
-    alignment_bases,
-    build_layout,
-    convex_polygon_distance,
-    face_adjacency,
-    unit_cells,
-)
+from pysolver.geometry import face_adjacency, rotvec_to_matrix, unit_cells
 from pysolver.params import UNIT_CELL as P
 
 H = np.sqrt(3) / 2  # height of the unit equilateral triangle

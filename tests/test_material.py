@@ -16,7 +16,6 @@ import pytest
 
 from pysolver.errors import InputError
 from pysolver.material import (
-    compare_models,
     load_bracket_model,
     load_measurements,
     plastic_rest_length,
@@ -35,6 +34,7 @@ from pysolver.material.fit import (
 )
 from pysolver.material.measurements import DEFAULT_DATA_DIR, movmean_even, preprocess_dry
 from pysolver.material.polyfit import monomial_exponents
+from pysolver.material.report import compare_models
 from pysolver.params import SIM, UNIT_CELL
 
 # thresholds set from the first honest fit (dry 0.0558 mm, wet 0.6392 mm, eq. 9 0.7208 mm)

@@ -18,15 +18,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pysolver.build import validate_model_files
 from pysolver.errors import InputError
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
-from pysolver.material.validate import (
-    validate_bracket_model_file,
-    validate_membrane_model_file,
-    validate_model_files,
-)
+from pysolver.material.validate import validate_bracket_model_file
 from pysolver.temporal.membrane_model import MODEL_PATH as MEMBRANE_PATH
-from pysolver.temporal.membrane_model import load_membrane_model
+from pysolver.temporal.membrane_model import load_membrane_model, validate_membrane_model_file
 
 REPO = Path(__file__).resolve().parent.parent
 GOOD = json.loads(Path(DEFAULT_MODEL_PATH).read_text())

@@ -32,15 +32,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic import StandInBracketModel, regular_stencil, single_cell_stencil, write_design
 
+from pysolver.design.cellnodes import model_arrays
 from pysolver.errors import InputError
 from pysolver.params import PHYSICS_OFF, RELAXATION_PRONY, SIM, PhysicsOptions
-from sim.model.energies import ShellEnergy, State, full_from_lower, rodrigues
 from sim.model import build_model, load_model
+from sim.model.energies import ShellEnergy, State, full_from_lower, rodrigues
 from sim.model.physics import ExternalTerms, base_volumes, parse_physics
 from sim.model.simulate import SimSettings, Simulation, simulate_model
 from sim.model.solver import StaticProblem, newton
-from synthetic import StandInBracketModel, regular_stencil, single_cell_stencil, write_design
 
 DATA = Path(__file__).parent / "data"
 MEAS = Path(__file__).resolve().parents[1] / "data" / "material-measurements"
@@ -146,7 +147,7 @@ def test_relaxation_scales_the_membrane_prestress(patch_dir):
 
 def _cell_model():
     V, UV, F = single_cell_stencil()
-    return build_model(V, UV, F, np.full((1, 2), 0.45))
+    return build_model(V, UV, F, np.full((1, 2), 0.45), model_arrays(V, UV, F))
 
 
 def test_external_terms_gradient_and_hessian_fd():
@@ -386,11 +387,11 @@ def test_rim_in_the_fmem_correction(patch_dir):
     the margin now pulls outward, carry more (above the free-edge factor); interior cells
     change by < 2 %; a per-triangle pre-stretch equal to tau is the scalar model to 1e-12."""
     from pysolver import tables
-    from pysolver.temporal.membrane_model import PlaneMembrane
-    from pysolver.temporal.program import _membrane, membrane_factors
+    from pysolver.temporal.membrane_model import PlaneMembrane, load_membrane_model
+    from pysolver.temporal.program import membrane_factors
 
     cells = tables.read_table(patch_dir, "cells")
-    mem = _membrane(None)
+    mem = load_membrane_model(None)
     f0, _ = membrane_factors(patch_dir, cells, mem)
     f1, info = membrane_factors(patch_dir, cells, mem, rim=(1.0, 2.0))
     b = np.asarray(cells["boundary"], bool)

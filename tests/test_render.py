@@ -18,11 +18,11 @@ import pytest
 from _shared import section_width
 
 from pysolver import tables
-from pysolver.render import parts as render
 from pysolver.errors import ExternalToolError, InputError
 from pysolver.geometry import apply_transform, print_transform
 from pysolver.params import LAYERS, SIM, UNIT_CELL, layer_sign, tol
 from pysolver.render import from_manifold, load_stl, render_design, to_manifold
+from pysolver.render import parts as render
 from pysolver.render.scad_io import SCAD_DIR
 
 U = UNIT_CELL

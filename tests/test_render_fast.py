@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from pysolver import tables
-from pysolver.render import parts as render
-from pysolver.render import fast as render_fast
 from pysolver.errors import ExternalToolError, InputError
 from pysolver.params import LAYERS
+from pysolver.render import fast as render_fast
 from pysolver.render import load_stl, render_design, render_parts, to_manifold
+from pysolver.render import parts as render
 from pysolver.render.scad_io import Part
 
 VOLUME_RTOL = 1e-4

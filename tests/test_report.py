@@ -21,7 +21,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pysolver.errors import InputError
-from pysolver.design.layout import (
+from pysolver.geometry import (
     base_rotations,
     face_adjacency,
     face_centroids,

@@ -145,8 +145,8 @@ def test_fabrication_sheet_follows_note_5(petal):
 def test_plot_titles_fit(petal, tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
-    from sim.report import plots as rp
     from sim.report import make_report
+    from sim.report import plots as rp
 
     checked = []
     real = rp._save

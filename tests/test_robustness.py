@@ -31,6 +31,7 @@ from _shared import flat_grid, save_mesh
 from pysolver import tables
 from pysolver.cli import main
 from pysolver.design import run_design
+from pysolver.design.mesh_input import SizeWarning, load_input
 from pysolver.errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERNAL,
@@ -38,7 +39,6 @@ from pysolver.errors import (
     InputError,
     MorphshellError,
 )
-from pysolver.design.mesh_input import SizeWarning, load_input
 
 REPO = Path(__file__).resolve().parent.parent
 HAS_OPENSCAD = shutil.which("openscad") is not None
@@ -668,7 +668,7 @@ def test_builtin_spec_with_dot_is_a_shape_not_a_file(tmp_path, capsys):
 def test_internal_error_exit_1_no_traceback(tmp_path):
     code = textwrap.dedent(f"""
         import sys
-        import pysolver.design as d
+        import pysolver.build as d
         def boom(*a, **k):
             raise RuntimeError("boom in the design stage")
         d.run_design = boom
@@ -699,12 +699,10 @@ def test_stage_failure_in_build_names_the_stage_and_what_was_kept(tmp_path, caps
 def test_disk_full_is_named_not_called_a_bug(tmp_path, capsys, monkeypatch):
     import errno
 
-    import pysolver.design
-
     def full(*a, **k):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "cells.csv"))
 
-    monkeypatch.setattr(pysolver.design, "run_design", full)
+    monkeypatch.setattr("pysolver.build.run_design", full)
     rc, err = _main(["design", "regular", "--out", tmp_path / "o"], capsys)
     assert rc == EXIT_BAD_INPUT
     _names(err, r"error: cannot write or read .*cells\.csv: No space left on device",

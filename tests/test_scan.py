@@ -10,7 +10,14 @@ from scipy.spatial.transform import Rotation
 from test_report import make_synthetic_design
 
 from pysolver.errors import InputError
-from sim.report.scan import compare_scan, l1_rigid_fit, read_points, register, rigid_fit, simulated_markers
+from sim.report.scan import (
+    compare_scan,
+    l1_rigid_fit,
+    read_points,
+    register,
+    rigid_fit,
+    simulated_markers,
+)
 
 NOISE = 0.2                       # mm, per coordinate
 # mean distance of a 3D isotropic Gaussian error: sigma * sqrt(8 / pi) = 0.319 mm

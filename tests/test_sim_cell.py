@@ -15,18 +15,19 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import brentq
-
-from pysolver.params import SIM
-from sim.model.energies import ShellEnergy, State
-from sim.model import build_model
-from sim.model.simulate import completion_times, simulate_model
 from synthetic import StandInBracketModel, single_cell_stencil
+
+from pysolver.design.cellnodes import model_arrays
+from pysolver.params import SIM
+from sim.model import build_model
+from sim.model.energies import ShellEnergy, State
+from sim.model.simulate import completion_times, simulate_model
 
 
 def test_single_cell_matches_1d_force_balance():
     V, UV, F = single_cell_stencil(flat_length=6.0, target_length=4.8)
     h = 0.35
-    model = build_model(V, UV, F, np.full((1, 2), h))
+    model = build_model(V, UV, F, np.full((1, 2), h), model_arrays(V, UV, F))
     assert model.n_free == 0  # membrane = the quad between the bases: W(l) is explicit
     mat = StandInBracketModel()
     t_end = 60.0

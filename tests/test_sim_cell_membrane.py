@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pysolver.temporal.membrane_model import load_membrane_model
 from pysolver.params import SIM, UNIT_CELL
 from pysolver.temporal.cell_membrane import membrane_traction
+from pysolver.temporal.membrane_model import load_membrane_model
 
 
 @pytest.mark.parametrize("b0", [1.8, 3.8])

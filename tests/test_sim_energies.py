@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic import StandInBracketModel, regular_stencil
 
+from pysolver.design.cellnodes import model_arrays
 from pysolver.params import SIM
+from sim.model import build_model
 from sim.model.energies import (
     ShellEnergy,
     State,
@@ -22,8 +25,6 @@ from sim.model.energies import (
     spring_terms,
 )
 from sim.model.kernels import HAVE_NUMBA
-from sim.model import build_model
-from synthetic import StandInBracketModel, regular_stencil
 
 REL = 1e-5
 
@@ -138,7 +139,8 @@ def test_psd_projection_is_psd():
 def patch_model():
     lay = regular_stencil(4, 3)
     th = np.full((len(lay.cells.faces), 2), 0.45)
-    return build_model(lay.V, lay.UV, lay.F, th, rotvec=lay.rotvec)
+    geometry = model_arrays(lay.V, lay.UV, lay.F, rotvec=lay.rotvec)
+    return build_model(lay.V, lay.UV, lay.F, th, geometry, rotvec=lay.rotvec)
 
 
 def _random_energy(model, seed, backend="auto"):

@@ -10,17 +10,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic import StandInBracketModel, regular_stencil
 
+from pysolver.design.cellnodes import model_arrays
 from sim.model import build_model
 from sim.model.simulate import completion_times, simulate_model
-from synthetic import StandInBracketModel, regular_stencil
 
 
 def _model(top, bottom):
     lay = regular_stencil(5, 4)
     nc = len(lay.cells.faces)
     th = np.c_[np.full(nc, top), np.full(nc, bottom)]
-    return build_model(lay.V, lay.UV, lay.F, th, rotvec=lay.rotvec)
+    geometry = model_arrays(lay.V, lay.UV, lay.F, rotvec=lay.rotvec)
+    return build_model(lay.V, lay.UV, lay.F, th, geometry, rotvec=lay.rotvec)
 
 
 def _fold_deg(fr, model):

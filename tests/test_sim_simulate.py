@@ -9,10 +9,10 @@ import json
 
 import numpy as np
 import pytest
+from synthetic import StandInBracketModel, regular_stencil, write_design
 
 from pysolver.errors import InputError, MorphshellError
 from sim.model import simulate as S
-from synthetic import StandInBracketModel, regular_stencil, write_design
 
 
 @pytest.fixture()

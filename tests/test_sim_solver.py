@@ -9,12 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
-
-from pysolver.params import tol
-from sim.model.energies import ShellEnergy, State, rodrigues
-from sim.model import build_model
-from sim.model.solver import HAVE_CHOLMOD, LinearSolver, NotPositiveDefinite, StaticProblem, newton
 from synthetic import StandInBracketModel, regular_stencil
+
+from pysolver.design.cellnodes import model_arrays
+from pysolver.params import tol
+from sim.model import build_model
+from sim.model.energies import ShellEnergy, State, rodrigues
+from sim.model.solver import HAVE_CHOLMOD, LinearSolver, NotPositiveDefinite, StaticProblem, newton
 
 
 def _spd(n=60, seed=0, shift=1.0):
@@ -45,7 +46,8 @@ def test_linear_solver(backend):
 def patch():
     lay = regular_stencil(5, 4)
     th = np.full((len(lay.cells.faces), 2), 0.45)
-    m = build_model(lay.V, lay.UV, lay.F, th, rotvec=lay.rotvec)
+    geometry = model_arrays(lay.V, lay.UV, lay.F, rotvec=lay.rotvec)
+    m = build_model(lay.V, lay.UV, lay.F, th, geometry, rotvec=lay.rotvec)
     return m
 
 

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from autograd import grad
 
-from pysolver.design import remesh, stencil_opt, surfaces
-from pysolver.design import run_design
-from pysolver.errors import InputError
+from pysolver.design import remesh, run_design, stencil_opt, surfaces
 from pysolver.design.flatten import cetm
-from pysolver.design.layout import build_layout, face_adjacency, face_centroids, unit_cells
+from pysolver.design.layout import build_layout
 from pysolver.design.mesh_input import load_input
+from pysolver.errors import InputError
+from pysolver.geometry import face_adjacency, face_centroids, unit_cells
 from pysolver.params import STENCIL, UNIT_CELL
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "reference-shapes"
@@ -181,8 +181,9 @@ def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path):
 
 
 def test_stencil_whose_bases_reach_across_edges_is_named():
-    from pysolver.temporal.membrane_model import MESH_MAX_AREA, stencil_membrane_mesh
     from synthetic import regular_grid
+
+    from pysolver.temporal.membrane_model import MESH_MAX_AREA, stencil_membrane_mesh
 
     UV, F = regular_grid(6, 6, edge=7.0 * np.sqrt(3))  # cells of 7 mm: fine
     stencil_membrane_mesh(UV, F, MESH_MAX_AREA)

@@ -7,12 +7,11 @@ import pytest
 import trimesh
 from _shared import flat_grid, save_mesh
 
-from pysolver.design import surfaces
 from pysolver import tables
-from pysolver.design import run_design
-from pysolver.errors import InputError
+from pysolver.design import run_design, surfaces
 from pysolver.design.mesh_input import load_input, validate_surface
 from pysolver.design.time_landscape import evaluate_expression, resolve_time
+from pysolver.errors import InputError
 
 # golden figures of the default built-in designs: (bases, max cell length mm); the remeshed
 # shapes come from the automatic vertex-count search (nothing tuned per shape)

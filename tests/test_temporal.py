@@ -16,14 +16,8 @@ import numpy as np
 import pytest
 
 from pysolver import tables
+from pysolver.build import refine_design
 from pysolver.errors import InputError
-from pysolver.temporal.membrane_model import (
-    MODEL_PATH,
-    MembraneModel,
-    load_membrane_model,
-    regular_patch,
-    sample_patch,
-)
 from pysolver.params import UNIT_CELL
 from pysolver.temporal import (
     PICTURE,
@@ -32,12 +26,18 @@ from pysolver.temporal import (
     membrane_factors,
     program_cells,
     program_design,
-    refine_design,
-    simulated_completion,
     solve_thickness,
     time_ranges,
     timing_errors,
 )
+from pysolver.temporal.membrane_model import (
+    MODEL_PATH,
+    MembraneModel,
+    load_membrane_model,
+    regular_patch,
+    sample_patch,
+)
+from sim.model.simulate import simulated_completion
 
 REPO = Path(__file__).resolve().parent.parent
 BRACKET_MODEL = REPO / "pysolver" / "data" / "bracket_model.json"

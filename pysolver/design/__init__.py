@@ -9,7 +9,6 @@ bumpers), :mod:`.cellnodes` (bracket nodes and the simulator's ``model.npz``), :
 from .pipeline import (
     FLATTENINGS,
     check_design_options,
-    check_unit_cell,
     design_layout,
     run_design,
     unit_cell_options,
@@ -19,7 +18,6 @@ from .pipeline import (
 __all__ = [
     "FLATTENINGS",
     "check_design_options",
-    "check_unit_cell",
     "design_layout",
     "run_design",
     "unit_cell_options",

@@ -18,15 +18,19 @@ The flat pose is the same rigid base moved rigidly:
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-from ..geometry import rotvec_to_matrix
-from .layout import (
+from .. import tables
+from ..geometry import (
     Cells,
     base_rotations,
+    boundary_vertex_mask,
     face_adjacency,
     face_centroids,
     face_normals,
+    rotvec_to_matrix,
     unit_cells,
 )
 from ..params import UNIT_CELL, UnitCell
@@ -126,4 +130,54 @@ def cell_collision_lengths(V, UV, F, params: UnitCell = UNIT_CELL) -> np.ndarray
     return collision_lengths(nt, unit_cells(F))
 
 
-__all__ = ["bracket_nodes", "collision_lengths", "cell_collision_lengths"]
+def model_arrays(V, UV, F, params: UnitCell = UNIT_CELL, *, rotvec=None) -> dict:
+    """The simulator's geometry of a stencil: unit-cell topology and bracket nodes.
+
+    The design stage writes these arrays to ``model.npz`` (:func:`write_model_file`); the
+    simulator reads them (:func:`pysolver.tables.read_model`) instead of re-deriving the
+    design's geometry.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    UV : (n, 2) float, mm
+    F : (m, 3) int
+    params : UnitCell
+    rotvec : (m, 3) float, rad, optional
+        Base rotations (``bases.csv``); recomputed if omitted.
+
+    Returns
+    -------
+    dict
+        ``face_adjacency`` (m, 3) int, ``cell_bases``, ``cell_slots``, ``cell_verts`` (c, 2)
+        int, ``cell_of`` (m, 3) int, ``cell_boundary`` (c,) bool, ``boundary_vertex`` (n,)
+        bool, ``nodes_target`` and ``nodes_flat`` (m, 3, 2, 2, 3) float, mm
+        (:func:`bracket_nodes`).
+    """
+    F = np.asarray(F, dtype=np.int64)
+    ff = face_adjacency(F)
+    cells = unit_cells(F, ff)
+    nodes_t, nodes_f = bracket_nodes(V, UV, F, params, ff=ff, rotvec=rotvec)
+    return {"face_adjacency": ff, "cell_bases": cells.faces, "cell_slots": cells.slots,
+            "cell_verts": cells.verts, "cell_of": cells.cell_of,
+            "cell_boundary": cells.boundary,
+            "boundary_vertex": boundary_vertex_mask(F, ff, len(V)),
+            "nodes_target": nodes_t, "nodes_flat": nodes_f}
+
+
+def write_model_file(folder, params: UnitCell = UNIT_CELL) -> Path:
+    """Write ``model.npz`` from the folder's ``stencil.obj`` and ``bases.csv`` as stored.
+
+    The arrays are computed from the tables read back (rounded as written), so the
+    simulator sees exactly the geometry the tables describe.
+    """
+    folder = Path(folder)
+    V, UV, F = tables.read_stencil(folder / "stencil.obj")
+    b = tables.read_table(folder, "bases")
+    rot = np.c_[b["rot_x_rad"], b["rot_y_rad"], b["rot_z_rad"]]
+    arrays = model_arrays(V, UV, F, params, rotvec=rot)
+    return tables.write_model(folder, arrays, tables.model_inputs_hash(folder, params))
+
+
+__all__ = ["bracket_nodes", "collision_lengths", "cell_collision_lengths", "model_arrays",
+           "write_model_file"]

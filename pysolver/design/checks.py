@@ -12,8 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .layout import Layout, signed_areas_2d
+from ..geometry import signed_areas_2d
 from ..params import UNIT_CELL, UnitCell
+from .layout import Layout
 
 # cells longer than this fraction of max_cell_length are reported as "near the limit"
 NEAR_LIMIT = 0.95

@@ -30,7 +30,9 @@ import scipy.special as sps
 from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
+from ..geometry import face_adjacency, signed_areas_2d
 from ..params import UNIT_CELL, UnitCell
+from .layout import build_layout
 
 
 @dataclass
@@ -195,7 +197,6 @@ def layout_from_lengths(F, L, A) -> np.ndarray:
     """
     F = np.asarray(F, dtype=np.int64)
     n = int(F.max()) + 1
-    from .layout import face_adjacency
 
     ff = face_adjacency(F)
     P = np.full((n, 2), np.nan)
@@ -268,7 +269,6 @@ def distortion_metrics(V, UV, F, params: UnitCell = UNIT_CELL, layout=None) -> d
     scale), ``scale_spread`` (its square root: the conformal length-scale spread),
     ``area_log_std``, ``flips`` and, with a layout, the cell length figures.
     """
-    from .layout import signed_areas_2d
 
     V = np.asarray(V, float)
     UV = np.asarray(UV, float)
@@ -336,7 +336,6 @@ def compare_flattenings(V, F, params: UnitCell = UNIT_CELL,
     """
     import time
 
-    from .layout import build_layout
 
     res = {}
     for m in methods:

@@ -22,7 +22,9 @@ import igl
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import face_adjacency
 from ..params import tol as TOL
+from ..tables import read_stencil
 
 SUPPORTED = (".obj", ".stl", ".ply", ".off")
 # a shell smaller or larger than this (bounding-box diagonal, mm) is probably in other units:
@@ -212,7 +214,6 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
         raise InputError(f"{path}: empty file", fix="re-export the mesh")
     notes = []
     if ext == ".obj" and _obj_has_vt(path):
-        from ..tables import read_stencil
 
         try:
             V, UV, F = read_stencil(path)
@@ -278,7 +279,6 @@ def boundary_loops(F) -> list[np.ndarray]:
     Hand-written walk over the directed boundary edges (this libigl build has only
     ``boundary_loop``, which returns the longest loop).  Assumes manifold vertices.
     """
-    from .layout import face_adjacency
 
     F = np.asarray(F, dtype=np.int64)
     ff = face_adjacency(F)
@@ -361,7 +361,6 @@ def validate_surface(V, F, name: str = "surface") -> None:
     InputError
         Naming the problem and where it is, with a fix.
     """
-    from .layout import face_adjacency
 
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)

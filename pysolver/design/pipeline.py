@@ -22,17 +22,24 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
-from .cellnodes import bracket_nodes, collision_lengths
-from .checks import check_layout
 from ..errors import InputError
+from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell, check_unit_cell
+from . import surfaces
+from .cellnodes import bracket_nodes, collision_lengths, write_model_file
+from .checks import check_layout
+from .flatten import compare_flattenings, distortion_metrics
 from .layout import Layout, build_layout
-from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell
+from .mesh_input import load_input, size_factor
+from .plots import write_design_plots
+from .remesh import remesh_surface, stencil_figures, surface_area
 from .time_landscape import (
+    TIME_FILE_ATTRIBUTE,
     cell_times,
     check_time_option,
     check_time_source,
     read_time_file,
     resolve_time,
+    time_file_per_vertex,
 )
 
 FLATTENINGS = ("cetm", "lscm")
@@ -58,7 +65,6 @@ class _Clock:
 def _load_source(source, scale: float, size=None):
     """Returns (surface-like object, kind, source description, hash, input mesh or None,
     factor applied to the input coordinates: ``scale``, or the one that ``size`` asks for)."""
-    from . import surfaces
 
     if isinstance(source, surfaces.Surface):
         h = hashlib.sha256(np.ascontiguousarray(source.V).tobytes()).hexdigest()[:16]
@@ -68,7 +74,6 @@ def _load_source(source, scale: float, size=None):
     if not p.exists() and surfaces.is_builtin(src):
         surf = surfaces.builtin(src)
         if size is not None:
-            from .mesh_input import size_factor
 
             scale = size_factor(surf.V, size, src)
         if scale != 1.0:
@@ -84,7 +89,6 @@ def _load_source(source, scale: float, size=None):
         raise InputError(f"{src}: no such file and not a built-in shape",
                          fix=f"give a mesh file (OBJ, STL, PLY, OFF) or one of "
                              f"{', '.join(surfaces.BUILTIN)}")
-    from .mesh_input import load_input
 
     mesh = load_input(p, scale=scale, size=size)
     h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
@@ -102,7 +106,6 @@ def _time_file_source(path, mesh, surf, stencil_order: bool):
     time : (n,) float array or str
     info : dict -- ``path``, ``sha256``, ``values``, ``carried`` (recorded in design.json)
     """
-    from .time_landscape import TIME_FILE_ATTRIBUTE, read_time_file, time_file_per_vertex
 
     values, sha = read_time_file(path)
     if mesh is None:
@@ -166,33 +169,6 @@ def unit_cell_options(*, min_bumper=None, min_gap=None, max_cell_length=None,
 
 def _is_number(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-
-
-def check_unit_cell(params: UnitCell) -> None:
-    """Check the user-variable tolerances of a unit cell against :class:`~pysolver.params.Limits`.
-
-    Raises
-    ------
-    InputError
-        Naming the option, its value, the allowed range and a fix.
-    """
-    for opt, v, (lo, hi), why in (
-            ("--min-bumper", params.min_bumper, LIMITS.min_bumper_mm,
-             "the paper uses 0.3 mm, most reference examples 0.1 mm"),
-            ("--min-gap", params.min_gap, LIMITS.min_gap_mm,
-             "the paper and the reference examples use 0.1 mm")):
-        if not (np.isfinite(v) and lo <= v <= hi):
-            raise InputError(f"{opt} {v!r} mm is outside {lo:g}-{hi:g} mm",
-                             fix=f"give a length in that range ({why})")
-    lo, hi = params.shortest_cell(), LIMITS.max_cell_length_mm
-    v = params.max_cell_length
-    if not (np.isfinite(v) and lo < v <= hi):
-        raise InputError(
-            f"--max-cell-length {v!r} mm is outside {lo:g}-{hi:g} mm: no cell is shorter than "
-            f"2 (base radius + min bumper) + min gap = {lo:g} mm, and the bracket model is "
-            f"measured up to 9 mm (used up to {hi:g} mm)",
-            fix=f"give a length above {lo:g} and up to {hi:g} mm (default "
-                f"{UNIT_CELL.max_cell_length:g} mm)")
 
 
 def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cetm",
@@ -262,7 +238,6 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
     """
     from dataclasses import replace
 
-    from .remesh import stencil_figures
 
     lines = []
     low = REFERENCE_MIN_BUMPER_MM
@@ -347,7 +322,6 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     check_time_source(time, mesh)
     clock.step("load")
 
-    from .flatten import compare_flattenings
 
     remesh_info = {}
     comparison = {}
@@ -368,7 +342,6 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
             V0, F0 = surf.V, surf.F
             remesh_info = {"remeshed": False, "vertices": int(len(V0))}
         else:
-            from .remesh import remesh_surface
 
             V0, F0, remesh_info = remesh_surface(
                 surf.V, surf.F, vertices=vertices, seed=seed, target_bases=surf.target_bases,
@@ -413,12 +386,10 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     # messages name places on the target in mm (the scaled, centred stencil.obj v): the
     # input may be unitless (--size) or in other units (--scale)
     report = check_layout(lay, params, raise_=False)
-    from .flatten import distortion_metrics
 
     dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
     clock.step("checks")
     if remesh_info.get("remeshed") and remesh_info.get("rim_inset_mm"):
-        from .remesh import surface_area
 
         cover = surface_area(V0, F0) / remesh_info["area_mm2"]
         remesh_info["area_covered"] = round(cover, 4)
@@ -438,7 +409,6 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
                        flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
     if plots:
-        from .plots import write_design_plots
 
         pics = write_design_plots(lay, out_dir, t_vertex, th)
         clock.step("plots")
@@ -463,7 +433,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
 
 def write_design_tables(out_dir, lay: Layout, coll, t_vertex, t_star, thickness,
                         params: UnitCell = UNIT_CELL) -> None:
-    """Write stencil.obj and the five CSV tables of a layout into ``out_dir``."""
+    """Write stencil.obj, the five CSV tables and ``model.npz`` of a layout into ``out_dir``."""
     out_dir = Path(out_dir)
     F = lay.F
     m = len(F)
@@ -503,6 +473,7 @@ def write_design_tables(out_dir, lay: Layout, coll, t_vertex, t_star, thickness,
         "vertex_id": np.arange(len(lay.V)), "time_s": t_vertex})
     tables.write_table(out_dir / "support_frame.csv", "support_frame", {
         "x_mm": lay.support[:, 0], "y_mm": lay.support[:, 1]})
+    write_model_file(out_dir, params)
 
 
 def _r(x, k=4):
@@ -561,5 +532,5 @@ def _write_json(path: Path, data: dict):
     os.replace(tmp, path)
 
 
-__all__ = ["run_design", "check_design_options", "unit_cell_options", "check_unit_cell",
+__all__ = ["run_design", "check_design_options", "unit_cell_options",
            "design_layout", "write_design_tables", "FLATTENINGS"]

@@ -14,8 +14,8 @@ from matplotlib.collections import LineCollection, PatchCollection, PolyCollecti
 from matplotlib.patches import Circle  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from .layout import Layout, footprint_rectangles  # noqa: E402
 from ..params import UNIT_CELL  # noqa: E402
+from .layout import Layout, footprint_rectangles  # noqa: E402
 
 
 def _flat_axes(ax, lay: Layout, values, label, cmap, vmin=None, vmax=None, layer=0):

@@ -44,9 +44,10 @@ from scipy.spatial import cKDTree
 from shapely.geometry import LinearRing, Polygon
 
 from ..errors import InputError
-from .flatten import cetm
-from .layout import build_layout, face_adjacency, face_normals
+from ..geometry import face_adjacency, face_normals
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from .flatten import cetm
+from .layout import build_layout
 from .stencil_opt import optimize_stencil
 
 PAPER_CELL_LENGTH = 7.0  # mm, l_avg of the vertex-count estimate (Supplementary Note 1)

@@ -33,7 +33,7 @@ from autograd import value_and_grad
 from autograd.scipy.special import logsumexp
 from scipy.optimize import minimize
 
-from .layout import face_adjacency, unit_cells
+from ..geometry import face_adjacency, unit_cells
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import triangle as tr
 
 from ..errors import InputError
+from .time_landscape import interpolate_to_stencil
 
 
 @dataclass
@@ -138,7 +139,6 @@ def _time_on_dense(V, F, t_dense):
     source mesh (closest point, barycentric) -- robust where arms overlap in space."""
 
     def time(X):
-        from .time_landscape import interpolate_to_stencil
 
         return interpolate_to_stencil(t_dense, V, F, np.asarray(X, float))
 
@@ -190,7 +190,8 @@ def regular(rows: int = 6, cols: int = 5, central_length: float = 7.0) -> Surfac
                    options=dict(rows=rows, cols=cols))
 
 
-__all__ = ["regular_grid", "Surface", "regular", "petal", "saddle", "dome", "weave", "spiral", "BUILTIN",
+__all__ = ["regular_grid", "Surface", "regular", "petal", "saddle", "dome", "weave", "spiral",
+           "BUILTIN",
            "BUILTIN_SHAPES", "builtin", "check_spec", "is_builtin"]
 
 

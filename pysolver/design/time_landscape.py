@@ -25,6 +25,7 @@ import igl
 import numpy as np
 
 from ..errors import InputError
+from ..params import LIMITS
 
 DEFAULT_TIME_S = 60.0
 T_MIN_S, T_MAX_S = 0.0, 120.0
@@ -277,7 +278,6 @@ def read_time_file(path) -> tuple[np.ndarray, str]:
     import hashlib
     from pathlib import Path
 
-    from ..params import LIMITS
 
     path = Path(path)
     fix = ("write one time in seconds per input-mesh vertex, in the mesh file's vertex order, "

@@ -87,6 +87,7 @@ from .measurements import (
     preprocess_dry,
     preprocess_wet,
 )
+from .model import BracketModel, load_bracket_model, model_dict
 from .polyfit import (
     constrained_lstsq,
     constrained_normal_lstsq,
@@ -94,6 +95,7 @@ from .polyfit import (
     monomial_exponents,
     mv,
 )
+from .report import compare_models, write_report
 
 DEFAULT_MODEL_PATH = REPO_ROOT / "pysolver" / "data" / "bracket_model.json"
 """The committed fitted model."""
@@ -480,7 +482,6 @@ def run_chain(meas: Measurements, opts: FitOptions, progress: bool = True,
     -------
     FitResult
     """
-    from .model import BracketModel
 
     opts.check()
     log = (lambda m: print(m, file=sys.stderr)) if progress else (lambda m: None)
@@ -604,7 +605,6 @@ def _versions() -> dict:
 
 def model_file_dict(res: FitResult, meas: Measurements) -> dict:
     """The JSON object written to the model file (deterministic; no dates, no absolute paths)."""
-    from .model import model_dict
 
     r = res.residuals
     meta = {
@@ -672,8 +672,6 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
     InputError
         Bad or insufficient measurements (see :func:`load_measurements`).
     """
-    from .model import load_bracket_model
-    from .report import compare_models, write_report
 
     t0 = time.time()
     opts = FitOptions() if options is None else options

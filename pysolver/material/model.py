@@ -34,7 +34,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import SIM, UNIT_CELL
+from .creep import CreepModel
 from .measurements import REPO_ROOT
+from .polyfit import poly_energy, poly_force, poly_stiffness
+from .validate import validate_bracket_model_file
 
 DEFAULT_MODEL_PATH = REPO_ROOT / "pysolver" / "data" / "bracket_model.json"
 OUTSIDE_MODES = ("clamp", "reference")
@@ -65,27 +68,6 @@ def plastic_rest_length(rest, rest0, length, eta: float = SIM.eta):
     rest, rest0, length = np.broadcast_arrays(np.asarray(rest, float), np.asarray(rest0, float),
                                               np.asarray(length, float))
     return np.minimum(rest, rest0 - eta * (rest0 - length))
-
-
-def poly_force(c, x):
-    """``sum_k c[..., k-1] x^k`` for k = 1..4: force (N) of coefficient rows ``c`` (..., 4) at x."""
-    c = np.asarray(c, float)
-    x = np.asarray(x, float)
-    return x * (c[..., 0] + x * (c[..., 1] + x * (c[..., 2] + x * c[..., 3])))
-
-
-def poly_energy(c, x):
-    """Energy ``sum_k c_k x^(k+1) / (k+1)`` (N mm) of force coefficients ``c`` (..., 4) at x."""
-    c = np.asarray(c, float)
-    x = np.asarray(x, float)
-    return x * x * (c[..., 0] / 2 + x * (c[..., 1] / 3 + x * (c[..., 2] / 4 + x * c[..., 3] / 5)))
-
-
-def poly_stiffness(c, x):
-    """``dF/dx = sum_k k c_k x^(k-1)`` (N/mm) of force coefficients ``c`` (..., 4) at x."""
-    c = np.asarray(c, float)
-    x = np.asarray(x, float)
-    return c[..., 0] + x * (2 * c[..., 1] + x * (3 * c[..., 2] + x * 4 * c[..., 3]))
 
 
 class BracketModel:
@@ -288,8 +270,6 @@ class BracketModel:
     # -- creep model (specimen level) ------------------------------------------------------------
     def creep_model(self):
         """The fitted displacement model of SI eq. 9 (:class:`CreepModel`), if stored."""
-        from .creep import CreepModel
-
         if "creep_model" not in self.meta:
             raise InputError("this model file has no creep model (p_dry/p_wet).")
         return CreepModel.from_dict(self.meta["creep_model"])
@@ -343,8 +323,6 @@ def load_bracket_model(path=None, outside: str = "clamp") -> BracketModel:
         Missing or malformed file, or a model that breaks a rule of
         :mod:`pysolver.material.validate` (the message names the key and the rule).
     """
-    from .validate import validate_bracket_model_file
-
     path = Path(DEFAULT_MODEL_PATH if path is None else path)
     v = validate_bracket_model_file(path)
     meta = {k: val for k, val in v["data"].items()

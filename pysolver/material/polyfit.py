@@ -200,3 +200,28 @@ def _solve_cutting_plane(P, q, G, tol: float, max_rounds: int = 100):
         rows = np.union1d(rows, add)
     raise MorphshellError(f"the constrained polynomial fit did not converge in {max_rounds} "
                           f"cutting-plane rounds (max violation {v.max():.3g}).")
+
+
+# ----------------------------------------------------------------------------------------------
+# the bracket force polynomial in the compression x (degree 4, no constant term)
+
+
+def poly_force(c, x):
+    """``sum_k c[..., k-1] x^k`` for k = 1..4: force (N) of coefficient rows ``c`` (..., 4) at x."""
+    c = np.asarray(c, float)
+    x = np.asarray(x, float)
+    return x * (c[..., 0] + x * (c[..., 1] + x * (c[..., 2] + x * c[..., 3])))
+
+
+def poly_energy(c, x):
+    """Energy ``sum_k c_k x^(k+1) / (k+1)`` (N mm) of force coefficients ``c`` (..., 4) at x."""
+    c = np.asarray(c, float)
+    x = np.asarray(x, float)
+    return x * x * (c[..., 0] / 2 + x * (c[..., 1] / 3 + x * (c[..., 2] / 4 + x * c[..., 3] / 5)))
+
+
+def poly_stiffness(c, x):
+    """``dF/dx = sum_k k c_k x^(k-1)`` (N/mm) of force coefficients ``c`` (..., 4) at x."""
+    c = np.asarray(c, float)
+    x = np.asarray(x, float)
+    return c[..., 0] + x * (2 * c[..., 1] + x * (3 * c[..., 2] + x * 4 * c[..., 3]))

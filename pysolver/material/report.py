@@ -19,6 +19,7 @@ from .measurements import (  # noqa: E402
     preprocess_dry,
     preprocess_wet,
 )
+from .model import load_bracket_model
 
 _LOAD_COLORS = {1.0: "tab:blue", 2.0: "tab:orange", 3.0: "tab:green", 4.0: "tab:red",
                 5.0: "tab:purple"}
@@ -173,7 +174,6 @@ def compare_models(model_a, model_b, out_png, labels=("a", "b"),
     cells : sequence of (h_mm, b_mm), optional
         Panels; default three thicknesses x two lengths.
     """
-    from .model import load_bracket_model
 
     ma = model_a if hasattr(model_a, "force") else load_bracket_model(model_a)
     mb = model_b if hasattr(model_b, "force") else load_bracket_model(model_b)

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import MODEL_FILES
-from .model import poly_force, poly_stiffness
+from .polyfit import poly_force, poly_stiffness
 
 BRACKET_KIND = "material model file"
 MEMBRANE_KIND = "membrane model file"
@@ -393,117 +393,7 @@ def validate_bracket_model_file(path) -> dict:
     return dict(check_bracket_model(d, path), data=d)
 
 
-# ----------------------------------------------------------------------------------------------
-# membrane model
-# ----------------------------------------------------------------------------------------------
-
-
-def check_membrane_model(d: dict, path=None) -> dict:
-    """Check the content of a membrane model file (rules in the module docstring).
-
-    Returns
-    -------
-    dict
-        ``terms`` tuple of str, ``coef`` (k,) float, ``boundary_factor`` float,
-        ``residual_rms_N``, ``residual_max_N`` float (N), ``samples`` dict of (n,) float.
-    """
-    from ..temporal.membrane_model import TERMS, _design_matrix
-
-    f = _File(path if path is not None else "<model>", MEMBRANE_KIND, MEMBRANE_FIX)
-    terms = _get(f, d, "terms", "terms")
-    if not (isinstance(terms, list) and terms and all(isinstance(t, str) for t in terms)):
-        f.fail("terms", f"is {_describe(terms)}; expected a list of monomial names "
-                        f"({', '.join(TERMS)}).")
-    for i, t in enumerate(terms):
-        if t not in TERMS:
-            f.fail(f"terms[{i}]", f"= {t!r} is not a known monomial ({', '.join(TERMS)}).")
-    if len(set(terms)) != len(terms):
-        f.fail("terms", f"{terms} repeats a monomial.")
-    coef = _vector(f, _get(f, d, "coefficients", "coefficients"), "coefficients", len(terms))
-    fit = _get(f, d, "fit", "fit")
-    res = {}
-    for k in ("residual_rms_N", "residual_max_N"):
-        v = _get(f, fit, k, f"fit.{k}")
-        if not (_is_number(v) and math.isfinite(v) and v >= 0):
-            f.fail(f"fit.{k}", f"is {_describe(v)}; it must be a finite number >= 0 (N).")
-        res[k] = float(v)
-    lo, hi = MODEL_FILES.boundary_factor_range
-    bf = d.get("boundary_factor", None)
-    if bf is not None and not (_is_number(bf) and lo < bf <= hi):
-        f.fail("boundary_factor", f"is {_describe(bf)}; it must be a number in ({lo:g}, {hi:g}].")
-    samples = {}
-    s = d.get("samples", {})
-    if not isinstance(s, dict):
-        f.fail("samples", f"is {_describe(s)}, expected an object.")
-    for k in ("b0_mm", "d_mm", "force_N"):
-        if k in s:
-            samples[k] = _vector(f, s[k], f"samples.{k}")
-    if len({len(v) for v in samples.values()}) > 1:
-        f.fail("samples", "b0_mm, d_mm and force_N have different lengths "
-                          f"({', '.join(f'{k} {len(v)}' for k, v in samples.items())}).")
-    b_lo, b_hi = MODEL_FILES.membrane_b_range_mm
-    n = MODEL_FILES.membrane_samples
-    b = np.linspace(b_lo, b_hi, n)
-    frac = np.linspace(0.0, MODEL_FILES.membrane_d_fraction, n)
-    B, Fr = np.meshgrid(b, frac, indexing="ij")
-    D = Fr * B
-    with np.errstate(all="ignore"):
-        F = (_design_matrix(B.ravel(), D.ravel(), tuple(terms)) @ coef).reshape(B.shape)
-    if not np.all(F > 0):
-        i = np.unravel_index(np.argmin(F), F.shape)
-        f.fail("coefficients", f"give a membrane force F_mem = {F[i]:.4g} N at b0 = "
-                               f"{B[i]:.3g} mm, d = {D[i]:.3g} mm; the membrane must pull (F_mem "
-                               f"> 0) for b0 in [{b_lo:g}, {b_hi:g}] mm and d up to "
-                               f"{MODEL_FILES.membrane_d_fraction:g} b0.")
-    grow = np.diff(F, axis=1)
-    if np.any(grow > 0):
-        i = np.unravel_index(np.argmax(grow), grow.shape)
-        f.fail("coefficients", f"give a membrane force that grows from {F[i]:.4g} N to "
-                               f"{F[i[0], i[1] + 1]:.4g} N as a cell with b0 = {B[i]:.3g} mm "
-                               f"shortens from d = {D[i]:.3g} to {D[i[0], i[1] + 1]:.3g} mm; the "
-                               "pre-stretched membrane must relax as it contracts.")
-    return dict(res, terms=tuple(terms), coef=coef,
-                boundary_factor=None if bf is None else float(bf), samples=samples)
-
-
-def validate_membrane_model_file(path) -> dict:
-    """Read and check a membrane model file; returns :func:`check_membrane_model`'s dict plus
-    ``data`` (the JSON object).
-
-    Raises
-    ------
-    InputError
-        The first rule the file breaks, naming the file, key and rule.
-    """
-    d = read_model_json(path, MEMBRANE_KIND, MEMBRANE_FIX)
-    return dict(check_membrane_model(d, path), data=d)
-
-
-def validate_model_files(material=None, membrane=None) -> None:
-    """Check every model file a build will read, before any stage runs.
-
-    Parameters
-    ----------
-    material : path-like or bracket model object, optional
-        ``--material FILE``; None checks the committed bracket model; an object (already a
-        model) is not a file and is skipped.
-    membrane : path-like, optional
-        Membrane model file (default: the committed one).
-
-    Raises
-    ------
-    InputError
-        The first rule a file breaks.
-    """
-    from ..temporal.membrane_model import MODEL_PATH
-    from .model import DEFAULT_MODEL_PATH
-
-    if material is None or isinstance(material, str | os.PathLike):
-        validate_bracket_model_file(DEFAULT_MODEL_PATH if material is None else material)
-    if membrane is None or isinstance(membrane, str | os.PathLike):
-        validate_membrane_model_file(MODEL_PATH if membrane is None else membrane)
 
 
 __all__ = ["read_model_json", "check_bracket_model", "validate_bracket_model_file",
-           "check_membrane_model", "validate_membrane_model_file", "validate_model_files",
            "nested_numbers", "BRACKET_KIND", "MEMBRANE_KIND"]

@@ -47,6 +47,8 @@ import threading
 import time
 from pathlib import Path
 
+from .scad_io import Part, part_text
+
 DIST = "openscad-evaluator"
 """PyPI distribution of the fast renderer (module ``openscad_evaluator``)."""
 
@@ -277,7 +279,6 @@ def write_reference_parts(folder, scad_dir) -> list:
         thickness), ``ref_node_bottom``, ``ref_actuated_top`` (brackets opened to spans),
         ``ref_frame_top``, ``ref_frame_bottom``, ``ref_marker``, ``ref_specimen``.
     """
-    from .scad_io import Part, part_text
 
     folder, scad_dir = Path(folder), Path(scad_dir).resolve()
     folder.mkdir(parents=True, exist_ok=True)

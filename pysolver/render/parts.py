@@ -59,7 +59,9 @@ import numpy as np
 
 from ..atomic import atomic_dir, public_mode
 from ..errors import ExternalToolError, InputError
+from ..geometry import print_transform, rotvec_to_matrix
 from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
+from . import fast as render_fast
 from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files
 
 OPENSCAD_ENV = "MORPHSHELL_OPENSCAD"
@@ -282,7 +284,6 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
 
     from tqdm import tqdm
 
-    from . import fast as render_fast
 
     seconds: dict[str, float] = {}
     failures: list[tuple[Part, str]] = []
@@ -402,7 +403,6 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
         exe = exe or find_openscad()
         oversion = version = openscad_version(exe)
     else:
-        from . import fast as render_fast
 
         version = render_fast.version()
         if version is None:
@@ -509,7 +509,6 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
     ExternalToolError
         OpenSCAD is missing.
     """
-    from . import fast as render_fast
 
     fversion = render_fast.version()
     if fversion is None:
@@ -679,7 +678,6 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     InputError
         Bad or missing tables.
     """
-    from ..geometry import print_transform, rotvec_to_matrix
 
     t_start = time.perf_counter()
     design_dir = Path(design_dir).resolve()

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import LAYERS, SUPPORT_FRAME, UNIT_CELL, layer_sign
+from ..tables import read_design as _read
 
 SCAD_DIR = Path(__file__).resolve().parents[2] / "scad"
 """The OpenSCAD library shipped with the repository."""
@@ -171,7 +172,6 @@ def read_design(design_dir):
         A file or column is missing, a bracket thickness is outside 0.30-0.65 mm
         (:func:`pysolver.tables.check_design`), or a central length is not printable.
     """
-    from ..tables import read_design as _read
 
     design_dir = Path(design_dir)
     d = _read(design_dir)

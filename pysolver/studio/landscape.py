@@ -16,7 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import tables, temporal
 from ..errors import InputError
+from ..temporal import cell_target_times, program_cells
+from ..temporal.membrane_model import load_membrane_model
 
 MAX_TIME_S = 1000.0
 """Largest keyframe time accepted (s); the material models cover about 120 s."""
@@ -138,7 +141,6 @@ class Feasibility:
     """
 
     def __init__(self, design_dir):
-        from .. import tables, temporal
 
         self.folder = Path(design_dir)
         self.cells = tables.read_table(self.folder, "cells")
@@ -148,9 +150,9 @@ class Feasibility:
             rec = json.loads(p.read_text())
         summ = rec.get("summary", {})
         mat_path = summ.get("material_model")
-        self.material = temporal._material(mat_path if mat_path and Path(mat_path).is_file()
+        self.material = temporal.load_material(mat_path if mat_path and Path(mat_path).is_file()
                                            else None)
-        self.membrane = temporal._membrane(None)
+        self.membrane = load_membrane_model(None)
         fac = rec.get("membrane_factor")
         if fac is not None and len(fac) == len(self.cells["cell_id"]):
             self.factor = np.asarray(fac, float)
@@ -168,7 +170,6 @@ class Feasibility:
         dict: ``t_star``, ``t_min``, ``t_max`` (n_cells,) s (inf/NaN as None in JSON),
         ``clamped`` (n_cells,) bool, ``side`` (-1 too early, +1 too late, 0 ok).
         """
-        from ..temporal import cell_target_times, program_cells
 
         c = self.cells
         t_star = cell_target_times(np.asarray(landscape, float), c["vertex_a"], c["vertex_b"])

@@ -38,7 +38,15 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.report import completion_times, load_sim
+from sim.viewer import ASSETS, viewer_data
+from sim.viewer import STATIC_DIR as VIEWER_DIR
+
+from .. import tables
+from ..atomic import _manifest, atomic_write_text, write_stamp
 from ..errors import InputError, MorphshellError
+from ..tables import read_stencil, read_table
+from .landscape import Feasibility, constraint_values, harmonic_landscape, parse_constraints
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 MAX_BODY_BYTES = 4 << 20
@@ -47,8 +55,6 @@ LANDSCAPE_SOURCE = "studio_landscape.json"
 
 
 def _static_files() -> dict:
-    from sim.viewer import ASSETS
-    from sim.viewer import STATIC_DIR as VIEWER_DIR
 
     files = {name: VIEWER_DIR / name for name in ASSETS}
     files.update({name: STATIC_DIR / name for name in ("index.html", "studio.js", "studio.css")})
@@ -94,8 +100,6 @@ class Build:
         key = (p.stat().st_mtime_ns, (self.folder / "cells.csv").stat().st_mtime_ns)
         with self.lock:
             if self._viewer_key != key:
-                from sim.report import completion_times, load_sim
-                from sim.viewer import viewer_data
 
                 sd = load_sim(self.folder)
                 fr = sd.frames
@@ -108,18 +112,15 @@ class Build:
     def feasibility(self):
         with self.lock:
             if self._feas is None:
-                from .landscape import Feasibility
 
                 self._feas = Feasibility(self.folder)
             return self._feas
 
     def stencil(self):
-        from ..tables import read_stencil
 
         return read_stencil(self.folder / "stencil.obj")
 
     def target(self) -> dict:
-        from ..tables import read_table
 
         V, _, F = self.stencil()
         land = read_table(self.folder, "time_landscape")["time_s"]
@@ -147,7 +148,6 @@ class Build:
                 "n_clamped": int(ev["clamped"].sum())}
 
     def landscape(self, payload):
-        from .landscape import constraint_values, harmonic_landscape, parse_constraints
 
         V, _, F = self.stencil()
         kf, br = parse_constraints(payload, len(V))
@@ -161,8 +161,6 @@ class Build:
                 "feasibility": self._feas_json(self.feasibility().evaluate(land))}
 
     def save(self, payload) -> dict:
-        from .. import tables
-        from ..atomic import _manifest, atomic_write_text, write_stamp
 
         land, kf, br = self.landscape(payload)
         owned = _manifest(self.folder)

@@ -20,6 +20,7 @@ import threading
 from pathlib import Path
 
 from ..errors import InputError
+from .server import StudioServer, resolve_folders
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
@@ -85,7 +86,6 @@ def _save_small(png: bytes, path: Path, width: int) -> Path:
 
 def studio_shots(build_dir, out_dir, *, width: int = 1100) -> list[Path]:
     """Write ``studio.png`` and ``report.png`` of ``build_dir`` into ``out_dir``."""
-    from .server import StudioServer, resolve_folders
 
     build_dir = Path(build_dir)
     out_dir = Path(out_dir)

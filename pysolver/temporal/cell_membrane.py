@@ -28,32 +28,30 @@ from functools import lru_cache
 
 import numpy as np
 
+from pysolver.design.cellnodes import model_arrays
+from pysolver.design.surfaces import regular_grid
 from pysolver.errors import InputError
 from pysolver.params import SIM, UNIT_CELL
+from sim.model import build_model
+from sim.model.energies import ShellEnergy, State
+from sim.model.solver import StaticProblem, newton
 
 K_PRESCRIBE = 1e4  # N/mm, stiffness of the length-prescribing springs
 
 
 @lru_cache(maxsize=16)
 def _patch(b0: float, nx: int, ny: int, max_area: float):
-    from sim.model.energies import ShellEnergy
-    from sim.model import build_model
-    from pysolver.design.surfaces import regular_grid
-
     l0 = b0 + UNIT_CELL.bracket_offset
     UV, F = regular_grid(nx, ny, l0 * np.sqrt(3))  # centroid distance = edge / sqrt 3
     UV = UV - UV.mean(axis=0)
     V = np.c_[UV, np.zeros(len(UV))]
-    from pysolver.design.layout import unit_cells
-
-    nc = len(unit_cells(F).faces)
+    geometry = model_arrays(V, UV, F)
+    nc = len(geometry["cell_bases"])
     consts = dataclasses.replace(SIM, membrane_max_area=max_area)
-    model = build_model(V, UV, F, np.full((nc, 2), 0.45), consts=consts,
+    model = build_model(V, UV, F, np.full((nc, 2), 0.45), geometry, consts=consts,
                         source="membrane_traction patch")
     # most interior cell: farthest (flat) from the free boundary vertices
-    from pysolver.design.layout import boundary_vertex_mask, face_adjacency
-
-    vb = boundary_vertex_mask(F, face_adjacency(F), len(UV))
+    vb = geometry["boundary_vertex"]
     mid = 0.5 * (model.base_flat[model.cell_bases[:, 0]] + model.base_flat[model.cell_bases[:, 1]])
     dist = np.linalg.norm(mid[:, None, :2] - UV[vb][None], axis=2).min(axis=1)
     return model, ShellEnergy(model), int(np.argmax(dist))
@@ -86,9 +84,6 @@ def membrane_traction(l0_mm, d_mm, *, nx: int = 7, ny: int = 6,
         Total force of the cell's four brackets (positive = the membrane compresses them).
     details : list of dict, optional
     """
-    from sim.model.energies import State
-    from sim.model.solver import StaticProblem, newton
-
     l0, d = np.broadcast_arrays(np.asarray(l0_mm, float), np.asarray(d_mm, float))
     out = np.empty(l0.shape)
     details = []

@@ -55,10 +55,23 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..errors import InputError
-from ..params import SIM, UNIT_CELL
+from sim.model.rim import rim_margin
 
-MODEL_PATH = Path(__file__).resolve().parents[1] / "data" / "membrane_model.json"
+from ..atomic import atomic_write_text
+from ..errors import InputError
+from ..material.validate import (
+    MEMBRANE_FIX,
+    MEMBRANE_KIND,
+    _describe,
+    _File,
+    _get,
+    _is_number,
+    _vector,
+    read_model_json,
+)
+from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
+
+MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by :func:`fit_membrane_model`)."""
 
 DEFAULT_REPORT_DIR = Path("build") / "membrane"
@@ -166,6 +179,85 @@ class MembraneModel:
         return self.force(b_mm, d_mm, boundary) / 4.0
 
 
+def check_membrane_model(d: dict, path=None) -> dict:
+    """Check the content of a membrane model file (rules in :mod:`pysolver.material.validate`).
+
+    Returns
+    -------
+    dict
+        ``terms`` tuple of str, ``coef`` (k,) float, ``boundary_factor`` float,
+        ``residual_rms_N``, ``residual_max_N`` float (N), ``samples`` dict of (n,) float.
+    """
+    f = _File(path if path is not None else "<model>", MEMBRANE_KIND, MEMBRANE_FIX)
+    terms = _get(f, d, "terms", "terms")
+    if not (isinstance(terms, list) and terms and all(isinstance(t, str) for t in terms)):
+        f.fail("terms", f"is {_describe(terms)}; expected a list of monomial names "
+                        f"({', '.join(TERMS)}).")
+    for i, t in enumerate(terms):
+        if t not in TERMS:
+            f.fail(f"terms[{i}]", f"= {t!r} is not a known monomial ({', '.join(TERMS)}).")
+    if len(set(terms)) != len(terms):
+        f.fail("terms", f"{terms} repeats a monomial.")
+    coef = _vector(f, _get(f, d, "coefficients", "coefficients"), "coefficients", len(terms))
+    fit = _get(f, d, "fit", "fit")
+    res = {}
+    for k in ("residual_rms_N", "residual_max_N"):
+        v = _get(f, fit, k, f"fit.{k}")
+        if not (_is_number(v) and math.isfinite(v) and v >= 0):
+            f.fail(f"fit.{k}", f"is {_describe(v)}; it must be a finite number >= 0 (N).")
+        res[k] = float(v)
+    lo, hi = MODEL_FILES.boundary_factor_range
+    bf = d.get("boundary_factor", None)
+    if bf is not None and not (_is_number(bf) and lo < bf <= hi):
+        f.fail("boundary_factor", f"is {_describe(bf)}; it must be a number in ({lo:g}, {hi:g}].")
+    samples = {}
+    s = d.get("samples", {})
+    if not isinstance(s, dict):
+        f.fail("samples", f"is {_describe(s)}, expected an object.")
+    for k in ("b0_mm", "d_mm", "force_N"):
+        if k in s:
+            samples[k] = _vector(f, s[k], f"samples.{k}")
+    if len({len(v) for v in samples.values()}) > 1:
+        f.fail("samples", "b0_mm, d_mm and force_N have different lengths "
+                          f"({', '.join(f'{k} {len(v)}' for k, v in samples.items())}).")
+    b_lo, b_hi = MODEL_FILES.membrane_b_range_mm
+    n = MODEL_FILES.membrane_samples
+    b = np.linspace(b_lo, b_hi, n)
+    frac = np.linspace(0.0, MODEL_FILES.membrane_d_fraction, n)
+    B, Fr = np.meshgrid(b, frac, indexing="ij")
+    D = Fr * B
+    with np.errstate(all="ignore"):
+        F = (_design_matrix(B.ravel(), D.ravel(), tuple(terms)) @ coef).reshape(B.shape)
+    if not np.all(F > 0):
+        i = np.unravel_index(np.argmin(F), F.shape)
+        f.fail("coefficients", f"give a membrane force F_mem = {F[i]:.4g} N at b0 = "
+                               f"{B[i]:.3g} mm, d = {D[i]:.3g} mm; the membrane must pull (F_mem "
+                               f"> 0) for b0 in [{b_lo:g}, {b_hi:g}] mm and d up to "
+                               f"{MODEL_FILES.membrane_d_fraction:g} b0.")
+    grow = np.diff(F, axis=1)
+    if np.any(grow > 0):
+        i = np.unravel_index(np.argmax(grow), grow.shape)
+        f.fail("coefficients", f"give a membrane force that grows from {F[i]:.4g} N to "
+                               f"{F[i[0], i[1] + 1]:.4g} N as a cell with b0 = {B[i]:.3g} mm "
+                               f"shortens from d = {D[i]:.3g} to {D[i[0], i[1] + 1]:.3g} mm; the "
+                               "pre-stretched membrane must relax as it contracts.")
+    return dict(res, terms=tuple(terms), coef=coef,
+                boundary_factor=None if bf is None else float(bf), samples=samples)
+
+
+def validate_membrane_model_file(path) -> dict:
+    """Read and check a membrane model file; returns :func:`check_membrane_model`'s dict plus
+    ``data`` (the JSON object).
+
+    Raises
+    ------
+    InputError
+        The first rule the file breaks, naming the file, key and rule.
+    """
+    d = read_model_json(path, MEMBRANE_KIND, MEMBRANE_FIX)
+    return dict(check_membrane_model(d, path), data=d)
+
+
 def load_membrane_model(path=None) -> MembraneModel:
     """Load a membrane model file (default: the committed ``pysolver/data/membrane_model.json``).
 
@@ -177,8 +269,6 @@ def load_membrane_model(path=None) -> MembraneModel:
     """
     if isinstance(path, MembraneModel):
         return path
-    from ..material.validate import validate_membrane_model_file
-
     p = Path(path) if path is not None else MODEL_PATH
     v = validate_membrane_model_file(p)
     bf = v["boundary_factor"]
@@ -752,7 +842,6 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
     else:
         import dataclasses
 
-        from sim.model.rim import rim_margin
 
         X, tri, body, margin = rim_margin(mesh.X, mesh.tri, mesh.body, mesh.centers,
                                           UNIT_CELL.base_r, float(rim[0]))
@@ -924,7 +1013,6 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
         "provenance": dict(_code_version(), command="morphshell fit-membrane",
                            fit_seconds=round(time.perf_counter() - t0, 2)),
     }
-    from ..atomic import atomic_write_text
 
     atomic_write_text(out_path, json.dumps(model, indent=1) + "\n")
     png = plot_membrane_fit(model, report_dir / "membrane_fit.png")
@@ -988,7 +1076,8 @@ def plot_membrane_fit(model: dict, png) -> Path:
     return png
 
 
-__all__ = ["TERMS", "MODEL_TERMS", "SI_TERMS", "FORM", "MODEL_PATH", "MembraneModel",
+__all__ = ["check_membrane_model", "validate_membrane_model_file",
+           "TERMS", "MODEL_TERMS", "SI_TERMS", "FORM", "MODEL_PATH", "MembraneModel",
            "load_membrane_model", "fit_membrane_model", "plot_membrane_fit", "regular_patch",
            "patch_mesh", "stencil_membrane_mesh", "PlaneMembrane", "cell_tractions",
            "sample_patch", "cell_membrane_factors"]

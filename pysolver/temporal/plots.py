@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..tables import read_stencil
+
 
 def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     """Time landscape on the flat layout with the clamped cells marked, and the ranges.
@@ -34,7 +36,6 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.tri import Triangulation
 
-    from ..tables import read_stencil
 
     png = Path(png)
     _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")

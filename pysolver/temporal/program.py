@@ -55,22 +55,27 @@ is kept.
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from .. import tables
+from ..atomic import atomic_write_text
 from ..errors import InputError
+from ..material import load_bracket_model
 from ..params import SIM, UNIT_CELL
+from ..tables import read_stencil
+from .membrane_model import cell_membrane_factors, load_membrane_model
+from .plots import plot_feasibility
 
 PICTURE = "temporal_feasibility.png"
 """Time landscape picture with the clamped cells marked (in the design folder)."""
 STAGE_FILE = "temporal.json"
 """Programming record (correction rule, per-cell membrane factors, summary), design folder."""
 REFINE_LOG = "refine.json"
-"""History of :func:`refine_design` (in ``<design>/sim/``)."""
+"""History of :func:`pysolver.build.refine_design` (in ``<design>/sim/``)."""
 
 CORRECTIONS = ("boundary", "fem")
 """How ``F_mem`` is adapted per cell.  ``"boundary"``: the paper's rule, x 0.6 on boundary
@@ -99,19 +104,11 @@ def _log(msg: str, progress: bool) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
-def _material(material):
+def load_material(material):
     """A bracket model object (has ``force``), loaded from a path or the committed default."""
     if material is not None and hasattr(material, "force"):
         return material
-    from ..material import load_bracket_model
-
     return load_bracket_model(material)
-
-
-def _membrane(membrane):
-    from .membrane_model import load_membrane_model
-
-    return load_membrane_model(membrane)
 
 
 def time_limit(material) -> float:
@@ -427,8 +424,6 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
         f = np.where(bnd, membrane.boundary_factor, 1.0)
         info["boundary_factor"] = float(membrane.boundary_factor)
         return f, info
-    from .membrane_model import cell_membrane_factors
-    from ..tables import read_stencil
 
     _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")
     b0 = np.asarray(cells["bracket_length_mm"], float)
@@ -504,12 +499,11 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         More than half of the cells cannot reach their time (the message names the
         achievable range); missing or inconsistent tables.
     """
-    from .. import tables
 
     t0 = time.perf_counter()
     design_dir = Path(design_dir)
-    mat = _material(material)  # model files first: a bad file is refused before any work
-    mem = _membrane(membrane)
+    mat = load_material(material)  # model files first: a bad file is refused before any work
+    mem = load_membrane_model(membrane)
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
     t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
@@ -576,7 +570,6 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         "landscape_rescaled": rescaled,
     }
     if picture and n:
-        from .plots import plot_feasibility
 
         png = plot_feasibility(design_dir, land, cells, res, design_dir / PICTURE)
         summary["picture"] = png.name
@@ -604,7 +597,6 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     out["clamped"] = res["clamped"]
     tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
     summary["seconds"] = round(time.perf_counter() - t0, 3)
-    from ..atomic import atomic_write_text
 
     record = {"summary": summary, "membrane_factor": [float(v) for v in factor],
               "t_program_s": [float(v) for v in res["t_program"]]}
@@ -658,166 +650,9 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
     return out
 
 
-def simulated_completion(frames, tol_mm: float = COMPLETION_TOL_MM):
-    """Completion time of every cell in a simulation: all 4 brackets at their bumpers.
-
-    A cell is complete at the first frame where each of its 4 bracket springs is
-    collided or within ``tol_mm`` of its bumper length: the project's one definition,
-    ``sim.simulate.completion_times(rule="clearance")``, read from a folder or file.
-
-    Parameters
-    ----------
-    frames : dict or path-like
-        ``frames.npz`` content (``t``, ``collided`` and, for ``tol_mm > 0``,
-        ``bracket_length``, ``collision_length``) or its path, or a design folder.
-    tol_mm : float, mm
-
-    Returns
-    -------
-    t_done : (n_cells,) float, s -- NaN for cells that never complete
-    t : (n_frames,) float, s -- frame times
-    """
-    if not isinstance(frames, dict):
-        p = Path(frames)
-        if p.is_dir():
-            p = p / "sim" / "frames.npz"
-        with np.load(p, allow_pickle=False) as z:
-            frames = {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
-                      if k in z.files}
-    from sim.model.simulate import completion_times
-
-    t = np.asarray(frames["t"], float)
-    return completion_times(frames, rule="clearance", tol_mm=tol_mm), t
-
-
-def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
-                  progress: bool = True, t_end=None, damping: float = REFINE_DAMPING,
-                  tol_mm: float = COMPLETION_TOL_MM, simulate=None) -> dict:
-    """Correct the programmed times from simulated completion times and re-simulate.
-
-    Needs a programmed and simulated design folder (``sim/frames.npz``).  Each
-    iteration moves the requested time of every cell by ``damping * (t* - t_sim)``
-    (cells that never complete count as ``t_end``), clamps it to the cell's
-    achievable range, re-solves the thicknesses (``t_star_s`` stays the user's
-    target), and re-simulates.  After ``iterations`` rounds the iteration with the
-    lowest RMS timing error (clamped cells excluded, cells that never complete counted
-    as finishing at the last frame) is kept: its thicknesses in ``cells.csv`` and its
-    frames in ``sim/frames.npz``.
-
-    Parameters
-    ----------
-    design_dir : path-like
-    iterations : int
-        Number of correct + re-simulate rounds K.
-    material, membrane : optional
-        As :func:`program_design`; ``material`` is also passed to the simulator.
-    t_end : float, s, optional
-        Simulated time (default: the simulator's default).
-    damping : float
-        Fraction of the timing error corrected per round (0 < damping <= 1).
-    tol_mm : float, mm
-        Completion tolerance (:func:`simulated_completion`).
-    simulate : callable, optional
-        ``simulate(design_dir, **kw)`` replacing ``sim.simulate.simulate_design`` (tests).
-
-    Returns
-    -------
-    dict
-        ``history`` (per iteration: RMS/max error, Spearman, thickness range), ``best``
-        (iteration index, 0 = before refinement; chosen by ``rms_incl_never_s``),
-        ``before``/``after`` metrics.
-    """
-    from .. import tables
-
-    design_dir = Path(design_dir)
-    if int(iterations) != iterations or iterations < 0:
-        raise InputError(f"iterations must be a non-negative integer, got {iterations!r}.")
-    if not 0 < damping <= 1:
-        raise InputError(f"damping must be in (0, 1], got {damping!r}.")
-    frames_path = design_dir / "sim" / "frames.npz"
-    if not frames_path.is_file():
-        raise InputError(f"{frames_path} does not exist: refine needs a simulated design.",
-                         fix="run the simulate stage first (morphshell simulate DIR).")
-    if simulate is None:
-        from sim.model.simulate import simulate_design as simulate
-    sim_kw = {"progress": progress}
-    if material is not None:
-        sim_kw["material"] = material
-    if t_end is not None:
-        sim_kw["t_end"] = t_end
-    mat = _material(material)
-    mem = _membrane(membrane)
-
-    cells = tables.read_table(design_dir, "cells")
-    t_star = cells["t_star_s"].copy()
-    factor = None
-    rec = design_dir / STAGE_FILE
-    if rec.is_file():
-        f = json.loads(rec.read_text()).get("membrane_factor")
-        if f is not None and len(f) == len(t_star):
-            factor = np.asarray(f, float)
-    clamped = cells["clamped"].astype(bool)
-    t_lo, t_hi = cells["t_min_s"], cells["t_max_s"]
-    t_sim, t_frames = simulated_completion(design_dir, tol_mm)
-    t_last = float(t_frames[-1]) if len(t_frames) else float(SIM.t_end)
-    keep_dir = design_dir / "sim" / "refine"
-    keep_dir.mkdir(parents=True, exist_ok=True)
-    shutil.copy2(frames_path, keep_dir / "frames_0.npz")
-    th0 = np.column_stack([cells["thickness_top_mm"], cells["thickness_bottom_mm"]])
-    hist = [dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=0,
-                 thickness_mm=[float(th0.min()), float(th0.max())])]
-    thick = [th0]
-    _log(f"{design_dir.name}: before refinement rms {hist[0]['rms_s']:.2f} s, spearman "
-         f"{hist[0]['spearman']:.3f}, {hist[0]['n_never']} never complete", progress)
-    lo_ok = np.where(np.isfinite(t_lo), t_lo, 0.0)
-    hi_ok = np.where(np.isfinite(t_hi), t_hi, time_limit(mat))
-    t_req = np.clip(t_star, lo_ok, np.maximum(lo_ok, hi_ok))
-    for k in range(1, int(iterations) + 1):
-        t0 = time.perf_counter()
-        ts = np.where(np.isfinite(t_sim), t_sim, t_last)
-        t_req = np.clip(t_req + damping * (t_star - ts), lo_ok, np.maximum(lo_ok, hi_ok))
-        res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
-                            cells["collision_length_bottom_mm"], cells["boundary"], t_star,
-                            material=mat, membrane=mem, t_request=t_req, factor=factor)
-        out = dict(cells)
-        out["thickness_top_mm"] = res["thickness"][:, 0]
-        out["thickness_bottom_mm"] = res["thickness"][:, 1]
-        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
-        simulate(design_dir, **sim_kw)
-        t_sim, t_frames = simulated_completion(design_dir, tol_mm)
-        shutil.copy2(frames_path, keep_dir / f"frames_{k}.npz")
-        th = res["thickness"]
-        thick.append(th)
-        hist.append(dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=k,
-                         thickness_mm=[float(th.min()), float(th.max())],
-                         seconds=round(time.perf_counter() - t0, 1)))
-        _log(f"{design_dir.name}: refine {k}/{iterations}: rms {hist[-1]['rms_s']:.2f} s, "
-             f"spearman {hist[-1]['spearman']:.3f}, {hist[-1]['n_never']} never complete "
-             f"({hist[-1]['seconds']:.0f} s)", progress)
-    rms = np.array([h["rms_incl_never_s"] for h in hist])
-    best = int(np.nanargmin(np.where(np.isfinite(rms), rms, np.inf))) if len(rms) else 0
-    if best != len(hist) - 1:
-        out = dict(cells)
-        out["thickness_top_mm"] = thick[best][:, 0]
-        out["thickness_bottom_mm"] = thick[best][:, 1]
-        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
-        shutil.copy2(keep_dir / f"frames_{best}.npz", frames_path)
-    for f in keep_dir.glob("frames_*.npz"):
-        f.unlink()
-    keep_dir.rmdir()
-    result = {"iterations": int(iterations), "damping": damping, "history": hist,
-              "best": best, "before": hist[0], "after": hist[best],
-              "note": "rms_s: cells whose t* is achievable (clamped excluded) and that "
-                      "complete; rms_incl_never_s also counts cells that never complete as "
-                      "finishing at the last simulated time (used to pick the best)."}
-    from ..atomic import atomic_write_text
-
-    atomic_write_text(design_dir / "sim" / REFINE_LOG, json.dumps(result, indent=1) + "\n")
-    return result
-
-
-__all__ = ["CORRECTIONS", "membrane_factors", "cell_target_times", "target_compressions",
+__all__ = ["load_material", "CORRECTIONS", "membrane_factors", "cell_target_times",
+           "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
-           "program_cells", "program_design", "timing_errors", "refine_design", "time_limit",
-           "simulated_completion", "COMPLETION_TOL_MM",
+           "program_cells", "program_design", "timing_errors", "time_limit",
+           "COMPLETION_TOL_MM", "REFINE_DAMPING", "REFINE_LOG",
            "PICTURE", "STAGE_FILE"]

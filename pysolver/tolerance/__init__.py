@@ -3,9 +3,9 @@
 Modules: :mod:`.analysis` (:func:`tolerance_analysis`) and :mod:`.report`.
 """
 from .analysis import (
+    FACTORS,
     CompliantBracketModel,
     DesignPayload,
-    FACTORS,
     Perturbation,
     aggregate,
     check_frames,

@@ -71,8 +71,36 @@ from pathlib import Path
 
 import numpy as np
 
+from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
+from pysolver.distributed import (
+    ResultStore,
+    Task,
+    check_scheduler,
+    check_workers,
+    code_fingerprint,
+    fingerprint,
+    is_result_file,
+    run_tasks,
+)
 from pysolver.errors import InputError, MorphshellError
+from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
+from pysolver.material.measurements import REPO_ROOT, load_measurements
+from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
 from pysolver.params import SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
+from pysolver.tables import read_design, read_table
+from sim.model import load_model, vary_model
+from sim.model.collisions import base_collisions, membrane_collisions
+from sim.model.simulate import SimSettings, simulate_model
+from sim.report import (
+    Thresholds,
+    decide,
+    fold_metrics,
+    shape_metrics,
+    solver_metrics,
+    timing_metrics,
+)
+
+from .report import write_report
 
 FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
 DESIGN_FILES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
@@ -131,9 +159,6 @@ def material_scatter(material=None, data_dir=None) -> dict:
     dict
         ``sd_log`` (float), ``median_log`` (float), ``n_curves`` (int), ``method`` (str).
     """
-    from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
-    from pysolver.material.measurements import load_measurements
-    from pysolver.material.model import load_bracket_model
 
     mod = material if hasattr(material, "compression_for_force") else load_bracket_model(
         material)
@@ -172,7 +197,6 @@ def relaxation_curve(path=None):
     t : (k,) float, s -- time since the peak force
     ratio : (k,) float -- force / peak force (smoothed over 1 min)
     """
-    from pysolver.material.measurements import REPO_ROOT
 
     p = Path(path) if path is not None else (REPO_ROOT / "data" / "material-measurements"
                                              / "rubber_stress_relaxation.csv")
@@ -223,7 +247,6 @@ class DesignPayload:
 
 def read_payload(design_dir, material=None) -> DesignPayload:
     """Read a design folder (and the material file) into a :class:`DesignPayload`."""
-    from pysolver.material.model import DEFAULT_MODEL_PATH
 
     folder = Path(design_dir)
     files = []
@@ -324,10 +347,6 @@ def _context(payload: DesignPayload) -> dict:
     ctx = _CONTEXTS.get(payload.sha)
     if ctx is not None:
         return ctx
-    from pysolver.material.model import load_bracket_model
-    from pysolver.tables import read_design
-
-    from sim.model import load_model
 
     with tempfile.TemporaryDirectory(prefix="morphshell-tol-") as tmp:
         d = Path(tmp)
@@ -372,15 +391,6 @@ def check_frames(frames: dict, ctx: dict, thresholds=None) -> dict:
         ``verdict``, ``reasons``, figures, ``t_done`` (c,) s (None = never),
         ``base_final`` (m, 3) mm (final centres rigidly aligned to the target).
     """
-    from sim.model.collisions import base_collisions, membrane_collisions
-    from sim.report import (
-        Thresholds,
-        decide,
-        fold_metrics,
-        shape_metrics,
-        solver_metrics,
-        timing_metrics,
-    )
 
     th = Thresholds.coerce(thresholds)
     t = np.asarray(frames["t"], float)
@@ -435,8 +445,6 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
         The figures of :func:`check_frames`, plus ``diverged`` (bool), ``message``,
         ``steps`` and ``wall_s`` (the only non-reproducible field).
     """
-    from sim.model import vary_model
-    from sim.model.simulate import simulate_model
 
     t0 = time.perf_counter()
     ctx = _context(payload)
@@ -516,8 +524,6 @@ def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
 
 def _claim(folder: Path) -> Path:
     """The tolerance folder: new, or morphshell's (its stamp, or our result files)."""
-    from pysolver.atomic import claim_result_folder
-    from pysolver.distributed import is_result_file
 
     return claim_result_folder(folder, lambda p: p.parent.name == "samples" and is_result_file(p),
                                what="tolerance folder")
@@ -757,29 +763,16 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         The content of ``summary.json`` (``figures``, ``cells``, ``bases``,
         ``sensitivity``, ``options``, ``run``).
     """
-    from pysolver.atomic import atomic_write_text, write_stamp
-    from pysolver.distributed import (
-        ResultStore,
-        Task,
-        check_scheduler,
-        check_workers,
-        code_fingerprint,
-        fingerprint,
-        run_tasks,
-    )
-    from pysolver.tables import read_table
 
     scheduler, workers = check_scheduler(scheduler), check_workers(workers)
     if sensitivity is None:
         sensitivity = min(TOLERANCE_RUN.sensitivity_samples, samples)
     _check_options(samples, sensitivity, uncertainty, time_tol_s)
-    from sim.model.simulate import SimSettings
 
     SimSettings(t_end=float(t_end), dt=float(dt)).times()  # a bad t_end/dt is refused now
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
         raise InputError(f"--seed {seed!r}", fix="use a whole number >= 0")
     if material is not None:  # a bad model file is refused here, not on every worker
-        from pysolver.material.model import load_bracket_model
 
         material = load_bracket_model(material).path
     folder = Path(design_dir).absolute()
@@ -855,7 +848,6 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     text = json.dumps(summary, indent=1, sort_keys=True, allow_nan=False) + "\n"
     atomic_write_text(out / "summary.json", text)
     if report:
-        from .report import write_report
 
         write_report(out, summary, folder, main, nominal)
     write_stamp(out)

@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
 from pysolver.atomic import atomic_file, atomic_write_text  # noqa: E402
+from pysolver.tables import read_table
 
 _CSS = ("body{font-family:sans-serif;max-width:1100px;margin:1em auto;padding:0 1em}"
         "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 8px;"
@@ -133,7 +134,6 @@ def _table(header, rows):
 
 def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -> None:
     """Write the pictures and ``report.html`` of a tolerance analysis into ``out``."""
-    from pysolver.tables import read_table
 
     b = read_table(design_dir, "bases")
     c = read_table(design_dir, "cells")

@@ -37,6 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from pysolver.errors import InputError
+
+from .kernels import HAVE_NUMBA, cross_point_hessian, membrane_kernel, reduce_scatter
 from .model import ShellModel
 
 # ------------------------------------------------------------------------------------------------
@@ -459,12 +462,10 @@ class ShellEnergy:
     """
 
     def __init__(self, model: ShellModel, backend: str = "auto"):
-        from .kernels import HAVE_NUMBA
 
         if backend not in ("auto", "numba", "numpy"):
             raise ValueError(f"backend must be auto, numba or numpy, got {backend!r}")
         if backend == "numba" and not HAVE_NUMBA:
-            from pysolver.errors import InputError
 
             raise InputError("backend 'numba' needs numba", fix="pip install numba")
         self.backend = "numba" if backend == "auto" and HAVE_NUMBA else backend
@@ -551,7 +552,6 @@ class ShellEnergy:
         """Membrane energy; adds its point gradient to ``G``; returns (E, H (t,3,3,3,3)/(t,9,9))."""
         md, k = self.model, self.consts
         if self.backend == "numba" and not psd:
-            from .kernels import membrane_kernel
 
             E = membrane_kernel(X, md.tri_points, md.tri_dm_inv, md.tri_rest_area, self.mu,
                                 k.membrane_h, G, self._Hm, hessian)
@@ -712,7 +712,6 @@ class ShellEnergy:
         return rot
 
     def _assemble_numba(self, V, Ks, parts, Hm9, rot):
-        from .kernels import cross_point_hessian, reduce_scatter
 
         md = self.model
         data = self.pattern.assemble_data([rot, None, None, None])

@@ -3,7 +3,7 @@
 Facts restated from ``shared/design/simulator.md`` §3-§6 (no reference code):
 
 * every stencil face is a rigid **base** with 6 DOF (centre + rotation vector); its 12
-  bracket nodes (slot j, arm k, layer s) come from :func:`pysolver.cellnodes.bracket_nodes`;
+  bracket nodes (slot j, arm k, layer s) are read from the design's ``model.npz``;
 * every unit cell has 4 **bracket springs** (index ``4c + 2s + q``: base a's arm q to base b's
   arm 1 - q in layer s) whose bumper (collision) length is the target-pose distance of the
   node pair, and 4 **cross pairs** (an in-plane X per layer, a through-thickness X per end);
@@ -31,7 +31,9 @@ from pathlib import Path
 import numpy as np
 
 from pysolver.errors import InputError
+from pysolver.geometry import Cells, base_rotations, face_centroids, rotvec_to_matrix
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
+from pysolver.tables import read_design, read_model
 from sim.model.rim import rim_margin
 
 CROSS_REST_MODES = ("flat", "zero")
@@ -277,11 +279,11 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
 # assembly
 
 
-def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collision=None,
-                consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
+def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_length=None,
+                collision=None, consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
                 cross_rest: str = "flat", source: str = "",
                 physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
-    """Assemble a :class:`ShellModel` from a scaled stencil.
+    """Assemble a :class:`ShellModel` from a scaled stencil and the design's geometry.
 
     Parameters
     ----------
@@ -292,6 +294,10 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     F : (m, 3) int
     thickness : (c, 2) float, mm
         Bracket thickness per cell (face-major order) and layer (top, bottom).
+    geometry : dict
+        The design's ``model.npz`` arrays (:data:`pysolver.tables.MODEL_ARRAYS`: unit-cell
+        topology and bracket nodes), as :func:`pysolver.tables.read_model` returns them;
+        the design stage computes them (``pysolver.design.cellnodes.model_arrays``).
     rotvec : (m, 3) float, rad, optional
         Base rotations flat -> target (``bases.csv``); recomputed if omitted.
     bracket_length : (c,) float, mm, optional
@@ -316,21 +322,15 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
     -------
     ShellModel
     """
-    from pysolver.design.cellnodes import bracket_nodes
-    from pysolver.design.layout import (
-        boundary_vertex_mask,
-        face_adjacency,
-        face_centroids,
-        unit_cells,
-    )
-
     V = np.asarray(V, float)
     UV = np.asarray(UV, float)
     F = np.asarray(F, dtype=np.int64)
     if cross_rest not in CROSS_REST_MODES:
         raise InputError(f"cross_rest must be one of {CROSS_REST_MODES}, got {cross_rest!r}")
-    ff = face_adjacency(F)
-    cells = unit_cells(F, ff)
+    ff = geometry["face_adjacency"]
+    cells = Cells(faces=geometry["cell_bases"], slots=geometry["cell_slots"],
+                  verts=geometry["cell_verts"], cell_of=geometry["cell_of"],
+                  boundary=geometry["cell_boundary"])
     c = len(cells.faces)
     if c == 0:
         raise InputError(f"{source or 'stencil'}: no unit cell (interior edge)",
@@ -344,18 +344,14 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
         raise InputError(f"{source or 'model'}: cell {k} has thickness {thickness[k].tolist()}",
                          fix="bracket thicknesses must be positive (0.30-0.65 mm); run the "
                              "temporal (program) stage")
-    nodes_t, nodes_f = bracket_nodes(V, UV, F, unit, ff=ff, rotvec=rotvec)
+    nodes_t, nodes_f = geometry["nodes_target"], geometry["nodes_flat"]
     m = len(F)
     C2 = face_centroids(UV, F)
     base_flat = np.c_[C2, np.zeros(m)]
     base_target = face_centroids(V, F)
     if rotvec is None:
-        from pysolver.design.layout import base_rotations
-
         Rt, _ = base_rotations(V, UV, F, ff)
     else:
-        from pysolver.geometry import rotvec_to_matrix
-
         Rt = rotvec_to_matrix(np.asarray(rotvec, float).reshape(-1, 3))
 
     # --- bracket node points (only nodes of interior slots)
@@ -413,7 +409,7 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
                          fix="check cells.csv bracket_length_mm")
 
     # --- membrane
-    vb = boundary_vertex_mask(F, ff, len(V))
+    vb = geometry["boundary_vertex"]
     xy, tris, mbody = membrane_mesh(nodes_f[:, :, :, 0, :2], F, ff, cells, vb,
                                     max_area=consts.membrane_max_area,
                                     min_angle=consts.membrane_min_angle)
@@ -454,9 +450,10 @@ def build_model(V, UV, F, thickness, *, rotvec=None, bracket_length=None, collis
         source=source)
 
 
-def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell | None = None,
-               cross_rest: str = "flat", physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
-    """Assemble the model of a design folder (``stencil.obj``, ``bases.csv``, ``cells.csv``).
+def load_model(design_dir, *, consts: SimConstants = SIM, cross_rest: str = "flat",
+               physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
+    """Assemble the model of a design folder (``stencil.obj``, ``bases.csv``, ``cells.csv``,
+    ``model.npz``, and the unit cell of ``design.json``).
 
     Parameters
     ----------
@@ -474,11 +471,9 @@ def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell | None 
     InputError
         Missing files, inconsistent tables or missing thicknesses, naming the file and row.
     """
-    from pysolver.tables import read_design
-
     folder = Path(design_dir)
     d = read_design(folder)
-    unit = d.params if unit is None else unit  # the design's own unit cell (design.json)
+    unit = d.params  # the design's own unit cell (design.json)
     c = d.cells
     th = np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]]
     bad = np.flatnonzero(~np.all(np.isfinite(th) & (th > 0), axis=1))
@@ -489,8 +484,11 @@ def load_model(design_dir, *, consts: SimConstants = SIM, unit: UnitCell | None 
                          "cell has a thickness in 0.30-0.65 mm")
     rot = np.c_[d.bases["rot_x_rad"], d.bases["rot_y_rad"], d.bases["rot_z_rad"]]
     coll = np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
-    return build_model(d.V, d.UV, d.F, th, rotvec=rot, bracket_length=c["bracket_length_mm"],
-                       collision=coll, consts=consts, unit=unit, cross_rest=cross_rest,
+    geometry = read_model(folder, n_vertices=len(d.V), n_faces=d.n_bases, n_cells=d.n_cells,
+                          params=unit)
+    return build_model(d.V, d.UV, d.F, th, geometry, rotvec=rot,
+                       bracket_length=c["bracket_length_mm"], collision=coll, consts=consts,
+                       unit=unit, cross_rest=cross_rest,
                        source=str(folder), physics=physics)
 
 

@@ -29,6 +29,8 @@ import numpy as np
 from pysolver.errors import InputError
 from pysolver.params import PHYSICS_OFF, PhysicsOptions
 
+from .energies import jtkj, skew
+
 DENSITY_TO_T_MM3 = 1e-9  # g/cm^3 -> t/mm^3 (mm-N-s-t units: 1 t mm/s^2 = 1 N)
 FACE_DOWN = ("bottom", "top")
 
@@ -246,7 +248,6 @@ class ExternalTerms:
         gb : (m, 6) float -- reduced gradient on every base (force N, torque N mm)
         Hb : (m, 6, 6) float or None -- reduced Hessian block of every base
         """
-        from .energies import jtkj
 
         m = len(state.c)
         up = self.up
@@ -364,7 +365,6 @@ class BracketBending:
     def evaluate(self, state, hessian: bool, pattern=None):
         """Energy (N mm), reduced gradient on the bases (m, 6), and (with ``hessian``) a
         function adding the Hessian to CSC data of ``pattern``."""
-        from .energies import skew
 
         na, nb = state.R[self.a, :, 2], state.R[self.b, :, 2]
         d = na - nb

@@ -64,12 +64,16 @@ import numpy as np
 
 from pysolver.atomic import atomic_file, atomic_write_text
 from pysolver.errors import InputError, MorphshellError
+from pysolver.material.model import load_bracket_model
+from pysolver.material.relaxation import relaxation_factor
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
 
+from .collisions import completion_times
+from .contact import BaseContact
 from .energies import ShellEnergy, State
 from .model import ShellModel, load_model
-from .physics import physics_json
+from .physics import BracketBending, ExternalTerms, bending_stiffness, check_physics, physics_json
 from .solver import SOLVERS, LinearSolver, StaticProblem, newton
 
 FRAMES_NAME = "frames.npz"
@@ -119,7 +123,6 @@ class SimSettings:
     physics: PhysicsOptions = PHYSICS_OFF
 
     def __post_init__(self):
-        from .physics import check_physics
 
         check_physics(self.physics)
         if self.solver not in SOLVERS:
@@ -186,16 +189,13 @@ class Simulation:
         self.rest_frame = None  # dry resting shape on a table (physics.dry_rest)
         ph = settings.physics
         if ph.gravity:
-            from .physics import ExternalTerms
 
             self.energy.external = ExternalTerms(model, ph, wet=True)
             self.energy.external.place_plane(self.state)
         if ph.contact:
-            from .contact import BaseContact
 
             self.energy.contact = BaseContact(model, ph)
         if ph.bracket_bending:
-            from .physics import BracketBending
 
             self.energy.bending = BracketBending(model)
 
@@ -224,11 +224,9 @@ class Simulation:
         self.energy.spring_coef = coef
         ph = self.settings.physics
         if ph.bracket_bending:
-            from .physics import bending_stiffness
 
             self.energy.bending.k = bending_stiffness(md, coef0)
         if ph.relaxation:
-            from pysolver.material.relaxation import relaxation_factor
 
             age = 60.0 * (ph.stretch_to_glue_min + ph.glue_to_water_min) + t
             self.energy.mu_scale = float(relaxation_factor(age))
@@ -414,7 +412,6 @@ class Simulation:
         -------
         NewtonResult
         """
-        from .physics import ExternalTerms
 
         md, k = self.model, self.model.consts
         L = self.spring_lengths()
@@ -422,7 +419,6 @@ class Simulation:
                                                      md.spring_bracket_length, 0.0, eta=0.0),
                           float).reshape(-1, 4)
         if self.energy.bending is not None:
-            from .physics import bending_stiffness
 
             self.energy.bending.k = bending_stiffness(md, coef[:, 0])
         rest = L.copy()
@@ -501,7 +497,6 @@ def _material_id(material) -> str:
 
 def _resolve_material(material):
     if material is None or isinstance(material, str | os.PathLike):
-        from pysolver.material.model import load_bracket_model
 
         return load_bracket_model(material)
     return material
@@ -671,74 +666,35 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     return summary
 
 
-def completion_times(frames, collided=None, *, rule: str = "clearance",
-                     bracket_length=None, collision_length=None,
-                     tol_mm: float = UNIT_CELL.clearance) -> np.ndarray:
-    """Completion time of every unit cell: the first frame at which its brackets reach
-    their bumpers.  This is the project's single definition (temporal programming, the
-    report and the benchmarks all use it).
+def simulated_completion(frames, tol_mm: float = UNIT_CELL.clearance):
+    """Completion time of every cell in a simulation: all 4 brackets at their bumpers.
 
-    Rules:
-
-    * ``"clearance"`` (default): each of the 4 bracket springs is collided or within
-      ``tol_mm`` (the 0.05 mm printing clearance) of its bumper contact length.  In
-      irregular stencils the two springs of a layer have contact lengths a few hundredths
-      of a millimetre apart, so a cell often closes one end and stays a hair short at the
-      other, which a printed part could not tell apart from closed.  Needs
-      ``bracket_length`` and ``collision_length`` (in ``frames.npz``); without them it is
-      ``"all"``.
-    * ``"all"``: all four springs collided (exact contact).
-    * ``"layer"``: in each layer, one of its two springs collided.
+    A cell is complete at the first frame where each of its 4 bracket springs is
+    collided or within ``tol_mm`` of its bumper length: the project's one definition,
+    :func:`completion_times` (``rule="clearance"``), read from a folder or file.
 
     Parameters
     ----------
-    frames : dict, path-like, or (n_frames,) float array
-        Frames (``frames.npz`` content or its path), or the frame times ``t`` (s) when
-        ``collided`` is given.
-    collided : (n_frames, n_cells, 4) bool, optional
-        Spring order ``2 * layer + q`` (layer 0 = top).
-    rule : {"clearance", "all", "layer"}
-    bracket_length : (n_frames, n_cells, 4) float, mm, optional
-    collision_length : (n_cells, 4) float, mm, optional
+    frames : dict or path-like
+        ``frames.npz`` content (``t``, ``collided`` and, for ``tol_mm > 0``,
+        ``bracket_length``, ``collision_length``) or its path, or a design folder.
     tol_mm : float, mm
 
     Returns
     -------
-    t_done : (n_cells,) float, s
-        NaN for cells that never complete.
+    t_done : (n_cells,) float, s -- NaN for cells that never complete
+    t : (n_frames,) float, s -- frame times
     """
-    if collided is None:
-        keys = ("t", "collided", "bracket_length", "collision_length")
-        if isinstance(frames, str | os.PathLike):
-            with np.load(frames, allow_pickle=False) as z:
-                frames = {k: z[k] for k in keys if k in z.files}
-        t, collided = np.asarray(frames["t"], float), np.asarray(frames["collided"])
-        if bracket_length is None and "bracket_length" in frames:
-            bracket_length = frames["bracket_length"]
-        if collision_length is None and "collision_length" in frames:
-            collision_length = frames["collision_length"]
-    else:
-        t = np.asarray(frames, float)
-        collided = np.asarray(collided)
-    c = collided.astype(bool)
-    if c.ndim != 3 or c.shape[2] != 4 or c.shape[0] != t.shape[0]:
-        raise InputError(f"collided has shape {c.shape}, expected (n_frames={len(t)}, "
-                         "n_cells, 4)", fix="pass frames.npz's 't' and 'collided'")
-    if rule == "clearance":
-        if bracket_length is not None and collision_length is not None:
-            gap = (np.asarray(bracket_length, float)[: len(t)]
-                   - np.asarray(collision_length, float)[None])
-            c = c | (gap <= tol_mm)
-        done = c.all(axis=2)
-    elif rule == "all":
-        done = c.all(axis=2)
-    elif rule == "layer":
-        done = (c[:, :, 0] | c[:, :, 1]) & (c[:, :, 2] | c[:, :, 3])
-    else:
-        raise InputError(f"rule must be 'clearance', 'all' or 'layer', got {rule!r}")
-    first = np.argmax(done, axis=0)
-    return np.where(done.any(axis=0), t[first], np.nan)
+    if not isinstance(frames, dict):
+        p = Path(frames)
+        if p.is_dir():
+            p = p / "sim" / "frames.npz"
+        with np.load(p, allow_pickle=False) as z:
+            frames = {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
+                      if k in z.files}
+    t = np.asarray(frames["t"], float)
+    return completion_times(frames, rule="clearance", tol_mm=tol_mm), t
 
 
 __all__ = ["SimSettings", "Simulation", "simulate_design", "simulate_model", "run_simulation",
-           "completion_times", "FRAMES_NAME", "CHECKPOINT_NAME"]
+           "completion_times", "simulated_completion", "FRAMES_NAME", "CHECKPOINT_NAME"]

@@ -60,6 +60,7 @@ import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
 from threadpoolctl import ThreadpoolController  # noqa: E402
 
+from pysolver.errors import InputError  # noqa: E402
 from pysolver.params import tol as TOL  # noqa: E402
 
 from .energies import ShellEnergy, State, full_from_lower  # noqa: E402
@@ -139,7 +140,6 @@ class LinearSolver:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         self.solver = solver
         if backend == "cholmod" and not HAVE_CHOLMOD:
-            from pysolver.errors import InputError
 
             raise InputError("backend 'cholmod' needs scikit-sparse",
                              fix="apt-get install libsuitesparse-dev; pip install "

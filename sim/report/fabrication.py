@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pysolver.params import FABRICATION, SIM, UNIT_CELL
+from pysolver.params import MEMBRANE_MODEL_FILE as MODEL_PATH
 
 STL_PURPOSE = {
     "top.stl": "top layer (bases, bumpers, brackets): print brackets-down; glued to the "
@@ -113,8 +114,6 @@ def provenance(folder, build_info=None) -> dict:
         models["material (bracket) model"] = {"path": mat, "sha256": sha256_file(mat)}
     elif mat:
         models["material (bracket) model"] = {"path": mat, "sha256": None}
-    from pysolver.temporal.membrane_model import MODEL_PATH
-
     if MODEL_PATH.is_file():
         corr = (temporal.get("membrane_correction") or {}).get("correction")
         models["membrane model"] = {"path": str(MODEL_PATH), "sha256": sha256_file(MODEL_PATH),

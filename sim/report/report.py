@@ -33,12 +33,18 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from pysolver.atomic import atomic_dir
 from pysolver.errors import InputError
+from pysolver.geometry import fold_angles_deg, rigid_fit
 from pysolver.params import UNIT_CELL
+from pysolver.tables import read_stencil, read_table, read_unit_cell
 
 from ..model.collisions import base_collisions, membrane_collisions
-from ..model.collisions import completion_times as _local_completion_times
-from .scan import rigid_fit
+from ..model.collisions import completion_times as collision_completion_times
+from ..viewer import asset_text, frame_alignments, viewer_data, viewer_json
+from . import fabrication as fab
+from . import plots as rp
+from .plots import _save
 
 SECTIONS = ("verdict", "viewer", "shape", "timing", "collisions", "solver", "renders",
             "layout", "landscape", "fabrication", "stls", "provenance")
@@ -267,7 +273,6 @@ def load_frames(path, n_bases=None, n_cells=None) -> dict:
 
 def load_sim(design_dir) -> SimData:
     """Load the tables, the stencil (optional) and ``sim/frames.npz`` of a design folder."""
-    from pysolver.tables import read_stencil, read_table
 
     folder = Path(design_dir)
     if not folder.is_dir():
@@ -296,23 +301,17 @@ def load_sim(design_dir) -> SimData:
 # --------------------------------------------------------------------------------------------
 
 def completion_times(t, collided, bracket_length=None, collision_length=None):
-    """Completion time per cell: ``sim.simulate.completion_times`` (the project's one rule:
-    every bracket at its bumper within the printing clearance) when available, else local.
+    """Completion time per cell: :func:`sim.model.collisions.completion_times`, the project's
+    one rule (every bracket at its bumper within the printing clearance).
 
     Returns
     -------
     t_done : (n_cells,) float, s (NaN = never)
     source : str
     """
-    try:
-        from sim.model.simulate import completion_times as sim_ct
-    except Exception:  # the simulator is optional for the report
-        sim_ct = None
-    if sim_ct is not None:
-        out = np.asarray(sim_ct(t, collided, bracket_length=bracket_length,
-                                collision_length=collision_length), float)
-        return out, "sim.simulate.completion_times"
-    return _local_completion_times(t, collided), "sim.collisions.completion_times"
+    out = np.asarray(collision_completion_times(t, collided, bracket_length=bracket_length,
+                                                collision_length=collision_length), float)
+    return out, "sim.model.collisions.completion_times"
 
 
 def shape_metrics(C, R, target, target_normals):
@@ -366,8 +365,6 @@ def fold_metrics(C, R, cell_pairs, target_fold_deg, th: Thresholds):
     and the array ``fold_deg`` (n_cells,).
     """
     from types import SimpleNamespace
-
-    from pysolver.design.layout import fold_angles_deg
 
     fold = fold_angles_deg(C, R[:, :, 2], SimpleNamespace(faces=np.asarray(cell_pairs)))
     tgt = np.asarray(target_fold_deg, float)
@@ -640,9 +637,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         The content of ``report.json``: ``verdict``, ``reasons``, ``metrics``,
         ``thresholds``, ``files``, ``renderer``, ``timings_s``, ``out_dir``.
     """
-    from pysolver.atomic import atomic_dir
 
-    from . import plots as rp
 
     th = Thresholds.coerce(thresholds)
     if renderer not in ("auto", "pyvista", "matplotlib"):
@@ -713,7 +708,6 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     col = {"base_base": bc.summary()}
     mc = None
     if M_all is not None and M_all.shape[1]:
-        from pysolver.tables import read_unit_cell
 
         uc = read_unit_cell(sd.folder)  # the design's own max cell length, not the default
         mc = membrane_collisions(C_all[:n_ok], R_all[:n_ok], M_all[:n_ok], t=t[:n_ok],
@@ -770,7 +764,6 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         # ---- shell renders (each frame in the target frame by its own rigid fit, so the
         # camera sees the shell from the same side all along the morph)
         t0 = time.perf_counter()
-        from ..viewer import frame_alignments
 
         Qs, ss = frame_alignments(C_all[:n_ok], sd.target)
         sh["Qs"], sh["ss"] = Qs, ss
@@ -893,7 +886,6 @@ def _plot_shape_over_time(path, t, rms_t, size, th):
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    from .plots import _save
 
     return _save(fig, path)
 
@@ -960,10 +952,7 @@ def _f(x, fmt="{:.3g}"):
 
 def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
     """Viewer data, stretch template, STL list, fabrication sheet and provenance."""
-    from pysolver.tables import read_table
 
-    from . import fabrication as fab
-    from ..viewer import viewer_data
 
     files = {}
     viewer = viewer_data(sd, tm["t_done"], max_frames=int(viewer_frames))
@@ -1003,7 +992,6 @@ def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
 
 
 def _viewer_html(viewer) -> str:
-    from ..viewer import asset_text, viewer_json
 
     return ("<div id='morph-viewer'></div>"
             "<noscript><p class='note'>The 3D viewer needs JavaScript; the stills below show "

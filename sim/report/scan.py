@@ -36,7 +36,12 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
+from pysolver.atomic import atomic_write_text
 from pysolver.errors import InputError
+from pysolver.geometry import rigid_fit
+from pysolver.tables import read_table
+
+from .report import load_frames
 
 TRIM_FRACTION = 0.8
 """Fraction of closest pairs kept by each trimmed-ICP iteration (allows 20 % missing/outliers)."""
@@ -49,43 +54,6 @@ IRLS_EPS_MM = 1e-4
 # --------------------------------------------------------------------------------------------
 # rigid fits
 # --------------------------------------------------------------------------------------------
-
-def rigid_fit(A, B, weights=None):
-    """Rigid motion (rotation + translation, no scaling) taking ``A`` onto ``B`` (Kabsch).
-
-    Minimises ``sum_i w_i |Q a_i + s - b_i|^2``.
-
-    Parameters
-    ----------
-    A, B : (n, 3) float, mm
-        Corresponding points, n >= 3 (n = 2 gives a rotation about the pair's axis
-        chosen by scipy).
-    weights : (n,) float, optional
-
-    Returns
-    -------
-    Q : (3, 3) float
-        Rotation matrix (det +1).
-    s : (3,) float, mm
-    """
-    A = np.asarray(A, float)
-    B = np.asarray(B, float)
-    if A.shape != B.shape or A.ndim != 2 or A.shape[1] != 3 or len(A) < 2:
-        raise InputError(f"rigid_fit: point sets of shapes {A.shape} and {B.shape}",
-                         fix="pass two (n, 3) arrays of corresponding points, n >= 2")
-    w = np.ones(len(A)) if weights is None else np.asarray(weights, float)
-    w = w / w.sum()
-    ca = w @ A
-    cb = w @ B
-    # scipy's align_vectors(a, b) finds R minimising sum w |a - R b|^2
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # "optimal rotation is not uniquely defined"
-        rot, _ = Rotation.align_vectors(B - cb, A - ca, weights=w)
-    Q = rot.as_matrix()
-    return Q, cb - Q @ ca
-
 
 def l1_rigid_fit(A, B, *, Q0=None, s0=None, max_iter=IRLS_MAX_ITER, eps=IRLS_EPS_MM):
     """Rigid motion minimising the sum of distances ``sum_i |Q a_i + s - b_i|`` (IRLS).
@@ -190,9 +158,7 @@ def simulated_markers(design_dir, layer, frame=-1):
     M : (k, 3) float, mm
     base_ids : (k,) int
     """
-    from pysolver.tables import read_table
 
-    from .report import load_frames
 
     folder = Path(design_dir)
     bases = read_table(folder, "bases")
@@ -453,7 +419,6 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
     png = _plot(out_dir / f"scan_{stem}.png", P, M, reg,
                 f"{scan_path.name} vs simulated {chosen} markers: mean {out['mean_mm']:.2f} mm")
     out["files"] = {"png": str(png), "json": str(out_dir / f"scan_{stem}.json")}
-    from pysolver.atomic import atomic_write_text
 
     def clean(o):
         if isinstance(o, float) and not np.isfinite(o):
@@ -486,7 +451,7 @@ def main(argv=None) -> int:
     return 0
 
 
-__all__ = ["rigid_fit", "l1_rigid_fit", "read_points", "simulated_markers", "register",
+__all__ = ["l1_rigid_fit", "read_points", "simulated_markers", "register",
            "compare_scan"]
 
 if __name__ == "__main__":
