@@ -4,11 +4,13 @@
     python bench/identical_outputs.py compare BASELINE_DIR NEW_DIR
 
 ``record`` builds every built-in shape (design + program + simulate + refine, no render,
-no report) into ``DIR/<shape>/`` and writes ``DIR/hashes.json``: the sha256 of every table
-file of the design folder (everything but ``summary.json`` and the simulation outputs) and
-of ``sim/frames.npz``.  ``compare`` reports, per shape, the tables that are not
-byte-identical and the largest absolute difference of any array in the simulation frames;
-it exits 1 unless every table is identical and every frame difference is at most 1e-9.
+no report) into ``DIR/<shape>/`` and writes ``DIR/hashes.json``: the sha256 of every file
+of the design folder (tables, stencil, pictures, JSON records; not ``summary.json`` and the
+simulation outputs) and of ``sim/frames.npz``.  ``compare`` reports, per shape, the files
+that are not byte-identical and the largest absolute difference of any array in the
+simulation frames; it exits 1 unless every CSV/OBJ table is byte-identical, every JSON
+record is equal once its wall-clock timings and the repository path are left out, and
+every frame difference is at most 1e-9.  Files only in the new folder are listed as new.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ FRAME_TOL = 1e-9
 # outputs that are not design tables: timings and versions, the simulation, the report
 SKIP = {"summary.json", "design.log"}
 SKIP_DIRS = {"sim", "report", "stl", "scad"}
+# wall-clock fields: they differ between any two runs
+TIMING_KEYS = {"timings_s", "seconds", "wall_s"}
 
 
 def _sha(p: Path) -> str:
@@ -79,6 +83,8 @@ def _frame_diff(a: Path, b: Path) -> float:
         return float("inf")
     worst = 0.0
     for k in fa.files:
+        if k in TIMING_KEYS:
+            continue
         x, y = fa[k], fb[k]
         if x.shape != y.shape:
             return float("inf")
@@ -94,6 +100,28 @@ def _frame_diff(a: Path, b: Path) -> float:
     return worst
 
 
+def _json_norm(x, root: str, path: str = ""):
+    """A JSON record without wall-clock timings, with the repository path replaced."""
+    if isinstance(x, dict):
+        return {k: _json_norm(v, root, f"{path}.{k}") for k, v in x.items()
+                if k not in TIMING_KEYS and not (k == "time_s" and ".comparison." in path)}
+    if isinstance(x, list):
+        return [_json_norm(v, root, path) for v in x]
+    if isinstance(x, str) and x.startswith(root):
+        return "<repo>" + x[len(root):]
+    return x
+
+
+def _json_equal(a: Path, b: Path) -> bool:
+    ra = json.loads(a.read_text())
+    rb = json.loads(b.read_text())
+    root_a = str(Path(ra.get("summary", {}).get("material_model", "/")).parents[2]) \
+        if isinstance(ra.get("summary", {}).get("material_model"), str) else "\0"
+    root_b = str(Path(rb.get("summary", {}).get("material_model", "/")).parents[2]) \
+        if isinstance(rb.get("summary", {}).get("material_model"), str) else "\0"
+    return _json_norm(ra, root_a) == _json_norm(rb, root_b)
+
+
 def compare(base: Path, new: Path) -> int:
     hb = json.loads((base / "hashes.json").read_text())
     hn = json.loads((new / "hashes.json").read_text())
@@ -104,14 +132,21 @@ def compare(base: Path, new: Path) -> int:
             ok = False
             continue
         tb, tn = hb[s]["tables"], hn[s]["tables"]
-        differ = sorted(k for k in set(tb) | set(tn) if tb.get(k) != tn.get(k))
+        added = sorted(set(tn) - set(tb))
+        differ = sorted(k for k in tb if tn.get(k) != tb[k])
+        json_eq = [k for k in differ if k.endswith(".json") and k in tn
+                   and _json_equal(base / s / k, new / s / k)]
+        differ = [k for k in differ if k not in json_eq]
         same = len([k for k in tb if tn.get(k) == tb[k]])
         d = _frame_diff(base / s / "sim" / "frames.npz", new / s / "sim" / "frames.npz")
         ok &= not differ and d <= FRAME_TOL
-        print(f"{s}: {same}/{len(tb)} tables byte-identical"
-              + (f" (differ: {', '.join(differ)})" if differ else "")
+        print(f"{s}: {same}/{len(tb)} files byte-identical"
+              + (f", {len(json_eq)} JSON equal but for timings/paths ({', '.join(json_eq)})"
+                 if json_eq else "")
+              + (f", DIFFER: {', '.join(differ)}" if differ else "")
+              + (f", new: {', '.join(added)}" if added else "")
               + f"; frames sha256 {'equal' if hb[s]['frames'] == hn[s]['frames'] else 'differ'}"
-              f", max |frame difference| = {d:.3g}")
+              f", max |frame difference| = {d:.3g} (wall-clock 'wall_s' left out)")
     print("IDENTICAL" if ok else "DIFFERENT")
     return 0 if ok else 1
 
