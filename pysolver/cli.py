@@ -10,6 +10,7 @@ input (2) from a failed check (3) and an internal error (1).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import errno
 import functools
 import sys
@@ -346,7 +347,6 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
         print_verdict(rep, Path(args.dir) / "report")
         return 3 if rep.get("verdict") == "FAIL" else EXIT_OK
     if cmd == "tolerance":
-        import dataclasses
 
         from pysolver.tolerance import tolerance_analysis  # lazy: loads with its subcommand
 

@@ -57,7 +57,7 @@ def is_result_file(path) -> bool:
 def _soft_import_distributed():
     """``distributed`` is a declared dependency; a broken install fails here with the fix."""
     try:
-        import distributed
+        import distributed  # optional heavy dependency: Dask only for distributed runs
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise InputError(f"dask.distributed is not installed ({e})",
                          fix="pip install 'dask[distributed]' (it is in pyproject.toml)") from None

@@ -124,9 +124,9 @@ def load_spec(path) -> dict:
         Unreadable TOML, unknown keys, wrong types, duplicate names, too many variants.
     """
     try:
-        import tomllib
+        import tomllib  # Python >= 3.11 (tomli before)
     except ImportError:  # Python 3.10: the same parser from PyPI (pyproject.toml)
-        import tomli as tomllib
+        import tomli as tomllib  # Python < 3.11 fallback for tomllib
 
     p = Path(path)
     try:
@@ -299,11 +299,12 @@ def write_table(out: Path, rows: list, title: str) -> None:
 
 
 def _plot(path: Path, rows: list) -> None:
-    import matplotlib
+    import matplotlib  # optional heavy dependency: matplotlib loads only when a picture is drawn
 
     matplotlib.use("Agg")
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     import matplotlib.pyplot as plt
-    import numpy as np
+    import numpy as np  # numpy submodule only where it is used
 
 
     names = [r["variant"] for r in rows]

@@ -56,6 +56,7 @@ def _positions(X, quantise: bool) -> dict:
 
 def _quaternions(R) -> np.ndarray:
     """(..., 3, 3) rotation matrices -> (..., 4) quaternions (x, y, z, w)."""
+    # heavy: this scipy submodule loads only where it is used
     from scipy.spatial.transform import Rotation
 
     shp = R.shape[:-2]

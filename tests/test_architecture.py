@@ -12,7 +12,9 @@ them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests kee
 * project modules are imported at module level: an import inside a function hides an edge
   of the graph.  The one exception is the command line (:mod:`pysolver.cli`), whose
   subcommands import their stage when they run so that ``morphshell --help`` is instant;
-  every such import carries a ``# lazy:`` comment.
+  every such import carries a ``# lazy:`` comment;
+* any other import inside a function (an optional or heavy third-party dependency) carries a
+  comment saying why.
 """
 
 from __future__ import annotations
@@ -194,3 +196,23 @@ def test_project_imports_at_module_level():
 
 def test_layer_table_knows_every_module():
     assert {group(m) for m in MODULES} <= set(LAYERS)
+
+
+def test_function_level_imports_say_why():
+    """Any other import inside a function is an optional or heavy dependency, with a comment
+    saying why it is not at module level."""
+    bad = []
+    for mod, path in MODULES.items():
+        src = path.read_text()
+        lines = src.splitlines()
+        tree = ast.parse(src)
+        top_level = {id(n) for n in tree.body}
+        for n in tree.body:
+            if isinstance(n, (ast.If, ast.Try)):
+                top_level |= {id(c) for c in ast.walk(n)}
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in top_level:
+                text = "\n".join(lines[node.lineno - 2:node.end_lineno])  # line above too
+                if "#" not in text:
+                    bad.append(f"{mod}:{node.lineno}: {lines[node.lineno - 1].strip()}")
+    assert not bad, "function-level imports without a reason:\n" + "\n".join(bad)

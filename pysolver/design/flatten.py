@@ -20,6 +20,7 @@ resulting maximum cell length after the scaling rules.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -334,7 +335,6 @@ def compare_flattenings(V, F, params: UnitCell = UNIT_CELL,
 
     A method that fails records ``{"error": message}`` and has ``UV = None``.
     """
-    import time
 
 
     res = {}

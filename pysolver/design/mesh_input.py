@@ -14,6 +14,7 @@ are implausible in millimetres.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,7 +79,6 @@ class InputMesh:
 
     def transformed(self, shift, scale: float) -> InputMesh:
         """Copy with ``V' = (V + shift) * scale`` (to follow the stencil's centring/scaling)."""
-        import dataclasses
 
         return dataclasses.replace(self, V=(self.V + np.asarray(shift)) * scale,
                                    scale=self.scale * scale)
@@ -93,7 +93,7 @@ def _obj_has_vt(path: Path) -> bool:
 
 
 def _read_trimesh(path: Path):
-    import trimesh
+    import trimesh  # heavy: trimesh loads only for STL work
 
     ext = path.suffix.lower()
     try:
@@ -462,7 +462,9 @@ def _check_edges(V, F, name: str) -> None:
 
 def _nonmanifold_vertices(F, ff, n) -> np.ndarray:
     """Vertices whose incident faces are not connected through shared edges (bow-ties)."""
-    import scipy.sparse as sp
+    import scipy.sparse as sp  # heavy: this scipy submodule loads only where it is used
+
+    # heavy: this scipy submodule loads only where it is used
     from scipy.sparse.csgraph import connected_components
 
     m = len(F)

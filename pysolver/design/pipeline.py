@@ -12,11 +12,13 @@ Stages (timed in the summary): load -> remesh -> flatten (CETM and LSCM, compare
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
 import sys
 import time as _time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -153,7 +155,6 @@ def unit_cell_options(*, min_bumper=None, min_gap=None, max_cell_length=None,
     InputError
         An option outside its range in :class:`pysolver.params.Limits` (exit code 2).
     """
-    import dataclasses
 
     given = {k: v for k, v in (("min_bumper", min_bumper), ("min_gap", min_gap),
                                ("max_cell_length", max_cell_length)) if v is not None}
@@ -236,7 +237,6 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
     -------
     fix : str
     """
-    from dataclasses import replace
 
 
     lines = []

@@ -94,7 +94,7 @@ def isotropic_remesh(V, F, edge_length: float, iterations: int = 12):
     Used to resample user meshes finely (decent triangles for CETM) and as the
     ``"pymeshlab"`` stencil method.  Orientation of the input is kept.
     """
-    import pymeshlab
+    import pymeshlab  # heavy: MeshLab only for remeshing
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(V, float),

@@ -10,6 +10,7 @@ flattens it) or a ready stencil (``UV`` given, e.g. ``regular``).
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -288,7 +289,7 @@ def petal(size: float = 1.0, petals: int = 6, r0: float = 34.0, small: float = 3
 
 def _polygon_union(polys) -> np.ndarray:
     """Outline of the union of simple polygons (manifold3d CrossSection)."""
-    from manifold3d import CrossSection
+    from manifold3d import CrossSection  # heavy: manifold3d loads only for STL booleans
 
     cs = None
     for P in polys:
@@ -322,6 +323,7 @@ def _lattice_disk(outline: np.ndarray, edge: float, angle_deg: float = 90.0):
     P : (n, 2) float, mm
     F : (m, 3) int, counter-clockwise
     """
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     from matplotlib.path import Path as _Path
 
     th = np.radians(angle_deg)
@@ -498,7 +500,6 @@ def check_spec(spec: str) -> tuple[str, dict]:
     InputError
         Unknown shape, unknown option name, or a non-numeric value.
     """
-    import inspect
 
     name, opts = _parse_options(str(spec))
     if name not in BUILTIN:

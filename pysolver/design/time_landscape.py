@@ -20,6 +20,8 @@ coordinates of the closest point on the input mesh.
 from __future__ import annotations
 
 import ast
+import hashlib
+from pathlib import Path
 
 import igl
 import numpy as np
@@ -275,8 +277,6 @@ def read_time_file(path) -> tuple[np.ndarray, str]:
         Missing, unreadable, too large or non-text file; more than one column; a value
         that is not a number (named by line); a value outside the time limits.
     """
-    import hashlib
-    from pathlib import Path
 
 
     path = Path(path)

@@ -70,6 +70,7 @@ import re
 import sys
 import time
 from dataclasses import asdict, dataclass, replace
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -592,7 +593,6 @@ def compare_options(meas: Measurements, chosen: FitResult, progress: bool = True
 
 
 def _versions() -> dict:
-    from importlib import metadata
 
     out = {}
     for dist in ("morphshell", "numpy", "scipy", "qpsolvers", "quadprog"):

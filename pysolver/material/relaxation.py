@@ -95,7 +95,7 @@ def fit_relaxation(t, load, taus=PRONY_TAUS):
     weights : (len(taus) + 1,) float -- ``(g_inf, g_1, ...)``, summing to 1
     F0 : float, N -- the fitted load at t = 0
     """
-    from scipy.optimize import nnls
+    from scipy.optimize import nnls  # heavy: this scipy submodule loads only where it is used
 
     t = np.asarray(t, float)
     A = np.c_[np.ones_like(t), np.exp(-t[:, None] / np.asarray(taus, float))]

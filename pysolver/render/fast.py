@@ -38,6 +38,7 @@ The shim's version is part of :func:`version`, hence of every fast part's cache 
 from __future__ import annotations
 
 import json
+import math
 import os
 import queue
 import subprocess
@@ -45,6 +46,8 @@ import sys
 import tempfile
 import threading
 import time
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _v
 from pathlib import Path
 
 from .scad_io import Part, part_text
@@ -92,8 +95,6 @@ def version() -> str | None:
     """
     if not available():
         return None
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as _v
 
     def v(dist):
         try:
@@ -115,7 +116,7 @@ def _evaluator_class():
     """``openscad_evaluator.Evaluator`` with OpenSCAD's ``mirror([0, 0, 0])`` (identity)."""
     global _EVALUATOR_CLASS
     if _EVALUATOR_CLASS is None:
-        from openscad_evaluator import Evaluator
+        from openscad_evaluator import Evaluator  # optional: the fast renderer's OpenSCAD evaluator
 
         class _Evaluator(Evaluator):
             def _generate_transform(self, params, children, node):
@@ -155,9 +156,15 @@ def evaluate_file(scad) -> tuple:
         Syntax error, failed assertion, a fatal warning (unknown variable, module or
         function, undefined operation), 2D-only or empty output.
     """
-    import manifold3d as m3d
+    import manifold3d as m3d  # heavy: manifold3d loads only for STL booleans
+
+    # optional: the fast renderer's OpenSCAD evaluator
     from openscad_evaluator import EvalError, resolve_use_scopes
+
+    # optional: the fast renderer's OpenSCAD parser
     from openscad_lalr_parser import getASTfromFile, getASTfromString
+
+    # optional: the fast renderer's OpenSCAD parser
     from openscad_lalr_parser.nodes import IncludeStatement
 
     scad = Path(scad).resolve()
@@ -202,8 +209,8 @@ def evaluate_file(scad) -> tuple:
 
 def write_stl(solid, path) -> None:
     """Binary STL of a manifold3d solid (float32 coordinates, as OpenSCAD writes)."""
-    import numpy as np
-    import trimesh
+    import numpy as np  # numpy submodule only where it is used
+    import trimesh  # heavy: trimesh loads only for STL work
 
     mesh = solid.to_mesh64()
     V = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
@@ -251,7 +258,6 @@ def main() -> None:
 
 def _reference_bumpers(layer: str) -> list:
     """Three bumpers (flat shell frame) with contact planes tilted by 0, +12 and -12 deg."""
-    import math
 
     s = 1.0 if layer == "top" else -1.0
     out = []

@@ -50,6 +50,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -238,7 +239,7 @@ def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
     failures: list[tuple[Part, str]] = []
     if not todo:
         return seconds, failures
-    from tqdm import tqdm
+    from tqdm import tqdm  # optional: progress bars only with progress on
 
     def work(item):
         part, target = item
@@ -280,9 +281,8 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
 
     Returns ``seconds`` {name: evaluation wall time} and ``failures`` [(Part, message)].
     """
-    import threading
 
-    from tqdm import tqdm
+    from tqdm import tqdm  # optional: progress bars only with progress on
 
 
     seconds: dict[str, float] = {}
@@ -572,7 +572,7 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
 
 def load_stl(path):
     """Load an STL as a vertex-merged trimesh."""
-    import trimesh
+    import trimesh  # heavy: trimesh loads only for STL work
 
     return trimesh.load_mesh(str(path), file_type="stl", process=True)
 
@@ -585,7 +585,7 @@ def to_manifold(mesh, what: str = "mesh"):
     ExternalToolError
         If the mesh is not a closed 2-manifold (a broken OpenSCAD output).
     """
-    import manifold3d
+    import manifold3d  # heavy: manifold3d loads only for STL booleans
 
     m = manifold3d.Manifold(manifold3d.Mesh64(
         vert_properties=np.ascontiguousarray(mesh.vertices, dtype=np.float64),
@@ -599,7 +599,7 @@ def to_manifold(mesh, what: str = "mesh"):
 
 def from_manifold(m):
     """trimesh of a manifold3d solid."""
-    import trimesh
+    import trimesh  # heavy: trimesh loads only for STL work
 
     mesh = m.to_mesh64()
     V = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
@@ -609,7 +609,7 @@ def from_manifold(m):
 
 def union(solids):
     """Boolean union of a list of manifold3d solids."""
-    import manifold3d
+    import manifold3d  # heavy: manifold3d loads only for STL booleans
 
     if not solids:
         return manifold3d.Manifold()

@@ -308,7 +308,7 @@ def frame_holes(outline, frame=SUPPORT_FRAME) -> list:
     -------
     holes : list of (k, 2) float arrays, mm (counter-clockwise)
     """
-    import manifold3d
+    import manifold3d  # heavy: manifold3d loads only for STL booleans
 
     P = np.asarray(outline, float)
     area = 0.5 * np.sum(P[:, 0] * np.roll(P[:, 1], -1) - np.roll(P[:, 0], -1) * P[:, 1])

@@ -115,7 +115,7 @@ def harmonic_landscape(V, F, b, bc) -> np.ndarray:
     -------
     t : (n,) float, s -- ``t[b] = bc``; harmonic (cotangent Laplacian) elsewhere.
     """
-    import igl
+    import igl  # heavy: libigl only where it is used
 
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)

@@ -32,6 +32,7 @@ import subprocess
 import sys
 import threading
 import time
+import webbrowser
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -419,7 +420,6 @@ def serve(dirs, *, port: int = 0, open_browser: bool = True, ready=None) -> None
     if ready is not None:
         ready(srv)
     if open_browser:
-        import webbrowser
 
         webbrowser.open(srv.url)
     try:

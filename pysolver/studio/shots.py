@@ -42,7 +42,9 @@ def chromium_driver(width: int, height: int, profile, *, extra=()):
     folder ``profile``.  The flags keep an offline machine quiet and give WebGL a software
     rasteriser (SwiftShader), so canvases really render."""
     try:
-        from selenium import webdriver
+        from selenium import webdriver  # optional: a browser only for screenshots and browser tests
+
+        # optional: a browser only for screenshots and browser tests
         from selenium.webdriver.chrome.service import Service
     except ImportError:
         raise InputError("selenium is not installed",
@@ -61,6 +63,7 @@ def chromium_driver(width: int, height: int, profile, *, extra=()):
 
 
 def _wait(driver, cond, what, timeout=120):
+    # optional: a browser only for screenshots and browser tests
     from selenium.webdriver.support.ui import WebDriverWait
 
     WebDriverWait(driver, timeout, poll_frequency=0.2).until(
@@ -69,7 +72,7 @@ def _wait(driver, cond, what, timeout=120):
 
 def _save_small(png: bytes, path: Path, width: int) -> Path:
     """Save a screenshot at most ``width`` px wide, as a palette PNG if that keeps it small."""
-    from PIL import Image
+    from PIL import Image  # optional heavy dependency: Pillow only for pictures
 
     im = Image.open(io.BytesIO(png)).convert("RGB")
     if im.width > width:

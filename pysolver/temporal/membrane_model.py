@@ -43,6 +43,7 @@ layer); the per-bracket target used for the thickness design is ``F_mem / 4``.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -452,7 +453,7 @@ def stencil_membrane_mesh(V, F, max_area: float = MESH_MAX_AREA, uc=UNIT_CELL,
     F : (nf, 3) int -- faces (counter-clockwise)
     max_area : float, mm^2 -- Triangle's maximum element area (flat)
     """
-    import triangle
+    import triangle  # heavy: Triangle only where a mesh is made
 
     V = np.asarray(V, float)[:, :2]
     F = np.asarray(F, int)
@@ -840,7 +841,6 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
     if rim is None:
         mem = PlaneMembrane(mesh.X, mesh.tri)
     else:
-        import dataclasses
 
 
         X, tri, body, margin = rim_margin(mesh.X, mesh.tri, mesh.body, mesh.centers,
@@ -887,13 +887,13 @@ def _code_version() -> dict:
     src = Path(__file__).read_bytes()
     v = {"module_sha256": hashlib.sha256(src).hexdigest()[:16]}
     try:
-        import importlib.metadata
+        import importlib.metadata  # loaded only where it is used
 
         v["morphshell"] = importlib.metadata.version("morphshell")
     except Exception:  # noqa: BLE001 - provenance only
         v["morphshell"] = "unknown"
     try:
-        import subprocess
+        import subprocess  # loaded only where it is used
 
         r = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                            text=True, cwd=Path(__file__).resolve().parent, timeout=10)
@@ -1027,9 +1027,10 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
 
 def plot_membrane_fit(model: dict, png) -> Path:
     """Linear model (dashed) against the FEM samples (solid) per initial length, like SI Fig. 8a."""
-    import matplotlib
+    import matplotlib  # optional heavy dependency: matplotlib loads only when a picture is drawn
 
     matplotlib.use("Agg")
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     import matplotlib.pyplot as plt
 
     png = Path(png)

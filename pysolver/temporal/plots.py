@@ -30,10 +30,13 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     -------
     Path of the PNG.
     """
-    import matplotlib
+    import matplotlib  # optional heavy dependency: matplotlib loads only when a picture is drawn
 
     matplotlib.use("Agg")
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     import matplotlib.pyplot as plt
+
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     from matplotlib.tri import Triangulation
 
 

@@ -629,7 +629,7 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
         t_sim over completed cells), ``n_used``, ``n_never``, ``n_cells`` and, with
         ``t_end``, ``rms_incl_never_s``.
     """
-    from scipy.stats import spearmanr
+    from scipy.stats import spearmanr  # heavy: this scipy submodule loads only where it is used
 
     t_star = np.asarray(t_star, float)
     t_sim = np.asarray(t_sim, float)

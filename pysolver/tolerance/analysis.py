@@ -66,6 +66,7 @@ import math
 import sys
 import tempfile
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -552,7 +553,6 @@ def _spread(results, n_cells, n_bases, t_end):
     A cell that does not complete within the simulated time counts as completing at
     ``t_end`` for the variance (right-censored: the spread is then a lower bound).
     """
-    import warnings
 
     T = _arr(results, "t_done", (n_cells,))
     P = _arr(results, "base_final", (n_bases, 3))
@@ -575,7 +575,6 @@ def aggregate(results: list, nominal: dict, t_star, time_tol_s: float, oat: dict
     S = len(results)
     T, P, var_t, var_p = _spread(results, n_cells, n_bases, t_end)
     t_star = np.asarray(t_star, float)
-    import warnings
 
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # cells no sample completes

@@ -42,7 +42,7 @@ from pysolver.errors import InputError
 
 def _ipctk():
     try:
-        import ipctk
+        import ipctk  # optional: IPC contact only with --physics contact
     except ImportError:  # soft dependency
         raise InputError("physics effect 'contact' needs the IPC Toolkit's Python bindings",
                          fix="pip install ipctk") from None
@@ -99,7 +99,7 @@ class BaseContact:
     # -- geometry --------------------------------------------------------------------------
     def close_pairs(self, c, reach=None) -> np.ndarray:
         """(k, 2) int: non-neighbouring base pairs with centres closer than ``reach`` (mm)."""
-        from scipy.spatial import cKDTree
+        from scipy.spatial import cKDTree  # heavy: this scipy submodule loads only where it is used
 
         pairs = cKDTree(c).query_pairs(self.reach if reach is None else reach,
                                        output_type="ndarray")

@@ -24,6 +24,7 @@ free membrane vertex (mm).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -225,7 +226,7 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
     body : (v,) int
         Base a vertex lies on (outline), -1 for free vertices.
     """
-    import triangle
+    import triangle  # heavy: Triangle only where a mesh is made
 
     F = np.asarray(F)
     a, b = cells.faces[:, 0], cells.faces[:, 1]
@@ -517,7 +518,6 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
     ShellModel
         A new model; the arrays of ``model`` are not modified.
     """
-    import dataclasses
 
     changes = {}
     if thickness is not None:

@@ -45,6 +45,7 @@ Design (documented choices):
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import functools
 import os
 import time
@@ -81,7 +82,6 @@ def _limit_openmp() -> None:
     ``OMP_THREAD_LIMIT`` is respected."""
     if _USER_OMP_LIMIT or not HAVE_CHOLMOD:
         return
-    import ctypes
 
     try:
         ctypes.CDLL("libgomp.so.1").omp_set_num_threads(1)

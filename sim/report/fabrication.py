@@ -152,7 +152,7 @@ def _stl_stats(path: Path):
             v = rec["v"].reshape(-1, 3)
             size = (v.max(axis=0) - v.min(axis=0)).tolist() if n else [0.0, 0.0, 0.0]
             return n, size
-    import trimesh
+    import trimesh  # heavy: trimesh loads only for STL work
 
     m = trimesh.load(path, force="mesh")
     return len(m.faces), (m.bounds[1] - m.bounds[0]).tolist()
@@ -174,7 +174,7 @@ def stl_inventory(folder) -> list[dict]:
 
 def _offset(loop, delta):
     """Outward offset of a closed polygon (round joins), manifold3d's CrossSection."""
-    import manifold3d as m3d
+    import manifold3d as m3d  # heavy: manifold3d loads only for STL booleans
 
     cs = m3d.CrossSection([np.asarray(loop, float)]).offset(delta, m3d.JoinType.Round)
     polys = cs.to_polygons()
@@ -269,9 +269,10 @@ def template_svg(tp: dict, title: str, fab=FABRICATION) -> str:
 
 def template_pdf(tp: dict, path, title: str, fab=FABRICATION):
     """The template as a one-page PDF at 1:1 (page = the sheet, axes in mm; matplotlib)."""
-    import matplotlib
+    import matplotlib  # optional heavy dependency: matplotlib loads only when a picture is drawn
 
     matplotlib.use("Agg")
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     import matplotlib.pyplot as plt
 
     s = tp["sheet_mm"]
@@ -286,6 +287,7 @@ def template_pdf(tp: dict, path, title: str, fab=FABRICATION):
         Q = np.vstack([P, P[:1]])
         ax.plot(Q[:, 0], Q[:, 1], **kw)
     ax.fill(tp["outline"][:, 0], tp["outline"][:, 1], color="#f2d39b", alpha=0.5, lw=0)
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     from matplotlib.patches import Circle
 
     for x, y in tp["markers"]:

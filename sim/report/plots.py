@@ -18,6 +18,7 @@ import functools
 import os
 import subprocess
 import sys
+import textwrap
 
 import matplotlib
 
@@ -71,7 +72,7 @@ def pyvista_status() -> tuple[bool, str]:
 def _import_pyvista():
     for k, v in _EGL_ENV.items():
         os.environ.setdefault(k, v)
-    import pyvista as pv
+    import pyvista as pv  # optional heavy dependency: VTK rendering only for 3D pictures
 
     pv.OFF_SCREEN = True
     return pv
@@ -85,7 +86,6 @@ def fit_titles(fig, width_chars: int = 200) -> int:
     figure is then laid out again (``tight_layout``) so the extra lines stay inside.
     Returns the number of re-wraps (0 = nothing changed).
     """
-    import textwrap
 
     fig.canvas.draw()
     r = fig.canvas.get_renderer()
@@ -323,6 +323,7 @@ class ShellRenderer:
     # -- matplotlib ---------------------------------------------------------------------------
     def _mpl_image(self, f, lo, hi, view, base_scalars=None, clim=None, cmap="viridis",
                    highlight=None, scalar_title="", extra_points=None):
+        # optional heavy dependency: matplotlib loads only when a picture is drawn
         from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
         w, h = self.size
@@ -413,6 +414,7 @@ class ShellRenderer:
 
 def _label(img, text):
     """Write ``text`` in the top-left corner of an image (Pillow)."""
+    # optional heavy dependency: Pillow only for pictures
     from PIL import Image, ImageDraw, ImageFont
 
     im = Image.fromarray(np.ascontiguousarray(img))
@@ -426,7 +428,7 @@ def _label(img, text):
 
 
 def save_png(img, path):
-    from PIL import Image
+    from PIL import Image  # optional heavy dependency: Pillow only for pictures
 
     Image.fromarray(np.ascontiguousarray(img)).save(path, optimize=True)
     return path
@@ -434,7 +436,7 @@ def save_png(img, path):
 
 def save_gif(images, path, *, frame_ms=120, hold_ms=1200):
     """Animated GIF (imageio, Pillow plugin), looping, the last frame held ``hold_ms``."""
-    import imageio.v3 as iio
+    import imageio.v3 as iio  # optional heavy dependency: imageio only for the animation
 
     dur = [frame_ms] * len(images)
     dur[-1] = hold_ms

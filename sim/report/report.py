@@ -20,6 +20,7 @@ Run as ``python -m sim.report <design_dir>`` or ``morphshell report <dir>``.
 
 from __future__ import annotations
 
+import argparse
 import base64
 import dataclasses
 import html
@@ -29,6 +30,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import stats
@@ -364,7 +366,6 @@ def fold_metrics(C, R, cell_pairs, target_fold_deg, th: Thresholds):
     dict with ``rms_deg, max_deg, n_folded, n_flipped, flipped_fraction, flipped_cells``
     and the array ``fold_deg`` (n_cells,).
     """
-    from types import SimpleNamespace
 
     fold = fold_angles_deg(C, R[:, :, 2], SimpleNamespace(faces=np.asarray(cell_pairs)))
     tgt = np.asarray(target_fold_deg, float)
@@ -873,6 +874,7 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
 
 
 def _plot_shape_over_time(path, t, rms_t, size, th):
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 3.4))
@@ -1245,7 +1247,6 @@ def print_verdict(r, out_dir):
 
 
 def main(argv=None) -> int:
-    import argparse
 
     ap = argparse.ArgumentParser(prog="python -m sim.report", description=__doc__.split("\n")[0])
     ap.add_argument("design_dir")

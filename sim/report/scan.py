@@ -26,6 +26,7 @@ registers both layers and keeps the one with the lower truncated error.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -114,7 +115,7 @@ def read_points(path):
                         raise InputError(f"{path}:{ln}: cannot parse {line.strip()!r}") from None
         P = np.array(pts, float).reshape(-1, 3)
     elif ext == ".ply":
-        import trimesh
+        import trimesh  # heavy: trimesh loads only for STL work
 
         try:
             geom = trimesh.load(path, process=False)
@@ -314,10 +315,13 @@ def _stats(reg, P, M):
 
 
 def _plot(path, P, M, reg, title):
-    import matplotlib
+    import matplotlib  # optional heavy dependency: matplotlib loads only when a picture is drawn
 
     matplotlib.use("Agg")
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     import matplotlib.pyplot as plt
+
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     X = P @ reg["Q"].T + reg["s"]
@@ -439,7 +443,6 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
 
 
 def main(argv=None) -> int:
-    import argparse
 
     ap = argparse.ArgumentParser(prog="python -m sim.scan", description=__doc__.split("\n")[0])
     ap.add_argument("design_dir")
