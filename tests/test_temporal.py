@@ -17,11 +17,11 @@ import pytest
 
 from pysolver import tables
 from pysolver.build import refine_design
+from pysolver.design.time_landscape import cell_target_times
 from pysolver.errors import InputError
 from pysolver.params import UNIT_CELL
 from pysolver.temporal import (
     PICTURE,
-    cell_target_times,
     completion_time,
     membrane_factors,
     program_cells,

@@ -36,7 +36,7 @@ from .plots import write_design_plots
 from .remesh import remesh_surface, stencil_figures, surface_area
 from .time_landscape import (
     TIME_FILE_ATTRIBUTE,
-    cell_times,
+    cell_target_times,
     check_time_option,
     check_time_source,
     read_time_file,
@@ -379,7 +379,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         t_vertex, t_desc = resolve_time(time, lay.V, source_mesh=src_mesh)
         if time_file_info is not None:
             t_desc = f"--time-file {time_file_info['path']}, {time_file_info['carried']}"
-    t_star = cell_times(t_vertex, lay.cells.verts)
+    t_star = cell_target_times(t_vertex, lay.cells.verts[:, 0], lay.cells.verts[:, 1])
     th = np.full((len(lay.cells.faces), 2), float(thickness))
     clock.step("time")
 

@@ -463,13 +463,31 @@ def _vertex_source(spec: str, mesh) -> np.ndarray:
     return t0 + (t1 - t0) * lum
 
 
-def cell_times(t_vertex, cell_verts) -> np.ndarray:
-    """t* per cell = mean of the landscape at the shared edge's two vertices (s)."""
+def cell_target_times(t_vertex, vertex_a, vertex_b) -> np.ndarray:
+    """``t*`` per cell: mean of the landscape at the two ends of the stencil edge (s).
+
+    The project's one definition (design, temporal programming, studio).
+
+    Parameters
+    ----------
+    t_vertex : (n_vertices,) float, s
+    vertex_a, vertex_b : (n_cells,) int
+
+    Returns
+    -------
+    (n_cells,) float, s
+    """
     t = np.asarray(t_vertex, float)
-    return 0.5 * (t[cell_verts[:, 0]] + t[cell_verts[:, 1]])
+    a, b = np.asarray(vertex_a, int), np.asarray(vertex_b, int)
+    if len(a) and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= len(t)):
+        raise InputError(f"cell vertices reference {max(a.max(), b.max())} but the time "
+                         f"landscape has {len(t)} vertices.",
+                         fix="re-run the design stage so time_landscape.csv matches the stencil.")
+    return 0.5 * (t[a] + t[b])
 
 
 __all__ = ["DEFAULT_TIME_S", "TIME_FILE_ATTRIBUTE", "read_time_file", "time_file_per_vertex",
            "check_time_source", "check_time_option", "parse_expression",
            "evaluate_expression",
-           "interpolate_to_stencil", "validate_time", "resolve_time", "cell_times"]
+           "interpolate_to_stencil", "validate_time", "resolve_time",
+           "cell_target_times"]

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables, temporal
+from ..design.time_landscape import cell_target_times
 from ..errors import InputError
-from ..temporal import cell_target_times, program_cells
+from ..temporal import program_cells
 from ..temporal.membrane_model import load_membrane_model
 
 MAX_TIME_S = 1000.0

@@ -60,6 +60,7 @@ from sim.model.rim import rim_margin
 
 from ..atomic import atomic_write_text
 from ..errors import InputError
+from ..geometry import boundary_vertex_mask, face_adjacency, unit_cells
 from ..material.validate import (
     MEMBRANE_FIX,
     MEMBRANE_KIND,
@@ -331,37 +332,6 @@ def _add_faces(i, j, idx, F):
             F.append([idx[t] for t in tri])
 
 
-def _stencil_cells(F):
-    """Unit cells of a stencil in the design-folder order (face-major, neighbour > face).
-
-    Returns
-    -------
-    cells : (nc, 6) int
-        ``base_a, base_b, slot_a, slot_b, vertex_a, vertex_b``.
-    boundary_vertex : (nv,) bool
-    """
-    edge_faces: dict = {}
-    for f, tri in enumerate(F):
-        for j in range(3):
-            e = (int(tri[(j + 1) % 3]), int(tri[(j + 2) % 3]))
-            edge_faces.setdefault(tuple(sorted(e)), []).append((f, j))
-    nv = int(F.max()) + 1
-    bnd = np.zeros(nv, dtype=bool)
-    for e, fs in edge_faces.items():
-        if len(fs) == 1:
-            bnd[list(e)] = True
-    cells = []
-    for f, tri in enumerate(F):
-        for j in range(3):
-            e = (int(tri[(j + 1) % 3]), int(tri[(j + 2) % 3]))
-            fs = edge_faces[tuple(sorted(e))]
-            if len(fs) == 2:
-                (g, k) = fs[0] if fs[0][0] != f else fs[1]
-                if g > f:
-                    cells.append((f, g, j, k, e[0], e[1]))
-    return np.array(cells, dtype=int), bnd
-
-
 @dataclass
 class PatchMesh:
     """Membrane mesh of a regular patch (flat, mm) and its bookkeeping."""
@@ -371,7 +341,7 @@ class PatchMesh:
     tri: np.ndarray               # (m, 3) membrane triangles
     body: np.ndarray              # (n,) base of an attached node, -1 = free
     centers: np.ndarray           # (nf, 2) flat base centres
-    cells: np.ndarray             # (nc, 6) as _stencil_cells
+    cells: np.ndarray             # (nc, 6) base_a, base_b, slot_a, slot_b, vertex_a, vertex_b
     cell_boundary: np.ndarray     # (nc,) bool, an end of the shared edge is a boundary vertex
     cell_boundary_faces: np.ndarray  # (nc,) int, fewest faces at a boundary end (0 = interior)
     cell_depth: np.ndarray        # (nc,) int, min graph distance of the edge ends from the boundary
@@ -457,7 +427,10 @@ def stencil_membrane_mesh(V, F, max_area: float = MESH_MAX_AREA, uc=UNIT_CELL,
 
     V = np.asarray(V, float)[:, :2]
     F = np.asarray(F, int)
-    cells, bnd = _stencil_cells(F)
+    ff = face_adjacency(F)
+    uc_cells = unit_cells(F, ff)  # design-folder order: face-major, neighbour > face
+    cells = np.c_[uc_cells.faces, uc_cells.slots, uc_cells.verts]
+    bnd = boundary_vertex_mask(F, ff)
     vdepth = _vertex_depth(F, bnd)
     C = V[F].mean(axis=1)
     r, al = uc.base_r, uc.alpha_rad

@@ -63,6 +63,7 @@ import numpy as np
 
 from .. import tables
 from ..atomic import atomic_write_text
+from ..design.time_landscape import cell_target_times
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..params import SIM, UNIT_CELL
@@ -125,27 +126,6 @@ def time_limit(material) -> float:
 # ----------------------------------------------------------------------------------------------
 # per-cell quantities
 # ----------------------------------------------------------------------------------------------
-
-
-def cell_target_times(t_vertex, vertex_a, vertex_b) -> np.ndarray:
-    """``t*`` per cell: mean of the landscape at the two ends of the stencil edge (s).
-
-    Parameters
-    ----------
-    t_vertex : (n_vertices,) float, s
-    vertex_a, vertex_b : (n_cells,) int
-
-    Returns
-    -------
-    (n_cells,) float, s
-    """
-    t = np.asarray(t_vertex, float)
-    a, b = np.asarray(vertex_a, int), np.asarray(vertex_b, int)
-    if len(a) and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= len(t)):
-        raise InputError(f"cell vertices reference {max(a.max(), b.max())} but the time "
-                         f"landscape has {len(t)} vertices.",
-                         fix="re-run the design stage so time_landscape.csv matches the stencil.")
-    return 0.5 * (t[a] + t[b])
 
 
 def target_compressions(b0, b1_top, b1_bottom):
@@ -650,7 +630,7 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
     return out
 
 
-__all__ = ["load_material", "CORRECTIONS", "membrane_factors", "cell_target_times",
+__all__ = ["load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
            "program_cells", "program_design", "timing_errors", "time_limit",
