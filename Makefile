@@ -5,6 +5,7 @@
 #   make bench              benchmarks -> build/bench/*.json
 #   make tolerance shape=petal [SAMPLES=64]   Monte Carlo tolerance analysis (Dask)
 #   make sweep SPEC=file.toml                 build and tabulate design variants (Dask)
+#   make scad-params        regenerate scad/params.scad from pysolver/params.py
 #
 # The first call creates .venv and installs the project; Debian packages that are
 # missing are installed with apt-get when running as root (otherwise the exact
@@ -74,7 +75,7 @@ DASK_OPTS  := $${MS_SCHEDULER:+--scheduler "$$MS_SCHEDULER"} \
               $${MS_WORKERS:+--workers "$$MS_WORKERS"}
 
 .PHONY: all build design sim report test bench clean material membrane-model specimens \
-        system-deps venv lint shapes studio studio-shots tolerance sweep
+        system-deps venv lint shapes studio studio-shots tolerance sweep scad-params
 
 all: build
 
@@ -123,6 +124,10 @@ material: $(STAMP)
 
 membrane-model: $(STAMP)
 	$(PY) -m pysolver.cli fit-membrane
+
+# scad/params.scad from pysolver/params.py: one source for the unit-cell dimensions
+scad-params: $(STAMP)
+	$(PY) -m pysolver.render.scad_params
 
 specimens: $(STAMP)
 	@$(RUN) $(PY) -m pysolver.cli specimens $${MS_JOBS:+--jobs "$$MS_JOBS"}

@@ -48,8 +48,7 @@ from .design import check_design_options, run_design
 from .design.surfaces import BUILTIN_SHAPES, check_spec
 from .design.time_landscape import read_time_file
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
-from .material.model import DEFAULT_MODEL_PATH
-from .material.validate import validate_bracket_model_file
+from .material.model import DEFAULT_MODEL_PATH, check_bracket_geometry, load_bracket_model
 from .params import DEFAULT_REFINE, LIMITS, SIM, UNIT_CELL
 from .render import DEFAULT_RENDERER, check_renderer, find_openscad, render_design
 from .render.scad_io import SCAD_DIR
@@ -253,8 +252,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     summary : dict
         The content of ``summary.json`` plus ``exit_code``.
     """
-    validate_model_files(material)  # material + membrane model files, before any stage
     params = UNIT_CELL if params is None else params
+    validate_model_files(material, unit=params)  # model files, before any stage
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
                          params=params, size=size, time_file=time_file)
     check_build_options(jobs=jobs, t_end=t_end, dt=dt, refine=refine, render=render,
@@ -496,8 +495,9 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     return result
 
 
-def validate_model_files(material=None, membrane=None) -> None:
-    """Check every model file a build will read, before any stage runs.
+def validate_model_files(material=None, membrane=None, unit=UNIT_CELL) -> None:
+    """Check every model file a build will read, before any stage runs; the material model
+    must be fitted for the unit cell's brackets (:func:`check_bracket_geometry`).
 
     Parameters
     ----------
@@ -506,6 +506,8 @@ def validate_model_files(material=None, membrane=None) -> None:
         model) is not a file and is skipped.
     membrane : path-like, optional
         Membrane model file (default: the committed one).
+    unit : UnitCell
+        The unit cell of the build.
 
     Raises
     ------
@@ -513,7 +515,8 @@ def validate_model_files(material=None, membrane=None) -> None:
         The first rule a file breaks.
     """
     if material is None or isinstance(material, str | os.PathLike):
-        validate_bracket_model_file(DEFAULT_MODEL_PATH if material is None else material)
+        path = DEFAULT_MODEL_PATH if material is None else material
+        check_bracket_geometry(load_bracket_model(path), unit, str(path))  # (validates it)
     if membrane is None or isinstance(membrane, str | os.PathLike):
         validate_membrane_model_file(MEMBRANE_MODEL_PATH if membrane is None else membrane)
 

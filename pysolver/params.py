@@ -191,6 +191,13 @@ class Tolerances:
         torques in N mm scaled by 1/base_r so both are forces).
     newton_max_iter_dry, newton_max_iter_wet : int
         Newton iteration caps for the dry step and the wet steps.
+    facet : float, mm
+        Largest distance between a faceted circle and the true circle in the SCAD parts
+        (``FACET_TOL`` of ``scad/params.scad``).
+    scad_cut : float, mm
+        Margin by which SCAD cutting tools overshoot the faces they cut (``CUT_EPS``).
+    apex_gap : float, mm
+        Actuated preview only: gap between facing bracket arms (``APEX_GAP``).
     """
 
     merge: float = 1e-6
@@ -199,6 +206,9 @@ class Tolerances:
     newton_max_iter_dry: int = 200
     newton_max_iter_wet: int = 100
     line_search_halvings: int = 30
+    facet: float = 0.005
+    scad_cut: float = 0.01
+    apex_gap: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -635,6 +645,10 @@ def layer_sign(layer) -> int:
     raise ValueError(f"layer must be 0/'top' or 1/'bottom', got {layer!r}")
 
 
+PAPER_BRACKET_HEIGHT_MM = 1.0
+"""Bracket height of the paper's specimens: the material models fitted before the model file
+recorded its bracket geometry were fitted on these brackets."""
+
 DATA_DIR = Path(__file__).resolve().parent / "data"
 """The committed model files (``bracket_model.json``, ``membrane_model.json``)."""
 MEMBRANE_MODEL_FILE = DATA_DIR / "membrane_model.json"
@@ -668,7 +682,8 @@ def check_unit_cell(params: UnitCell) -> None:
                 f"{UNIT_CELL.max_cell_length:g} mm)")
 
 
-__all__ = ["check_unit_cell", "DATA_DIR", "MEMBRANE_MODEL_FILE", "DEFAULT_REFINE", "LIMITS",
+__all__ = ["check_unit_cell", "PAPER_BRACKET_HEIGHT_MM", "DATA_DIR", "MEMBRANE_MODEL_FILE",
+           "DEFAULT_REFINE", "LIMITS",
            "Limits", "UnitCell", "SimConstants",
            "Tolerances",
            "SupportFrame", "SUPPORT_FRAME",

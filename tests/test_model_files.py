@@ -323,3 +323,31 @@ def test_fresh_fit_passes(tmp_path):
                  evaluate_options=False)
     v = validate_bracket_model_file(out)
     assert v["coef"].shape == (8, 21, 21, 4)
+
+
+def test_material_model_records_its_brackets_and_other_brackets_are_refused(tmp_path):
+    """The model file records the bracket height and width it was fitted for; a unit cell
+    with other brackets is refused before any stage, with the fix (make material)."""
+    import dataclasses
+    import json
+
+    from pysolver.material.model import check_bracket_geometry
+    from pysolver.params import UNIT_CELL
+
+    d = json.loads(DEFAULT_MODEL_PATH.read_text())
+    assert d["bracket"] == {"height_mm": UNIT_CELL.bracket_w,
+                            "width_mm": [UNIT_CELL.thickness_min, UNIT_CELL.thickness_max]}
+    validate_model_files()                                   # the committed pair fits
+    taller = dataclasses.replace(UNIT_CELL, bracket_w=1.5)
+    with pytest.raises(InputError, match=r"fitted for brackets 1 mm high.*1\.5 mm") as e:
+        validate_model_files(unit=taller)
+    assert "make material" in e.value.fix
+    d["bracket"]["height_mm"] = 1.5                          # a model fitted for 1.5 mm
+    other = tmp_path / "m.json"
+    other.write_text(json.dumps(d))
+    with pytest.raises(InputError, match="1.5 mm high"):
+        validate_model_files(other)
+    check_bracket_geometry(load_bracket_model(other), taller)  # matching brackets pass
+    wider = dataclasses.replace(UNIT_CELL, thickness_max=0.8)
+    with pytest.raises(InputError, match="widths 0.3-0.65 mm"):
+        check_bracket_geometry(load_bracket_model(), wider)

@@ -25,6 +25,7 @@ from pysolver.geometry import rotvec_to_matrix
 from pysolver.params import SUPPORT_FRAME, UNIT_CELL
 from pysolver.render import FACET_TOL_MM, load_stl
 from pysolver.render.scad_io import SCAD_DIR
+from pysolver.render.scad_params import PARAMS_SCAD, params_scad_text
 
 U = UNIT_CELL
 GAP = 0.05       # APEX_GAP of scad/params.scad: gap between opened arms (actuated preview)
@@ -70,6 +71,12 @@ def _mesh(code: str, tmp_path, name="m"):
 
 # ------------------------------------------------------------------------------------------
 # defaults = pysolver.params
+
+
+def test_params_scad_is_generated_from_params_py():
+    """One source: scad/params.scad is the text generated from pysolver.params."""
+    assert PARAMS_SCAD.read_text() == params_scad_text(), \
+        "scad/params.scad is out of date: run make scad-params"
 
 
 def test_params_scad_equals_params_py(tmp_path):

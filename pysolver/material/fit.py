@@ -88,7 +88,7 @@ from .measurements import (
     preprocess_dry,
     preprocess_wet,
 )
-from .model import BracketModel, load_bracket_model, model_dict
+from .model import BracketModel, bracket_record, load_bracket_model, model_dict
 from .polyfit import (
     constrained_lstsq,
     constrained_normal_lstsq,
@@ -612,6 +612,7 @@ def model_file_dict(res: FitResult, meas: Measurements) -> dict:
                         "'reference' extrapolates one step past the last node, then holds",
         "plastic_fraction": SIM.eta,
         "specimen_brackets": SPECIMEN_BRACKETS,
+        "bracket": bracket_record(res.model),
         "residuals": {"dry_rms_mm": r["dry_model"]["rms_mm"],
                       "wet_rms_mm": r["wet_model"]["rms_mm"],
                       "wet_rms_curve_weighted_mm": r["wet_model"]["rms_curve_weighted_mm"],

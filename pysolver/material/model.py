@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..params import SIM, UNIT_CELL
+from ..params import PAPER_BRACKET_HEIGHT_MM, SIM, UNIT_CELL, UnitCell
+from ..params import tol as TOL
 from .creep import CreepModel
 from .measurements import REPO_ROOT
 from .polyfit import poly_energy, poly_force, poly_stiffness
@@ -301,6 +302,48 @@ def model_dict(grid_min, grid_step, coef, meta) -> dict:
                                 "data": np.asarray(coef).tolist()}}
     d.update(meta)
     return d
+
+
+def bracket_record(model: BracketModel, unit: UnitCell = UNIT_CELL) -> dict:
+    """The bracket geometry a model is fitted for, as its file records it (``"bracket"``):
+    ``height_mm`` (out of plane, :attr:`UnitCell.bracket_w`) and ``width_mm`` (the in-plane
+    thickness range of the fit grid)."""
+    return {"height_mm": float(unit.bracket_w),
+            "width_mm": [float(model.grid_min[0]), float(model.grid_max[0])]}
+
+
+def check_bracket_geometry(model, unit: UnitCell = UNIT_CELL, source: str = "") -> None:
+    """Refuse a material model fitted for other brackets than the unit cell's.
+
+    The model's ``"bracket"`` record (height and width range it was fitted for) must match
+    :attr:`UnitCell.bracket_w` and cover ``thickness_min``-``thickness_max``.  A file
+    without the record predates it and was fitted on the paper's 1 mm brackets
+    (:data:`pysolver.params.PAPER_BRACKET_HEIGHT_MM`).  Model objects without ``meta``
+    (test stand-ins) are not checked.
+
+    Raises
+    ------
+    InputError
+        Naming both geometries, with the fix (``make material``).
+    """
+    meta = getattr(model, "meta", None)
+    if meta is None:
+        return
+    rec = meta.get("bracket") or {}
+    height = float(rec.get("height_mm", PAPER_BRACKET_HEIGHT_MM))
+    width = rec.get("width_mm")
+    where = source or getattr(model, "path", None) or "the material model"
+    fix = ("fit a material model for these brackets from their tensile tests: make material "
+           "(morphshell fit-material), then build with --material FILE; or restore the "
+           "bracket dimensions the model was fitted for in pysolver/params.py")
+    if abs(height - unit.bracket_w) > TOL.merge:
+        raise InputError(f"{where} was fitted for brackets {height:g} mm high; the unit cell "
+                         f"has {unit.bracket_w:g} mm brackets (UnitCell.bracket_w)", fix=fix)
+    if width is not None and (unit.thickness_min < width[0] - TOL.merge
+                              or unit.thickness_max > width[1] + TOL.merge):
+        raise InputError(f"{where} was fitted for bracket widths {width[0]:g}-{width[1]:g} mm; "
+                         f"the unit cell prints {unit.thickness_min:g}-"
+                         f"{unit.thickness_max:g} mm", fix=fix)
 
 
 def load_bracket_model(path=None, outside: str = "clamp") -> BracketModel:

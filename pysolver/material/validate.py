@@ -353,6 +353,16 @@ def _check_meta(f: _File, d: dict) -> None:
         n = d["specimen_brackets"]
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             f.fail("specimen_brackets", f"is {_describe(n)}; it must be a whole number >= 1.")
+    if "bracket" in d:
+        b = d["bracket"]
+        h = b.get("height_mm") if isinstance(b, dict) else None
+        wr = b.get("width_mm") if isinstance(b, dict) else None
+        if not (_is_number(h) and h > 0):
+            f.fail("bracket.height_mm", f"is {_describe(h)}; it must be a positive number (mm).")
+        if not (isinstance(wr, list) and len(wr) == 2 and all(_is_number(x) for x in wr)
+                and 0 < wr[0] <= wr[1]):
+            f.fail("bracket.width_mm", f"is {_describe(wr)}; it must be [min, max] mm, "
+                                       "0 < min <= max.")
     if "creep_model" in d:
         cm = d["creep_model"]
         if not isinstance(cm, dict):

@@ -62,6 +62,7 @@ from ..atomic import atomic_dir, public_mode
 from ..errors import ExternalToolError, InputError
 from ..geometry import print_transform, rotvec_to_matrix
 from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
+from ..params import tol as TOL
 from . import fast as render_fast
 from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files
 
@@ -112,9 +113,9 @@ INSTALL_FIX = ("install OpenSCAD: 'sudo apt-get install openscad' (Debian/Ubuntu
 _FATAL_MARKERS = ("ERROR:", "unknown variable", "unknown module", "unknown function",
                   "undefined operation", "Ignoring unknown")
 
-FACET_TOL_MM = 0.005
+FACET_TOL_MM = TOL.facet
 """mm: largest distance between a faceted circle and the true circle (``FACET_TOL`` in
-``scad/params.scad``; ``tests/test_scad_modules.py`` checks the two agree)."""
+``scad/params.scad``, generated from :data:`pysolver.params.tol`)."""
 
 STL_FILES = {
     "top": "top.stl", "bottom": "bottom.stl",

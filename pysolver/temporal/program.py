@@ -66,6 +66,7 @@ from ..atomic import atomic_write_text
 from ..design.time_landscape import cell_target_times
 from ..errors import InputError
 from ..material import load_bracket_model
+from ..material.model import check_bracket_geometry
 from ..params import SIM, UNIT_CELL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
@@ -483,6 +484,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     t0 = time.perf_counter()
     design_dir = Path(design_dir)
     mat = load_material(material)  # model files first: a bad file is refused before any work
+    check_bracket_geometry(mat, tables.read_unit_cell(design_dir))
     mem = load_membrane_model(membrane)
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
