@@ -189,7 +189,7 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, refine=None, render: 
             raise InputError(f"{opt} must be a number of seconds from {lo:g} to {hi:g}, "
                              f"got {v}.",
                              fix=f"omit {opt} for the default, or give e.g. "
-                                 f"{opt} {120 if opt == '--t-end' else 0.5}.")
+                                 f"{opt} {SIM.t_end if opt == '--t-end' else SIM.dt:g}.")
     steps = (t_end or SIM.t_end) / (dt or SIM.dt)
     if steps > LIMITS.max_steps:
         raise InputError(f"--t-end / --dt = {steps:.0f} simulation steps, more than "

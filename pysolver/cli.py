@@ -27,7 +27,7 @@ from .errors import (
     EXIT_OK,
     MorphshellError,
 )
-from .params import DEFAULT_REFINE, TOLERANCE_RUN, UNCERTAINTY
+from .params import DEFAULT_REFINE, TOLERANCE_RUN, UNCERTAINTY, UNIT_CELL
 
 STAGES_HELP = """\
 stages (each reads and writes plain files in a design folder, build/<shape>/):
@@ -79,7 +79,8 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
                    help="minimal flat gap between facing bumper tips, mm (default 0.1; 2D "
                         "scaling rule)")
     p.add_argument("--max-cell-length", type=float, default=None, metavar="MM",
-                   help="longest printable unit cell (flat centre distance), mm (default 9.5)")
+                   help="longest printable unit cell (flat centre distance), mm (default "
+                        f"{UNIT_CELL.max_cell_length:g})")
 
 
 def _unit_cell(args: argparse.Namespace):

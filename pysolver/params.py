@@ -198,6 +198,8 @@ class Tolerances:
         Margin by which SCAD cutting tools overshoot the faces they cut (``CUT_EPS``).
     apex_gap : float, mm
         Actuated preview only: gap between facing bracket arms (``APEX_GAP``).
+    thickness : float, mm
+        Slack of the bracket thickness range check (values written to 6 decimals).
     """
 
     merge: float = 1e-6
@@ -209,6 +211,7 @@ class Tolerances:
     facet: float = 0.005
     scad_cut: float = 0.01
     apex_gap: float = 0.05
+    thickness: float = 1e-6
 
 
 @dataclass(frozen=True)

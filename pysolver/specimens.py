@@ -89,7 +89,9 @@ def specimen_grid(lengths=(5, 6, 7, 8, 9), thicknesses=None) -> list[tuple[float
             if not (0 < h < UNIT_CELL.bracket_w):
                 raise InputError(f"bracket thickness {h} mm must be in (0, "
                                  f"{UNIT_CELL.bracket_w}) mm (thinner than the bracket height).",
-                                 fix="the paper's brackets are 0.30-0.65 mm thick.")
+                                 fix="the paper's brackets are "
+                                     f"{UNIT_CELL.thickness_min:.2f}-"
+                                     f"{UNIT_CELL.thickness_max:.2f} mm thick.")
             if (l, h) not in grid:
                 grid.append((l, h))
     return grid

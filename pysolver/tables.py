@@ -29,6 +29,7 @@ import numpy as np
 from .errors import InputError
 from .geometry import unit_cells
 from .params import UNIT_CELL, check_unit_cell
+from .params import tol as TOL
 
 # column -> type: "int", "float", "bool" (0/1), or a tuple of allowed strings
 SCHEMAS: dict[str, dict[str, object]] = {
@@ -514,6 +515,59 @@ def read_unit_cell(folder):
     return design_unit_cell(meta, str(path))
 
 
+def check_thickness(th, where: str, *, cell_ids=None, rows: bool = True,
+                    programmed: bool = False, in_range: bool = True, unit=UNIT_CELL) -> None:
+    """The one bracket-thickness validator (design tables, simulator, tolerance analysis).
+
+    Parameters
+    ----------
+    th : (c, 2) float, mm
+        Thickness per cell and layer (top, bottom); NaN = not programmed yet.
+    where : str
+        File (``.../cells.csv``) or model named in messages.
+    cell_ids : (c,) int, optional
+        Cell ids named in messages (default 0..c-1).
+    rows : bool
+        ``where`` is a CSV file: name the row (cell + 2) too.
+    programmed : bool
+        Every value must be finite and positive (the simulator's need).
+    in_range : bool
+        Values must lie in ``unit.thickness_min``-``unit.thickness_max`` (within
+        ``tol.thickness``): printable, and inside the measured material model.
+
+    Raises
+    ------
+    InputError
+        Naming the file, row, cell, column and value, the rule and the fix.
+    """
+    th = np.asarray(th, float)
+    ids = np.arange(len(th)) if cell_ids is None else np.asarray(cell_ids)
+    lo, hi = unit.thickness_min, unit.thickness_max
+    at = (lambda k: f"{where}:{k + 2}") if rows else (lambda k: where)
+    if th.ndim != 2 or th.shape[1] != 2:
+        raise InputError(f"{where}: thickness has shape {th.shape}, expected (cells, 2) "
+                         "(cells x layers)", fix="pass one thickness per cell and layer")
+    if programmed:
+        bad = np.flatnonzero(~np.all(np.isfinite(th) & (th > 0), axis=1))
+        if len(bad):
+            k = int(bad[0])
+            raise InputError(f"{at(k)}: cell {int(ids[k])} has bracket thickness "
+                             f"{th[k].tolist()} mm", fix="run the program (temporal) stage so "
+                             f"every cell has a thickness in {lo:.2f}-{hi:.2f} mm")
+    if not in_range:
+        return
+    for j, col in enumerate(("thickness_top_mm", "thickness_bottom_mm")):
+        h = th[:, j]
+        bad = np.flatnonzero((h < lo - TOL.thickness) | (h > hi + TOL.thickness))
+        if len(bad):
+            i = int(bad[0])
+            raise InputError(f"{at(i)} (cell {int(ids[i])}): {col} = {h[i]:g} mm is outside "
+                             f"the bracket thickness range {lo}-{hi} mm ({len(bad)} cell(s) in "
+                             "all)", fix="use thicknesses in range (thinner brackets do not "
+                                         "print, thicker ones are outside the material "
+                                         "model), or re-run 'morphshell program DIR'")
+
+
 def check_design(d: Design) -> None:
     """Cross-check a loaded design; raises InputError naming the first inconsistency."""
     f = d.folder
@@ -538,18 +592,8 @@ def check_design(d: Design) -> None:
                              f"(ids 0..{count - 1})",
                              fix="undo the hand edit of bumpers.csv, or re-run the design stage")
     # bracket thickness: printable and inside the measured material model
-    lo, hi = UNIT_CELL.thickness_min, UNIT_CELL.thickness_max
-    for col in ("thickness_top_mm", "thickness_bottom_mm"):
-        h = c[col]
-        bad = np.flatnonzero((h < lo - 1e-6) | (h > hi + 1e-6))
-        if len(bad):
-            i = int(bad[0])
-            raise InputError(f"{f}/cells.csv:{i + 2} (cell {int(c['cell_id'][i])}): {col} = "
-                             f"{h[i]:g} mm is outside the bracket thickness range {lo}-{hi} mm "
-                             f"({len(bad)} cell(s) in all)",
-                             fix="use thicknesses in range (thinner brackets do not print, "
-                                 "thicker ones are outside the material model), or re-run "
-                                 "'morphshell program DIR'")
+    check_thickness(np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]], f"{f}/cells.csv",
+                    cell_ids=c["cell_id"])
     if len(d.bases["base_id"]) != m:
         raise InputError(f"{f}/bases.csv: {len(d.bases['base_id'])} rows for {m} stencil faces",
                          fix="re-run the design stage")
@@ -681,4 +725,4 @@ __all__ = ["SCHEMAS", "FILENAMES", "write_table", "read_table", "read_bases", "r
            "read_bumpers", "read_time_landscape", "read_support_frame", "write_stencil",
            "read_stencil", "Design", "read_design", "check_design", "round_sig9",
            "design_unit_cell", "read_unit_cell", "MODEL_FILE", "MODEL_ARRAYS", "write_model",
-           "read_model", "model_inputs_hash"]
+           "read_model", "model_inputs_hash", "check_thickness"]

@@ -45,7 +45,8 @@ def _flat_axes(ax, lay: Layout, values, label, cmap, vmin=None, vmax=None, layer
 def plot_flat_length(lay: Layout, path, title=""):
     fig, ax = plt.subplots(figsize=(8, 7), dpi=110)
     _flat_axes(ax, lay, lay.central_length, "central length l (mm)", "viridis",
-               vmin=min(lay.central_length.min(), 4.0), vmax=max(9.5, lay.central_length.max()))
+               vmin=min(lay.central_length.min(), 4.0),
+               vmax=max(UNIT_CELL.max_cell_length, lay.central_length.max()))
     ax.set_title(title or f"flat layout: {len(lay.F)} bases, {len(lay.cells.faces)} cells, "
                  f"l {lay.central_length.min():.2f}-{lay.central_length.max():.2f} mm")
     fig.tight_layout()

@@ -30,7 +30,6 @@ from ..errors import InputError
 from ..params import LIMITS
 
 DEFAULT_TIME_S = 60.0
-T_MIN_S, T_MAX_S = 0.0, 120.0
 
 # The closed language of time expressions: numbers, the names below, arithmetic,
 # comparisons and these functions with exactly this many positional arguments.  The

@@ -366,8 +366,9 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0) -> dict:
 def _fix_message(ach) -> str:
     m = ach.get("suggested_map")
     if m is None:
-        return ("no cell can finish within the bracket model's time range with 0.30-0.65 mm "
-                "brackets; check the material model.")
+        return ("no cell can finish within the bracket model's time range with "
+                f"{UNIT_CELL.thickness_min:.2f}-{UNIT_CELL.thickness_max:.2f} mm brackets; "
+                "check the material model.")
     rng = ach["common"]
     msg = ("shift or scale the time landscape into the achievable range: "
            + (f"every cell that can finish at all can do so between {rng[0]:.1f} and "

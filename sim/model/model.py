@@ -34,7 +34,7 @@ import numpy as np
 from pysolver.errors import InputError
 from pysolver.geometry import Cells, base_rotations, face_centroids, rotvec_to_matrix
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
-from pysolver.tables import read_design, read_model
+from pysolver.tables import check_thickness, read_design, read_model
 from sim.model.rim import rim_margin
 
 CROSS_REST_MODES = ("flat", "zero")
@@ -340,11 +340,8 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
     if thickness.shape != (c, 2):
         raise InputError(f"{source or 'model'}: thickness has shape {thickness.shape}, "
                          f"expected ({c}, 2) (cells x layers)")
-    if not np.all(np.isfinite(thickness)) or np.any(thickness <= 0):
-        k = int(np.flatnonzero(~(np.isfinite(thickness) & (thickness > 0)).any(1))[0])
-        raise InputError(f"{source or 'model'}: cell {k} has thickness {thickness[k].tolist()}",
-                         fix="bracket thicknesses must be positive (0.30-0.65 mm); run the "
-                             "temporal (program) stage")
+    check_thickness(thickness, source or "model", rows=False, programmed=True, in_range=False,
+                    unit=unit)
     nodes_t, nodes_f = geometry["nodes_target"], geometry["nodes_flat"]
     m = len(F)
     C2 = face_centroids(UV, F)
@@ -477,12 +474,7 @@ def load_model(design_dir, *, consts: SimConstants = SIM, cross_rest: str = "fla
     unit = d.params  # the design's own unit cell (design.json)
     c = d.cells
     th = np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]]
-    bad = np.flatnonzero(~np.all(np.isfinite(th) & (th > 0), axis=1))
-    if len(bad):
-        k = int(bad[0])
-        raise InputError(f"{folder / 'cells.csv'}:{k + 2}: cell {k} has bracket thickness "
-                         f"{th[k].tolist()} mm", fix="run the program (temporal) stage so every "
-                         "cell has a thickness in 0.30-0.65 mm")
+    check_thickness(th, str(folder / "cells.csv"), programmed=True, in_range=False, unit=unit)
     rot = np.c_[d.bases["rot_x_rad"], d.bases["rot_y_rad"], d.bases["rot_z_rad"]]
     coll = np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
     geometry = read_model(folder, n_vertices=len(d.V), n_faces=d.n_bases, n_cells=d.n_cells,
@@ -522,10 +514,12 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
     changes = {}
     if thickness is not None:
         th = np.asarray(thickness, float)
-        if th.shape != model.cell_thickness.shape or not np.all(np.isfinite(th) & (th > 0)):
-            raise InputError(f"thickness has shape {th.shape} or non-positive values, expected "
+        if th.shape != model.cell_thickness.shape:
+            raise InputError(f"thickness has shape {th.shape}, expected "
                              f"{model.cell_thickness.shape} positive mm",
                              fix="pass one thickness per cell and layer")
+        check_thickness(th, "vary_model", rows=False, programmed=True, in_range=False,
+                        unit=model.unit)
         changes["cell_thickness"] = th
     if consts is not None:
         if not (np.isfinite(consts.tau) and consts.tau > 1.0 and np.isfinite(consts.mu)

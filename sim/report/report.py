@@ -1074,7 +1074,8 @@ def _html(r, tmp, sd, viewer=None) -> str:
                  "0.05 mm printing clearance (source: "
                  f"{html.escape(tm['source'])}). Figures over all cells first; then over the "
                  f"{n_prog} programmable cells (the temporal stage could reach their t* with "
-                 "0.30-0.65 mm brackets; the verdict uses these).</p>"
+                 f"{UNIT_CELL.thickness_min:.2f}-{UNIT_CELL.thickness_max:.2f} mm brackets; "
+                 "the verdict uses these).</p>"
                  + _table([("completed cells", f"{tm['n_completed']} / {tm['n_cells']}"),
                            ("never completed (t* <= t_end)", f"{tm['n_never_due']}: {never}"),
                            ("RMS error vs t*, all cells", f"{_f(tm['rms_all_s'])} s"),
