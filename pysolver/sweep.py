@@ -225,7 +225,6 @@ def build_variant(opts: dict, files: dict, out: str) -> dict:
     dict
         One row of :data:`COLUMNS`.
     """
-
     t0 = time.perf_counter()
     kw = {k: v for k, v in opts.items() if k != "name"}
     for k, v in DEFAULTS.items():
@@ -362,7 +361,6 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
     dict
         ``rows`` (list of dict, spec order), ``out`` (str), ``run`` (RunStats dict).
     """
-
     scheduler, workers = check_scheduler(scheduler), check_workers(workers)
     spec = load_spec(spec_path)
     out = _claim(Path(out) if out is not None else BUILD_ROOT / f"sweep-{spec['name']}")

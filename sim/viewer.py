@@ -92,7 +92,6 @@ def frame_alignments(C, target):
     -------
     Q : (n_frames, 3, 3) float ; s : (n_frames, 3) float, mm -- ``x -> Q x + s``
     """
-
     fits = [rigid_fit(c, target) for c in np.asarray(C, float)]
     return np.stack([q for q, _ in fits]), np.stack([np.asarray(v, float) for _, v in fits])
 

@@ -91,6 +91,15 @@ def _with_parents(name: str) -> list[str]:
     return [m for m in (".".join(parts[:i]) for i in range(1, len(parts) + 1)) if m in MODULES]
 
 
+def _module_level(tree: ast.Module) -> set[int]:
+    """ids of the module-level statements (those under a module-level if/try count too)."""
+    top = {id(n) for n in tree.body}
+    for n in tree.body:
+        if isinstance(n, (ast.If, ast.Try)):
+            top |= {id(c) for c in ast.walk(n)}
+    return top
+
+
 def imports() -> list[tuple[str, str, int, bool, str]]:
     """Every project import: (importer, imported, line, nested, source line)."""
     out = []
@@ -98,10 +107,7 @@ def imports() -> list[tuple[str, str, int, bool, str]]:
         src = path.read_text()
         lines = src.splitlines()
         tree = ast.parse(src)
-        top_level = {id(n) for n in tree.body}
-        for n in tree.body:  # imports under a module-level if/try are module level too
-            if isinstance(n, (ast.If, ast.Try)):
-                top_level |= {id(c) for c in ast.walk(n)}
+        top_level = _module_level(tree)
         for node in ast.walk(tree):
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
@@ -206,10 +212,7 @@ def test_function_level_imports_say_why():
         src = path.read_text()
         lines = src.splitlines()
         tree = ast.parse(src)
-        top_level = {id(n) for n in tree.body}
-        for n in tree.body:
-            if isinstance(n, (ast.If, ast.Try)):
-                top_level |= {id(c) for c in ast.walk(n)}
+        top_level = _module_level(tree)
         for node in ast.walk(tree):
             if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in top_level:
                 text = "\n".join(lines[node.lineno - 2:node.end_lineno])  # line above too

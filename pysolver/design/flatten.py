@@ -270,7 +270,6 @@ def distortion_metrics(V, UV, F, params: UnitCell = UNIT_CELL, layout=None) -> d
     scale), ``scale_spread`` (its square root: the conformal length-scale spread),
     ``area_log_std``, ``flips`` and, with a layout, the cell length figures.
     """
-
     V = np.asarray(V, float)
     UV = np.asarray(UV, float)
     F = np.asarray(F, dtype=np.int64)
@@ -335,8 +334,6 @@ def compare_flattenings(V, F, params: UnitCell = UNIT_CELL,
 
     A method that fails records ``{"error": message}`` and has ``UV = None``.
     """
-
-
     res = {}
     for m in methods:
         t0 = time.perf_counter()

@@ -79,7 +79,6 @@ class InputMesh:
 
     def transformed(self, shift, scale: float) -> InputMesh:
         """Copy with ``V' = (V + shift) * scale`` (to follow the stencil's centring/scaling)."""
-
         return dataclasses.replace(self, V=(self.V + np.asarray(shift)) * scale,
                                    scale=self.scale * scale)
 
@@ -279,7 +278,6 @@ def boundary_loops(F) -> list[np.ndarray]:
     Hand-written walk over the directed boundary edges (this libigl build has only
     ``boundary_loop``, which returns the longest loop).  Assumes manifold vertices.
     """
-
     F = np.asarray(F, dtype=np.int64)
     ff = face_adjacency(F)
     i, j = np.nonzero(ff < 0)
@@ -361,7 +359,6 @@ def validate_surface(V, F, name: str = "surface") -> None:
     InputError
         Naming the problem and where it is, with a fix.
     """
-
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) < 3:

@@ -67,7 +67,6 @@ class _Clock:
 def _load_source(source, scale: float, size=None):
     """Returns (surface-like object, kind, source description, hash, input mesh or None,
     factor applied to the input coordinates: ``scale``, or the one that ``size`` asks for)."""
-
     if isinstance(source, surfaces.Surface):
         h = hashlib.sha256(np.ascontiguousarray(source.V).tobytes()).hexdigest()[:16]
         return source, "builtin", source.name, h, None, 1.0
@@ -108,7 +107,6 @@ def _time_file_source(path, mesh, surf, stencil_order: bool):
     time : (n,) float array or str
     info : dict -- ``path``, ``sha256``, ``values``, ``carried`` (recorded in design.json)
     """
-
     values, sha = read_time_file(path)
     if mesh is None:
         raise InputError(f"--time-file {path} gives values per vertex of an input mesh; "
@@ -155,7 +153,6 @@ def unit_cell_options(*, min_bumper=None, min_gap=None, max_cell_length=None,
     InputError
         An option outside its range in :class:`pysolver.params.Limits` (exit code 2).
     """
-
     given = {k: v for k, v in (("min_bumper", min_bumper), ("min_gap", min_gap),
                                ("max_cell_length", max_cell_length)) if v is not None}
     params = dataclasses.replace(base, **{k: float(v) for k, v in given.items()
@@ -237,8 +234,6 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
     -------
     fix : str
     """
-
-
     lines = []
     low = REFERENCE_MIN_BUMPER_MM
     if params.min_bumper > low + 1e-9:

@@ -500,7 +500,6 @@ def check_spec(spec: str) -> tuple[str, dict]:
     InputError
         Unknown shape, unknown option name, or a non-numeric value.
     """
-
     name, opts = _parse_options(str(spec))
     if name not in BUILTIN:
         raise InputError(f"unknown shape {name!r}", fix=f"use one of {', '.join(BUILTIN)}")

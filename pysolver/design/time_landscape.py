@@ -276,8 +276,6 @@ def read_time_file(path) -> tuple[np.ndarray, str]:
         Missing, unreadable, too large or non-text file; more than one column; a value
         that is not a number (named by line); a value outside the time limits.
     """
-
-
     path = Path(path)
     fix = ("write one time in seconds per input-mesh vertex, in the mesh file's vertex order, "
            "one per line (an optional header line such as 'time_s' first)")

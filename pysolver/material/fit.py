@@ -483,7 +483,6 @@ def run_chain(meas: Measurements, opts: FitOptions, progress: bool = True,
     -------
     FitResult
     """
-
     opts.check()
     log = (lambda m: print(m, file=sys.stderr)) if progress else (lambda m: None)
     t0 = time.time()
@@ -605,7 +604,6 @@ def _versions() -> dict:
 
 def model_file_dict(res: FitResult, meas: Measurements) -> dict:
     """The JSON object written to the model file (deterministic; no dates, no absolute paths)."""
-
     r = res.residuals
     meta = {
         "outside_grid": "clamped by default (load_bracket_model(outside='clamp')); "
@@ -673,7 +671,6 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
     InputError
         Bad or insufficient measurements (see :func:`load_measurements`).
     """
-
     t0 = time.time()
     opts = FitOptions() if options is None else options
     out_path = Path(DEFAULT_MODEL_PATH if out_path is None else out_path)

@@ -174,7 +174,6 @@ def compare_models(model_a, model_b, out_png, labels=("a", "b"),
     cells : sequence of (h_mm, b_mm), optional
         Panels; default three thicknesses x two lengths.
     """
-
     ma = model_a if hasattr(model_a, "force") else load_bracket_model(model_a)
     mb = model_b if hasattr(model_b, "force") else load_bracket_model(model_b)
     if cells is None:

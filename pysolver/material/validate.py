@@ -399,11 +399,18 @@ def validate_bracket_model_file(path) -> dict:
     InputError
         The first rule the file breaks, naming the file, key and rule.
     """
-    d = read_model_json(path, BRACKET_KIND, BRACKET_FIX)
-    return dict(check_bracket_model(d, path), data=d)
+    return validate_model_file(path, BRACKET_KIND, BRACKET_FIX, check_bracket_model)
+
+
+def validate_model_file(path, kind: str, fix: str, check) -> dict:
+    """Read a model file (:func:`read_model_json`) and ``check(d, path)`` it; returns the
+    check's dict plus ``data`` (the JSON object)."""
+    d = read_model_json(path, kind, fix)
+    return dict(check(d, path), data=d)
 
 
 
 
-__all__ = ["read_model_json", "check_bracket_model", "validate_bracket_model_file",
+__all__ = ["read_model_json", "validate_model_file", "check_bracket_model",
+           "validate_bracket_model_file",
            "nested_numbers", "BRACKET_KIND", "MEMBRANE_KIND"]

@@ -258,7 +258,6 @@ def main() -> None:
 
 def _reference_bumpers(layer: str) -> list:
     """Three bumpers (flat shell frame) with contact planes tilted by 0, +12 and -12 deg."""
-
     s = 1.0 if layer == "top" else -1.0
     out = []
     for d, tilt in ((0.0, 0.0), (120.0, 12.0), (240.0, -12.0)):
@@ -285,7 +284,6 @@ def write_reference_parts(folder, scad_dir) -> list:
         thickness), ``ref_node_bottom``, ``ref_actuated_top`` (brackets opened to spans),
         ``ref_frame_top``, ``ref_frame_bottom``, ``ref_marker``, ``ref_specimen``.
     """
-
     folder, scad_dir = Path(folder), Path(scad_dir).resolve()
     folder.mkdir(parents=True, exist_ok=True)
     brackets = [[0, 7.0, 0.45], [120, 6.5, 0.3], [240, 8.2, 0.65]]

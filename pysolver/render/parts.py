@@ -282,7 +282,6 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
 
     Returns ``seconds`` {name: evaluation wall time} and ``failures`` [(Part, message)].
     """
-
     from tqdm import tqdm  # optional: progress bars only with progress on
 
 
@@ -510,7 +509,6 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
     ExternalToolError
         OpenSCAD is missing.
     """
-
     fversion = render_fast.version()
     if fversion is None:
         return {"ok": False, "summary": f"{render_fast.DIST} is not importable", "parts": {},
@@ -679,7 +677,6 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     InputError
         Bad or missing tables.
     """
-
     t_start = time.perf_counter()
     design_dir = Path(design_dir).resolve()
     scad_dir = check_library(Path(scad_dir).resolve() if scad_dir else SCAD_DIR)

@@ -172,7 +172,6 @@ def read_design(design_dir):
         A file or column is missing, a bracket thickness is outside 0.30-0.65 mm
         (:func:`pysolver.tables.check_design`), or a central length is not printable.
     """
-
     design_dir = Path(design_dir)
     d = _read(design_dir)
     cells = d.cells  # thickness range: checked by pysolver.tables.check_design

@@ -171,7 +171,6 @@ class Feasibility:
         dict: ``t_star``, ``t_min``, ``t_max`` (n_cells,) s (inf/NaN as None in JSON),
         ``clamped`` (n_cells,) bool, ``side`` (-1 too early, +1 too late, 0 ok).
         """
-
         c = self.cells
         t_star = cell_target_times(np.asarray(landscape, float), c["vertex_a"], c["vertex_b"])
         res = program_cells(c["bracket_length_mm"], c["collision_length_top_mm"],

@@ -89,7 +89,6 @@ def _save_small(png: bytes, path: Path, width: int) -> Path:
 
 def studio_shots(build_dir, out_dir, *, width: int = 1100) -> list[Path]:
     """Write ``studio.png`` and ``report.png`` of ``build_dir`` into ``out_dir``."""
-
     build_dir = Path(build_dir)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -69,7 +69,7 @@ from ..material.validate import (
     _get,
     _is_number,
     _vector,
-    read_model_json,
+    validate_model_file,
 )
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
 
@@ -256,8 +256,7 @@ def validate_membrane_model_file(path) -> dict:
     InputError
         The first rule the file breaks, naming the file, key and rule.
     """
-    d = read_model_json(path, MEMBRANE_KIND, MEMBRANE_FIX)
-    return dict(check_membrane_model(d, path), data=d)
+    return validate_model_file(path, MEMBRANE_KIND, MEMBRANE_FIX, check_membrane_model)
 
 
 def load_membrane_model(path=None) -> MembraneModel:

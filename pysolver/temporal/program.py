@@ -481,7 +481,6 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         More than half of the cells cannot reach their time (the message names the
         achievable range); missing or inconsistent tables.
     """
-
     t0 = time.perf_counter()
     design_dir = Path(design_dir)
     mat = load_material(material)  # model files first: a bad file is refused before any work

@@ -72,17 +72,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pysolver import distributed
 from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
-from pysolver.distributed import (
-    ResultStore,
-    Task,
-    check_scheduler,
-    check_workers,
-    code_fingerprint,
-    fingerprint,
-    is_result_file,
-    run_tasks,
-)
 from pysolver.errors import InputError, MorphshellError
 from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
 from pysolver.material.measurements import REPO_ROOT, load_measurements
@@ -160,7 +151,6 @@ def material_scatter(material=None, data_dir=None) -> dict:
     dict
         ``sd_log`` (float), ``median_log`` (float), ``n_curves`` (int), ``method`` (str).
     """
-
     mod = material if hasattr(material, "compression_for_force") else load_bracket_model(
         material)
     meas = load_measurements(data_dir)
@@ -198,7 +188,6 @@ def relaxation_curve(path=None):
     t : (k,) float, s -- time since the peak force
     ratio : (k,) float -- force / peak force (smoothed over 1 min)
     """
-
     p = Path(path) if path is not None else (REPO_ROOT / "data" / "material-measurements"
                                              / "rubber_stress_relaxation.csv")
     try:
@@ -248,7 +237,6 @@ class DesignPayload:
 
 def read_payload(design_dir, material=None) -> DesignPayload:
     """Read a design folder (and the material file) into a :class:`DesignPayload`."""
-
     folder = Path(design_dir)
     files = []
     for name in DESIGN_FILES:
@@ -392,7 +380,6 @@ def check_frames(frames: dict, ctx: dict, thresholds=None) -> dict:
         ``verdict``, ``reasons``, figures, ``t_done`` (c,) s (None = never),
         ``base_final`` (m, 3) mm (final centres rigidly aligned to the target).
     """
-
     th = Thresholds.coerce(thresholds)
     t = np.asarray(frames["t"], float)
     C, R = np.asarray(frames["base_center"], float), np.asarray(frames["base_rotation"], float)
@@ -446,7 +433,6 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
         The figures of :func:`check_frames`, plus ``diverged`` (bool), ``message``,
         ``steps`` and ``wall_s`` (the only non-reproducible field).
     """
-
     t0 = time.perf_counter()
     ctx = _context(payload)
     model = ctx["model"]
@@ -525,9 +511,9 @@ def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
 
 def _claim(folder: Path) -> Path:
     """The tolerance folder: new, or morphshell's (its stamp, or our result files)."""
-
-    return claim_result_folder(folder, lambda p: p.parent.name == "samples" and is_result_file(p),
-                               what="tolerance folder")
+    return claim_result_folder(
+        folder, lambda p: p.parent.name == "samples" and distributed.is_result_file(p),
+        what="tolerance folder")
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
@@ -553,7 +539,6 @@ def _spread(results, n_cells, n_bases, t_end):
     A cell that does not complete within the simulated time counts as completing at
     ``t_end`` for the variance (right-censored: the spread is then a lower bound).
     """
-
     T = _arr(results, "t_done", (n_cells,))
     P = _arr(results, "base_final", (n_bases, 3))
     # variances about a finite sample first (shift-invariant): identical samples give
@@ -762,8 +747,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         The content of ``summary.json`` (``figures``, ``cells``, ``bases``,
         ``sensitivity``, ``options``, ``run``).
     """
-
-    scheduler, workers = check_scheduler(scheduler), check_workers(workers)
+    scheduler, workers = distributed.check_scheduler(scheduler), distributed.check_workers(workers)
     if sensitivity is None:
         sensitivity = min(TOLERANCE_RUN.sensitivity_samples, samples)
     _check_options(samples, sensitivity, uncertainty, time_tol_s)
@@ -809,15 +793,16 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     for f in active:
         perts += [make_perturbation(f"oat-{f}-{i:05d}", draws[i], n_cells, only=f, unc=unc)
                   for i in range(sensitivity)]
-    code = code_fingerprint()
-    tasks = [Task(p.name, run_sample, (payload, p, settings),
-                  fingerprint(payload.sha, p, settings, code)) for p in perts]
-    store = ResultStore(out / "samples")
+    code = distributed.code_fingerprint()
+    tasks = [distributed.Task(p.name, run_sample, (payload, p, settings),
+                              distributed.fingerprint(payload.sha, p, settings, code))
+             for p in perts]
+    store = distributed.ResultStore(out / "samples")
     out.mkdir(parents=True, exist_ok=True)
     write_stamp(out, since=time.time() + 1e9)  # claim the folder before the first result
-    results, stats = run_tasks(tasks, store, client=client, scheduler=scheduler,
-                               workers=workers, progress=progress, label="tolerance",
-                               on_result=on_result)
+    results, stats = distributed.run_tasks(tasks, store, client=client, scheduler=scheduler,
+                                           workers=workers, progress=progress,
+                                           label="tolerance", on_result=on_result)
     if stats.failed:
         raise MorphshellError(
             f"{len(stats.failed)} of {stats.total} simulations failed (first: "

@@ -134,7 +134,6 @@ def _table(header, rows):
 
 def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -> None:
     """Write the pictures and ``report.html`` of a tolerance analysis into ``out``."""
-
     b = read_table(design_dir, "bases")
     c = read_table(design_dir, "cells")
     target = np.c_[b["target_x_mm"], b["target_y_mm"], b["target_z_mm"]]

@@ -510,7 +510,6 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
     ShellModel
         A new model; the arrays of ``model`` are not modified.
     """
-
     changes = {}
     if thickness is not None:
         th = np.asarray(thickness, float)

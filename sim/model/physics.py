@@ -248,7 +248,6 @@ class ExternalTerms:
         gb : (m, 6) float -- reduced gradient on every base (force N, torque N mm)
         Hb : (m, 6, 6) float or None -- reduced Hessian block of every base
         """
-
         m = len(state.c)
         up = self.up
         mp = self.model.mem_point
@@ -365,7 +364,6 @@ class BracketBending:
     def evaluate(self, state, hessian: bool, pattern=None):
         """Energy (N mm), reduced gradient on the bases (m, 6), and (with ``hessian``) a
         function adding the Hessian to CSC data of ``pattern``."""
-
         na, nb = state.R[self.a, :, 2], state.R[self.b, :, 2]
         d = na - nb
         k = self.k

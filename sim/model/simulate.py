@@ -412,7 +412,6 @@ class Simulation:
         -------
         NewtonResult
         """
-
         md, k = self.model, self.model.consts
         L = self.spring_lengths()
         coef = np.asarray(self.material.coefficients(md.spring_thickness,

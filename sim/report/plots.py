@@ -86,7 +86,6 @@ def fit_titles(fig, width_chars: int = 200) -> int:
     figure is then laid out again (``tight_layout``) so the extra lines stay inside.
     Returns the number of re-wraps (0 = nothing changed).
     """
-
     fig.canvas.draw()
     r = fig.canvas.get_renderer()
     box = fig.bbox

@@ -275,7 +275,6 @@ def load_frames(path, n_bases=None, n_cells=None) -> dict:
 
 def load_sim(design_dir) -> SimData:
     """Load the tables, the stencil (optional) and ``sim/frames.npz`` of a design folder."""
-
     folder = Path(design_dir)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a design folder",
@@ -366,7 +365,6 @@ def fold_metrics(C, R, cell_pairs, target_fold_deg, th: Thresholds):
     dict with ``rms_deg, max_deg, n_folded, n_flipped, flipped_fraction, flipped_cells``
     and the array ``fold_deg`` (n_cells,).
     """
-
     fold = fold_angles_deg(C, R[:, :, 2], SimpleNamespace(faces=np.asarray(cell_pairs)))
     tgt = np.asarray(target_fold_deg, float)
     d = fold - tgt
@@ -638,8 +636,6 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         The content of ``report.json``: ``verdict``, ``reasons``, ``metrics``,
         ``thresholds``, ``files``, ``renderer``, ``timings_s``, ``out_dir``.
     """
-
-
     th = Thresholds.coerce(thresholds)
     if renderer not in ("auto", "pyvista", "matplotlib"):
         raise InputError(f"renderer = {renderer!r}", fix="use 'auto', 'pyvista' or 'matplotlib'")
@@ -954,8 +950,6 @@ def _f(x, fmt="{:.3g}"):
 
 def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
     """Viewer data, stretch template, STL list, fabrication sheet and provenance."""
-
-
     files = {}
     viewer = viewer_data(sd, tm["t_done"], max_frames=int(viewer_frames))
     template = None

@@ -159,8 +159,6 @@ def simulated_markers(design_dir, layer, frame=-1):
     M : (k, 3) float, mm
     base_ids : (k,) int
     """
-
-
     folder = Path(design_dir)
     bases = read_table(folder, "bases")
     fr = load_frames(folder / "sim" / "frames.npz", len(bases["base_id"]))
