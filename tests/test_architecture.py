@@ -100,29 +100,32 @@ def _module_level(tree: ast.Module) -> set[int]:
     return top
 
 
-def imports() -> list[tuple[str, str, int, bool, str]]:
-    """Every project import: (importer, imported, line, nested, source line)."""
-    out = []
+def _import_nodes():
+    """(module, path, source lines, import node, nested) for every import statement."""
     for mod, path in MODULES.items():
         src = path.read_text()
-        lines = src.splitlines()
         tree = ast.parse(src)
         top_level = _module_level(tree)
         for node in ast.walk(tree):
-            if isinstance(node, ast.Import):
-                targets = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                base = _resolve(mod, path, node)
-                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base
-                           for a in node.names]
-            else:
-                continue
-            for t in targets:
-                for m in _with_parents(t):
-                    # (a module's own enclosing packages are initialised before it runs)
-                    if m != mod and not mod.startswith(m + "."):
-                        out.append((mod, m, node.lineno, id(node) not in top_level,
-                                    lines[node.lineno - 1]))
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                yield mod, path, src.splitlines(), node, id(node) not in top_level
+
+
+def imports() -> list[tuple[str, str, int, bool, str]]:
+    """Every project import: (importer, imported, line, nested, source line)."""
+    out = []
+    for mod, path, lines, node, nested in _import_nodes():
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        else:
+            base = _resolve(mod, path, node)
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base
+                       for a in node.names]
+        for t in targets:
+            for m in _with_parents(t):
+                # (a module's own enclosing packages are initialised before it runs)
+                if m != mod and not mod.startswith(m + "."):
+                    out.append((mod, m, node.lineno, nested, lines[node.lineno - 1]))
     return out
 
 
@@ -208,14 +211,8 @@ def test_function_level_imports_say_why():
     """Any other import inside a function is an optional or heavy dependency, with a comment
     saying why it is not at module level."""
     bad = []
-    for mod, path in MODULES.items():
-        src = path.read_text()
-        lines = src.splitlines()
-        tree = ast.parse(src)
-        top_level = _module_level(tree)
-        for node in ast.walk(tree):
-            if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in top_level:
-                text = "\n".join(lines[node.lineno - 2:node.end_lineno])  # line above too
-                if "#" not in text:
-                    bad.append(f"{mod}:{node.lineno}: {lines[node.lineno - 1].strip()}")
+    for mod, _, lines, node, nested in _import_nodes():
+        text = "\n".join(lines[node.lineno - 2:node.end_lineno])  # the line above too
+        if nested and "#" not in text:
+            bad.append(f"{mod}:{node.lineno}: {lines[node.lineno - 1].strip()}")
     assert not bad, "function-level imports without a reason:\n" + "\n".join(bad)
