@@ -1,9 +1,11 @@
 """The morphing simulator (SI Note 2) and its reports.
 
-Modules: :mod:`sim.model` (assembly from a design folder), :mod:`sim.energies` (energies,
-gradients, Hessians, rigid-body reduction), :mod:`sim.kernels` (compiled assembly loops),
-:mod:`sim.solver` (Newton, CHOLMOD), :mod:`sim.simulate` (time stepping, ``frames.npz``,
-``simulate_design``, ``completion_times``), :mod:`sim.cell_membrane` (membrane traction on a
-unit cell), :mod:`sim.synthetic` (test shells, stand-in bracket law); and the report side
-(:mod:`sim.report`, :mod:`sim.collisions`, :mod:`sim.scan`).
+:mod:`sim.model` is the simulator: model assembly from a design folder (its tables and
+``model.npz``), energies, compiled kernels, the Newton solver, contact, physics options and
+time stepping (``simulate_design``); ``completion_times`` is in :mod:`sim.model.collisions`.
+:mod:`sim.report` is the check report (verdict, pictures, fabrication sheet, scan
+comparison); :mod:`sim.viewer` the data of the 3D morph viewer.  ``sim`` reads the design
+folder only: it imports nothing from :mod:`pysolver` but the core (``params``, ``errors``,
+``atomic``, ``geometry``, ``tables``) and the runtime material model
+(``tests/test_architecture.py``).
 """

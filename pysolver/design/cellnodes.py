@@ -13,7 +13,7 @@ node ``k = q`` faces base b's node ``k = 1 - q`` (both by the same stencil verte
 
 The flat pose is the same rigid base moved rigidly:
 ``x_flat = R_i^T (x_target - Fc_i) + (Fc2d_i, 0)``, with ``R_i`` from
-:func:`pysolver.layout.base_rotations` (the rotation stored in ``bases.csv``).
+:func:`pysolver.geometry.base_rotations` (the rotation stored in ``bases.csv``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ FEM simulations.  :func:`membrane_traction` provides such samples from *this* si
 2. every bracket spring is replaced by a stiff linear spring (``k = 1e4 N/mm``) with rest
    length ``b0 - d`` -- the brackets are "prescribed" to length ``b0 - d``; the cross pairs and
    the membrane (pre-stretch, neo-Hookean, same mesh as a design) are unchanged;
-3. the static equilibrium is solved (:func:`sim.solver.newton`): bases and free membrane
+3. the static equilibrium is solved (:func:`sim.model.solver.newton`): bases and free membrane
    vertices relax;
 4. the traction of the most interior cell is the compression force of its four springs,
    ``sum k (rest - L)`` (N): the force with which the membrane pulls the two bases together,

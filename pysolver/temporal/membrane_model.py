@@ -574,7 +574,7 @@ class PlaneMembrane:
             Xr = np.asarray(X, dtype=float) / tau
             Dm = np.stack([Xr[self.tri[:, 1]] - Xr[self.tri[:, 0]],
                            Xr[self.tri[:, 2]] - Xr[self.tri[:, 0]]], axis=-1)  # (m, 2, 2)
-        else:  # a pre-stretch per triangle (the rim margin, pysolver.rim)
+        else:  # a pre-stretch per triangle (the rim margin, sim.model.rim)
             X = np.asarray(X, dtype=float)
             Dm = np.stack([X[self.tri[:, 1]] - X[self.tri[:, 0]],
                            X[self.tri[:, 2]] - X[self.tri[:, 0]]], axis=-1)
@@ -785,7 +785,7 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
     model : MembraneModel, optional (default: the committed model)
     rim : (float, float), optional
         ``(margin_mm, stretch)``: the membrane as fabricated at the rim
-        (:func:`pysolver.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
+        (:func:`sim.model.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
 
     Returns
     -------

@@ -37,7 +37,7 @@ Everything a simulation needs travels with its task (:class:`DesignPayload`: the
 folder's files as bytes, the material file as bytes, a :class:`Perturbation`), so any Dask
 worker can run it (:mod:`pysolver.distributed`).  The worker rebuilds the nominal
 :class:`~sim.model.ShellModel` once per design and applies a perturbation with
-:func:`sim.model.vary_model`, simulates (:func:`sim.simulate.simulate_model`) and checks the
+:func:`sim.model.vary_model`, simulates (:func:`sim.model.simulate.simulate_model`) and checks the
 result with the report's own metrics and verdict (:func:`sim.report.decide`).
 
 Outputs in ``<design>/tolerance/`` (``summary.json``, ``report.html``, pictures and
@@ -369,7 +369,7 @@ def check_frames(frames: dict, ctx: dict, thresholds=None) -> dict:
     Parameters
     ----------
     frames : dict
-        As returned by :func:`sim.simulate.simulate_model`.
+        As returned by :func:`sim.model.simulate.simulate_model`.
     ctx : dict
         ``target`` (m, 3) mm, ``normals`` (m, 3), ``pairs`` (c, 2), ``t_star`` (c,) s,
         ``fold`` (c,) deg, ``clamped`` (c,) bool or None.

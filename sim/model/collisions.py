@@ -295,7 +295,7 @@ def _check_poses(base_center, base_rotation):
         raise InputError(
             f"base_center {C.shape} / base_rotation {R.shape}: expected (n_frames, n_bases, 3) "
             "and (n_frames, n_bases, 3, 3)",
-            fix="pass the arrays of frames.npz as written by sim.simulate.")
+            fix="pass the arrays of frames.npz as written by sim.model.simulate.")
     return C, R
 
 

@@ -212,8 +212,8 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
         Flat xy of the bracket nodes ``[base, slot, k, xy]``.
     F : (m, 3) int
     ff : (m, 3) int
-        Face adjacency (``pysolver.layout.face_adjacency``).
-    cells : pysolver.layout.Cells
+        Face adjacency (``pysolver.geometry.face_adjacency``).
+    cells : pysolver.geometry.Cells
     vertex_boundary : (n,) bool
         Stencil vertex lies on the boundary.
     max_area : float, mm^2

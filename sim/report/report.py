@@ -236,7 +236,7 @@ def load_frames(path, n_bases=None, n_cells=None) -> dict:
     missing = [k for k in FRAME_KEYS if k not in fr]
     if missing:
         raise InputError(f"{path}: missing array(s) {missing}",
-                         fix="re-run the simulation with the current sim.simulate")
+                         fix="re-run the simulation with the current sim.model.simulate")
     t = np.asarray(fr["t"], float)
     nf = len(t)
     if t.ndim != 1 or nf < 1:

@@ -165,7 +165,7 @@ def simulated_markers(design_dir, layer, frame=-1):
     key = f"marker_{layer}"
     if key not in fr:
         raise InputError(f"{folder / 'sim/frames.npz'}: no {key} array",
-                         fix="re-run the simulation with the current sim.simulate")
+                         fix="re-run the simulation with the current sim.model.simulate")
     M = np.asarray(fr[key][frame], float)
     keep = ~bases["alignment"].astype(bool) & np.isfinite(M).all(axis=1)
     return M[keep], np.flatnonzero(keep)
