@@ -187,7 +187,8 @@ def reduce_scatter(Hp, pts, V, pos, data):  # pragma: no cover
 @njit(cache=True, fastmath=False)
 def cross_point_hessian(weight, G, Ka, Kb, out):  # pragma: no cover
     """Point-space Hessians (n, 12, 12) of cross pairs: ``w G G^T`` plus ``[[K,-K],[-K,K]]``
-    with ``Ka`` on points (0, 1) and ``Kb`` on points (2, 3) (see ``sim.model.energies.cross_terms``).
+    with ``Ka`` on points (0, 1) and ``Kb`` on points (2, 3) (see
+    ``sim.model.energies.cross_terms``).
     """
     n = G.shape[0]
     for e in range(n):
