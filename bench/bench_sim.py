@@ -50,6 +50,7 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # test fixtures: synthetic shells, stand-in material
 
 
 def _design_key(shape: str) -> str:
@@ -105,7 +106,7 @@ def _load_material(log):
         from synthetic import StandInBracketModel
 
         log(f"no fitted bracket model ({e}); using the stand-in force law")
-        return StandInBracketModel(t_soft=20.0), "stand-in (sim.synthetic)"
+        return StandInBracketModel(t_soft=20.0), "stand-in (tests/synthetic.py)"
 
 
 def _material(folder: Path, log):
@@ -119,7 +120,7 @@ def _material(folder: Path, log):
         from synthetic import StandInBracketModel
 
         log(f"no fitted bracket model ({e}); using the stand-in force law")
-        return StandInBracketModel(t_soft=20.0), "stand-in (sim.synthetic)", "design default"
+        return StandInBracketModel(t_soft=20.0), "stand-in (tests/synthetic.py)", "design default"
     try:
         from pysolver.temporal import program_design
 

@@ -1,9 +1,8 @@
-"""Small synthetic shells and a stand-in bracket model, for tests, benchmarks and the
-single-cell membrane helper.
+"""Test fixtures: small synthetic shells and a stand-in bracket model (tests and benchmarks).
 
 * :func:`regular_stencil` -- a rectangular patch of equilateral triangles (the reference's
   ``init_regular``), flat or mapped onto a spherical cap, scaled by
-  :func:`pysolver.layout.build_layout` exactly as a design would be.
+  :func:`pysolver.design.layout.build_layout` exactly as a design would be.
 * :func:`single_cell_stencil` -- two triangles (one unit cell) with a chosen flat and target
   central length.
 * :class:`StandInBracketModel` -- a smooth made-up force law with the interface of
