@@ -128,7 +128,7 @@ def test_relaxation_factor_from_the_measured_curve():
     assert r[0] == pytest.approx(1.0, abs=1e-12)
     assert np.all(np.diff(r) < 0)                                 # the force relaxes
     assert 0.8 < r[-1] < 0.9                                      # SI Fig. 10: ~15 % in 24 h
-    from pysolver.tolerance import _draw
+    from pysolver.tolerance.analysis import _draw
 
     unc = dataclasses.replace(UNC, relaxation=True)
     lo, hi = relaxation_factor(np.array(unc.relaxation_window_s[::-1]), curve)
@@ -345,7 +345,7 @@ def test_new_modules_respect_the_data_flow():
                 out.add(("." * n.level) + n.module)
         return out
 
-    for rel in ("sim/tolerance.py", "sim/tolerance_report.py"):
+    for rel in ("pysolver/tolerance/analysis.py", "pysolver/tolerance/report.py"):
         bad = {m for m in imports(rel) if m.startswith(("pysolver.design", "pysolver.render",
                                                          "pysolver.temporal"))}
         assert not bad, (rel, bad)

@@ -79,7 +79,7 @@ from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
 from pysolver.material.measurements import REPO_ROOT, load_measurements
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
 from pysolver.params import SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
-from pysolver.tables import read_design, read_table
+from pysolver.tables import MODEL_FILE, read_design, read_table
 from sim.model import load_model, vary_model
 from sim.model.collisions import base_collisions, membrane_collisions
 from sim.model.simulate import SimSettings, simulate_model
@@ -96,7 +96,7 @@ from .report import write_report
 
 FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
 DESIGN_FILES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
-                "support_frame.csv", "design.json")
+                "support_frame.csv", "design.json", MODEL_FILE)
 SUMMARY_FORMAT = "morphshell.tolerance"
 THICKNESS_FLOOR_MM = 0.05
 _POW = np.arange(1, 5)
@@ -243,7 +243,7 @@ def read_payload(design_dir, material=None) -> DesignPayload:
         p = folder / name
         if p.is_file():
             files.append((name, p.read_bytes()))
-        elif name in ("stencil.obj", "bases.csv", "cells.csv"):
+        elif name in ("stencil.obj", "bases.csv", "cells.csv", MODEL_FILE):
             raise InputError(f"{folder}: no {name}", fix="give a programmed design folder "
                              "(morphshell build NAME --no-render, or make sim shape=NAME)")
     mpath = Path(material) if material is not None else DEFAULT_MODEL_PATH

@@ -46,7 +46,6 @@ from ..model.collisions import completion_times as collision_completion_times
 from ..viewer import asset_text, frame_alignments, viewer_data, viewer_json
 from . import fabrication as fab
 from . import plots as rp
-from .plots import _save
 
 SECTIONS = ("verdict", "viewer", "shape", "timing", "collisions", "solver", "renders",
             "layout", "landscape", "fabrication", "stls", "provenance")
@@ -885,7 +884,7 @@ def _plot_shape_over_time(path, t, rms_t, size, th):
     ax.legend(fontsize=8)
     fig.tight_layout()
 
-    return _save(fig, path)
+    return rp._save(fig, path)  # (through the module: tests wrap it)
 
 
 # --------------------------------------------------------------------------------------------
