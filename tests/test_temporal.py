@@ -132,10 +132,11 @@ def test_more_compression_gets_thinner_bracket(mat):
 
 
 def _write_patch(folder: Path, t_vertex_fn, rings: int = 2, l0: float = 7.0, x=(1.2, 1.2)):
-    from pysolver.temporal.membrane_model import _stencil_cells
+    from pysolver.geometry import unit_cells
 
     V2, F, _ = regular_patch(l0, rings)
-    cells, bnd = _stencil_cells(F)
+    uc = unit_cells(F)
+    cells = np.c_[uc.faces, uc.slots, uc.verts]
     n = len(cells)
     b0 = np.full(n, UNIT_CELL.bracket_length(l0))
     folder.mkdir(parents=True, exist_ok=True)
@@ -146,7 +147,7 @@ def _write_patch(folder: Path, t_vertex_fn, rings: int = 2, l0: float = 7.0, x=(
     tables.write_table(folder, "cells", {
         "cell_id": np.arange(n), "base_a": cells[:, 0], "base_b": cells[:, 1],
         "slot_a": cells[:, 2], "slot_b": cells[:, 3], "vertex_a": cells[:, 4],
-        "vertex_b": cells[:, 5], "boundary": bnd[cells[:, 4]] | bnd[cells[:, 5]],
+        "vertex_b": cells[:, 5], "boundary": uc.boundary,
         "central_length_mm": np.full(n, l0), "bracket_length_mm": b0,
         "target_length_mm": np.full(n, l0 - x[0]), "fold_angle_deg": np.zeros(n),
         "collision_length_top_mm": b0 - x[0], "collision_length_bottom_mm": b0 - x[1],
