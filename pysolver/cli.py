@@ -394,7 +394,7 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         print(f"material model: {res['model_file']} (use it with MATERIAL={res['model_file']})")
         return EXIT_OK
     if cmd == "fit-membrane":
-        from .temporal.membrane_model import fit_membrane_model  # lazy: loads with its subcommand
+        from .temporal.membrane_fit import fit_membrane_model  # lazy: loads with its subcommand
         if args.out is not None:
             claim_output_file(args.out, what="--out model file")
         if args.report is not None:

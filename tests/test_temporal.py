@@ -30,12 +30,11 @@ from pysolver.temporal import (
     time_ranges,
     timing_errors,
 )
+from pysolver.temporal.membrane_fit import regular_patch, sample_patch
 from pysolver.temporal.membrane_model import (
     MODEL_PATH,
     MembraneModel,
     load_membrane_model,
-    regular_patch,
-    sample_patch,
 )
 from sim.model.simulate import simulated_completion
 

@@ -1,9 +1,10 @@
 """The temporal-programming stage: bracket thicknesses from the time landscape.
 
 Modules: :mod:`.program` (force balance, thickness solve, :func:`program_design`),
-:mod:`.membrane_model` (the linearised membrane model ``F_mem`` and its fit),
-:mod:`.cell_membrane` (membrane traction samples from the simulator, an offline fitting
-tool) and :mod:`.plots`.
+:mod:`.membrane_model` (the linearised membrane model ``F_mem``, the FEM membrane of the
+per-cell correction), :mod:`.plots`; offline, apart from the runtime: :mod:`.membrane_fit`
+(the fit of ``F_mem``, ``make membrane-model``) and :mod:`.cell_membrane` (membrane traction
+samples from the simulator).
 """
 from .program import (
     COMPLETION_TOL_MM,
