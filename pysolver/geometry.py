@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from .errors import InputError
 from .params import UNIT_CELL, layer_sign
+from .params import tol as TOL
 
 
 def print_transform(layer, layer_h: float = UNIT_CELL.layer_h) -> np.ndarray:
@@ -82,7 +83,7 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
 
 def _unit(v: np.ndarray, what: str) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
-    if np.any(n < 1e-12):
+    if np.any(n < TOL.degenerate):
         raise InputError(f"frames_to_rotation: zero-length {what} vector",
                          fix="check for degenerate faces or coincident face centres")
     return v / n
@@ -278,7 +279,7 @@ def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     N = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
     n = np.linalg.norm(N, axis=1)
     scale = max(np.ptp(V, axis=0).max(), 1e-300)
-    bad = np.flatnonzero(n <= 1e-12 * scale**2)
+    bad = np.flatnonzero(n <= TOL.degenerate * scale**2)
     if len(bad):
         raise InputError(f"{len(bad)} degenerate triangle(s) (zero area), e.g. face {bad[0]}",
                          fix="remove degenerate faces (MeshLab: Remove zero-area faces) or remesh")

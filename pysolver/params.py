@@ -200,6 +200,19 @@ class Tolerances:
         Actuated preview only: gap between facing bracket arms (``APEX_GAP``).
     thickness : float, mm
         Slack of the bracket thickness range check (values written to 6 decimals).
+    rel : float
+        Slack of comparisons between derived lengths (mm) and scale factors: round-off.
+    gap : float, mm
+        Slack and overshoot of the flat-gap rule (min_gap) in the layout and its check.
+    degenerate : float
+        Relative size (of the bounding box, squared for areas) under which a triangle or a
+        vector is degenerate.
+    time : float, s
+        Slack of time comparisons in temporal programming.
+    force_rtol : float
+        Relative tolerance of the force balance solved for a bracket thickness.
+    same_setting : float, mm or N
+        Two measured test settings (thickness, length, force) closer than this are the same.
     """
 
     merge: float = 1e-6
@@ -212,6 +225,12 @@ class Tolerances:
     scad_cut: float = 0.01
     apex_gap: float = 0.05
     thickness: float = 1e-6
+    rel: float = 1e-9
+    gap: float = 1e-6
+    degenerate: float = 1e-12
+    time: float = 1e-6
+    force_rtol: float = 1e-9
+    same_setting: float = 1e-6
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .params import UNIT_CELL
+from .params import tol as TOL
 
 REFERENCE_COLUMNS = ("cell", "face_a", "face_b", "thickness_pos_normal_mm",
                      "thickness_neg_normal_mm", "t_star_s")
@@ -129,8 +131,9 @@ def thickness_correlation(cells: dict, ref: dict) -> dict:
     ours, theirs = np.r_[top, bot], np.r_[rt, rb]
 
     def at_bounds(h):
-        return {"at_0.30": float(np.mean(h <= 0.30 + 1e-6)),
-                "at_0.65": float(np.mean(h >= 0.65 - 1e-6))}
+        lo, hi = UNIT_CELL.thickness_min, UNIT_CELL.thickness_max
+        return {f"at_{lo:.2f}": float(np.mean(h <= lo + TOL.thickness)),
+                f"at_{hi:.2f}": float(np.mean(h >= hi - TOL.thickness))}
 
     return {
         "cells": int(len(top)), "same_order": bool(np.all(idx == np.arange(len(idx)))),

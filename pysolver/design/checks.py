@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import signed_areas_2d
 from ..params import UNIT_CELL, UnitCell
+from ..params import tol as TOL
 from .layout import Layout
 
 # cells longer than this fraction of max_cell_length are reported as "near the limit"
@@ -186,7 +187,7 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     # 3. flat gaps between footprints
     gaps = lay.gaps
     if gaps is not None and len(gaps.gap):
-        tol_gap = 1e-6
+        tol_gap = TOL.gap
         bad = np.flatnonzero(gaps.gap < params.min_gap - tol_gap)
         if len(bad):
             pairs = gaps.pairs[bad]

@@ -45,6 +45,7 @@ from ..geometry import (
     unit_cells,
 )
 from ..params import UNIT_CELL, UnitCell
+from ..params import tol as TOL
 from ..tables import round_sig9
 
 # --------------------------------------------------------------------------------------
@@ -183,7 +184,7 @@ def build_bumpers(V, F, ff, cells: Cells, R, params: UnitCell = UNIT_CELL) -> Bu
 
         L_far = length_at(h_far)
         L_mem = length_at(h_mem)
-        straight = L_far < L_mem - 1e-9
+        straight = L_far < L_mem - TOL.rel
         tip = Fc[ii] + sg * h_far * N[ii] + L_far[:, None] * d
         pn_t = np.where(straight[:, None], d, m_)
         Ri = R[ii]
@@ -498,7 +499,7 @@ def build_layout(V, UV, F, params: UnitCell = UNIT_CELL, *, central_length=None,
         a, b = cells.faces[:, 0], cells.faces[:, 1]
         lmin = np.linalg.norm(C2u[b] - C2u[a], axis=1).min()
         s_req = float(central_length) / lmin
-        if s_req < s2_rule * (1 - 1e-9):
+        if s_req < s2_rule * (1 - TOL.rel):
             raise InputError(
                 f"central_length={central_length} mm is shorter than the min-gap rule allows "
                 f"({s2_rule * lmin:.3f} mm)", fix="use a larger central_length or omit it")
@@ -508,12 +509,12 @@ def build_layout(V, UV, F, params: UnitCell = UNIT_CELL, *, central_length=None,
         for _ in range(30):
             gaps = footprint_gaps(bumpers, C2u * s2, params)
             worst = gaps.gap.min(initial=np.inf)
-            if worst >= params.min_gap - 1e-9:
+            if worst >= params.min_gap - TOL.rel:
                 break
             k = int(np.argmin(gaps.gap))
             i, j = gaps.pairs[k]
             lk = np.linalg.norm(C2u[i] - C2u[j]) * s2
-            s2 *= 1 + (params.min_gap - worst + 1e-6) / lk
+            s2 *= 1 + (params.min_gap - worst + TOL.gap) / lk
     # round to what the files store, then derive everything from the rounded stencil
 
     V = round_sig9(V)

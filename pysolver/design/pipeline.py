@@ -26,6 +26,7 @@ import numpy as np
 from .. import tables
 from ..errors import InputError
 from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell, check_unit_cell
+from ..params import tol as TOL
 from . import surfaces
 from .cellnodes import bracket_nodes, collision_lengths, write_model_file
 from .checks import check_layout
@@ -236,7 +237,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
     """
     lines = []
     low = REFERENCE_MIN_BUMPER_MM
-    if params.min_bumper > low + 1e-9:
+    if params.min_bumper > low + TOL.rel:
         alt = stencil_figures(V, F, replace(params, min_bumper=low))
         if alt["max_cell_length_mm"] is not None:
             ok = alt["max_cell_length_mm"] <= params.max_cell_length

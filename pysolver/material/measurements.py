@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import UNIT_CELL
+from ..params import tol as TOL
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 """Repository root (the folder holding ``pysolver/``)."""
@@ -321,7 +322,8 @@ def read_test_table(path, wet: bool) -> TestTable:
 
 def _missing_design(dry: TestTable, wet: TestTable) -> dict:
     def has(t, h, l):
-        return bool(np.any((np.abs(t.h - h) < 1e-6) & (np.abs(t.l - l) < 1e-6)))
+        return bool(np.any((np.abs(t.h - h) < TOL.same_setting)
+                           & (np.abs(t.l - l) < TOL.same_setting)))
 
     out = {"dry": [], "wet": [], "wet_loads": []}
     for l, hs in STANDARD_DESIGN.items():
@@ -331,8 +333,9 @@ def _missing_design(dry: TestTable, wet: TestTable) -> dict:
             if not has(wet, h, l):
                 out["wet"].append([h, l])
             for F in STANDARD_LOADS[l]:
-                if not np.any((np.abs(wet.h - h) < 1e-6) & (np.abs(wet.l - l) < 1e-6)
-                              & (np.abs(wet.nominal - F) < 1e-6)):
+                same = TOL.same_setting
+                if not np.any((np.abs(wet.h - h) < same) & (np.abs(wet.l - l) < same)
+                              & (np.abs(wet.nominal - F) < same)):
                     out["wet_loads"].append([h, l, F])
     return out
 

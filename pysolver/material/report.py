@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..params import UNIT_CELL  # noqa: E402
+from ..params import tol as TOL  # noqa: E402
 from .measurements import (  # noqa: E402
     SPECIMEN_BRACKETS,
     preprocess_dry,
@@ -133,7 +134,8 @@ def plot_rates(meas, res, out_png) -> None:
             b = UNIT_CELL.bracket_length(lv)
             pts = []
             for k in np.unique(obs.series):
-                s = (obs.series == k) & (np.abs(obs.F - F) < 1e-6) & (np.abs(obs.b - b) < 1e-6)
+                s = ((obs.series == k) & (np.abs(obs.F - F) < TOL.same_setting)
+                     & (np.abs(obs.b - b) < TOL.same_setting))
                 s &= (obs.t >= window[0]) & (obs.t <= window[1])
                 if np.count_nonzero(s) >= 3:
                     rate = np.polyfit(obs.t[s], obs.x[s], 1)[0]

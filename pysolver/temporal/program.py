@@ -68,6 +68,7 @@ from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
 from ..params import SIM, UNIT_CELL
+from ..params import tol as TOL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
 from .plots import plot_feasibility
@@ -90,8 +91,8 @@ DEFAULT_CORRECTION = "fem"
 MAX_CLAMPED_FRACTION = 0.5
 BISECTION_STEPS = 50
 REFINE_DAMPING = 0.8
-TIME_TOL_S = 1e-6
-FORCE_RTOL = 1e-9
+TIME_TOL_S = TOL.time
+FORCE_RTOL = TOL.force_rtol
 COMPLETION_TOL_MM = UNIT_CELL.clearance
 """A bracket within this distance of its bumper counts as closed (timing metrics)."""
 
