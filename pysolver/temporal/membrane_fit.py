@@ -38,10 +38,10 @@ from .membrane_model import (
 DEFAULT_REPORT_DIR = Path("build") / "membrane"
 
 # Sampling grid of the committed fit.  l0 = flat central length of the cells (mm):
-# the material model covers l = 4..9 mm and the layout allows up to 9.5 mm.
+# the material model covers l = 4..9 mm and the layout allows up to max_cell_length.
 # d = bracket shortening (mm): collision lengths in the built-in shapes need up to
 # about 2.3 mm; cells are sampled while the bracket stays longer than MIN_BRACKET.
-SAMPLE_L0 = tuple(np.round(np.arange(4.0, 9.51, 0.5), 6))
+SAMPLE_L0 = tuple(np.round(np.arange(4.0, UNIT_CELL.max_cell_length + 0.01, 0.5), 6))
 SAMPLE_D = tuple(np.round(np.arange(0.0, 3.01, 0.25), 6))
 MIN_BRACKET = 0.8            # mm, shortest sampled bracket ...
 MIN_BRACKET_FRACTION = 0.35  # ... and at most 65 % shortening (the gap membrane stays stretched)
