@@ -328,12 +328,19 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
             stage("simulate", simulate_design, staging, material=material, progress=progress,
                   solver=solver, **sim_kw)
+            physics = _contact_if_needed(staging, name, progress)
+            if physics is not None:
+                stages["simulate"]["contact"] = "switched on: non-neighbouring bases collided"
+                sim_kw["physics"] = physics
+                stage("simulate_contact", simulate_design, staging, material=material,
+                      progress=progress, solver=solver, **sim_kw)
             if refine and program:
                 import functools
 
                 from .temporal import refine_design
-                hook = {"simulate": functools.partial(simulate_design, solver=solver,
-                                                      **({} if dt is None else {"dt": dt}))}
+                hook = {"simulate": functools.partial(
+                    simulate_design, solver=solver, **({} if dt is None else {"dt": dt}),
+                    **({} if physics is None else {"physics": physics}))}
                 stage("refine", refine_design, staging, iterations=refine, material=material,
                       progress=progress, **kw, **hook)
         if render:  # after refinement, so the STLs carry the final thicknesses
@@ -367,6 +374,29 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     verdict = stages.get("report", {}).get("verdict")
     summary["exit_code"] = EXIT_CHECK_FAILED if verdict == "FAIL" else EXIT_OK
     return summary
+
+
+def _contact_if_needed(folder: Path, name: str, progress: bool):
+    """Physics options with barrier contact when the simulation of ``folder`` lets
+    non-neighbouring bases pass through each other, else None.
+
+    The reference model has no contact between far-apart parts; when they meet on the way
+    (a petal sweeping past another), its path is impossible and the check could only say
+    FAIL.  The printed shell's parts push each other aside instead, which the IPC barrier
+    (``--physics contact``, :mod:`sim.contact`) models, so the build simulates again with it.
+    A shell whose parts never meet keeps the reference model's result unchanged.
+    """
+    from sim.physics import parse_physics
+    from sim.report import base_base_collisions
+
+    hit = base_base_collisions(folder)
+    if not hit["count"]:
+        return None
+    f = hit["first"]
+    _log(f"{name}: {hit['count']} pair(s) of non-neighbouring bases pass through each other "
+         f"(first bases {f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s); "
+         "simulating again with barrier contact (--physics contact)", progress)
+    return parse_physics("contact")
 
 
 def _now() -> float:

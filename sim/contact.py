@@ -2,8 +2,9 @@
 
 The reference simulator only reports overlaps (:mod:`sim.collisions`); a shell whose far-apart
 regions meet (interwoven designs, tight folds) passes through itself.  With ``contact`` on,
-every base is a closed prism (a regular ``contact_sides``-gon of radius ``base_r``, as thick
-as both layers, ``2 layer_h``) that moves with its base, and the IPC barrier of the IPC
+every base is a closed prism (a regular ``contact_sides``-gon circumscribed about the base
+disc of radius ``base_r``, as thick as both layers, ``2 layer_h``) that moves with its base, so
+that prisms kept apart imply discs kept apart (the cylinders :mod:`sim.collisions` checks), and the IPC barrier of the IPC
 Toolkit (``ipctk``, Li et al. 2020, "Incremental Potential Contact") keeps non-neighbouring
 prisms apart:
 
@@ -80,11 +81,14 @@ class BaseContact:
         self.ipc = _ipctk()
         u = model.unit
         self.m = model.n_bases
-        self.local, self.faces = prism(u.base_r, u.layer_h, opts.contact_sides)
+        # circumscribed: an inscribed polygon would let two discs overlap by up to
+        # 2 base_r (1 - cos(pi / sides)) (0.3 mm for an octagon) while the prisms only touch
+        radius = u.base_r / math.cos(math.pi / opts.contact_sides)
+        self.local, self.faces = prism(radius, u.layer_h, opts.contact_sides)
         self.nv = len(self.local)
         self.dhat = float(opts.contact_dhat_mm)
         self.kappa = float(opts.contact_stiffness)
-        self.reach = 2 * math.hypot(u.base_r, u.layer_h) + self.dhat
+        self.reach = 2 * math.hypot(radius, u.layer_h) + self.dhat
         a, b = model.cell_bases[:, 0], model.cell_bases[:, 1]
         self.neighbour = {(int(min(x, y)), int(max(x, y))) for x, y in zip(a, b, strict=True)}
         self.barrier = self.ipc.BarrierPotential(self.dhat, self.kappa)

@@ -331,6 +331,13 @@ def test_contact_keeps_non_neighbours_apart(patch_dir):
     assert not con.intersecting(out[True])
     d = con.min_distance(out[True])
     assert 0 < d < con.dhat  # held apart, inside the barrier's range
+    # the prisms circumscribe the base discs: the report's cylinder check (tolerance 0) finds
+    # the pair overlapping without contact and apart with it
+    from sim.collisions import base_collisions
+
+    hits = {use: int(base_collisions(out[use].c[None], out[use].R[None], model.cell_bases,
+                                     tol=0.0).summary()["count"]) for use in out}
+    assert hits[False] >= 1 and hits[True] == 0
     # the prisms' circumscribed spheres would overlap without contact
     assert np.linalg.norm(out[False].c[i] - out[False].c[j]) < np.linalg.norm(
         out[True].c[i] - out[True].c[j])
@@ -359,7 +366,8 @@ def test_contact_gradient_and_hessian_fd():
     con = BaseContact(model, parse_physics("contact"))
     con.neighbour = set()  # treat the two bases as strangers
     s = State.flat(model)
-    s.c[1] = s.c[0] + np.array([4.03, 0.4, 0.1])  # octagon corners 0.03 mm apart
+    r = np.linalg.norm(con.local[0, :2])  # octagon circumradius
+    s.c[1] = s.c[0] + np.array([2 * r + 0.03, 0.4, 0.1])  # octagon corners 0.03 mm apart
     s.R = rodrigues(np.array([[0.0, 0.0, 0.05], [0.02, -0.03, 0.0]]))
     E, g, H = con.evaluate(s, True)
     assert 0 < E < np.inf and np.abs(g).max() > 0
