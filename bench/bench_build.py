@@ -5,7 +5,8 @@ Each solver path (``--solver fast``, the default, and ``reference``, the path be
 work) builds ``petal`` in its own fresh working folder, so no part cache or staging folder
 carries over, and the stage split comes from the build's own ``summary.json``.  Writes
 ``build/bench/build_petal.json``: ``wall_s`` (the fast path, target 60 s), ``stages_s`` (design,
-program, simulate, refine, render, report), the same under ``solvers`` for each path, and
+program, simulate, refine, render, report), ``render_split_s`` (the render stage's write_scad,
+self_check, part renderer, union, export), the same under ``solvers`` for each path, and
 ``speedup_vs_reference``.
 
 Usage::
@@ -41,10 +42,14 @@ def _build(shape: str, solver: str, log) -> dict:
         name = shape.split(":")[0]
         summary = json.loads((Path(tmp) / "build" / name / "summary.json").read_text())
     stages = {k: v for k, v in summary["timings_s"].items() if k != "total"}
+    # the render's own split: part files, the self-check (the wait for the background check
+    # started with the build), the part renderer, union, export
+    render_split = summary.get("stages", {}).get("render", {}).get("timings_s", {})
     log(f"{shape} --solver {solver}: {wall:.1f} s  "
         + "  ".join(f"{k} {v:.1f}" for k, v in stages.items()))
     return {"wall_s": round(wall, 2), "build_total_s": summary["timings_s"]["total"],
-            "stages_s": stages, "verdict": summary.get("figures", {}).get("verdict"),
+            "stages_s": stages, "render_split_s": render_split,
+            "verdict": summary.get("figures", {}).get("verdict"),
             "bases": summary.get("figures", {}).get("n_bases"),
             "loadavg_end": [round(v, 2) for v in os.getloadavg()]}
 
