@@ -4,7 +4,8 @@ cache, as a new user's first build after installing.
 Each solver path (``--solver fast``, the default, and ``reference``, the path before the speed
 work) builds ``petal`` in its own fresh working folder, so no part cache or staging folder
 carries over, and the stage split comes from the build's own ``summary.json``.  Writes
-``build/bench/build_petal.json``: ``wall_s`` (the fast path, target 60 s), ``stages_s`` (design,
+``build/bench/build_petal.json``: ``wall_s`` (the fast path, target 60 s), ``cpu_s`` (CPU time
+of the build and its child processes), ``stages_s`` (design,
 program, simulate, refine, render, report), ``render_split_s`` (the render stage's write_scad,
 self_check, part renderer, union, export), the same under ``solvers`` for each path, and
 ``speedup_vs_reference``.  With ``--rounds N`` each path builds N times, the paths taking
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -35,11 +37,16 @@ def _build(shape: str, solver: str, log) -> dict:
     """Build ``shape`` in a fresh folder through the CLI; wall time and the stage split."""
     with tempfile.TemporaryDirectory(prefix="morphshell-bench-") as tmp:
         env = dict(os.environ, PYTHONPATH=str(ROOT), XDG_CACHE_HOME=str(Path(tmp) / "cache"))
+        ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
         r = subprocess.run([sys.executable, "-m", "pysolver.cli", "--quiet", "build", shape,
                             "--solver", solver], cwd=tmp, env=env, capture_output=True,
                            text=True)
         wall = time.perf_counter() - t0
+        ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        # CPU time of the build and its children (renderers): beside the wall time, it shows
+        # how much other work on the machine delayed the build
+        cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
         if r.returncode not in (0, 3):
             raise SystemExit(f"build {shape} --solver {solver} failed:\n{r.stderr}")
         name = shape.split(":")[0]
@@ -48,9 +55,10 @@ def _build(shape: str, solver: str, log) -> dict:
     # the render's own split: part files, the self-check (the wait for the background check
     # started with the build), the part renderer, union, export
     render_split = summary.get("stages", {}).get("render", {}).get("timings_s", {})
-    log(f"{shape} --solver {solver}: {wall:.1f} s  "
+    log(f"{shape} --solver {solver}: {wall:.1f} s (cpu {cpu:.1f} s)  "
         + "  ".join(f"{k} {v:.1f}" for k, v in stages.items()))
-    return {"wall_s": round(wall, 2), "build_total_s": summary["timings_s"]["total"],
+    return {"wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
+            "build_total_s": summary["timings_s"]["total"],
             "stages_s": stages, "render_split_s": render_split,
             "verdict": summary.get("figures", {}).get("verdict"),
             "bases": summary.get("figures", {}).get("n_bases"),
