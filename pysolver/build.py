@@ -314,6 +314,9 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
             return res
 
+        if render:  # the renderer's self-check runs on the core the next stages leave idle
+            from .render import start_self_check
+            start_self_check(staging, renderer=renderer)
         from .design import run_design
         stage("design", run_design, source, staging, progress=progress, **design_opts)
         if program and _has_module("pysolver.temporal"):

@@ -188,6 +188,13 @@ class Tolerances:
         torques in N mm scaled by 1/base_r so both are forces).
     newton_max_iter_dry, newton_max_iter_wet : int
         Newton iteration caps for the dry step and the wet steps.
+    contact_ccd_safety : float
+        Fraction of the collision-free step (continuous collision detection) a Newton step
+        may take with contact barriers on (IPC's 0.8).
+    contact_skin_mm : float, mm
+        Verlet skin of the contact broad phase (``sim.contact``): the list of non-neighbouring
+        base pairs is built ``2 skin`` wider than needed and reused until some base centre has
+        moved ``skin`` from where it was built.
     """
 
     merge: float = 1e-6
@@ -196,6 +203,8 @@ class Tolerances:
     newton_max_iter_dry: int = 200
     newton_max_iter_wet: int = 100
     line_search_halvings: int = 30
+    contact_ccd_safety: float = 0.8
+    contact_skin_mm: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -389,6 +389,75 @@ def test_contact_gradient_and_hessian_fd():
         assert d2 == pytest.approx(p @ H @ p, rel=1e-3)
 
 
+def _random_pair_state(model, rng):
+    """Two bases (of a one-cell model) at a random centre distance of 3.5-6 mm in a random
+    direction, each tilted and turned at random (up to 1 rad)."""
+    s = State.flat(model)
+    u = rng.normal(size=3)
+    s.c[1] = s.c[0] + rng.uniform(3.5, 6.0) * u / np.linalg.norm(u)
+    s.R = rodrigues(rng.uniform(-1.0, 1.0, size=(2, 3)))
+    return s
+
+
+def test_contact_gap_bound_is_a_lower_bound():
+    """The separating-axis bound of the broad phase never exceeds the prisms' true distance
+    (ipctk's, 0 when they intersect), and is within 0.4 mm of it for coplanar bases (the
+    octagon against its circumscribed circle)."""
+    pytest.importorskip("ipctk")
+    from sim.contact import BaseContact
+
+    model = _cell_model()
+    con = BaseContact(model, parse_physics("contact"))
+    con.neighbour = set()
+    con.reach = 1e3  # distances of every pair, near or far
+    rng = np.random.default_rng(7)
+    pair = np.array([[0, 1]])
+    checked = 0
+    for _ in range(200):
+        s = _random_pair_state(model, rng)
+        bound = float(con.gap_bound(s, pair)[0])
+        if con.intersecting(s):
+            assert bound <= 0.0
+            continue
+        d = con.min_distance(s)
+        assert bound <= d + 1e-12
+        checked += 1
+    assert checked > 50
+    s = State.flat(model)
+    s.c[1] = s.c[0] + np.array([2 * con.radius + 0.5, 0.0, 0.0])
+    d, bound = con.min_distance(s), float(con.gap_bound(s, pair)[0])
+    assert bound == pytest.approx(0.5, abs=1e-12) and bound <= d < bound + 0.4
+
+
+def test_contact_step_limit_matches_exhaustive_ccd():
+    """The step limit with the broad phase's bound equals the continuous collision detection
+    of every pair (no pair skipped that could meet during the step), on random steps."""
+    pytest.importorskip("ipctk")
+    from pysolver.params import tol
+    from sim.contact import BaseContact
+
+    model = _cell_model()
+    con = BaseContact(model, parse_physics("contact"))
+    con.neighbour = set()
+    rng = np.random.default_rng(11)
+    limited = 0
+    for _ in range(100):
+        s = _random_pair_state(model, rng)
+        if con.intersecting(s):
+            continue
+        p = np.zeros(model.n_dof)
+        p[:12] = rng.normal(size=12) * np.r_[[1.0] * 3, [0.3] * 3, [1.0] * 3, [0.3] * 3]
+        alpha = con.step_limit(s, p, 1.0)
+        s1 = s.moved(p, 1.0)
+        X0, _, mesh = con._mesh(np.array([0, 1]), s.c, s.R)
+        X1, _, _ = con._mesh(np.array([0, 1]), s1.c, s1.R)
+        t = con.ipc.compute_collision_free_stepsize(mesh, np.asfortranarray(X0),
+                                                    np.asfortranarray(X1))
+        assert alpha == (1.0 if t >= 1.0 else tol.contact_ccd_safety * t)
+        limited += alpha < 1.0
+    assert limited > 5
+
+
 def test_rim_in_the_fmem_correction(patch_dir):
     """The design's F_mem correction with the same margin: boundary cells, whose free edge
     the margin now pulls outward, carry more (above the free-edge factor); interior cells
