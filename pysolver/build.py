@@ -28,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.model.physics import parse_physics
 from sim.model.simulate import SimSettings, simulate_design, simulated_completion
-from sim.report import make_report, print_verdict
+from sim.report import base_base_collisions, make_report, print_verdict
 
 from . import tables
 from .atomic import (
@@ -50,7 +51,13 @@ from .design.time_landscape import read_time_file
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
 from .material.model import DEFAULT_MODEL_PATH, check_bracket_geometry, load_bracket_model
 from .params import DEFAULT_REFINE, LIMITS, SIM, UNIT_CELL
-from .render import DEFAULT_RENDERER, check_renderer, find_openscad, render_design
+from .render import (
+    DEFAULT_RENDERER,
+    check_renderer,
+    find_openscad,
+    render_design,
+    start_self_check,
+)
 from .render.scad_io import SCAD_DIR
 from .tables import read_bases, read_cells
 from .temporal import (
@@ -316,6 +323,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
             return res
 
+        if render:  # the renderer's self-check runs on the core the next stages leave idle
+            start_self_check(staging, renderer=renderer)
         stage("design", run_design, source, staging, progress=progress, **design_opts)
         if program:
             # A shape's own landscape gives the order of completion; its seconds are mapped
@@ -327,9 +336,16 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
             stage("simulate", simulate_design, staging, material=material, progress=progress,
                   solver=solver, **sim_kw)
+            physics = _contact_if_needed(staging, name, progress)
+            if physics is not None:
+                stages["simulate"]["contact"] = "switched on: non-neighbouring bases collided"
+                sim_kw["physics"] = physics
+                stage("simulate_contact", simulate_design, staging, material=material,
+                      progress=progress, solver=solver, **sim_kw)
             if refine and program:
-                hook = {"simulate": functools.partial(simulate_design, solver=solver,
-                                                      **({} if dt is None else {"dt": dt}))}
+                hook = {"simulate": functools.partial(
+                    simulate_design, solver=solver, **({} if dt is None else {"dt": dt}),
+                    **({} if physics is None else {"physics": physics}))}
                 stage("refine", refine_design, staging, iterations=refine, material=material,
                       progress=progress, **kw, **hook)
         if render:  # after refinement, so the STLs carry the final thicknesses
@@ -519,6 +535,24 @@ def validate_model_files(material=None, membrane=None, unit=UNIT_CELL) -> None:
         check_bracket_geometry(load_bracket_model(path), unit, str(path))  # (validates it)
     if membrane is None or isinstance(membrane, str | os.PathLike):
         validate_membrane_model_file(MEMBRANE_MODEL_PATH if membrane is None else membrane)
+def _contact_if_needed(folder: Path, name: str, progress: bool):
+    """Physics options with barrier contact when the simulation of ``folder`` lets
+    non-neighbouring bases pass through each other, else None.
+
+    The reference model has no contact between far-apart parts; when they meet on the way
+    (a petal sweeping past another), its path is impossible and the check could only say
+    FAIL.  The printed shell's parts push each other aside instead, which the IPC barrier
+    (``--physics contact``, :mod:`sim.model.contact`) models, so the build simulates again with it.
+    A shell whose parts never meet keeps the reference model's result unchanged.
+    """
+    hit = base_base_collisions(folder)
+    if not hit["count"]:
+        return None
+    f = hit["first"]
+    _log(f"{name}: {hit['count']} pair(s) of non-neighbouring bases pass through each other "
+         f"(first bases {f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s); "
+         "simulating again with barrier contact (--physics contact)", progress)
+    return parse_physics("contact")
 
 
 def _now() -> float:

@@ -332,6 +332,13 @@ def test_contact_keeps_non_neighbours_apart(patch_dir):
     assert not con.intersecting(out[True])
     d = con.min_distance(out[True])
     assert 0 < d < con.dhat  # held apart, inside the barrier's range
+    # the prisms circumscribe the base discs: the report's cylinder check (tolerance 0) finds
+    # the pair overlapping without contact and apart with it
+    from sim.collisions import base_collisions
+
+    hits = {use: int(base_collisions(out[use].c[None], out[use].R[None], model.cell_bases,
+                                     tol=0.0).summary()["count"]) for use in out}
+    assert hits[False] >= 1 and hits[True] == 0
     # the prisms' circumscribed spheres would overlap without contact
     assert np.linalg.norm(out[False].c[i] - out[False].c[j]) < np.linalg.norm(
         out[True].c[i] - out[True].c[j])
@@ -360,7 +367,8 @@ def test_contact_gradient_and_hessian_fd():
     con = BaseContact(model, parse_physics("contact"))
     con.neighbour = set()  # treat the two bases as strangers
     s = State.flat(model)
-    s.c[1] = s.c[0] + np.array([4.03, 0.4, 0.1])  # octagon corners 0.03 mm apart
+    r = np.linalg.norm(con.local[0, :2])  # octagon circumradius
+    s.c[1] = s.c[0] + np.array([2 * r + 0.03, 0.4, 0.1])  # octagon corners 0.03 mm apart
     s.R = rodrigues(np.array([[0.0, 0.0, 0.05], [0.02, -0.03, 0.0]]))
     E, g, H = con.evaluate(s, True)
     assert 0 < E < np.inf and np.abs(g).max() > 0
@@ -380,6 +388,75 @@ def test_contact_gradient_and_hessian_fd():
         d2 = (con.evaluate(s.moved(p, eps), False)[0] - 2 * E
               + con.evaluate(s.moved(p, -eps), False)[0]) / eps**2
         assert d2 == pytest.approx(p @ H @ p, rel=1e-3)
+
+
+def _random_pair_state(model, rng):
+    """Two bases (of a one-cell model) at a random centre distance of 3.5-6 mm in a random
+    direction, each tilted and turned at random (up to 1 rad)."""
+    s = State.flat(model)
+    u = rng.normal(size=3)
+    s.c[1] = s.c[0] + rng.uniform(3.5, 6.0) * u / np.linalg.norm(u)
+    s.R = rodrigues(rng.uniform(-1.0, 1.0, size=(2, 3)))
+    return s
+
+
+def test_contact_gap_bound_is_a_lower_bound():
+    """The separating-axis bound of the broad phase never exceeds the prisms' true distance
+    (ipctk's, 0 when they intersect), and is within 0.4 mm of it for coplanar bases (the
+    octagon against its circumscribed circle)."""
+    pytest.importorskip("ipctk")
+    from sim.model.contact import BaseContact
+
+    model = _cell_model()
+    con = BaseContact(model, parse_physics("contact"))
+    con.neighbour = set()
+    con.reach = 1e3  # distances of every pair, near or far
+    rng = np.random.default_rng(7)
+    pair = np.array([[0, 1]])
+    checked = 0
+    for _ in range(200):
+        s = _random_pair_state(model, rng)
+        bound = float(con.gap_bound(s, pair)[0])
+        if con.intersecting(s):
+            assert bound <= 0.0
+            continue
+        d = con.min_distance(s)
+        assert bound <= d + 1e-12
+        checked += 1
+    assert checked > 50
+    s = State.flat(model)
+    s.c[1] = s.c[0] + np.array([2 * con.radius + 0.5, 0.0, 0.0])
+    d, bound = con.min_distance(s), float(con.gap_bound(s, pair)[0])
+    assert bound == pytest.approx(0.5, abs=1e-12) and bound <= d < bound + 0.4
+
+
+def test_contact_step_limit_matches_exhaustive_ccd():
+    """The step limit with the broad phase's bound equals the continuous collision detection
+    of every pair (no pair skipped that could meet during the step), on random steps."""
+    pytest.importorskip("ipctk")
+    from pysolver.params import tol
+    from sim.model.contact import BaseContact
+
+    model = _cell_model()
+    con = BaseContact(model, parse_physics("contact"))
+    con.neighbour = set()
+    rng = np.random.default_rng(11)
+    limited = 0
+    for _ in range(100):
+        s = _random_pair_state(model, rng)
+        if con.intersecting(s):
+            continue
+        p = np.zeros(model.n_dof)
+        p[:12] = rng.normal(size=12) * np.r_[[1.0] * 3, [0.3] * 3, [1.0] * 3, [0.3] * 3]
+        alpha = con.step_limit(s, p, 1.0)
+        s1 = s.moved(p, 1.0)
+        X0, _, mesh = con._mesh(np.array([0, 1]), s.c, s.R)
+        X1, _, _ = con._mesh(np.array([0, 1]), s1.c, s1.R)
+        t = con.ipc.compute_collision_free_stepsize(mesh, np.asfortranarray(X0),
+                                                    np.asfortranarray(X1))
+        assert alpha == (1.0 if t >= 1.0 else tol.contact_ccd_safety * t)
+        limited += alpha < 1.0
+    assert limited > 5
 
 
 def test_rim_in_the_fmem_correction(patch_dir):

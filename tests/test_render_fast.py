@@ -184,6 +184,31 @@ def test_auto_runs_the_self_check_and_picks_fast(both):
     assert not list(both["cache"].glob("ref_*"))          # the check keeps to selfcheck/
 
 
+def test_self_check_in_the_background_is_the_foreground_check(both, tmp_path):
+    """The build's background self-check (a fresh cache) gives the result of the check run
+    in the foreground; a render started meanwhile waits for it instead of running its own;
+    only the ``auto`` renderer starts one."""
+    render._SELF_CHECKS.clear()
+    fg = render.fast_self_check(cache_dir=both["cache"])
+    render._SELF_CHECKS.clear()
+    design = tmp_path / "build" / "shell"
+    design.mkdir(parents=True)
+    assert render.start_self_check(design, renderer="fast") is None
+    assert render.start_self_check(design, renderer="openscad") is None
+    thread = render.start_self_check(design, renderer="auto")
+    assert thread is not None and thread.is_alive()
+    cache = render.default_cache_dir(design)
+    assert cache == tmp_path / "build" / ".cache" / "parts"
+    d = both["fast"]["dir"]
+    part = Part("marker", "marker", None, -1, d / "scad" / "marker.scad")
+    res = render_parts([part], cache_dir=cache, progress=False, renderer="auto")
+    assert not thread.is_alive()  # the render waited for the background check
+    assert res["renderer"] == "fast"
+    bg = res["self_check"]
+    assert bg["ok"] and bg["parts"] == fg["parts"] and bg["summary"] == fg["summary"]
+    assert len(list((cache / "selfcheck").glob("*.stl"))) == 2 * len(fg["parts"])
+
+
 def test_without_the_evaluator_auto_uses_openscad_and_fast_says_how_to_install(both,
                                                                                 monkeypatch):
     monkeypatch.setattr(render_fast, "version", lambda: None)

@@ -290,6 +290,22 @@ def test_broken_morphs_fail(tmp_path, mode, check):
         assert r["metrics"]["timing"]["n_completed"] == 0
 
 
+def test_colliding_morph_switches_the_build_to_contact(tmp_path, good):
+    """The build's escalation rule is the report's collision rule: a morph in which
+    non-neighbouring bases pass through each other (the "collide" fixture) is simulated again
+    with barrier contact; a clean one keeps the reference model."""
+    from pysolver.build import _contact_if_needed
+    from sim.report import base_base_collisions
+
+    make_synthetic_design(tmp_path, mode="collide")
+    hit = base_base_collisions(tmp_path)
+    assert hit["count"] == _report(tmp_path)["metrics"]["collisions"]["base_base"]["count"] >= 1
+    physics = _contact_if_needed(tmp_path, "collide", progress=False)
+    assert physics is not None and physics.switched_on() == ["contact"]
+    assert base_base_collisions(good)["count"] == 0
+    assert _contact_if_needed(good, "good", progress=False) is None
+
+
 def test_thresholds_validate_and_tighten(good):
     from sim.report import Thresholds
 

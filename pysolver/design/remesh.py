@@ -8,12 +8,11 @@ log-scale 0, :func:`pysolver.flatten.cetm`):
 2. **CVT**: weighted Lloyd iterations of the interior points.  A 2D CVT of density ``rho``
    spaces its points as ``rho^(-1/4)``; the density ``exp(-4 (1 - g) u)`` (u = conformal
    log-scale, flat = exp(u) 3D) spaces them as ``exp(u)^(1 - g)`` in the plane, i.e.
-   ``exp(u)^(-g)`` on the target.  ``g = StencilSearch.grading``: 0 = uniform on the target
-   (the reference used ``exp(-2u)``, which only half compensates the conformal scale,
-   ``pipeline.md`` §2.2); the default 1 = uniform in the plane, which needs fewer bases at
-   the target's size (measured on cover, 0.1 mm bumper: about 640 bases and a longest flat
-   cell of 8.2 mm, against 700 and 7.6 mm for g = 0).  Either way the
-   triangles are isotropic on the target, because the map is conformal.
+   ``exp(u)^(-g)`` on the target.  ``g = StencilSearch.grading``: 0 = uniform on the target,
+   1 = uniform in the plane; the default 0.5 is the reference's ``exp(-2u)``
+   (``pipeline.md`` §2.2), half-way: on the paper's cover its cells' time ranges overlap
+   most, so a landscape clamps fewest cells (figures in :class:`StencilSearch`).  Either
+   way the triangles are isotropic on the target, because the map is conformal.
 3. **Relaxation**: Persson and Strang's spring relaxation (DistMesh): repulsive springs of
    rest length 1.2 x the RMS length, scaled by the desired spacing, Delaunay
    re-triangulation (Shewchuk's Triangle) every few steps.  It removes most of the valence

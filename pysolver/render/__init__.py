@@ -22,6 +22,7 @@ from .parts import (
     part_key,
     render_design,
     render_parts,
+    start_self_check,
     to_manifold,
     union,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "part_key",
     "render_design",
     "render_parts",
+    "start_self_check",
     "to_manifold",
     "union",
 ]

@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_dir, public_mode
-from ..errors import ExternalToolError, InputError
+from ..errors import ExternalToolError, InputError, MorphshellError
 from ..geometry import print_transform, rotvec_to_matrix
 from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
 from ..params import tol as TOL
@@ -469,6 +469,50 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
 
 
 _SELF_CHECKS: dict[tuple, dict] = {}
+_SELF_CHECK_LOCK = threading.Lock()  # one self-check at a time; a second caller waits for it
+
+
+def start_self_check(design_dir, *, renderer=None, scad_dir=None) -> threading.Thread | None:
+    """Start the fast renderer's self-check of a later ``render_design(design_dir)`` in a
+    background thread, so that it overlaps the stages before the render.
+
+    The build's design, programming and simulation stages run on one core; the self-check
+    (:func:`fast_self_check`) renders its reference parts with OpenSCAD and the fast renderer
+    in child processes, one at a time here, on the other core.  The render stage's own call
+    then waits for it and reads its result (memoised per process, and the reference renders
+    are in the part cache).  If the background check fails, the render stage runs it again
+    in the foreground, which raises the error there.
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder the render stage will render (its part cache is
+        :func:`default_cache_dir`).
+    renderer : {"openscad", "fast", "auto"}, optional
+        The render stage's renderer (default :data:`DEFAULT_RENDERER`); only ``auto`` needs
+        the self-check.
+    scad_dir : path-like, optional
+        OpenSCAD library (default: the repository's ``scad/``).
+
+    Returns
+    -------
+    threading.Thread or None
+        The running check, None when the renderer needs none.
+    """
+    if check_renderer(DEFAULT_RENDERER if renderer is None else renderer) != "auto":
+        return None
+    cache_dir = default_cache_dir(design_dir)
+    scad = check_library(Path(scad_dir).resolve() if scad_dir else SCAD_DIR)
+
+    def run():
+        try:
+            fast_self_check(scad_dir=scad, cache_dir=cache_dir, jobs=1)
+        except MorphshellError:
+            pass  # the render stage runs the check again and reports the error
+
+    thread = threading.Thread(target=run, name="render-self-check", daemon=True)
+    thread.start()
+    return thread
 
 
 def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
@@ -482,7 +526,8 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
     when the volumes agree within :data:`SELF_CHECK_VOLUME_RTOL` and the volume of the
     symmetric difference is below :data:`SELF_CHECK_SYMDIFF_RTOL` of the part volume.
     Run once per process and (library, OpenSCAD, fast renderer) versions; later runs of
-    a new process read both renders from the cache.
+    a new process read both renders from the cache.  Thread-safe: a call made while another
+    thread runs the check waits for it (:func:`start_self_check`).
 
     Parameters
     ----------
@@ -518,50 +563,53 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
     scad_dir = Path(scad_dir).resolve()
     digest = library_digest(scad_dir)
     memo = (digest, str(scad_dir), exe, oversion, fversion)
-    if memo in _SELF_CHECKS:
-        return dict(_SELF_CHECKS[memo])
-    folder = Path(cache_dir) / "selfcheck"
-    folder.mkdir(parents=True, exist_ok=True)
-    jobs = int(jobs) if jobs else (os.cpu_count() or 1)
-    parts = render_fast.write_reference_parts(folder / "parts", scad_dir)
-    sets = {}
-    failures: dict[str, str] = {}
-    for name, version in (("openscad", oversion), ("fast", fversion)):
-        targets = {p.name: folder / f"{part_key(p.path.read_bytes(), digest, version)}.stl"
-                   for p in parts}
-        todo = [(p, targets[p.name]) for p in parts if not targets[p.name].is_file()]
-        pool = _openscad_pool if name == "openscad" else _fast_pool
-        kw = {"exe": exe} if name == "openscad" else {}
-        _s, bad = pool(todo, cache_dir=folder, jobs=jobs, progress=progress, **kw)
-        failures.update({f"{p.name} ({name})": err.strip() for p, err in bad})
-        sets[name] = targets
-    per: dict[str, dict] = {}
-    if not failures:
-        for p in parts:
-            try:
-                a = to_manifold(load_stl(sets["openscad"][p.name]), f"{p.name} (openscad)")
-                b = to_manifold(load_stl(sets["fast"][p.name]), f"{p.name} (fast)")
-            except ExternalToolError as e:
-                failures[p.name] = str(e)
-                continue
-            va = a.volume()
-            per[p.name] = {"volume_rel": abs(b.volume() - va) / va,
-                           "symdiff_rel": ((a - b).volume() + (b - a).volume()) / va}
-    mv = max((v["volume_rel"] for v in per.values()), default=None)
-    ms = max((v["symdiff_rel"] for v in per.values()), default=None)
-    ok = (not failures and len(per) == len(parts) and mv <= SELF_CHECK_VOLUME_RTOL
-          and ms <= SELF_CHECK_SYMDIFF_RTOL)
-    if failures:
-        first = sorted(failures)[0]
-        summary = (f"self-check failed: a renderer failed on {len(failures)} reference part(s), "
-                   f"e.g. {first}: {failures[first].splitlines()[-1] if failures[first] else ''}")
-    else:
-        summary = (f"self-check on {len(per)} reference parts {'passed' if ok else 'FAILED'}: "
-                   f"volumes within {mv:.1e} (limit {SELF_CHECK_VOLUME_RTOL:g}), symmetric "
-                   f"difference <= {ms:.1e} of the volume (limit {SELF_CHECK_SYMDIFF_RTOL:g})")
-    check = {"ok": bool(ok), "summary": summary, "parts": per, "max_volume_rel": mv,
-             "max_symdiff_rel": ms, "failures": failures}
-    _SELF_CHECKS[memo] = check
+    with _SELF_CHECK_LOCK:
+        if memo in _SELF_CHECKS:
+            return dict(_SELF_CHECKS[memo])
+        folder = Path(cache_dir) / "selfcheck"
+        folder.mkdir(parents=True, exist_ok=True)
+        jobs = int(jobs) if jobs else (os.cpu_count() or 1)
+        parts = render_fast.write_reference_parts(folder / "parts", scad_dir)
+        sets = {}
+        failures: dict[str, str] = {}
+        for name, version in (("openscad", oversion), ("fast", fversion)):
+            targets = {p.name: folder / f"{part_key(p.path.read_bytes(), digest, version)}.stl"
+                       for p in parts}
+            todo = [(p, targets[p.name]) for p in parts if not targets[p.name].is_file()]
+            pool = _openscad_pool if name == "openscad" else _fast_pool
+            kw = {"exe": exe} if name == "openscad" else {}
+            _s, bad = pool(todo, cache_dir=folder, jobs=jobs, progress=progress, **kw)
+            failures.update({f"{p.name} ({name})": err.strip() for p, err in bad})
+            sets[name] = targets
+        per: dict[str, dict] = {}
+        if not failures:
+            for p in parts:
+                try:
+                    a = to_manifold(load_stl(sets["openscad"][p.name]), f"{p.name} (openscad)")
+                    b = to_manifold(load_stl(sets["fast"][p.name]), f"{p.name} (fast)")
+                except ExternalToolError as e:
+                    failures[p.name] = str(e)
+                    continue
+                va = a.volume()
+                per[p.name] = {"volume_rel": abs(b.volume() - va) / va,
+                               "symdiff_rel": ((a - b).volume() + (b - a).volume()) / va}
+        mv = max((v["volume_rel"] for v in per.values()), default=None)
+        ms = max((v["symdiff_rel"] for v in per.values()), default=None)
+        ok = (not failures and len(per) == len(parts) and mv <= SELF_CHECK_VOLUME_RTOL
+              and ms <= SELF_CHECK_SYMDIFF_RTOL)
+        if failures:
+            first = sorted(failures)[0]
+            last = failures[first].splitlines()[-1] if failures[first] else ""
+            summary = (f"self-check failed: a renderer failed on {len(failures)} reference "
+                       f"part(s), e.g. {first}: {last}")
+        else:
+            summary = (f"self-check on {len(per)} reference parts "
+                       f"{'passed' if ok else 'FAILED'}: volumes within {mv:.1e} (limit "
+                       f"{SELF_CHECK_VOLUME_RTOL:g}), symmetric difference <= {ms:.1e} of the "
+                       f"volume (limit {SELF_CHECK_SYMDIFF_RTOL:g})")
+        check = {"ok": bool(ok), "summary": summary, "parts": per, "max_volume_rel": mv,
+                 "max_symdiff_rel": ms, "failures": failures}
+        _SELF_CHECKS[memo] = check
     return dict(check)
 
 
@@ -807,5 +855,5 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
 __all__ = ["render_design", "render_parts", "find_openscad", "openscad_version",
            "library_digest", "part_key", "default_cache_dir", "load_stl", "to_manifold",
            "from_manifold", "union", "describe_stl", "STL_FILES", "OPENSCAD_ENV", "FACET_TOL_MM",
-           "RENDERERS", "DEFAULT_RENDERER", "check_renderer", "fast_self_check",
+           "RENDERERS", "DEFAULT_RENDERER", "check_renderer", "fast_self_check", "start_self_check",
            "RendererFallbackWarning"]

@@ -2,8 +2,10 @@
 
 The reference simulator only reports overlaps (:mod:`sim.collisions`); a shell whose far-apart
 regions meet (interwoven designs, tight folds) passes through itself.  With ``contact`` on,
-every base is a closed prism (a regular ``contact_sides``-gon of radius ``base_r``, as thick
-as both layers, ``2 layer_h``) that moves with its base, and the IPC barrier of the IPC
+every base is a closed prism (a regular ``contact_sides``-gon circumscribed about the base
+disc of radius ``base_r``, as thick as both layers, ``2 layer_h``) that moves with its base, so
+that prisms kept apart imply discs kept apart (the cylinders :mod:`sim.model.collisions`
+checks), and the IPC barrier of the IPC
 Toolkit (``ipctk``, Li et al. 2020, "Incremental Potential Contact") keeps non-neighbouring
 prisms apart:
 
@@ -22,12 +24,17 @@ Neighbouring bases (sharing a unit cell) are not paired: their bumpers keep them
 part of the contact mesh (the membrane lies inside the prisms at the bases; the brackets are
 inside the cells).
 
-Cost: a KD-tree of the base centres finds the pairs of non-neighbours whose prisms can be
-within ``dhat`` (centre distance below the prisms' circumscribed diameter plus ``dhat``); only
-those bases enter the ipctk mesh, so a shell with no close pairs pays one KD-tree query per
-evaluation.  The contact Hessian couples non-neighbouring bases, outside the fixed sparsity
-pattern; it is added as a separate matrix and CHOLMOD re-analyses the pattern when the set of
-contacts changes.
+Cost.  The broad phase is a Verlet list: a KD-tree of the base centres lists the pairs of
+non-neighbours whose centres are within the prisms' circumscribed diameter plus ``dhat`` plus
+twice a skin (``tol.contact_skin_mm``), and the list is reused until some centre has moved a
+skin from where it was built.  Each listed pair then gets a separating-axis lower bound of its
+distance, the centre distance less both prisms' extents along the line of centres
+(:func:`gap_lower_bound`).  Only pairs whose bound is below ``dhat`` enter ipctk for the
+barrier (the barrier of the others is exactly zero), and only pairs whose bound is below the
+step's largest point motions enter the continuous collision detection; a shell with no close
+pairs pays a few vector operations per evaluation.  The contact Hessian couples
+non-neighbouring bases, outside the fixed sparsity pattern; it is added as a separate matrix
+and CHOLMOD re-analyses the pattern when the set of contacts changes.
 """
 
 from __future__ import annotations
@@ -36,8 +43,10 @@ import math
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from pysolver.errors import InputError
+from pysolver.params import tol as TOL
 
 
 def _ipctk():
@@ -66,6 +75,39 @@ def prism(radius: float, half_height: float, sides: int):
     return V, np.r_[top, bot, side].astype(np.int32)
 
 
+def gap_lower_bound(c, axis, pairs, radius: float, half_height: float) -> np.ndarray:
+    """Lower bound of the distance between the prisms of base pairs (separating axis).
+
+    Each prism lies in the cylinder of ``radius`` and ``half_height`` about its base's axis,
+    whose extent along a unit direction ``u`` is ``radius sqrt(1 - (n.u)^2) + half_height
+    |n.u|``.  Along the line of centres ``u``, two convex bodies are at least the centre
+    distance less both extents apart (negative: they may touch).
+
+    Parameters
+    ----------
+    c : (m, 3) float, mm
+        Base centres.
+    axis : (m, 3) float
+        Unit prism axes (the bases' normals, ``R[:, :, 2]``).
+    pairs : (k, 2) int
+        Base pairs.
+    radius, half_height : float, mm
+        Prism circumradius in the base plane and half thickness.
+
+    Returns
+    -------
+    (k,) float, mm
+    """
+    d = c[pairs[:, 1]] - c[pairs[:, 0]]
+    D = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(D, np.finfo(float).tiny)[:, None]
+    ext = 0.0
+    for k in (0, 1):
+        nu = np.abs(np.einsum("ki,ki->k", axis[pairs[:, k]], u))
+        ext = ext + radius * np.sqrt(np.maximum(1.0 - nu * nu, 0.0)) + half_height * nu
+    return D - ext
+
+
 class BaseContact:
     """IPC barrier between non-neighbouring base prisms of a :class:`ShellModel`.
 
@@ -80,13 +122,20 @@ class BaseContact:
         self.ipc = _ipctk()
         u = model.unit
         self.m = model.n_bases
-        self.local, self.faces = prism(u.base_r, u.layer_h, opts.contact_sides)
+        # circumscribed: an inscribed polygon would let two discs overlap by up to
+        # 2 base_r (1 - cos(pi / sides)) (0.3 mm for an octagon) while the prisms only touch
+        radius = u.base_r / math.cos(math.pi / opts.contact_sides)
+        self.local, self.faces = prism(radius, u.layer_h, opts.contact_sides)
         self.nv = len(self.local)
         self.dhat = float(opts.contact_dhat_mm)
         self.kappa = float(opts.contact_stiffness)
-        self.reach = 2 * math.hypot(u.base_r, u.layer_h) + self.dhat
+        self.reach = 2 * math.hypot(radius, u.layer_h) + self.dhat
+        self.radius, self.half_height = float(radius), float(u.layer_h)
+        self.r_out = math.hypot(self.radius, self.half_height)  # every prism vertex's radius
         a, b = model.cell_bases[:, 0], model.cell_bases[:, 1]
         self.neighbour = {(int(min(x, y)), int(max(x, y))) for x, y in zip(a, b, strict=True)}
+        self.skin = float(TOL.contact_skin_mm)
+        self._verlet = None  # (centres (m, 3) mm, list radius mm, pairs (k, 2)) of the list
         self.barrier = self.ipc.BarrierPotential(self.dhat, self.kappa)
         self.n_dof = model.n_dof
         self.last_pairs = 0
@@ -97,16 +146,57 @@ class BaseContact:
         self._pair_mesh = self.ipc.CollisionMesh(np.asfortranarray(X), self.ipc.edges(F), F)
 
     # -- geometry --------------------------------------------------------------------------
-    def close_pairs(self, c, reach=None) -> np.ndarray:
-        """(k, 2) int: non-neighbouring base pairs with centres closer than ``reach`` (mm)."""
-        from scipy.spatial import cKDTree  # heavy: this scipy submodule loads only where it is used
+    @property
+    def neighbour(self) -> set:
+        """Pairs ``(p, q)``, ``p < q``, of bases sharing a unit cell (never in contact)."""
+        return self._neighbour
 
-        pairs = cKDTree(c).query_pairs(self.reach if reach is None else reach,
-                                       output_type="ndarray")
+    @neighbour.setter
+    def neighbour(self, pairs) -> None:
+        self._neighbour = set(pairs)
+        keys = [p * self.m + q for p, q in self._neighbour]
+        self._neighbour_keys = np.sort(np.asarray(keys, dtype=np.int64))
+        self._verlet = None
+
+    def _non_neighbours(self, pairs) -> np.ndarray:
+        """The rows of ``pairs`` (k, 2) int that are not neighbours."""
+        pairs = np.sort(pairs.reshape(-1, 2), axis=1)
+        keys = pairs[:, 0].astype(np.int64) * self.m + pairs[:, 1]
+        return pairs[~np.isin(keys, self._neighbour_keys, assume_unique=False)]
+
+    def close_pairs(self, c, reach=None) -> np.ndarray:
+        """(k, 2) int: non-neighbouring base pairs with centres closer than ``reach`` (mm,
+        default ``self.reach``, the circumscribed spheres plus ``dhat``).
+
+        Served from the Verlet list while every centre is within the skin of where the list
+        was built (a pair closer than ``reach`` now was closer than ``reach`` plus twice the
+        largest displacement then), else from a new list ``2 skin`` wider than ``reach``."""
+        reach = self.reach if reach is None else float(reach)
+        v = self._verlet
+        if v is not None:
+            moved = np.sqrt(np.einsum("ij,ij->i", c - v[0], c - v[0]).max(initial=0.0))
+            if reach + 2 * moved > v[1]:
+                v = None
+        if v is None:
+            radius = reach + 2 * self.skin
+            pairs = cKDTree(c).query_pairs(radius, output_type="ndarray")
+            v = self._verlet = (np.array(c, copy=True), radius, self._non_neighbours(pairs))
+        pairs = v[2]
         if len(pairs) == 0:
-            return pairs.reshape(0, 2)
-        keep = [tuple(p) not in self.neighbour for p in np.sort(pairs, axis=1).tolist()]
-        return pairs[np.asarray(keep, bool)]
+            return pairs
+        d = c[pairs[:, 1]] - c[pairs[:, 0]]
+        return pairs[np.einsum("ij,ij->i", d, d) < reach * reach]
+
+    def gap_bound(self, state, pairs) -> np.ndarray:
+        """(k,) float, mm: lower bound of the distance of the prisms of ``pairs`` at ``state``
+        (:func:`gap_lower_bound`)."""
+        return gap_lower_bound(state.c, state.R[:, :, 2], pairs, self.radius, self.half_height)
+
+    def barrier_pairs(self, state) -> np.ndarray:
+        """(k, 2) int: the non-neighbouring pairs whose prisms may be within ``dhat``; the
+        barrier of every other pair is exactly zero."""
+        pairs = self.close_pairs(state.c)
+        return pairs[self.gap_bound(state, pairs) < self.dhat] if len(pairs) else pairs
 
     def _mesh(self, bases, c, R):
         """Collision mesh of two (or more) bases: vertices (nb * nv, 3), rotated offsets, and
@@ -144,7 +234,7 @@ class BaseContact:
     def evaluate(self, state, hessian: bool):
         """Barrier energy (N mm), reduced gradient (n_dof,) and lower-triangle Hessian (CSC,
         n_dof x n_dof) or None; ``(0.0, None, None)`` when no pair is close."""
-        pairs = self.close_pairs(state.c)
+        pairs = self.barrier_pairs(state)
         self.last_pairs = len(pairs)
         if len(pairs) == 0:
             return 0.0, None, None
@@ -193,23 +283,25 @@ class BaseContact:
         return E, g, H
 
     def step_limit(self, state, p, alpha_max: float) -> float:
-        """Largest collision-free multiple of the step ``p`` (up to ``alpha_max``), times 0.8.
+        """Largest collision-free multiple of the step ``p`` (up to ``alpha_max``), times
+        ``tol.contact_ccd_safety``.
 
-        The pairs of non-neighbours whose prisms can meet during the step (centre distance
-        below ``reach`` plus twice the largest point motion of the step) are swept linearly
-        from ``state`` to ``state.moved(p, alpha_max)`` and checked by ipctk's continuous
-        collision detection (the rotation's path is approximated by the chord; the 0.8
-        factor, as in IPC, keeps a margin).
+        Every prism point of base ``b`` moves by at most ``motion_b`` (its translation plus
+        its rotation angle times the vertex radius) along the linear sweep from ``state`` to
+        ``state.moved(p, alpha_max)``, so a pair whose distance bound
+        (:meth:`gap_bound`) exceeds ``motion_p + motion_q`` cannot meet.  The other pairs are
+        checked by ipctk's continuous collision detection (the rotation's path is
+        approximated by the chord; the safety factor, as in IPC, keeps a margin).
         """
         m = self.m
         body = np.asarray(p[: 6 * m]).reshape(m, 6) * alpha_max
-        r_out = float(np.linalg.norm(self.local[0]))
         # per base: an upper bound of how far any of its prism points moves in the step
-        motion = np.linalg.norm(body[:, :3], axis=1) + np.linalg.norm(body[:, 3:], axis=1) * r_out
+        motion = (np.linalg.norm(body[:, :3], axis=1)
+                  + np.linalg.norm(body[:, 3:], axis=1) * self.r_out)
         pairs = self.close_pairs(state.c, self.reach + 2 * motion.max(initial=0.0))
         if len(pairs):
-            gap = np.linalg.norm(state.c[pairs[:, 0]] - state.c[pairs[:, 1]], axis=1)
-            pairs = pairs[gap < self.reach + motion[pairs[:, 0]] + motion[pairs[:, 1]]]
+            reach = motion[pairs[:, 0]] + motion[pairs[:, 1]]
+            pairs = pairs[self.gap_bound(state, pairs) <= reach]
         if len(pairs) == 0:
             return alpha_max
         s1 = state.moved(p, alpha_max)
@@ -219,19 +311,26 @@ class BaseContact:
             X1, _, _ = self._mesh(pq, s1.c, s1.R)
             t = min(t, self.ipc.compute_collision_free_stepsize(mesh, np.asfortranarray(X0),
                                                                 np.asfortranarray(X1)))
-        return alpha_max if t >= 1.0 else 0.8 * t * alpha_max
+        return alpha_max if t >= 1.0 else TOL.contact_ccd_safety * t * alpha_max
 
     def min_distance(self, state) -> float:
         """Smallest distance (mm) between non-neighbouring prisms closer than ``reach``; inf
-        when none is."""
+        when none is.  Only primitives of different prisms count (with a distance cut-off
+        above the prisms' own feature size, ipctk also pairs faces and vertices of one
+        prism)."""
         d = np.inf
         for pq in self.close_pairs(state.c):
             X, _, mesh = self._mesh(pq, state.c, state.R)
             Xf = np.asfortranarray(X)
             col = self.ipc.NormalCollisions()
             col.build(mesh, Xf, self.reach)
-            if not col.empty():
-                d = min(d, float(np.sqrt(col.compute_minimum_distance(mesh, Xf))))
+            E, F = mesh.edges, mesh.faces
+            for kind in (col.vv_collisions, col.ev_collisions, col.ee_collisions,
+                         col.fv_collisions):
+                for cc in kind:
+                    ids = np.asarray(cc.vertex_ids(E, F))
+                    if len(np.unique(ids[ids >= 0] // self.nv)) > 1:
+                        d = min(d, float(np.sqrt(cc.compute_distance(Xf, E, F))))
         return d
 
     def intersecting_pair(self, state, pq) -> bool:
@@ -248,4 +347,4 @@ class BaseContact:
         return False
 
 
-__all__ = ["BaseContact", "prism"]
+__all__ = ["BaseContact", "gap_lower_bound", "prism"]

@@ -296,6 +296,34 @@ def load_sim(design_dir) -> SimData:
     return SimData(folder, bases, cells, V, UV, F, land, frames)
 
 
+def _n_valid_frames(fr: dict) -> int:
+    """Number of frames up to the first one with a non-finite position."""
+    finite = (np.isfinite(fr["base_center"]).all(axis=(1, 2))
+              & np.isfinite(fr["base_rotation"]).all(axis=(1, 2, 3)))
+    M = fr.get("membrane_vertices")
+    if M is not None and np.asarray(M).ndim == 3:
+        finite &= np.isfinite(M).all(axis=(1, 2))
+    return int(np.argmin(finite)) if not finite.all() else len(finite)
+
+
+def base_base_collisions(design_dir, thresholds=None) -> dict:
+    """Non-neighbouring bases passing through each other in a simulated design folder, by the
+    report's own rule (:func:`sim.model.collisions.base_collisions`, depth above
+    ``Thresholds.collision_depth_mm``).
+
+    Returns
+    -------
+    dict
+        :meth:`sim.collisions.CollisionResult.summary` (``count``, ``first``, ...).
+    """
+    th = Thresholds.coerce(thresholds)
+    sd = load_sim(design_dir)
+    fr = sd.frames
+    n_ok = _n_valid_frames(fr)
+    return base_collisions(fr["base_center"][:n_ok], fr["base_rotation"][:n_ok], sd.cell_pairs,
+                           t=sd.t[:n_ok], tol=th.collision_depth_mm).summary()
+
+
 # --------------------------------------------------------------------------------------------
 # metrics
 # --------------------------------------------------------------------------------------------
@@ -664,11 +692,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     metrics = {"n_bases": sd.n_bases, "n_cells": sd.n_cells, "n_frames": int(len(t)),
                "t_end_s": float(t[-1]),
                "stopped_early": bool(np.asarray(fr.get("stopped_early", False)).any())}
-    # frames up to the first non-finite one
-    finite = np.isfinite(C_all).all(axis=(1, 2)) & np.isfinite(R_all).all(axis=(1, 2, 3))
-    if M_all is not None:
-        finite &= np.isfinite(M_all).all(axis=(1, 2))
-    n_ok = int(np.argmin(finite)) if not finite.all() else len(t)
+    n_ok = _n_valid_frames(fr)
     if n_ok < len(t):
         metrics["nonfinite"] = {"frame": n_ok, "time_s": float(t[n_ok])}
     if n_ok == 0:
@@ -731,6 +755,12 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
         # nothing moved in a step: the bumpers then lock the shape, later times add nothing
         notes.append(f"The simulation settled at t = {metrics['t_end_s']:g} s (every unit cell "
                      "on its bumpers in both layers, no motion) and stopped there.")
+    if "physics" in fr:  # effects beyond the reference model the frames were simulated with
+        on = [k for k, v in json.loads(str(fr["physics"])).items() if v is True]
+        if on:
+            metrics["physics"] = on
+            notes.append("Simulated with physics beyond the reference model: "
+                         f"{', '.join(on)} (docs/physics.md).")
     with atomic_dir(out_dir) as tmp:
         # ---- 2D plots
         t0 = time.perf_counter()
@@ -1255,7 +1285,7 @@ def main(argv=None) -> int:
 
 __all__ = ["Thresholds", "SECTIONS", "SimData", "load_frames", "load_sim", "completion_times",
            "shape_metrics", "fold_metrics", "shape_rms_over_time", "timing_metrics",
-           "solver_metrics", "decide", "make_report", "print_verdict"]
+           "solver_metrics", "decide", "make_report", "print_verdict", "base_base_collisions"]
 
 if __name__ == "__main__":
     sys.exit(main())
