@@ -7,7 +7,7 @@ effect, and compare
 * the final shape: marker tips (both layers) after the best rigid alignment (Kabsch) to the
   run with every effect off: RMS and max displacement (mm), and the RMS relative to the
   shell's size (largest extent of the target, %);
-* the timing: completion time of every cell (``sim.simulate.completion_times``) minus the
+* the timing: completion time of every cell (``sim.model.simulate.completion_times``) minus the
   reference's: median and max |difference| (s), cells that complete in one and not the other;
 * for ``dry_rest``: the resting shape on the table against the final frame in water (the sag).
 

@@ -1,6 +1,6 @@
 """Run many self-contained tasks on Dask (``dask.distributed``), one result file per task.
 
-Used by ``morphshell tolerance`` (:mod:`sim.tolerance`, one simulation per task) and
+Used by ``morphshell tolerance`` (:mod:`pysolver.tolerance`, one simulation per task) and
 ``morphshell sweep`` (:mod:`pysolver.sweep`, one build per task).
 
 * **Cluster.**  By default a ``LocalCluster`` sized to the machine (one single-threaded

@@ -217,7 +217,7 @@ class Tolerances:
         Fraction of the collision-free step (continuous collision detection) a Newton step
         may take with contact barriers on (IPC's 0.8).
     contact_skin_mm : float, mm
-        Verlet skin of the contact broad phase (``sim.contact``): the list of non-neighbouring
+        Verlet skin of the contact broad phase (``sim.model.contact``): the list of non-neighbouring
         base pairs is built ``2 skin`` wider than needed and reused until some base centre has
         moved ``skin`` from where it was built.
     """
@@ -265,7 +265,7 @@ class Limits:
         Input scale factor (``--scale``).
     size_mm : (float, float), mm
         Range of ``--size`` (largest bounding-box extent of the scaled target); the same
-        band as the unitless-size check of :mod:`pysolver.mesh_input` (bounding-box
+        band as the unitless-size check of :mod:`pysolver.design.mesh_input` (bounding-box
         diagonal 20-2000 mm) applied to one extent.
     min_bumper_mm : (float, float), mm
         Range of ``--min-bumper`` (bumper length beyond the base rim, 3D scaling rule).
@@ -302,7 +302,8 @@ LIMITS = Limits()
 
 @dataclass(frozen=True)
 class StencilSearch:
-    """Settings of the stencil generation (:mod:`pysolver.remesh`, :mod:`pysolver.stencil_opt`).
+    """Settings of the stencil generation (:mod:`pysolver.design.remesh`,
+    :mod:`pysolver.design.stencil_opt`).
 
     Attributes
     ----------
@@ -418,7 +419,7 @@ DEFAULT_REFINE = 1
 class Uncertainty:
     """Default fabrication and material uncertainty of ``morphshell tolerance``.
 
-    Every sample of the Monte Carlo analysis (:mod:`sim.tolerance`) draws each factor below
+    Every sample of the Monte Carlo analysis (:mod:`pysolver.tolerance`) draws each factor below
     independently; a standard deviation of 0 switches a factor off.
 
     Attributes
@@ -434,7 +435,7 @@ class Uncertainty:
         Standard deviation of the natural log of the bracket compliance factor (the fitted
         bracket is ``s`` times as compliant: ``F_s(x) = F(x / s)``), one draw per sample.
         ``None``: derived from the wet fit residuals of the material model
-        (:func:`sim.tolerance.material_scatter`).
+        (:func:`pysolver.tolerance.material_scatter`).
     relaxation : bool
         Also draw a membrane stress-relaxation factor from the measured curve
         (``data/material-measurements/rubber_stress_relaxation.csv``, SI Fig. 10).
@@ -608,7 +609,7 @@ class PhysicsOptions:
     bracket_bending : bool
         Out-of-plane bending of the brackets (the 1 mm x h section): a rotational spring on
         the relative tilt of the two bases of every cell, its stiffness estimated from the
-        brackets' current in-plane stiffness (``sim.physics.bending_stiffness``).
+        brackets' current in-plane stiffness (``sim.model.physics.bending_stiffness``).
     """
 
     relaxation: bool = False

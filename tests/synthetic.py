@@ -50,12 +50,12 @@ def regular_stencil(nx: int = 5, ny: int = 4, *, central_length: float = 6.0,
                     radius: float = np.inf, bulge: int = 1):
     """A scaled regular stencil: flat layout plus a flat or spherical-cap target.
 
-    The stencil goes through :func:`pysolver.layout.build_layout` (3D min-bumper scaling,
+    The stencil goes through :func:`pysolver.design.layout.build_layout` (3D min-bumper scaling,
     flat layout scaled so that the shortest flat central length is ``central_length``).
 
     Returns
     -------
-    layout : pysolver.layout.Layout
+    layout : pysolver.design.layout.Layout
         ``V``, ``UV``, ``F`` (mm), ``rotvec``, ``cells`` ...
     """
     from pysolver.design.layout import build_layout
@@ -94,7 +94,7 @@ def write_design(out_dir, layout, thickness=0.45, t_star: float = 60.0):
     Parameters
     ----------
     out_dir : path-like
-    layout : pysolver.layout.Layout
+    layout : pysolver.design.layout.Layout
         E.g. from :func:`regular_stencil`.
     thickness : float or (c, 2) array, mm
         Bracket thickness per cell and layer (top, bottom).

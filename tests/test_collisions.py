@@ -1,4 +1,4 @@
-"""Collision detection along a morph (sim.collisions)."""
+"""Collision detection along a morph (sim.model.collisions)."""
 
 from __future__ import annotations
 

@@ -314,7 +314,7 @@ def test_global_flags_work_after_the_subcommand(room, capsys):
     assert rc == 0 and capsys.readouterr().err == ""                # --quiet after design
 
 
-@pytest.mark.filterwarnings("ignore::pysolver.mesh_input.SizeWarning")
+@pytest.mark.filterwarnings("ignore::pysolver.design.mesh_input.SizeWarning")
 def test_obj_and_stl_triangle_soups_are_welded_alike(room):
     V, _UV, F = read_stencil(room / "build" / SHAPE / "stencil.obj")
     soup = V[F].reshape(-1, 3)

@@ -334,7 +334,7 @@ def test_contact_keeps_non_neighbours_apart(patch_dir):
     assert 0 < d < con.dhat  # held apart, inside the barrier's range
     # the prisms circumscribe the base discs: the report's cylinder check (tolerance 0) finds
     # the pair overlapping without contact and apart with it
-    from sim.collisions import base_collisions
+    from sim.model.collisions import base_collisions
 
     hits = {use: int(base_collisions(out[use].c[None], out[use].R[None], model.cell_bases,
                                      tol=0.0).summary()["count"]) for use in out}

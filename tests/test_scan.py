@@ -1,4 +1,5 @@
-"""Scan comparison (sim.scan): registration of scanned marker dots to the simulated markers."""
+"""Scan comparison (sim.report.scan): registration of scanned marker dots to the simulated
+markers."""
 
 from __future__ import annotations
 

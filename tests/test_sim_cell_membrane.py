@@ -1,4 +1,5 @@
-"""Membrane traction on a unit cell (sim.cell_membrane), the input of temporal programming.
+"""Membrane traction on a unit cell (pysolver.temporal.cell_membrane), the input of temporal
+programming.
 
 Tolerances: closed form at d = 0 to 1e-4 relative; mesh refinement 0.5 -> 0.25 mm^2 changes
 the traction by < 1 %; the (default, simulator) mesh agrees with the design stage's fitted

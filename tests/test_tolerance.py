@@ -1,4 +1,4 @@
-"""Tolerance analysis and sweeps on Dask (sim.tolerance, pysolver.distributed, pysolver.sweep).
+"""Tolerance analysis and sweeps on Dask (pysolver.tolerance, pysolver.distributed, pysolver.sweep).
 
 Small on purpose: the regular shell (60 bases, 79 cells), 8 samples simulated to 70 s
 (t* = 60 s), LocalClusters of 1 and 2 single-threaded workers.

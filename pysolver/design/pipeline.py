@@ -101,7 +101,7 @@ def _load_source(source, scale: float, size=None):
 def _time_file_source(path, mesh, surf, stencil_order: bool):
     """The ``time`` source for ``--time-file``: the values as they are (an array per stencil
     vertex) for a finished stencil, else a vertex attribute of the input mesh that
-    :func:`~pysolver.time_landscape.resolve_time` interpolates (``vertex:<name>``).
+    :func:`~pysolver.design.time_landscape.resolve_time` interpolates (``vertex:<name>``).
 
     Returns
     -------
@@ -125,7 +125,7 @@ def _time_file_source(path, mesh, surf, stencil_order: bool):
 
 
 def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -> Layout:
-    """Layout of a ready stencil (thin wrapper of :func:`pysolver.layout.build_layout`)."""
+    """Layout of a ready stencil (thin wrapper of :func:`pysolver.design.layout.build_layout`)."""
     return build_layout(V, UV, F, params, central_length=central_length)
 
 
@@ -228,7 +228,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
     V : (n, 3) float, mm
     F : (m, 3) int
     remesh_info : dict
-        :func:`pysolver.remesh.remesh_surface`'s info (``candidates``).
+        :func:`pysolver.design.remesh.remesh_surface`'s info (``candidates``).
     params : UnitCell
 
     Returns
@@ -271,7 +271,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     vertices : int, optional
         Stencil vertex count N (default: searched to minimise the stencil scaling).
     time : None, float, str or array
-        Time landscape, see :func:`pysolver.time_landscape.resolve_time`.  Expressions
+        Time landscape, see :func:`pysolver.design.time_landscape.resolve_time`.  Expressions
         use the final target coordinates (``stencil.obj`` v, mm, centred).
     scale : float
         Factor applied to the input coordinates (e.g. 10 for a mesh in cm).
@@ -281,7 +281,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         see the scaled coordinates.
     time_file : str or Path, optional
         CSV of one time (s) per vertex of the input mesh, in file order (exclusive with
-        ``time``; :func:`pysolver.time_landscape.read_time_file`).  Carried onto the stencil
+        ``time``; :func:`pysolver.design.time_landscape.read_time_file`).  Carried onto the stencil
         by barycentric interpolation on the input surface, the path of a PLY vertex
         property; for a finished stencil (OBJ with vt, or ``stencil_order``) used as given.
     flattening : {"cetm", "lscm"}

@@ -1,7 +1,7 @@
 """Stencil generation: isotropic remeshing of the target surface into N vertices, optimised.
 
 Method ``"cvt"`` (default), in the conformal plane of the dense target (CETM, boundary
-log-scale 0, :func:`pysolver.flatten.cetm`):
+log-scale 0, :func:`pysolver.design.flatten.cetm`):
 
 1. **Boundary**: points along the target's boundary, or along a curve inset from it by a
    fraction of a cell spacing (``StencilSearch.rim_insets``), equally spaced in 3D arc length.
@@ -18,7 +18,7 @@ log-scale 0, :func:`pysolver.flatten.cetm`):
    re-triangulation (Shewchuk's Triangle) every few steps.  It removes most of the valence
    defects a Lloyd iteration from random seeds leaves behind.
 4. **Ears**: triangles with two boundary edges are removed.
-5. **Optimisation** (:mod:`pysolver.stencil_opt`): the interior vertices move in the plane
+5. **Optimisation** (:mod:`pysolver.design.stencil_opt`): the interior vertices move in the plane
    to minimise the longest flat cell after both scaling rules.
 6. **Lift**: every flat point is mapped to 3D through its dense flat triangle.
 
@@ -422,7 +422,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         Resample the input finely with pymeshlab first (default: when the input's
         triangles are poor, min angle < 15 deg, or it has fewer than 2000 faces).
     optimize : bool
-        Run the stencil optimisation (:mod:`pysolver.stencil_opt`).
+        Run the stencil optimisation (:mod:`pysolver.design.stencil_opt`).
     progress : callable, optional
         Called with one line per tried candidate.
 

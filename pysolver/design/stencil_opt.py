@@ -1,6 +1,6 @@
 """Stencil optimisation: move stencil vertices on the target to shorten the longest flat cell.
 
-The layout rules (:mod:`pysolver.layout`) turn a stencil into a shell in closed form:
+The layout rules (:mod:`pysolver.design.layout`) turn a stencil into a shell in closed form:
 
 * the **3D rule** scales the target by ``s3 = max_c (base_r + layer_h tan t_c + min_bumper)
   2 cos t_c / D_c`` (``D_c`` target centroid distance of cell ``c``, ``t_c`` half its fold),
@@ -21,7 +21,7 @@ Gradients are taken by :mod:`autograd` (reverse mode over numpy) rather than by 
 objective chains normals, half fold angles and three smoothed maxima, and a hand-written
 gradient of that chain would be a second place for the layout rules to drift.  The rules
 themselves are restated here only in their closed form and checked against
-:func:`pysolver.layout.build_layout` by ``tests/test_stencil.py``.
+:func:`pysolver.design.layout.build_layout` by ``tests/test_stencil.py``.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def _signed_areas(Q, F):
 
 def flat_corner_angles(Q, F):
     """(m, 3) float, rad: the flat triangles' corner angles (autograd-friendly; numpy
-    version: :func:`pysolver.flatten.corner_angles`)."""
+    version: :func:`pysolver.design.flatten.corner_angles`)."""
     out = []
     for k in range(3):
         a = Q[F[:, (k + 1) % 3]] - Q[F[:, k]]
@@ -151,13 +151,13 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     orientation.
     Shortening the longest flat cells mostly enlarges the smallest target cells, which lowers
     the 3D scaling at a given vertex count; the count search of
-    :func:`pysolver.remesh.remesh_surface` then restores the size with more vertices.  A
+    :func:`pysolver.design.remesh.remesh_surface` then restores the size with more vertices.  A
     positive ``opt_s3_weight`` trades flat length for fewer bases (measured: it hardly moves
     the 3D scaling, so the default is 0).
 
     Parameters
     ----------
-    domain : pysolver.remesh.FlatDomain
+    domain : pysolver.design.remesh.FlatDomain
         Dense target and its conformal plane (``lift``, ``lift_jacobian``).
     P : (n, 2) float, mm
         Stencil vertices in the conformal plane; boundary vertices stay where they are.

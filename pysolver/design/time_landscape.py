@@ -331,7 +331,7 @@ def time_file_per_vertex(values, mesh, path="--time-file") -> np.ndarray:
     ----------
     values : (k,) float, s
         One value per vertex of the mesh file, in the file's order.
-    mesh : pysolver.mesh_input.InputMesh
+    mesh : pysolver.design.mesh_input.InputMesh
         The loaded input; its vertices may have been welded or unreferenced ones removed
         (``file_index`` maps them to the file's order).
     path : str

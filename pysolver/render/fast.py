@@ -9,7 +9,7 @@ runs :func:`self_check` first) and falls back to OpenSCAD for every part it fail
 
 Execution
 ---------
-Parts are evaluated by ``jobs`` worker processes (``python -m pysolver.render_fast``),
+Parts are evaluated by ``jobs`` worker processes (``python -m pysolver.render.fast``),
 each fed one part at a time over a pipe (one JSON line per request and per answer).
 A worker parses each library file once and keeps it for every later part; a crash
 (segfault) or a hang (:data:`PART_TIMEOUT_S`) costs only the part concerned, which is
@@ -238,7 +238,7 @@ def _serve(proto_out) -> None:
 
 
 def main() -> None:
-    """Entry point of a worker process (``python -m pysolver.render_fast``)."""
+    """Entry point of a worker process (``python -m pysolver.render.fast``)."""
     # the protocol owns the original stdout; anything else printed (by Python or C code)
     # goes to stderr
     proto_out = os.fdopen(os.dup(1), "w", buffering=1)
@@ -279,7 +279,7 @@ def write_reference_parts(folder, scad_dir) -> list:
 
     Returns
     -------
-    parts : list of pysolver.scad_io.Part
+    parts : list of pysolver.render.scad_io.Part
         ``ref_node_top`` (alignment hole, tilted bumpers, three brackets of different
         thickness), ``ref_node_bottom``, ``ref_actuated_top`` (brackets opened to spans),
         ``ref_frame_top``, ``ref_frame_bottom``, ``ref_marker``, ``ref_specimen``.

@@ -2,7 +2,7 @@
 
 Pipeline (``render_design``)
 ----------------------------
-1. :mod:`pysolver.scad_io` writes one ``.scad`` data file per part into
+1. :mod:`pysolver.render.scad_io` writes one ``.scad`` data file per part into
    ``<design>/scad/`` (part = one base of one layer, plus its actuated-pose twin,
    the two support frames and one marker dot).  Each file ``use``s the OpenSCAD
    library ``scad/`` by path.
@@ -13,7 +13,7 @@ Pipeline (``render_design``)
    linearly with the part size, so one small file per part is much faster than one
    file per layer (``shared/design/dependencies.md``); ``fast`` evaluates the same
    files with openscad-evaluator in ``jobs`` worker processes
-   (:mod:`pysolver.render_fast`, ~20x faster per part), and a part it fails on is
+   (:mod:`pysolver.render.fast`, ~20x faster per part), and a part it fails on is
    rendered by OpenSCAD instead; ``auto`` is ``fast`` once :func:`fast_self_check`
    has found it to agree with OpenSCAD on reference parts of the library, else
    ``openscad``.
@@ -22,10 +22,10 @@ Pipeline (``render_design``)
    version: an edit of any library file (e.g. a module default) re-renders every
    part with no Python change; an unchanged re-render reads everything from the cache.
 4. The parts of a layer are moved to the print frame
-   (:func:`pysolver.frames.print_transform`: bed at z = 0, brackets down, top
+   (:func:`pysolver.geometry.print_transform`: bed at z = 0, brackets down, top
    layer turned over about x) and united with manifold3d into one watertight
    solid.  Each cell's bracket is drawn whole by one of its two bases
-   (:func:`pysolver.scad_io.bracket_owner`) and the far ends of its V's are anchored
+   (:func:`pysolver.render.scad_io.bracket_owner`) and the far ends of its V's are anchored
    inside the other base's disc, so a layer is a single connected volume and no bracket
    apex is a joint between two parts.
 5. ``<design>/stl/`` receives ``top.stl``, ``bottom.stl``, ``markers_top.stl``,
@@ -337,7 +337,7 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
 
     Parameters
     ----------
-    parts : list of pysolver.scad_io.Part
+    parts : list of pysolver.render.scad_io.Part
     cache_dir : path-like
         Folder of cached part STLs (``<key>.stl``), created if needed.
     scad_dir : path-like
@@ -350,7 +350,7 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
         OpenSCAD executable (default :func:`find_openscad`).
     renderer : {"openscad", "fast", "auto"}, optional
         Backend (default :data:`DEFAULT_RENDERER`).  ``openscad``: Debian OpenSCAD,
-        one process per part.  ``fast``: openscad-evaluator (:mod:`pysolver.render_fast`);
+        one process per part.  ``fast``: openscad-evaluator (:mod:`pysolver.render.fast`);
         a part it fails on is rendered by OpenSCAD instead (a
         :class:`RendererFallbackWarning` names it).  ``auto``: ``fast`` if it is
         importable and :func:`fast_self_check` agrees with OpenSCAD on reference parts
@@ -519,7 +519,7 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
                     progress: bool = False) -> dict:
     """Compare the fast renderer with OpenSCAD on reference parts of a library.
 
-    The reference parts (:func:`pysolver.render_fast.write_reference_parts`: top and
+    The reference parts (:func:`pysolver.render.fast.write_reference_parts`: top and
     bottom nodes with tilted bumpers, three brackets, alignment hole and marker pocket,
     an actuated node, both support frames, the marker dot and a specimen) are rendered by
     both backends through the part cache in ``<cache_dir>/selfcheck``; a part agrees

@@ -15,7 +15,7 @@ that this happens at ``t*`` (SI eq. 15)::
 * ``x_s = b0 - b1_s`` -- target compression of layer ``s``: ``b0`` =
   ``bracket_length_mm``, ``b1_s`` = ``collision_length_<layer>_mm`` (bumper contact).
 * ``F_mem(b0, d1)`` -- the linearised membrane model
-  (:mod:`pysolver.membrane_model`): the **whole cell's** membrane traction, carried by
+  (:mod:`pysolver.temporal.membrane_model`): the **whole cell's** membrane traction, carried by
   its **four** brackets (two per layer), evaluated at the actuated state
   ``d1 = b0 - (b1_top + b1_bottom) / 2`` (the membrane lies on the mid-plane).
   The per-bracket target is ``F_mem / 4`` for every bracket of the cell, so the layer
@@ -83,7 +83,7 @@ REFINE_LOG = "refine.json"
 CORRECTIONS = ("boundary", "fem")
 """How ``F_mem`` is adapted per cell.  ``"boundary"``: the paper's rule, x 0.6 on boundary
 cells.  ``"fem"``: an FEM membrane on the design's own flat stencil
-(:func:`pysolver.membrane_model.cell_membrane_factors`) gives every interior cell its
+(:func:`pysolver.temporal.membrane_model.cell_membrane_factors`) gives every interior cell its
 factor (irregular stencils: 0.65-1.8), and boundary cells get ``min(0.6, FEM factor)``
 (cells whose edge has both ends on the boundary pull only ~0.1-0.2 and never close with
 0.6)."""
@@ -276,7 +276,7 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
     t_star : (n,) float, s
         Target completion times.
     material, membrane
-        Bracket model object and :class:`~pysolver.membrane_model.MembraneModel`.
+        Bracket model object and :class:`~pysolver.temporal.membrane_model.MembraneModel`.
     t_request : (n,) float, s, optional
         Times to program instead of ``t_star`` (closing the loop); clamping is still
         judged on ``t_star``.

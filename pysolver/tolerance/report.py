@@ -1,4 +1,4 @@
-"""Pictures and HTML page of a tolerance analysis (:mod:`sim.tolerance`).
+"""Pictures and HTML page of a tolerance analysis (:mod:`pysolver.tolerance`).
 
 ``<out>/report.html`` embeds (as files beside it):
 

@@ -1,6 +1,6 @@
 """Barrier contact between bases that are not neighbours (issue #18, ``PhysicsOptions.contact``).
 
-The reference simulator only reports overlaps (:mod:`sim.collisions`); a shell whose far-apart
+The reference simulator only reports overlaps (:mod:`sim.model.collisions`); a shell whose far-apart
 regions meet (interwoven designs, tight folds) passes through itself.  With ``contact`` on,
 every base is a closed prism (a regular ``contact_sides``-gon circumscribed about the base
 disc of radius ``base_r``, as thick as both layers, ``2 layer_h``) that moves with its base, so
@@ -55,7 +55,7 @@ def _ipctk():
     except ImportError:  # soft dependency
         raise InputError("physics effect 'contact' needs the IPC Toolkit's Python bindings",
                          fix="pip install ipctk") from None
-    # one thread, as every solve here (sim.solver): on 2 cores its TBB pool doubled the CPU
+    # one thread, as every solve here (sim.model.solver): on 2 cores its TBB pool doubled the CPU
     # time and cost wall time (contact on the 575-base bench: 42 s wall, 64 s CPU)
     ipctk.set_num_threads(1)
     return ipctk

@@ -19,7 +19,7 @@ rigid-body map ``x = c + exp([theta]x) R t`` **at theta = 0** (the rotation is f
 - d_ab v_i`` (``v = R t``).  The Hessian is scattered into a sparse lower-triangle CSC matrix
 whose pattern (and every element entry's position in it) is computed once
 (:class:`SparsePattern`).  Two assembly backends give the same matrix to round-off: compiled
-element loops (:mod:`sim.kernels`, numba; default when installed, ~4x faster) and vectorised
+element loops (:mod:`sim.model.kernels`, numba; default when installed, ~4x faster) and vectorised
 numpy (per-cell blocks for springs and cross pairs, per-point-pair blocks for the membrane).
 
 ``psd=True`` returns a convexified Hessian instead: per-element projection onto the positive
@@ -457,7 +457,7 @@ class ShellEnergy:
     ----------
     model : ShellModel
     backend : {"auto", "numba", "numpy"}
-        Hessian assembly: compiled kernels (:mod:`sim.kernels`) or vectorised numpy; ``auto``
+        Hessian assembly: compiled kernels (:mod:`sim.model.kernels`) or vectorised numpy; ``auto``
         uses numba when it is installed.  Both give the same matrix to round-off.
     """
 
@@ -474,12 +474,12 @@ class ShellEnergy:
         self.model = model
         self.consts = model.consts
         self.last_energy_scale = None  # energy_scale of the state last evaluated (N mm)
-        # physics options (sim.physics): membrane modulus factor (relaxation) and external
+        # physics options (sim.model.physics): membrane modulus factor (relaxation) and external
         # terms (weight, plane); 1.0 and None reproduce the reference model bit for bit
         self.mu_scale = 1.0
         self.external = None
-        self.contact = None  # sim.contact.BaseContact: barrier between non-neighbour bases
-        self.bending = None  # sim.physics.BracketBending: brackets bent out of plane
+        self.contact = None  # sim.model.contact.BaseContact: barrier between non-neighbour bases
+        self.bending = None  # sim.model.physics.BracketBending: brackets bent out of plane
         self._ext_pos = None
         m, c = model.n_bases, model.n_cells
         self.m = m
@@ -681,7 +681,7 @@ class ShellEnergy:
 
     def step_limit(self, state: State, p, alpha_max: float) -> float:
         """Largest safe multiple of the step ``p``: ``alpha_max``, or less when a contact
-        barrier (:mod:`sim.contact`) would be crossed."""
+        barrier (:mod:`sim.model.contact`) would be crossed."""
         if self.contact is None:
             return alpha_max
         return self.contact.step_limit(state, p, alpha_max)

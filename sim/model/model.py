@@ -489,7 +489,7 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
                ) -> ShellModel:
     """A copy of ``model`` with other bracket thicknesses and/or simulator constants.
 
-    For the Monte Carlo tolerance analysis (:mod:`sim.tolerance`): the stencil, the membrane
+    For the Monte Carlo tolerance analysis (:mod:`pysolver.tolerance`): the stencil, the membrane
     mesh and every table stay the nominal design's; only the printed/material values change.
     The membrane rest shape is the flat mesh divided by the pre-stretch ``tau``
     (:func:`build_model`), so a new ``tau`` rescales the inverse rest edge matrices by

@@ -9,7 +9,7 @@ previous equilibrium:
    with plastic scaling ``F(x / (1 - eta))``; rest length ``l = min(l, L0 - eta (L0 - ps))``;
    a spring whose ``ps <= L_c`` is in **bumper contact** for this step: rest ``L_c`` and
    ``E = kappa_c/2 (L - L_c)^2`` (two-sided, decided from the previous frame).
-3. Newton solve (:func:`sim.solver.newton`, tolerance 1e-6 N), warm-started from the linear
+3. Newton solve (:func:`sim.model.solver.newton`, tolerance 1e-6 N), warm-started from the linear
    extrapolation of the last two frames (or the previous equilibrium when it still is one).
    A step that does not converge is kept (its best iterate), flagged ``converged = False``
    in the frames and the summary, and reported on stderr.
@@ -36,7 +36,7 @@ key                         shape                  meaning
 ``newton_iterations``       (n_frames,)            Newton iterations of the solve
 ``newton_regularised``      (n_frames,)            iterations needing more than the base shift
                                                    (indefinite Hessian: buckling, snapping)
-``residual``                (n_frames,)            final residual, N (see sim.solver)
+``residual``                (n_frames,)            final residual, N (see sim.model.solver)
 ``wall_s``                  (n_frames,)            wall time of the solve, s
 ``converged``               (n_frames,)            residual below tolerance
 ``energy``                  (n_frames,)            total energy, N mm
@@ -102,7 +102,7 @@ class SimSettings:
         Warm start each solve from the extrapolation of the last frames (see
         ``Simulation._predict``); ``False``: from the previous equilibrium.
     solver : {"fast", "reference"}
-        Linear-algebra threading of the Newton solves (:data:`sim.solver.SOLVERS`): ``fast``
+        Linear-algebra threading of the Newton solves (:data:`sim.model.solver.SOLVERS`): ``fast``
         runs every solve on one BLAS thread, ``reference`` as before it was measured.  Same
         results; the reference path is kept for ``make bench``'s comparison.
     physics : PhysicsOptions

@@ -11,7 +11,7 @@ a base64 data URI) and ``report.json``, then prints the verdict
 Sections: verdict; final shape vs target (rigid Kabsch alignment of the base
 centres, error in mm and % of the target size, base-normal orientation);
 timing (simulated unit-cell completion vs the programmed t*); collisions along
-the path (:mod:`sim.collisions`); solver health; shaded renders at chosen
+the path (:mod:`sim.model.collisions`); solver health; shaded renders at chosen
 times and an animated GIF; flat layout coloured by bracket thickness; time
 landscape.
 
@@ -314,7 +314,7 @@ def base_base_collisions(design_dir, thresholds=None) -> dict:
     Returns
     -------
     dict
-        :meth:`sim.collisions.CollisionResult.summary` (``count``, ``first``, ...).
+        :meth:`sim.model.collisions.CollisionResult.summary` (``count``, ``first``, ...).
     """
     th = Thresholds.coerce(thresholds)
     sd = load_sim(design_dir)

@@ -442,7 +442,8 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
 
 def main(argv=None) -> int:
 
-    ap = argparse.ArgumentParser(prog="python -m sim.scan", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m sim.report.scan",
+                                 description=__doc__.split("\n")[0])
     ap.add_argument("design_dir")
     ap.add_argument("scan")
     ap.add_argument("--layer", default="auto", choices=("auto", "top", "bottom"))
