@@ -1,4 +1,6 @@
-"""The whole pipeline for one shape: design -> program -> simulate [-> refine] -> render -> report.
+"""The whole pipeline for one shape: design -> program -> simulate [-> contact] [-> refine]
+-> render -> report.  (``contact``: simulated again with barrier contact when far-apart parts
+passed through each other, :func:`_contact_if_needed`.)
 
 ``build(shape)`` runs every stage in a staging folder ``build/.staging/<name>``
 and moves it to ``build/<name>`` only when all stages have finished, so an
@@ -336,18 +338,26 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
             sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
             stage("simulate", simulate_design, staging, material=material, progress=progress,
                   solver=solver, **sim_kw)
-            physics = _contact_if_needed(staging, name, progress)
-            if physics is not None:
-                stages["simulate"]["contact"] = "switched on: non-neighbouring bases collided"
-                sim_kw["physics"] = physics
-                stage("simulate_contact", simulate_design, staging, material=material,
-                      progress=progress, solver=solver, **sim_kw)
+            physics = None
+
+            def simulate_with_contact_if_needed(after: str):
+                """Contact from here on when the frames just written collide."""
+                nonlocal physics
+                physics, hit = _contact_if_needed(staging, name, progress)
+                if physics is not None:
+                    stages[after]["contact"] = {"switched_on": True, "collisions": hit}
+                    stage("simulate_contact", simulate_design, staging, material=material,
+                          progress=progress, solver=solver, physics=physics, **sim_kw)
+
+            simulate_with_contact_if_needed("simulate")
             if refine and program:
                 hook = {"simulate": functools.partial(
                     simulate_design, solver=solver, **({} if dt is None else {"dt": dt}),
                     **({} if physics is None else {"physics": physics}))}
                 stage("refine", refine_design, staging, iterations=refine, material=material,
                       progress=progress, **kw, **hook)
+                if physics is None:  # the refined thicknesses may bring far parts together
+                    simulate_with_contact_if_needed("refine")
         if render:  # after refinement, so the STLs carry the final thicknesses
             stage("render", render_design, staging, jobs=jobs, progress=progress,
                   renderer=renderer)
@@ -537,22 +547,29 @@ def validate_model_files(material=None, membrane=None, unit=UNIT_CELL) -> None:
         validate_membrane_model_file(MEMBRANE_MODEL_PATH if membrane is None else membrane)
 def _contact_if_needed(folder: Path, name: str, progress: bool):
     """Physics options with barrier contact when the simulation of ``folder`` lets
-    non-neighbouring bases pass through each other, else None.
+    non-neighbouring bases pass through each other.
 
     The reference model has no contact between far-apart parts; when they meet on the way
     (a petal sweeping past another), its path is impossible and the check could only say
     FAIL.  The printed shell's parts push each other aside instead, which the IPC barrier
     (``--physics contact``, :mod:`sim.model.contact`) models, so the build simulates again with it.
     A shell whose parts never meet keeps the reference model's result unchanged.
+
+    Returns
+    -------
+    physics : PhysicsOptions or None
+        ``contact`` switched on; None when no pair collides.
+    hit : dict
+        :meth:`sim.collisions.CollisionResult.summary` of the frames checked.
     """
     hit = base_base_collisions(folder)
     if not hit["count"]:
-        return None
+        return None, hit
     f = hit["first"]
     _log(f"{name}: {hit['count']} pair(s) of non-neighbouring bases pass through each other "
          f"(first bases {f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s); "
          "simulating again with barrier contact (--physics contact)", progress)
-    return parse_physics("contact")
+    return parse_physics("contact"), hit
 
 
 def _now() -> float:

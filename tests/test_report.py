@@ -300,10 +300,45 @@ def test_colliding_morph_switches_the_build_to_contact(tmp_path, good):
     make_synthetic_design(tmp_path, mode="collide")
     hit = base_base_collisions(tmp_path)
     assert hit["count"] == _report(tmp_path)["metrics"]["collisions"]["base_base"]["count"] >= 1
-    physics = _contact_if_needed(tmp_path, "collide", progress=False)
-    assert physics is not None and physics.switched_on() == ["contact"]
+    physics, got = _contact_if_needed(tmp_path, "collide", progress=False)
+    assert physics is not None and physics.switched_on() == ["contact"] and got == hit
     assert base_base_collisions(good)["count"] == 0
-    assert _contact_if_needed(good, "good", progress=False) is None
+    assert _contact_if_needed(good, "good", progress=False)[0] is None
+
+
+def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeypatch):
+    """The whole build: a morph whose far parts pass through each other (the "collide"
+    fixture stands in for the design and the plain simulation) is simulated again with
+    contact; summary.json records the switch and the report the physics of its frames."""
+    import pysolver.design
+    import sim.simulate
+    from pysolver.build import build
+    from sim.physics import physics_json
+
+    calls = []
+
+    def fake_design(source, out, **kw):
+        make_synthetic_design(Path(out), mode="collide")
+        return {}
+
+    def fake_simulate(folder, *, physics=None, **kw):
+        calls.append(physics)
+        if physics is not None:  # the contact run keeps the parts apart
+            make_synthetic_design(Path(folder), mode="good")
+            p = Path(folder) / "sim" / "frames.npz"
+            fr = dict(np.load(p))
+            fr["physics"] = np.array(physics_json(physics))
+            np.savez_compressed(p, **fr)
+        return {}
+
+    monkeypatch.setattr(pysolver.design, "run_design", fake_design)
+    monkeypatch.setattr(sim.simulate, "simulate_design", fake_simulate)
+    s = build("regular", out=tmp_path / "b", program=False, render=False, progress=False)
+    assert [c.switched_on() if c else None for c in calls] == [None, ["contact"]]
+    assert s["stages"]["simulate"]["contact"]["collisions"]["count"] >= 1
+    r = json.loads((tmp_path / "b" / "report" / "report.json").read_text())
+    assert r["verdict"] == "PASS" and r["metrics"]["physics"] == ["contact"]
+    assert any("contact" in n for n in r["notes"])
 
 
 def test_thresholds_validate_and_tighten(good):

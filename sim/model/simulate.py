@@ -53,6 +53,7 @@ Any base point ``p`` given in the flat shell frame is at ``c + R (p - c_flat)`` 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import sys
@@ -623,7 +624,11 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     sim = Simulation(model, mat, st)
     out_dir = folder / "sim"
     frames_path = out_dir / FRAMES_NAME
-    ckpt = out_dir / CHECKPOINT_NAME
+    # one checkpoint per set of physics options: the build's contact re-run (pysolver.build)
+    # neither overwrites nor discards the plain run's, so both resume
+    ckpt = out_dir / (CHECKPOINT_NAME if not st.physics.any else
+                      "checkpoint-" + hashlib.sha256(physics_json(st.physics).encode())
+                      .hexdigest()[:12] + ".npz")
     fp_settings = {k: v for k, v in asdict(st).items() if k != "checkpoint_every"}
     fingerprint = json.dumps({"model": model.fingerprint(), "material": _material_id(mat),
                               "settings": fp_settings}, sort_keys=True)

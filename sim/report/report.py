@@ -297,7 +297,14 @@ def load_sim(design_dir) -> SimData:
 
 
 def _n_valid_frames(fr: dict) -> int:
-    """Number of frames up to the first one with a non-finite position."""
+    """Number of frames up to the first one with a non-finite position.
+
+    Parameters
+    ----------
+    fr : dict
+        ``frames.npz`` arrays: ``base_center`` (f, m, 3) mm, ``base_rotation`` (f, m, 3, 3),
+        optionally ``membrane_vertices`` (f, k, 3) mm.
+    """
     finite = (np.isfinite(fr["base_center"]).all(axis=(1, 2))
               & np.isfinite(fr["base_rotation"]).all(axis=(1, 2, 3)))
     M = fr.get("membrane_vertices")
@@ -310,6 +317,12 @@ def base_base_collisions(design_dir, thresholds=None) -> dict:
     """Non-neighbouring bases passing through each other in a simulated design folder, by the
     report's own rule (:func:`sim.model.collisions.base_collisions`, depth above
     ``Thresholds.collision_depth_mm``).
+
+    Parameters
+    ----------
+    design_dir : path-like
+        Design folder with ``sim/frames.npz``.
+    thresholds : Thresholds or dict, optional
 
     Returns
     -------
