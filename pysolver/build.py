@@ -560,7 +560,7 @@ def _contact_if_needed(folder: Path, name: str, progress: bool):
     physics : PhysicsOptions or None
         ``contact`` switched on; None when no pair collides.
     hit : dict
-        :meth:`sim.collisions.CollisionResult.summary` of the frames checked.
+        :meth:`sim.model.collisions.CollisionResult.summary` of the frames checked.
     """
     hit = base_base_collisions(folder)
     if not hit["count"]:

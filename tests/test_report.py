@@ -310,10 +310,8 @@ def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeyp
     """The whole build: a morph whose far parts pass through each other (the "collide"
     fixture stands in for the design and the plain simulation) is simulated again with
     contact; summary.json records the switch and the report the physics of its frames."""
-    import pysolver.design
-    import sim.simulate
     from pysolver.build import build
-    from sim.physics import physics_json
+    from sim.model.physics import physics_json
 
     calls = []
 
@@ -331,8 +329,9 @@ def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeyp
             np.savez_compressed(p, **fr)
         return {}
 
-    monkeypatch.setattr(pysolver.design, "run_design", fake_design)
-    monkeypatch.setattr(sim.simulate, "simulate_design", fake_simulate)
+    # (the stages the orchestrator imported; pysolver.build looks them up when it runs)
+    monkeypatch.setattr("pysolver.build.run_design", fake_design)
+    monkeypatch.setattr("pysolver.build.simulate_design", fake_simulate)
     s = build("regular", out=tmp_path / "b", program=False, render=False, progress=False)
     assert [c.switched_on() if c else None for c in calls] == [None, ["contact"]]
     assert s["stages"]["simulate"]["contact"]["collisions"]["count"] >= 1
