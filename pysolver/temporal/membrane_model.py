@@ -52,8 +52,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from sim.model.rim import rim_margin
-
 from ..errors import InputError
 from ..geometry import boundary_vertex_mask, face_adjacency, unit_cells
 from ..material.validate import (
@@ -66,6 +64,7 @@ from ..material.validate import (
     _vector,
     validate_model_file,
 )
+from ..mechanics.rim import rim_margin
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
 
 MODEL_PATH = MEMBRANE_MODEL_FILE
@@ -505,7 +504,7 @@ class PlaneMembrane:
             Xr = np.asarray(X, dtype=float) / tau
             Dm = np.stack([Xr[self.tri[:, 1]] - Xr[self.tri[:, 0]],
                            Xr[self.tri[:, 2]] - Xr[self.tri[:, 0]]], axis=-1)  # (m, 2, 2)
-        else:  # a pre-stretch per triangle (the rim margin, sim.model.rim)
+        else:  # a pre-stretch per triangle (the rim margin, pysolver.mechanics.rim)
             X = np.asarray(X, dtype=float)
             Dm = np.stack([X[self.tri[:, 1]] - X[self.tri[:, 0]],
                            X[self.tri[:, 2]] - X[self.tri[:, 0]]], axis=-1)
@@ -679,7 +678,7 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
     model : MembraneModel, optional (default: the committed model)
     rim : (float, float), optional
         ``(margin_mm, stretch)``: the membrane as fabricated at the rim
-        (:func:`sim.model.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
+        (:func:`pysolver.mechanics.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
 
     Returns
     -------

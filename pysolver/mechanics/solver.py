@@ -4,7 +4,7 @@ Design (documented choices):
 
 * **Linear solver.**  CHOLMOD supernodal LL^T (scikit-sparse) on the lower triangle of the
   reduced Hessian; the symbolic analysis is done once per sparsity pattern (the pattern is
-  fixed by :class:`sim.model.energies.SparsePattern`) and reused, each Newton iteration only
+  fixed by :class:`.energies.SparsePattern`) and reused, each Newton iteration only
   refactorises.  Debian's CHOLMOD starts OpenMP threads regardless of ``OMP_NUM_THREADS``;
   ``OMP_THREAD_LIMIT=1`` is set before importing it (2-3x faster on 2 cores; it must be set
   before any library loads OpenMP, so entry points import this module first).  CHOLMOD's

@@ -35,7 +35,8 @@ from pysolver.errors import InputError
 from pysolver.geometry import Cells, base_rotations, face_centroids, rotvec_to_matrix
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
 from pysolver.tables import check_thickness, read_design, read_model
-from sim.model.rim import rim_margin
+
+from .rim import rim_margin
 
 CROSS_REST_MODES = ("flat", "zero")
 
