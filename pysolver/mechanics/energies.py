@@ -38,6 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from pysolver.errors import InputError
+from pysolver.params import tol as TOL
 
 from .kernels import HAVE_NUMBA, cross_point_hessian, membrane_kernel, reduce_scatter
 from .model import ShellModel
@@ -59,7 +60,7 @@ def rodrigues(theta):
     """Rotation matrices ``exp([theta]x)`` of rotation vectors ``theta : (n, 3)`` (rad)."""
     theta = np.asarray(theta, float)
     a = np.linalg.norm(theta, axis=-1)
-    small = a < 1e-8
+    small = a < TOL.small_angle
     a_safe = np.where(small, 1.0, a)
     s = np.where(small, 1.0 - a * a / 6.0, np.sin(a) / a_safe)
     c = np.where(small, 0.5 - a * a / 24.0, (1.0 - np.cos(a)) / a_safe**2)

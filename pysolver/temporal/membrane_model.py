@@ -67,6 +67,7 @@ from ..material.validate import (
 from ..mechanics.energies import membrane_terms
 from ..mechanics.rim import rim_margin
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
+from ..params import tol as TOL
 
 MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by
@@ -480,7 +481,7 @@ def _locate(p, V, F):
     w = p[:, None, :] - A[None]
     l1 = (w[..., 0] * v1[None, :, 1] - w[..., 1] * v1[None, :, 0]) / det
     l2 = (v0[None, :, 0] * w[..., 1] - v0[None, :, 1] * w[..., 0]) / det
-    inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
+    inside = (l1 >= -TOL.rel) & (l2 >= -TOL.rel) & (l1 + l2 <= 1 + TOL.rel)
     return np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
 
 

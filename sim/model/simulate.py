@@ -134,7 +134,7 @@ class SimSettings:
 
     def times(self) -> np.ndarray:
         n = int(round(self.t_end / self.dt))
-        if n < 0 or abs(n * self.dt - self.t_end) > 1e-9 * max(1.0, self.t_end):
+        if n < 0 or abs(n * self.dt - self.t_end) > TOL.rel * max(1.0, self.t_end):
             raise InputError(f"t_end = {self.t_end} s is not a non-negative multiple of "
                              f"dt = {self.dt} s", fix="choose t_end = k * dt")
         return self.dt * np.arange(n + 1)
@@ -301,7 +301,7 @@ class Simulation:
         L = self.spring_lengths()
         self._record(t, res, L)
         if self.E_ref is None:
-            self.E_ref = max(abs(res.energy), 1e-9)
+            self.E_ref = max(abs(res.energy), TOL.energy_floor)
         # early stop: every cell at its bumpers in both layers and nothing moved
         ct = self.contact.reshape(-1, 4)
         if not dry and np.all((ct[:, 0] | ct[:, 1]) & (ct[:, 2] | ct[:, 3])):
@@ -371,7 +371,7 @@ class Simulation:
         a = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
         ratio = a / (md.tri_rest_area * md.consts.tau**2)
         j = int(np.argmin(ratio))
-        if ratio[j] < 1e-3:
+        if ratio[j] < TOL.membrane_collapse:
             b = md.mem_body[md.mem_triangles[j]]
             return (f"; likely cause: membrane triangle {j} collapsed (area ratio "
                     f"{ratio[j]:.2g}) next to base(s) {sorted(set(b[b >= 0].tolist()))}")

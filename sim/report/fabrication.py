@@ -21,6 +21,7 @@ import numpy as np
 
 from pysolver.params import FABRICATION, SIM, UNIT_CELL
 from pysolver.params import MEMBRANE_MODEL_FILE as MODEL_PATH
+from pysolver.params import tol as TOL
 
 STL_PURPOSE = {
     "top.stl": "top layer (bases, bumpers, brackets): print brackets-down; glued to the "
@@ -347,7 +348,7 @@ def top_layer_side(target_centres, normals) -> str:
     c = np.asarray(target_centres, float)
     n = np.asarray(normals, float)
     s = float(np.mean(np.sum(n * (c.mean(axis=0) - c), axis=1)))
-    if abs(s) < 1e-3 * max(np.ptp(c, axis=0).max(), 1.0):
+    if abs(s) < TOL.orientation_rel * max(np.ptp(c, axis=0).max(), 1.0):
         return "the shape is nearly flat: either side"
     return ("the concave (inner) side of the target" if s > 0
             else "the convex (outer) side of the target")

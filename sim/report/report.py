@@ -39,6 +39,7 @@ from pysolver.atomic import atomic_dir
 from pysolver.errors import InputError
 from pysolver.geometry import fold_angles_deg, rigid_fit
 from pysolver.params import UNIT_CELL
+from pysolver.params import tol as TOL
 from pysolver.tables import Design, read_design, read_table
 
 from ..model.collisions import base_collisions, membrane_collisions
@@ -865,7 +866,8 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
     out["renders"] = names
     out["render_frames"] = sel
     err = sh["err"]
-    img = ren.images([last], base_scalars=err, clim=(0.0, max(float(err.max()), 1e-3)),
+    clim = (0.0, max(float(err.max()), TOL.colour_floor_mm))
+    img = ren.images([last], base_scalars=err, clim=clim,
                      cmap="plasma", scalar_title="error (mm)", fit="these")[0]
     out["shape_error"] = rp.save_png(img, tmp / "shape_error.png").name
     if bc.count:
