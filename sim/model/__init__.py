@@ -5,22 +5,3 @@ kernels, the Newton solver, the rim margin) are :mod:`pysolver.mechanics`, share
 membrane model of temporal programming.  Modules here: :mod:`.contact`, :mod:`.physics`,
 :mod:`.collisions` and :mod:`.simulate` (``simulate_design``, ``completion_times``).
 """
-from pysolver.mechanics import (
-    CROSS_REST_MODES,
-    ShellModel,
-    build_model,
-    load_model,
-    membrane_mesh,
-    rim_margin,
-    vary_model,
-)
-
-__all__ = [
-    "CROSS_REST_MODES",
-    "ShellModel",
-    "build_model",
-    "load_model",
-    "membrane_mesh",
-    "rim_margin",
-    "vary_model",
-]

@@ -11,8 +11,8 @@ all off the simulation is the reference model bit for bit).  This module holds
   Hessian, added to :class:`pysolver.mechanics.energies.ShellEnergy` through its ``external`` hook.
 
 Relaxation (``mu`` scaled by the measured curve) lives in the time stepper
-(:mod:`sim.model.simulate`), the rim margin in :func:`sim.model.build_model`; both reuse the one
-membrane energy of :mod:`pysolver.mechanics.energies`.
+(:mod:`sim.model.simulate`), the rim margin in :func:`pysolver.mechanics.build_model`; both
+reuse the one membrane energy of :mod:`pysolver.mechanics.energies`.
 
 Units: mm, N, s; densities in g/cm^3 = 1e-9 t/mm^3, so a volume ``V`` (mm^3) of density
 ``rho`` weighs ``rho * 1e-9 * V * g`` N with ``g = 9810 mm/s^2``.

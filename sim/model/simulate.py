@@ -141,7 +141,7 @@ class SimSettings:
 
 
 class Simulation:
-    """Time stepper over a :class:`~sim.model.ShellModel` (in memory).
+    """Time stepper over a :class:`~pysolver.mechanics.ShellModel` (in memory).
 
     Parameters
     ----------
