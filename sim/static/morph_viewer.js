@@ -116,6 +116,23 @@
     distance: {label: "distance to target (mm)", map: VIRIDIS, perFrame: true},
   };
 
+  // A white WebGL canvas in `parent` with a camera, a sky/ground light and a sun: sets
+  // obj.renderer, obj.canvas, obj.scene, obj.camera (the viewer's and the studio editor's).
+  function stage(obj, parent, w, h, light) {
+    obj.renderer = new THREE.WebGLRenderer({antialias: true, preserveDrawingBuffer: true});
+    obj.renderer.setPixelRatio(1);
+    obj.renderer.setSize(w, h);
+    obj.renderer.setClearColor(0xffffff, 1);
+    parent.appendChild(obj.renderer.domElement);
+    obj.canvas = obj.renderer.domElement;
+    obj.scene = new THREE.Scene();
+    obj.camera = new THREE.PerspectiveCamera(35, w / h, 0.1, 10000);
+    obj.scene.add(new THREE.HemisphereLight(0xffffff, light.ground, light.sky));
+    var sun = new THREE.DirectionalLight(0xffffff, light.sun);
+    sun.position.set(1, light.sunY, 3);
+    obj.scene.add(sun);
+  }
+
   function MorphViewer(container, data, opts) {
     opts = opts || {};
     this.data = data; this.opts = opts; this.frame = 0; this.renderCount = 0;
@@ -149,18 +166,7 @@
       container);
 
     var w = opts.width || container.clientWidth || 640, h = opts.height || Math.round(w * 0.62);
-    this.renderer = new THREE.WebGLRenderer({antialias: true, preserveDrawingBuffer: true});
-    this.renderer.setPixelRatio(1);
-    this.renderer.setSize(w, h);
-    this.renderer.setClearColor(0xffffff, 1);
-    this.view.appendChild(this.renderer.domElement);
-    this.canvas = this.renderer.domElement;
-    this.scene = new THREE.Scene();
-    this.camera = new THREE.PerspectiveCamera(35, w / h, 0.1, 10000);
-    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x667788, 1.6));
-    var sun = new THREE.DirectionalLight(0xffffff, 1.4);
-    sun.position.set(1, -1.5, 3);
-    this.scene.add(sun);
+    stage(this, this.view, w, h, {ground: 0x667788, sky: 1.6, sun: 1.4, sunY: -1.5});
 
     var geo = new THREE.CylinderGeometry(data.base_r, data.base_r, 2 * data.layer_h, 24);
     geo.rotateX(Math.PI / 2);   // three's cylinder axis is y; a base's axis is its flat +z
@@ -410,5 +416,6 @@
   MorphViewer.decode = {positions: positions, f32: f32, u32: u32};
   MorphViewer.cmap = function (name, x) { return cmap(name === "diverging" ? DIVERGING : VIRIDIS, x); };
   MorphViewer.Orbit = Orbit;
+  MorphViewer.stage = stage;
   global.MorphViewer = MorphViewer;
 })(window);

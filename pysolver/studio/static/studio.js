@@ -53,18 +53,7 @@
     this.container = container;
     this.keyframes = [];   // {kind: "keyframe"|"brush", vertex, time, radius}
     var w = 640, h = 440;
-    this.renderer = new THREE.WebGLRenderer({antialias: true, preserveDrawingBuffer: true});
-    this.renderer.setPixelRatio(1);
-    this.renderer.setSize(w, h);
-    this.renderer.setClearColor(0xffffff, 1);
-    container.appendChild(this.renderer.domElement);
-    this.canvas = this.renderer.domElement;
-    this.scene = new THREE.Scene();
-    this.camera = new THREE.PerspectiveCamera(35, w / h, 0.1, 10000);
-    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x778899, 2.0));
-    var sun = new THREE.DirectionalLight(0xffffff, 1.0);
-    sun.position.set(1, -1, 3);
-    this.scene.add(sun);
+    MorphViewer.stage(this, container, w, h, {ground: 0x778899, sky: 2.0, sun: 1.0, sunY: -1});
     var self = this;
     this.orbit = new MorphViewer.Orbit(this.camera, this.canvas, function () { self.render(); });
     var down = null;
