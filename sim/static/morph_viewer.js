@@ -133,6 +133,27 @@
     obj.scene.add(sun);
   }
 
+  // Calls fn(clientX, clientY) on a click of `dom` that does not end a drag (moved < 4 px).
+  function onClick(dom, fn) {
+    var down = null;
+    dom.addEventListener("pointerdown", function (e) { down = [e.clientX, e.clientY]; });
+    dom.addEventListener("pointerup", function (e) {
+      if (down && Math.abs(e.clientX - down[0]) + Math.abs(e.clientY - down[1]) < 4) {
+        fn(e.clientX, e.clientY);
+      }
+      down = null;
+    });
+  }
+
+  // The intersections of `object` with the camera ray through the client point (x, y) of `dom`.
+  function hits(dom, camera, object, x, y) {
+    var r = dom.getBoundingClientRect();
+    var ndc = new THREE.Vector2(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
+    var ray = new THREE.Raycaster();
+    ray.setFromCamera(ndc, camera);
+    return ray.intersectObject(object, false);
+  }
+
   function MorphViewer(container, data, opts) {
     opts = opts || {};
     this.data = data; this.opts = opts; this.frame = 0; this.renderCount = 0;
@@ -203,14 +224,7 @@
       self.setFrame(parseInt(self.slider.value, 10));
     });
     this.select.addEventListener("change", function () { self.setColorMode(self.select.value); });
-    var down = null;
-    this.canvas.addEventListener("pointerdown", function (e) { down = [e.clientX, e.clientY]; });
-    this.canvas.addEventListener("pointerup", function (e) {
-      if (down && Math.abs(e.clientX - down[0]) + Math.abs(e.clientY - down[1]) < 4) {
-        self.pickAt(e.clientX, e.clientY);
-      }
-      down = null;
-    });
+    onClick(this.canvas, function (x, y) { self.pickAt(x, y); });
   }
 
   MorphViewer.prototype.fit = function () {
@@ -343,11 +357,7 @@
   };
 
   MorphViewer.prototype.pickAt = function (x, y) {
-    var r = this.canvas.getBoundingClientRect();
-    var ndc = new THREE.Vector2(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
-    var ray = new THREE.Raycaster();
-    ray.setFromCamera(ndc, this.camera);
-    var hit = ray.intersectObject(this.bases, false);
+    var hit = hits(this.canvas, this.camera, this.bases, x, y);
     this.selectBase(hit.length ? hit[0].instanceId : null);
   };
 
@@ -417,5 +427,7 @@
   MorphViewer.cmap = function (name, x) { return cmap(name === "diverging" ? DIVERGING : VIRIDIS, x); };
   MorphViewer.Orbit = Orbit;
   MorphViewer.stage = stage;
+  MorphViewer.onClick = onClick;
+  MorphViewer.hits = hits;
   global.MorphViewer = MorphViewer;
 })(window);

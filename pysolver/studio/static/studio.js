@@ -56,14 +56,7 @@
     MorphViewer.stage(this, container, w, h, {ground: 0x778899, sky: 2.0, sun: 1.0, sunY: -1});
     var self = this;
     this.orbit = new MorphViewer.Orbit(this.camera, this.canvas, function () { self.render(); });
-    var down = null;
-    this.canvas.addEventListener("pointerdown", function (e) { down = [e.clientX, e.clientY]; });
-    this.canvas.addEventListener("pointerup", function (e) {
-      if (down && Math.abs(e.clientX - down[0]) + Math.abs(e.clientY - down[1]) < 4) {
-        self.clickAt(e.clientX, e.clientY);
-      }
-      down = null;
-    });
+    MorphViewer.onClick(this.canvas, function (x, y) { self.clickAt(x, y); });
   }
 
   Editor.prototype.load = function (build) {
@@ -230,11 +223,7 @@
   };
 
   Editor.prototype.vertexAt = function (x, y) {
-    var r = this.canvas.getBoundingClientRect();
-    var ndc = new THREE.Vector2(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
-    var ray = new THREE.Raycaster();
-    ray.setFromCamera(ndc, this.camera);
-    var hit = ray.intersectObject(this.mesh, false);
+    var hit = MorphViewer.hits(this.canvas, this.camera, this.mesh, x, y);
     if (!hit.length) return null;
     var f = hit[0].face, V = this.V, best = null, bd = Infinity;
     [f.a, f.b, f.c].forEach(function (v) {
