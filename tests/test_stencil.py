@@ -74,6 +74,18 @@ def test_layout_logs_are_the_scaling_rules(dome_domain):
     assert 0 <= sm[0] - log_s3 <= np.log(len(fa)) / 60 + 1e-12
 
 
+def _assert_gradient_matches_fd(f, P, seed: int, rel: float, eps: float = 1e-6):
+    """autograd's gradient of f at P against central differences along 3 random unit
+    directions."""
+    g = grad(f)(P)
+    rng = np.random.default_rng(seed)
+    for _ in range(3):
+        d = rng.normal(size=P.shape)
+        d /= np.linalg.norm(d)
+        fd = (f(P + eps * d) - f(P - eps * d)) / (2 * eps)
+        assert np.sum(g * d) == pytest.approx(fd, rel=rel, abs=1e-9)
+
+
 def test_objective_gradient_matches_finite_differences(dome_domain):
     P, F = dome_domain.stencil(40, seed=2)
     X = dome_domain.lift(P)
@@ -87,14 +99,7 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
         a, b, c = stencil_opt.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
         return a + b + c
 
-    g = grad(f)(P)
-    rng = np.random.default_rng(0)
-    for _ in range(3):
-        d = rng.normal(size=P.shape)
-        d /= np.linalg.norm(d)
-        eps = 1e-6
-        fd = (f(P + eps * d) - f(P - eps * d)) / (2 * eps)
-        assert np.sum(g * d) == pytest.approx(fd, rel=1e-5, abs=1e-9)
+    _assert_gradient_matches_fd(f, P, seed=0, rel=1e-5)
 
 
 def test_optimisation_shortens_the_longest_cell(dome_domain):
@@ -252,14 +257,7 @@ def test_timing_misfit_gradient_matches_finite_differences(dome_domain):
                                          UNIT_CELL, STENCIL)
 
     assert f(P) > 0
-    g = grad(f)(P)
-    rng = np.random.default_rng(1)
-    for _ in range(3):
-        d = rng.normal(size=P.shape)
-        d /= np.linalg.norm(d)
-        eps = 1e-6
-        fd = (f(P + eps * d) - f(P - eps * d)) / (2 * eps)
-        assert np.sum(g * d) == pytest.approx(fd, rel=1e-4, abs=1e-9)
+    _assert_gradient_matches_fd(f, P, seed=1, rel=1e-4)
 
 
 def test_optimisation_suits_the_cells_to_the_time_landscape(dome_domain):
