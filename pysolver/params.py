@@ -445,6 +445,16 @@ class StencilSearch:
         reference's stencil and morphshell's) and the stand: residual SD 0.22 and 0.27 in
         log t.  They only steer the stencil optimisation; temporal programming computes
         each cell's times from the material and membrane models.
+    timing_margin : float
+        The misfit narrows each cell's estimated range by this much (log time) at both ends:
+        the estimates' own error is 0.22-0.27.
+    opt_timing_iterations : int
+        L-BFGS iterations per round when the timing term is on (it needs more than the
+        longest cell alone).
+    opt_cap_weight : float
+        With the timing term, weight (per log^2) of the penalty that keeps the exact longest
+        flat cell under ``max_cell_length - margin``: without it the timing term can trade
+        the count search's footing away (measured on cover: 3D scaling 0.82 at 418 bases).
     seeds : int
         Seeds tried at the chosen vertex count when none is given and the first seed
         leaves less than ``margin`` below the limit.
@@ -484,10 +494,12 @@ class StencilSearch:
     opt_rounds: int = 2
     opt_iterations: int = 50
     opt_barrier: float = 1e-3
-    opt_timing_weight: float = 100.0
+    opt_timing_weight: float = 200.0
     timing_fastest: tuple = (6.385, -2.919, 0.776, 0.546)
     timing_slowest: tuple = (6.996, -2.15, 1.224, 0.032)
     timing_margin: float = 0.4
+    opt_cap_weight: float = 1000.0
+    opt_timing_iterations: int = 100
     seeds: int = 2
     count_start: float = 1.5
     count_steps: int = 4

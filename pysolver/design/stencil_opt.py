@@ -17,7 +17,7 @@ and a log barrier that keeps every flat triangle positively oriented.  Given a t
 landscape that varies, a fourth term moves each cell's achievable completion times
 (estimated from its bracket length and compression, :func:`timing_misfit`) toward its
 requested time: on the paper's cover with its own landscape this clamps 17 % of the cells
-instead of 22 %.  The target positions are the exact lift of the flat points, linearised
+instead of 22 % (``bench/bench_design_cover.py``).  The target positions are the exact lift of the flat points, linearised
 per vertex (the Jacobian of the dense piecewise linear map) inside each of a few outer
 rounds and lifted again after each.
 
@@ -264,11 +264,17 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         rim = np.any(face_adjacency(F) < 0, axis=1)
         bnd = (rim[fa] | rim[fb]).astype(float)
 
-    def timing(Q, X, log_s3, log_s2):
+    log_cap = np.log(params.max_cell_length - settings.margin)
+
+    def timing(Q, X, log_s3, log_s2, exact_logs):
+        # the misfit, and a penalty that keeps its trade within the printable: the exact
+        # longest flat cell stays under the limit less the search's margin
         if w_t <= 0:
             return 0.0
-        return w_t * timing_misfit(Q, X, F, fa, fb, o1, o2, bnd, log_ts, log_s3, log_s2,
-                                   params, settings)
+        over = anp.maximum(exact_logs[1] + exact_logs[2] - log_cap, 0.0)
+        return (w_t * timing_misfit(Q, X, F, fa, fb, o1, o2, bnd, log_ts, log_s3, log_s2,
+                                    params, settings)
+                + settings.opt_cap_weight * over**2)
     fixed = np.zeros(len(P), dtype=bool)
     fixed[igl.boundary_loop(F)] = True
     free = np.flatnonzero(~fixed)
@@ -294,9 +300,10 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     def exact(Q):  # the objective and the worst clearance shortfall, on the exact lift of Q
         X = domain.lift(Q)
         a, b, c = layout_logs(Q, X, F, fa, fb, o1, o2, params, settings.opt_sharpness)
-        s2 = float(layout_logs(Q, X, F, fa, fb, o1, o2, params, None)[1])
-        short = float(np.max(log_clear - s2 - np.log(_np(centroid_edge_distances(Q, F)))))
-        return (float(b + c + settings.opt_s3_weight * a + timing(Q, X, a, b)),
+        ex = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)
+        short = float(np.max(log_clear - float(ex[1])
+                             - np.log(_np(centroid_edge_distances(Q, F)))))
+        return (float(b + c + settings.opt_s3_weight * a + timing(Q, X, a, b, ex)),
                 max(short, 0.0))
 
     current, short_now = exact(P)
@@ -316,11 +323,11 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
             ang = flat_corner_angles(Q, F)
             bad = anp.maximum(floor - ang, 0.0) + anp.maximum(ang - cap, 0.0)
             # the clearance takes the exact flat scaling (the smoothed one over-estimates it)
-            log_s2_exact = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)[1]
-            near = anp.maximum(log_clear - log_s2_exact - anp.log(anp.maximum(
+            ex = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)
+            near = anp.maximum(log_clear - ex[1] - anp.log(anp.maximum(
                 centroid_edge_distances(Q, F), settings.opt_tiny)), 0.0)
             return (log_s2 + log_d + settings.opt_s3_weight * log_s3
-                    + timing(Q, X, log_s3, log_s2)
+                    + timing(Q, X, log_s3, log_s2, ex)
                     + settings.opt_angle_weight * anp.sum(bad**2)
                     + settings.opt_clearance_weight * anp.sum(near**2)
                     - mu * anp.sum(anp.log(anp.maximum(A, settings.opt_tiny))))
@@ -334,7 +341,8 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         x0 = P0[free].ravel()
         f0 = fun(x0)[0]
         res = minimize(fun, x0, jac=True, method="L-BFGS-B",
-                       options={"maxiter": settings.opt_iterations})
+                       options={"maxiter": settings.opt_timing_iterations if w_t > 0
+                                else settings.opt_iterations})
         Pn = P0.copy()
         Pn[free] = res.x.reshape(-1, 2)
         if not np.all(_signed_areas(Pn, F) > 0) or not res.fun < f0:
