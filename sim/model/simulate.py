@@ -326,6 +326,11 @@ class Simulation:
         problem = StaticProblem(self.energy, start)
         res = newton(problem, tol=st.tol, linear=self.linear,
                      max_iter=st.max_iter_dry if dry else st.max_iter_wet)
+        if res.status == "nan" and res.iterations == 0 and start is not self.state:
+            # the extrapolation left the energy's domain: start from the last equilibrium
+            problem = StaticProblem(self.energy, self.state)
+            res = newton(problem, tol=st.tol, linear=self.linear,
+                         max_iter=st.max_iter_dry if dry else st.max_iter_wet)
         self.state = problem.state
         self.state.orthonormalize()
         cause = self._divergence(res, t)
@@ -370,8 +375,10 @@ class Simulation:
         pred = State(2 * c1 - c0, (R1 @ np.transpose(R0, (0, 2, 1))) @ R1,
                      2 * hist[-1] - hist[-2])
         pred.orthonormalize()
+        if self.settings.predictor != "guarded":
+            return pred  # (a non-finite energy there is caught by step(): solved from the last)
         E_pred = self.energy.energy(pred)
-        if self.settings.predictor == "guarded" and E_pred >= self.energy.energy(self.state):
+        if E_pred >= self.energy.energy(self.state):
             return self.state
         return pred if np.isfinite(E_pred) else self.state
 
