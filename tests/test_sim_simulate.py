@@ -214,3 +214,26 @@ def test_round_off_does_not_turn_the_shell(tmp_path, monkeypatch):
         np.testing.assert_allclose(b[k][-1], a[k][-1], rtol=0, atol=1e-6)
     ta, tb = S.completion_times(a), S.completion_times(b)
     np.testing.assert_array_equal(ta, tb)
+
+
+def test_a_non_finite_prediction_is_solved_from_the_last_equilibrium(tmp_path, monkeypatch):
+    """The predictor's energy is no longer evaluated beforehand: a start outside the energy's
+    domain (NaN here) makes Newton stop at once, and the step is solved again from the
+    previous equilibrium -- the same frames as a run without the predictor."""
+    d = write_design(tmp_path / "p", regular_stencil(4, 3), thickness=0.4)
+    kw = dict(t_end=5.0, material=StandInBracketModel(), progress=False, checkpoint_every=0,
+              settle_mm=0.0)
+    S.simulate_design(d, predictor=False, **kw)
+    with np.load(d / "sim" / "frames.npz") as z:
+        ref = z["base_center"].copy()
+
+    def nan_prediction(self):
+        s = self.state.copy()
+        s.f = s.f * np.nan
+        return s
+
+    monkeypatch.setattr(S.Simulation, "_predict", nan_prediction)
+    s = S.simulate_design(d, resume=False, **kw)
+    assert s["converged_steps"] == s["steps"]
+    with np.load(d / "sim" / "frames.npz") as z:
+        np.testing.assert_allclose(z["base_center"], ref, rtol=0, atol=1e-9)
