@@ -20,7 +20,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -32,6 +31,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from _reference import reference_options  # noqa: E402  (bench/, beside this script)
 
 from pysolver.design import run_design, unit_cell_options  # noqa: E402
 from pysolver.design.mesh_input import load_input  # noqa: E402
@@ -99,10 +100,7 @@ def carry_landscape(ref_V, ref_F, ref_t, target_V, target_F, iterations: int = 2
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "reference-shapes"))
-    ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
-    args = ap.parse_args()
+    args = reference_options(__doc__, ROOT)
     src = Path(args.shared)
     if not (src / "cover_src.obj").exists():
         print(f"bench_design_cover: {src} not found (../shared beside the clone); skipped",

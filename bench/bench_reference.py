@@ -20,7 +20,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import sys
@@ -30,6 +29,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from _reference import reference_options  # noqa: E402  (bench/, beside this script)
 
 from pysolver.design import run_design, unit_cell_options  # noqa: E402
 from pysolver.reference_compare import read_reference_cells, thickness_correlation  # noqa: E402
@@ -41,10 +42,7 @@ PEARSON_BAR = 0.9
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "reference-shapes"))
-    ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
-    args = ap.parse_args()
+    args = reference_options(__doc__, ROOT)
     src = Path(args.shared)
     files = {k: src / f"cover_reference_{k}" for k in
              ("stencil.obj", "time_landscape.csv", "cells.csv")}

@@ -166,7 +166,7 @@ def main(argv=None) -> int:
     mat, mat_desc = _load_material(log)
     t_prep = time.perf_counter() - t0
 
-    from sim.model import kernels, load_model
+    from pysolver.mechanics import kernels, load_model
 
     t0 = time.perf_counter()
     kernels.warm_up()  # numba compilation (cached on disk after the first run)

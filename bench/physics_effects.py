@@ -175,8 +175,8 @@ def main(argv=None) -> int:
         return 0
     from pysolver.build import build
     from pysolver.material.model import load_bracket_model
+    from pysolver.mechanics import load_model
     from pysolver.params import PHYSICS_OFF
-    from sim.model import load_model
     from sim.model.simulate import simulate_model
 
     out = Path(args.out)

@@ -246,7 +246,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         Part renderer of the render stage (default
         :data:`pysolver.render.DEFAULT_RENDERER`), see :func:`pysolver.render.render_parts`.
     solver : {"fast", "reference"}
-        Linear-algebra path of the simulations (:data:`sim.model.solver.SOLVERS`; same results).
+        Linear-algebra path of the simulations (:data:`~pysolver.mechanics.solver.SOLVERS`; same).
     params : UnitCell, optional
         Unit cell with the user's tolerances (:func:`pysolver.design.unit_cell_options`);
         default :data:`pysolver.params.UNIT_CELL`.  Later stages read it from ``design.json``.

@@ -278,7 +278,7 @@ def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     P = np.asarray(V, float)[np.asarray(F)]
     N = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
     n = np.linalg.norm(N, axis=1)
-    scale = max(np.ptp(V, axis=0).max(), 1e-300)
+    scale = max(np.ptp(V, axis=0).max(), TOL.tiny)
     bad = np.flatnonzero(n <= TOL.degenerate * scale**2)
     if len(bad):
         raise InputError(f"{len(bad)} degenerate triangle(s) (zero area), e.g. face {bad[0]}",

@@ -220,6 +220,58 @@ class Tolerances:
         Verlet skin of the contact broad phase (``sim.model.contact``): the list of non-neighbouring
         base pairs is built ``2 skin`` wider than needed and reused until some base centre has
         moved ``skin`` from where it was built.
+    exact : float
+        Slack of comparisons that hold exactly but for floating-point round-off (values of
+        order one, or relative to a scale): a descent test, a collapsed interval, a sampled
+        range end.
+    tiny : float
+        Positive floor that keeps a denominator or a scale from being zero.
+    energy_roundoff : float
+        Relative round-off of a sum of many element energies: below it, two energies are equal
+        (sufficient-decrease tests of the line searches).
+    energy_floor : float, N mm
+        Floor of the reference energy that scales the simulator's energy-change reports.
+    armijo_c1 : float
+        Sufficient-decrease constant of the line searches (Nocedal & Wright's ``c1``).
+    small_angle : float, rad
+        Rotation angle under which Rodrigues' formula is replaced by its series.
+    newton_shift_min, newton_shift_floor : float
+        Smallest regularisation shift of a Newton solve (relative to the mean scaled Hessian
+        diagonal), and the floor of the shift a Newton iteration starts from.
+    cetm_ridge, cetm_grad : float
+        Diagonal ridge added to the Hessian of the CETM flattening, and the gradient norm
+        (rad) above which the flattening reports it did not converge.
+    input_degenerate : float
+        Relative doubled area (of the bounding-box diagonal squared) under which a triangle of
+        an input mesh is degenerate.
+    membrane_collapse : float
+        Area ratio (current / rest) under which a membrane triangle is reported as collapsed
+        when a simulation step diverges.
+    orientation_rel : float
+        Relative size (of the extent of the points) under which the sign of an orientation
+        test (normals versus centroid) is undecided.
+    irls_rel : float
+        Relative decrease of the objective under which the robust (IRLS) scan fit stops.
+    colour_floor_mm : float, mm
+        Smallest upper limit of a colour scale of distances (a perfect result is not drawn
+        with an arbitrary scale).
+    rate_floor : float, mm/min
+        Floor of a measured rate drawn on a logarithmic axis.
+    rank_rtol : float
+        Singular values below this fraction of the largest make a fitted design matrix rank
+        deficient.
+    active_set : float
+        Slack under which a constraint of the constrained least squares is active.
+    qp_relax : float
+        Scale of the distinct relaxations that break the degeneracy of homogeneous constraint
+        rows in the quadratic programme (far below its accepted violation).
+    monotone_rtol, monotone_atol : float, -, N
+        Relative and absolute force tolerance of the material model's monotonicity check.
+    monotone_step : float, mm
+        Step in thickness, bracket length and compression of that check.
+    length_match : float, mm
+        Largest difference between a measured bracket length and the one derived from its
+        central length.
     """
 
     merge: float = 1e-6
@@ -240,6 +292,29 @@ class Tolerances:
     same_setting: float = 1e-6
     contact_ccd_safety: float = 0.8
     contact_skin_mm: float = 1.0
+    exact: float = 1e-12
+    tiny: float = 1e-300
+    energy_roundoff: float = 1e-13
+    energy_floor: float = 1e-9
+    armijo_c1: float = 1e-4
+    small_angle: float = 1e-8
+    newton_shift_min: float = 1e-8
+    newton_shift_floor: float = 1e-6
+    cetm_ridge: float = 1e-8
+    cetm_grad: float = 1e-6
+    input_degenerate: float = 1e-10
+    membrane_collapse: float = 1e-3
+    orientation_rel: float = 1e-3
+    irls_rel: float = 1e-10
+    colour_floor_mm: float = 1e-3
+    rate_floor: float = 1e-3
+    rank_rtol: float = 1e-9
+    active_set: float = 1e-9
+    qp_relax: float = 1e-11
+    monotone_rtol: float = 1e-3
+    monotone_atol: float = 1e-4
+    monotone_step: float = 1e-3
+    length_match: float = 1e-3
 
 
 @dataclass(frozen=True)
@@ -358,6 +433,18 @@ class StencilSearch:
         Outer rounds (re-lifting onto the target) and L-BFGS iterations per round.
     opt_barrier : float
         Weight of the log barrier that keeps flat triangles positively oriented.
+    opt_timing_weight : float
+        Weight of the timing misfit (:func:`pysolver.design.stencil_opt.timing_misfit`) in
+        the stencil optimisation, when a time landscape is known (0 = off).
+    timing_fastest, timing_slowest : tuple of float
+        ``(c, a, e, k)`` of the estimates ``log t ~ c + a log b0 + e log x + k [boundary]``
+        (t in s) of the fastest and slowest completion time a cell can reach (brackets of
+        ``thickness_min`` and ``thickness_max``) from its bracket length b0 (mm),
+        compression x (mm) and whether it lies on the rim.  Least squares on the times
+        temporal programming computed for 5448 and 3427 cells of six cover designs (the
+        reference's stencil and morphshell's) and the stand: residual SD 0.22 and 0.27 in
+        log t.  They only steer the stencil optimisation; temporal programming computes
+        each cell's times from the material and membrane models.
     seeds : int
         Seeds tried at the chosen vertex count when none is given and the first seed
         leaves less than ``margin`` below the limit.
@@ -397,6 +484,10 @@ class StencilSearch:
     opt_rounds: int = 2
     opt_iterations: int = 50
     opt_barrier: float = 1e-3
+    opt_timing_weight: float = 100.0
+    timing_fastest: tuple = (6.385, -2.919, 0.776, 0.546)
+    timing_slowest: tuple = (6.996, -2.15, 1.224, 0.032)
+    timing_margin: float = 0.4
     seeds: int = 2
     count_start: float = 1.5
     count_steps: int = 4

@@ -503,6 +503,15 @@ def design_unit_cell(meta: dict, source="design.json"):
     return params
 
 
+def read_record(path) -> dict | None:
+    """A JSON record of a design folder (``design.json``, ``summary.json``, ...) for display:
+    its content, or ``None`` if the file is missing, unreadable or not JSON."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def read_unit_cell(folder):
     """:func:`design_unit_cell` of a design folder's ``design.json`` (defaults without one)."""
     path = Path(folder) / "design.json"
@@ -724,5 +733,5 @@ def read_model(folder, *, n_vertices: int, n_faces: int, n_cells: int, params) -
 __all__ = ["SCHEMAS", "FILENAMES", "write_table", "read_table", "read_bases", "read_cells",
            "read_bumpers", "read_time_landscape", "read_support_frame", "write_stencil",
            "read_stencil", "Design", "read_design", "check_design", "round_sig9",
-           "design_unit_cell", "read_unit_cell", "MODEL_FILE", "MODEL_ARRAYS", "write_model",
-           "read_model", "model_inputs_hash", "check_thickness"]
+           "design_unit_cell", "read_unit_cell", "read_record", "MODEL_FILE", "MODEL_ARRAYS",
+           "write_model", "read_model", "model_inputs_hash", "check_thickness"]

@@ -1,11 +1,12 @@
 """The morphing simulator (SI Note 2) and its reports.
 
-:mod:`sim.model` is the simulator: model assembly from a design folder (its tables and
-``model.npz``), energies, compiled kernels, the Newton solver, contact, physics options and
-time stepping (``simulate_design``); ``completion_times`` is in :mod:`sim.model.collisions`.
+:mod:`sim.model` is the simulator: contact, physics options and time stepping
+(``simulate_design``) of the shell mechanics of :mod:`pysolver.mechanics` (model assembly from
+a design folder, energies, compiled kernels, the Newton solver); ``completion_times`` is in
+:mod:`sim.model.collisions`.
 :mod:`sim.report` is the check report (verdict, pictures, fabrication sheet, scan
 comparison); :mod:`sim.viewer` the data of the 3D morph viewer.  ``sim`` reads the design
 folder only: it imports nothing from :mod:`pysolver` but the core (``params``, ``errors``,
-``atomic``, ``geometry``, ``tables``) and the runtime material model
+``atomic``, ``geometry``, ``tables``), the mechanics and the runtime material model
 (``tests/test_architecture.py``).
 """

@@ -23,6 +23,7 @@ import numpy as np
 
 from pysolver.geometry import rigid_fit
 from pysolver.params import UNIT_CELL
+from pysolver.params import tol as TOL
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 """Folder of the viewer's static files (``three.min.js``, ``morph_viewer.js``, ``viewer.css``)."""
@@ -49,7 +50,7 @@ def _positions(X, quantise: bool) -> dict:
         return {"enc": "f32", "data": _b64(X, np.float32)}
     lo = X.reshape(-1, 3).min(axis=0)
     hi = X.reshape(-1, 3).max(axis=0)
-    span = np.maximum(hi - lo, 1e-9)
+    span = np.maximum(hi - lo, TOL.rel)
     q = np.rint((X - lo) / span * 65535.0)
     return {"enc": "u16", "lo": lo.tolist(), "span": span.tolist(), "data": _b64(q, np.uint16)}
 

@@ -6,9 +6,15 @@ them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests kee
 * no import cycle among the project's modules (a submodule import also counts as an import
   of every enclosing package, whose ``__init__`` runs first, except the importer's own);
 * every import runs from a stage to itself or to a lower layer (:data:`LAYERS`);
+* the shell's mechanics (:mod:`pysolver.mechanics`: model, membrane energy and mesh, Newton
+  solver, rim margin) sit just above the core, below both the simulator and temporal
+  programming, which share them;
 * the simulator (``sim``) imports nothing from ``pysolver`` but the core (table reader,
-  ``params``, ``errors``, ``atomic``, ``geometry``) and the runtime material model;
-  ``design`` does not import ``sim``;
+  ``params``, ``errors``, ``atomic``, ``geometry``), the mechanics and the runtime material
+  model;
+* no design-side package (design, temporal, render, material, fitting, mechanics, core)
+  imports ``sim``: only the front layer (orchestrator, command line, studio, tolerance
+  analysis) runs simulations;
 * project modules are imported at module level: an import inside a function hides an edge
   of the graph.  The one exception is the command line (:mod:`pysolver.cli`), whose
   subcommands import their stage when they run so that ``morphshell --help`` is instant;
@@ -28,12 +34,13 @@ TOP_PACKAGES = ("pysolver", "sim")
 # Layers, lowest first: a module may import its own group and any group of a lower rank.
 LAYERS = {
     "core": 0,        # errors, params, atomic, geometry, tables: used by every stage
+    "mechanics": 1,   # shell model, membrane energy and mesh, Newton solver, rim margin
     "material": 1,    # runtime bracket material model
     "design": 2,      # target surface -> stencil -> layout -> design tables, model.npz
     "sim": 2,         # the simulator: reads the design folder only
     "fitting": 3,     # offline fitting tools (material fit and its report)
     "report": 3,      # simulation report, scan comparison, viewer data
-    "temporal": 3,    # temporal programming; may use the simulator's membrane
+    "temporal": 3,    # temporal programming; uses the mechanics' membrane, not the simulator
     "render": 3,      # OpenSCAD part files and STLs
     "front": 4,       # orchestrator (build), command line, studio, sweep, tolerance, specimens
 }
@@ -51,6 +58,7 @@ def group(mod: str) -> str:
     if mod in FITTING:
         return "fitting"
     for prefix, g in (("pysolver.material", "material"), ("pysolver.design", "design"),
+                      ("pysolver.mechanics", "mechanics"),
                       ("pysolver.temporal", "temporal"), ("pysolver.render", "render"),
                       ("sim.report", "report"), ("sim.viewer", "report"),
                       ("sim.model", "sim")):
@@ -183,16 +191,22 @@ def test_imports_run_downward():
 
 
 def test_sim_reads_only_the_contract():
-    allowed = {"core", "material", "sim", "report"}
+    allowed = {"core", "mechanics", "material", "sim", "report"}
     bad = [f"{a}:{line} imports {b}: {text.strip()}" for a, b, line, _, text in IMPORTS
            if a.split(".")[0] == "sim" and group(b) not in allowed]
     assert not bad, "sim imports more of pysolver than the design-folder contract:\n" + \
         "\n".join(bad)
 
 
-def test_design_does_not_import_sim():
-    bad = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
-           if group(a) == "design" and b.split(".")[0] == "sim"]
+DESIGN_SIDE = {"core", "mechanics", "material", "design", "temporal", "render", "fitting"}
+
+
+def test_design_side_does_not_import_sim():
+    """Data flows forward: design-side packages (temporal programming included, whose
+    membrane model uses :mod:`pysolver.mechanics`) never import the simulator."""
+    assert {group(m) for m in MODULES if m.startswith("pysolver.temporal.")} == {"temporal"}
+    bad = [f"{a}:{line} ({group(a)}) imports {b}" for a, b, line, _, _ in IMPORTS
+           if group(a) in DESIGN_SIDE and b.split(".")[0] == "sim"]
     assert not bad, "\n".join(bad)
 
 

@@ -178,8 +178,8 @@ def test_unit_cell_options_reach_the_layout_and_design_json(stencil, tmp_path):
 
 
 def test_later_stages_read_the_designs_unit_cell(stencil, tmp_path):
-    """sim.model.load_model takes the unit cell of design.json (not the defaults)."""
-    from sim.model import load_model
+    """pysolver.mechanics.load_model takes the unit cell of design.json (not the defaults)."""
+    from pysolver.mechanics import load_model
 
     path, _V, _F = stencil
     params = unit_cell_options(min_bumper=0.2, max_cell_length=9.3)

@@ -31,7 +31,7 @@ def test_python_dependency_imports(module):
 
 
 def test_project_backends_use_them():
-    from sim.model.kernels import HAVE_NUMBA
-    from sim.model.solver import HAVE_CHOLMOD
+    from pysolver.mechanics.kernels import HAVE_NUMBA
+    from pysolver.mechanics.solver import HAVE_CHOLMOD
 
     assert HAVE_NUMBA and HAVE_CHOLMOD and render_fast.available()

@@ -38,12 +38,12 @@ from synthetic import StandInBracketModel, regular_stencil, single_cell_stencil,
 
 from pysolver.design.cellnodes import model_arrays
 from pysolver.errors import InputError
+from pysolver.mechanics import build_model, load_model
+from pysolver.mechanics.energies import ShellEnergy, State, full_from_lower, rodrigues
+from pysolver.mechanics.solver import StaticProblem, newton
 from pysolver.params import PHYSICS_OFF, RELAXATION_PRONY, SIM, PhysicsOptions
-from sim.model import build_model, load_model
-from sim.model.energies import ShellEnergy, State, full_from_lower, rodrigues
 from sim.model.physics import ExternalTerms, base_volumes, parse_physics
 from sim.model.simulate import SimSettings, Simulation, simulate_model
-from sim.model.solver import StaticProblem, newton
 
 DATA = Path(__file__).parent / "data"
 MEAS = Path(__file__).resolve().parents[1] / "data" / "material-measurements"
@@ -293,7 +293,7 @@ def test_rim_margin_is_prestretched_to_the_rim_stretch(patch_dir):
     # energy at the flat state: equibiaxial neo-Hookean at stretch 2, per flat area
     e = ShellEnergy(m1)
     X, _ = e.positions(State.flat(m1))
-    from sim.model.energies import membrane_terms
+    from pysolver.mechanics.energies import membrane_terms
 
     Em, _, _ = membrane_terms(X[m1.tri_points[margin]], m1.tri_dm_inv[margin],
                               m1.tri_rest_area[margin], SIM.mu, SIM.membrane_h, hessian=False)

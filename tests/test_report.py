@@ -124,6 +124,23 @@ def make_synthetic_design(folder, *, n=6, edge=12.0, sphere_r=60.0, contraction=
         "thickness_bottom_mm": np.clip(thick_top + 0.05, 0.3, 0.65),
         "t_min_s": np.full(nc, 10.0), "t_max_s": np.full(nc, 110.0), "clamped": np.zeros(nc),
     })
+    # bumpers (one per layer and base of each cell; the report reads the folder with the one
+    # design-folder reader, which wants every table) and a support frame around the layout
+    k = 4 * nc
+    cid = np.repeat(np.arange(nc), 4)
+    side = np.tile([0, 1], 2 * nc)
+    write_table(folder, "bumpers", {
+        "base_id": np.where(side == 0, a[cid], b[cid]), "layer": np.tile(["top", "top", "bottom",
+                                                                          "bottom"], nc),
+        "slot": np.where(side == 0, cells.slots[cid, 0], cells.slots[cid, 1]), "cell_id": cid,
+        "neighbour": np.where(side == 0, b[cid], a[cid]), "dir_deg": np.zeros(k),
+        "plane_px": np.zeros(k), "plane_py": np.zeros(k), "plane_pz": np.zeros(k),
+        "plane_nx": np.ones(k), "plane_ny": np.zeros(k), "plane_nz": np.zeros(k),
+        "cut": np.full(k, "straight"), "length_mm": np.repeat(target_len - 3.3, 4),
+    })
+    lo, hi = UV.min(axis=0) - 5.0, UV.max(axis=0) + 5.0
+    write_table(folder, "support_frame", {"x_mm": np.array([lo[0], hi[0], hi[0], lo[0]]),
+                                          "y_mm": np.array([lo[1], lo[1], hi[1], hi[1]])})
     # ---- frames
     t = np.r_[0.0, np.arange(0.0, t_end, dt)]
     nf = len(t)

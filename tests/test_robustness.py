@@ -465,7 +465,7 @@ def test_cells_csv_thickness_out_of_range(value, regular_dir, tmp_path):
                r"bracket thickness range 0\.3-0\.65 mm")
     with pytest.raises(InputError, match=pattern):
         tables.read_design(d)
-    from sim.model import load_model  # the simulator refuses it as well
+    from pysolver.mechanics import load_model  # the simulator refuses it as well
 
     with pytest.raises(InputError, match=pattern):
         load_model(d)

@@ -18,9 +18,9 @@ from scipy.optimize import brentq
 from synthetic import StandInBracketModel, single_cell_stencil
 
 from pysolver.design.cellnodes import model_arrays
+from pysolver.mechanics import build_model
+from pysolver.mechanics.energies import ShellEnergy, State
 from pysolver.params import SIM
-from sim.model import build_model
-from sim.model.energies import ShellEnergy, State
 from sim.model.simulate import completion_times, simulate_model
 
 

@@ -12,9 +12,8 @@ import pytest
 from synthetic import StandInBracketModel, regular_stencil
 
 from pysolver.design.cellnodes import model_arrays
-from pysolver.params import SIM
-from sim.model import build_model
-from sim.model.energies import (
+from pysolver.mechanics import build_model
+from pysolver.mechanics.energies import (
     ShellEnergy,
     State,
     cross_hessian,
@@ -24,7 +23,8 @@ from sim.model.energies import (
     rodrigues,
     spring_terms,
 )
-from sim.model.kernels import HAVE_NUMBA
+from pysolver.mechanics.kernels import HAVE_NUMBA
+from pysolver.params import SIM
 
 REL = 1e-5
 

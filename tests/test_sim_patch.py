@@ -13,7 +13,7 @@ import pytest
 from synthetic import StandInBracketModel, regular_stencil
 
 from pysolver.design.cellnodes import model_arrays
-from sim.model import build_model
+from pysolver.mechanics import build_model
 from sim.model.simulate import completion_times, simulate_model
 
 

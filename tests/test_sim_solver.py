@@ -12,10 +12,16 @@ import scipy.sparse as sp
 from synthetic import StandInBracketModel, regular_stencil
 
 from pysolver.design.cellnodes import model_arrays
+from pysolver.mechanics import build_model
+from pysolver.mechanics.energies import ShellEnergy, State, rodrigues
+from pysolver.mechanics.solver import (
+    HAVE_CHOLMOD,
+    LinearSolver,
+    NotPositiveDefinite,
+    StaticProblem,
+    newton,
+)
 from pysolver.params import tol
-from sim.model import build_model
-from sim.model.energies import ShellEnergy, State, rodrigues
-from sim.model.solver import HAVE_CHOLMOD, LinearSolver, NotPositiveDefinite, StaticProblem, newton
 
 
 def _spd(n=60, seed=0, shift=1.0):

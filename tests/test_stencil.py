@@ -74,6 +74,18 @@ def test_layout_logs_are_the_scaling_rules(dome_domain):
     assert 0 <= sm[0] - log_s3 <= np.log(len(fa)) / 60 + 1e-12
 
 
+def _assert_gradient_matches_fd(f, P, seed: int, rel: float, eps: float = 1e-6):
+    """autograd's gradient of f at P against central differences along 3 random unit
+    directions."""
+    g = grad(f)(P)
+    rng = np.random.default_rng(seed)
+    for _ in range(3):
+        d = rng.normal(size=P.shape)
+        d /= np.linalg.norm(d)
+        fd = (f(P + eps * d) - f(P - eps * d)) / (2 * eps)
+        assert np.sum(g * d) == pytest.approx(fd, rel=rel, abs=1e-9)
+
+
 def test_objective_gradient_matches_finite_differences(dome_domain):
     P, F = dome_domain.stencil(40, seed=2)
     X = dome_domain.lift(P)
@@ -87,14 +99,7 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
         a, b, c = stencil_opt.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
         return a + b + c
 
-    g = grad(f)(P)
-    rng = np.random.default_rng(0)
-    for _ in range(3):
-        d = rng.normal(size=P.shape)
-        d /= np.linalg.norm(d)
-        eps = 1e-6
-        fd = (f(P + eps * d) - f(P - eps * d)) / (2 * eps)
-        assert np.sum(g * d) == pytest.approx(fd, rel=1e-5, abs=1e-9)
+    _assert_gradient_matches_fd(f, P, seed=0, rel=1e-5)
 
 
 def test_optimisation_shortens_the_longest_cell(dome_domain):
@@ -194,3 +199,91 @@ def test_stencil_whose_bases_reach_across_edges_is_named():
     UV[mid] += 0.85 * (UV[far] - UV[mid])  # two obtuse slivers around the moved vertex
     with pytest.raises(InputError, match="reach across its edges"):
         stencil_membrane_mesh(UV, F, MESH_MAX_AREA)
+
+
+def _timing_terms(dom, P, F, t_vertex, settings=STENCIL):
+    X = dom.lift(P)
+    cells = unit_cells(F, face_adjacency(F))
+    o = stencil_opt.opposite_vertices(F, cells)
+    fa, fb = cells.faces[:, 0], cells.faces[:, 1]
+    rim = np.any(face_adjacency(F) < 0, axis=1)
+    bnd = (rim[fa] | rim[fb]).astype(float)
+    t_star = 0.5 * (t_vertex[cells.verts[:, 0]] + t_vertex[cells.verts[:, 1]])
+    return X, cells, o, fa, fb, bnd, np.log(t_star)
+
+
+def test_timing_misfit_restates_the_cells_of_the_layout(dome_domain):
+    # the optimiser's bracket length and compression are the layout's, in closed form
+    from pysolver.design.cellnodes import bracket_nodes, collision_lengths
+    P, F = dome_domain.stencil(60, seed=1)
+    t = np.full(len(P), 60.0)
+    X, cells, o, fa, fb, bnd, log_ts = _timing_terms(dome_domain, P, F, t)
+    lay = build_layout(X, P, F, UNIT_CELL, enforce_gap=False)
+    b0 = UNIT_CELL.bracket_length(lay.central_length)
+    x = b0 - collision_lengths(bracket_nodes(lay.V, lay.UV, lay.F, UNIT_CELL,
+                                             ff=lay.ff, rotvec=lay.rotvec)[0], lay.cells).mean(1)
+    log_s3, log_s2, _ = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
+                                                UNIT_CELL, sharpness=None)
+    got = stencil_opt.timing_misfit(P, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, log_s3,
+                                    log_s2, UNIT_CELL, STENCIL)
+
+    def est(m):
+        return m[0] + m[1] * np.log(b0) + m[2] * np.log(x) + m[3] * bnd
+    mg = STENCIL.timing_margin
+    want = np.mean(np.maximum(est(STENCIL.timing_fastest) - log_ts + mg, 0) ** 2
+                   + np.maximum(log_ts - est(STENCIL.timing_slowest) + mg, 0) ** 2)
+    # the flat length is the layout's; the contact length is restated as s3 D / cos(t) -
+    # (l - b), which the bracket nodes' own distances (off the cell axis) undercut by up to
+    # 0.03 mm, so x and the misfit agree to a few per cent
+    cos_t, _, D, d = stencil_opt._cell_geometry(P, X, F, fa, fb, o[:, 0], o[:, 1])
+    L = np.exp(log_s2) * d
+    np.testing.assert_allclose(L, lay.central_length, rtol=1e-7)
+    x_opt = L - np.exp(log_s3) * D / cos_t
+    assert np.all(np.abs(x_opt - x) <= 0.03)
+    assert float(got) == pytest.approx(want, rel=0.1)
+
+
+def test_timing_misfit_gradient_matches_finite_differences(dome_domain):
+    P, F = dome_domain.stencil(40, seed=2)
+    z = dome_domain.lift(P)[:, 2]
+    t = 30.0 + 2.0 * (z - z.min())  # a landscape the cells cannot all meet
+    X, cells, o, fa, fb, bnd, log_ts = _timing_terms(dome_domain, P, F, t)
+    J = dome_domain.lift_jacobian(P)
+
+    def f(Q):
+        Xq = X + anp.einsum("nij,nj->ni", J, Q - P)
+        a, b, _ = stencil_opt.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
+        return stencil_opt.timing_misfit(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, a, b,
+                                         UNIT_CELL, STENCIL)
+
+    assert f(P) > 0
+    _assert_gradient_matches_fd(f, P, seed=1, rel=1e-4)
+
+
+def test_optimisation_suits_the_cells_to_the_time_landscape(dome_domain):
+    P, F = dome_domain.stencil(70, seed=0)
+    z = dome_domain.lift(P)[:, 2]
+    t = 30.0 + 2.0 * (z - z.min())
+    off = replace(dome_domain.settings, opt_timing_weight=0.0)
+
+    def misfit(Q):
+        X, cells, o, fa, fb, bnd, log_ts = _timing_terms(dome_domain, Q, F, t)
+        a, b, _ = stencil_opt.layout_logs(Q, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, None)
+        return float(stencil_opt.timing_misfit(Q, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts,
+                                               a, b, UNIT_CELL, STENCIL))
+
+    Q0, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, off, t_vertex=t)
+    Q1, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+                                            t_vertex=t)
+    assert info["rounds"] >= 1
+    assert misfit(Q1) < 0.7 * misfit(Q0), (misfit(P), misfit(Q0), misfit(Q1))
+    assert np.all(stencil_opt._signed_areas(Q1, F) > 0)
+
+
+def test_constant_landscape_leaves_the_optimisation_as_it_was(dome_domain):
+    # programming picks the achievable constant itself, so the timing term stays out
+    P, F = dome_domain.stencil(40, seed=3)
+    Q0, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
+    Q1, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+                                         t_vertex=np.full(len(P), 60.0))
+    assert np.array_equal(Q0, Q1)

@@ -88,7 +88,7 @@ def two_worker_run(design, cluster2, tmp_path_factory):
 
 
 def test_vary_model_equals_model_built_with_the_constants(design):
-    from sim.model import load_model, vary_model
+    from pysolver.mechanics import load_model, vary_model
 
     k = dataclasses.replace(SIM, tau=3.17, mu=0.81)
     ref = load_model(design, consts=k)

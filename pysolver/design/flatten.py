@@ -33,6 +33,7 @@ from scipy.sparse.linalg import spsolve
 from ..errors import InputError
 from ..geometry import face_adjacency, signed_areas_2d
 from ..params import UNIT_CELL, UnitCell
+from ..params import tol as TOL
 from .layout import build_layout
 
 
@@ -162,7 +163,7 @@ def cetm(V, F, *, max_iter: int = 60, tol: float = 1e-10):
         w = 0.5 * cot.ravel()  # weight of edge opposite each corner
         W = sp.coo_matrix((np.r_[w, w], (np.r_[I, J], np.r_[J, I])), shape=(n, n)).tocsr()
         H = sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
-        H = H + sp.identity(n) * 1e-8
+        H = H + sp.identity(n) * TOL.cetm_ridge
         Hi = H[interior][:, interior].tocsc()
         du = np.zeros(n)
         du[interior] = spsolve(Hi, -g[interior])
@@ -171,12 +172,12 @@ def cetm(V, F, *, max_iter: int = 60, tol: float = 1e-10):
         t = 1.0
         for _ in range(40):
             e1 = _cetm_energy(lam0, F, u + t * du, theta, interior)
-            if e1 <= e0 + 1e-4 * t * slope + 1e-13 * abs(e0):
+            if e1 <= e0 + TOL.armijo_c1 * t * slope + TOL.energy_roundoff * abs(e0):
                 break
             t *= 0.5
         u = u + t * du
     _, L, A, valid = _cetm_state(lam0, F, u)
-    if not np.all(valid) or gnorm > 1e-6:
+    if not np.all(valid) or gnorm > TOL.cetm_grad:
         raise InputError(
             f"conformal flattening (CETM) did not converge (angle error {gnorm:.2e} rad, "
             f"{int((~valid).sum())} degenerate triangles)",

@@ -249,7 +249,7 @@ def footprint_rectangles(bumpers: Bumpers, C2: np.ndarray, params: UnitCell = UN
 def _point_segment_dist(P, A, B):
     """Distances from points P (..., 2) to segments AB (..., 2), broadcasting."""
     AB = B - A
-    t = np.sum((P - A) * AB, -1) / np.maximum(np.sum(AB * AB, -1), 1e-300)
+    t = np.sum((P - A) * AB, -1) / np.maximum(np.sum(AB * AB, -1), TOL.tiny)
     t = np.clip(t, 0, 1)
     return np.linalg.norm(P - (A + t[..., None] * AB), axis=-1)
 

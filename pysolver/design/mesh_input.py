@@ -375,7 +375,7 @@ def validate_surface(V, F, name: str = "surface") -> None:
     diag = check_size(V, name)
     dup = np.any(F[:, [0, 1, 2]] == F[:, [1, 2, 0]], axis=1)
     area2 = igl.doublearea(V, F)
-    degenerate = np.flatnonzero(dup | (area2 <= 1e-10 * diag**2))
+    degenerate = np.flatnonzero(dup | (area2 <= TOL.input_degenerate * diag**2))
     if len(degenerate):
         raise InputError(f"{name}: {len(degenerate)} degenerate triangle(s) (zero area or "
                          f"repeated vertex), e.g. face {degenerate[0]} at "

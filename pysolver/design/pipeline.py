@@ -98,6 +98,21 @@ def _load_source(source, scale: float, size=None):
     return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh, mesh.scale
 
 
+def _target_times(time, surf, mesh):
+    """(n,) float, s, or None: the time landscape at the target's own vertices, before
+    remeshing, so that the stencil optimisation can suit the cells' speeds to it (None when
+    it is constant: programming then picks the constant itself).  Coordinates are centred on
+    the target (the stencil's are centred on the stencil, a shift of a few tenths of a mm
+    that the optimisation's estimate does not feel)."""
+    c = np.asarray(surf.V, float).mean(axis=0)
+    if time is None and surf.time is not None:
+        t = resolve_time(None, surf.V - c, default=lambda X: surf.time(X + c))[0]
+    else:
+        src = None if mesh is None else mesh.transformed(-c, 1.0)
+        t = resolve_time(time, surf.V - c, source_mesh=src)[0]
+    return t if np.ptp(t) > 0 else None
+
+
 def _time_file_source(path, mesh, surf, stencil_order: bool):
     """The ``time`` source for ``--time-file``: the values as they are (an array per stencil
     vertex) for a finished stencil, else a vertex attribute of the input mesh that
@@ -341,7 +356,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
 
             V0, F0, remesh_info = remesh_surface(
                 surf.V, surf.F, vertices=vertices, seed=seed, target_bases=surf.target_bases,
-                params=params,
+                params=params, time=_target_times(time, surf, mesh),
                 progress=(lambda line: print(f"[design {surf.name}] remesh {line}",
                                              file=sys.stderr, flush=True)) if progress else None)
         clock.step("remesh")

@@ -15,6 +15,7 @@ from matplotlib.patches import Circle  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 from ..params import UNIT_CELL  # noqa: E402
+from ..params import tol as TOL  # noqa: E402
 from .layout import Layout, footprint_rectangles  # noqa: E402
 
 
@@ -81,7 +82,7 @@ def _shade(V, F, values, cmap, vmin, vmax, light=(0.3, -0.4, 0.85)):
     N /= np.linalg.norm(N, axis=1, keepdims=True)
     lt = np.asarray(light) / np.linalg.norm(light)
     k = 0.55 + 0.45 * np.abs(N @ lt)
-    col = plt.get_cmap(cmap)((np.asarray(values) - vmin) / max(vmax - vmin, 1e-12))
+    col = plt.get_cmap(cmap)((np.asarray(values) - vmin) / max(vmax - vmin, TOL.exact))
     col[:, :3] *= k[:, None]
     return col
 
@@ -118,7 +119,7 @@ def plot_time(lay: Layout, t_vertex, path):
     fig = plt.figure(figsize=(13, 6), dpi=100)
     ax = fig.add_subplot(1, 2, 1)
     vmin, vmax = float(t.min()), float(t.max())
-    if vmax - vmin < 1e-9:
+    if vmax - vmin < TOL.rel:
         vmin, vmax = vmin - 1, vmax + 1
     tp = ax.tripcolor(lay.UV[:, 0], lay.UV[:, 1], lay.F, t, shading="gouraud", cmap="coolwarm",
                       vmin=vmin, vmax=vmax)

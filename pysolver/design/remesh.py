@@ -22,7 +22,8 @@ log-scale 0, :func:`pysolver.design.flatten.cetm`):
    defects a Lloyd iteration from random seeds leaves behind.
 4. **Ears**: triangles with two boundary edges are removed.
 5. **Optimisation** (:mod:`pysolver.design.stencil_opt`): the interior vertices move in the plane
-   to minimise the longest flat cell after both scaling rules.
+   to minimise the longest flat cell after both scaling rules and, given the time landscape,
+   to suit each cell's speed to its requested time.
 6. **Lift**: every flat point is mapped to 3D through its dense flat triangle.
 
 Method ``"pymeshlab"`` (pymeshlab's isotropic explicit
@@ -51,6 +52,7 @@ from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from .flatten import cetm
 from .layout import build_layout
 from .stencil_opt import optimize_stencil
+from .time_landscape import interpolate_to_stencil
 
 PAPER_CELL_LENGTH = 7.0  # mm, l_avg of the vertex-count estimate (Supplementary Note 1)
 
@@ -221,6 +223,11 @@ class FlatDomain:
         Mu = np.stack([T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]], axis=2)
         Mx = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]], axis=2)
         return Mx @ np.linalg.inv(Mu)
+
+    def interpolate(self, values, P) -> np.ndarray:
+        """(k,) float: per-dense-vertex ``values`` (n,) at flat points ``P`` (k, 2)."""
+        fi, B = self._barycentric(P)
+        return np.einsum("ij,ij->i", B, np.asarray(values, float)[self.F[fi]])
 
     def log_scale(self, P) -> np.ndarray:
         """(k,) float: conformal log-scale u at flat points (flat length = exp(u) 3D)."""
@@ -405,7 +412,7 @@ def _pick(tried: dict, params: UnitCell, margin: float):
 def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                    params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL,
                    method: str = "cvt", dense: bool | None = None, optimize: bool = True,
-                   progress=None):
+                   time=None, progress=None):
     """Remesh a target surface into a stencil, searching the vertex count.
 
     Parameters
@@ -426,6 +433,9 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         triangles are poor, min angle < 15 deg, or it has fewer than 2000 faces).
     optimize : bool
         Run the stencil optimisation (:mod:`pysolver.design.stencil_opt`).
+    time : (n,) float, s, optional
+        The time landscape at the vertices of V; the optimisation then also evens the
+        cells' speeds against it (``StencilSearch.opt_timing_weight``).
     progress : callable, optional
         Called with one line per tried candidate.
 
@@ -449,8 +459,16 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     if dense is None:
         minang = np.degrees(igl.internal_angles(V, F).min())
         dense = minang < 15.0 or len(F) < 2000
+    if time is not None:
+        time = np.asarray(time, float)
+        if time.shape != (len(V),):
+            raise InputError(f"time has shape {time.shape}, expected ({len(V)},): one value "
+                             "per target vertex", fix="give the time landscape per vertex of V")
     if dense:
-        V, F = resample_dense(V, F, settings.dense_faces)
+        V2, F2 = resample_dense(V, F, settings.dense_faces)
+        if time is not None:
+            time = interpolate_to_stencil(time, V, F, V2)
+        V, F = V2, F2
         info["dense_resampled_faces"] = int(len(F))
     if method == "cvt":
         dom = FlatDomain(V, F, settings)
@@ -459,7 +477,8 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             P, F2 = dom.stencil(n, seed=sd, inset=inset)
             before = (dom.lift(P), F2)
             if optimize:
-                P, _ = optimize_stencil(dom, P, F2, params, settings)
+                t_P = None if time is None else dom.interpolate(time, P)
+                P, _ = optimize_stencil(dom, P, F2, params, settings, t_vertex=t_P)
             return dom.lift(P), F2, before
         # insets in mm: a fraction of the edge of the smallest regular cell the min-bumper rule
         # allows (fixed, so that the 3D scaling stays monotone in the vertex count)

@@ -13,9 +13,13 @@ of the stencil vertices away from the max.  :func:`optimize_stencil` minimises t
 flat cell over the interior vertex positions in the conformal plane of the dense target (so
 the vertices stay on the target), with the three maxima smoothed by log-sum-exp, penalties
 that keep flat corners within 30-90 deg and every base centre clear of its triangle's edges,
-and a log barrier that keeps every flat triangle positively oriented.  The target positions are the
-exact lift of the flat points, linearised per vertex (the Jacobian of the dense piecewise
-linear map) inside each of a few outer rounds and lifted again after each.
+and a log barrier that keeps every flat triangle positively oriented.  Given a time
+landscape that varies, a fourth term moves each cell's achievable completion times
+(estimated from its bracket length and compression, :func:`timing_misfit`) toward its
+requested time: on the paper's cover with its own landscape this clamps 17 % of the cells
+instead of 22 %.  The target positions are the exact lift of the flat points, linearised
+per vertex (the Jacobian of the dense piecewise linear map) inside each of a few outer
+rounds and lifted again after each.
 
 Gradients are taken by :mod:`autograd` (reverse mode over numpy) rather than by hand: the
 objective chains normals, half fold angles and three smoothed maxima, and a hand-written
@@ -35,6 +39,7 @@ from scipy.optimize import minimize
 
 from ..geometry import face_adjacency, unit_cells
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from .time_landscape import cell_target_times
 
 
 def opposite_vertices(F, cells=None):
@@ -94,6 +99,30 @@ def flat_corner_angles(Q, F):
     return anp.stack(out, axis=1)
 
 
+def _cell_geometry(Q, X, F, fa, fb, o1, o2):
+    """Per-cell half-fold cosine and tangent, target and flat centroid distances
+    (autograd-friendly).
+
+    Returns
+    -------
+    cos_t, tan_t : (c,) float
+        Of the half fold angle on the target.
+    D : (c,) float, mm
+        Target centroid distance.
+    d : (c,) float
+        Flat centroid distance, in the units of Q.
+    """
+    N = anp.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+    N = N / anp.sqrt(anp.sum(N * N, axis=1, keepdims=True))
+    # (the layout refuses folds over 178 deg; -0.99 keeps tan finite before that)
+    cphi = anp.clip(anp.sum(N[fa] * N[fb], axis=1), -0.99, 1.0)
+    cos_t = anp.sqrt((1.0 + cphi) / 2.0)
+    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + 1e-30)
+    D = anp.sqrt(anp.sum((X[o1] - X[o2]) ** 2, axis=1)) / 3.0
+    d = anp.sqrt(anp.sum((Q[o1] - Q[o2]) ** 2, axis=1)) / 3.0
+    return cos_t, tan_t, D, d
+
+
 def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float | None):
     """Smoothed logs of the 3D scaling and of the longest flat cell after both scaling rules.
 
@@ -122,14 +151,8 @@ def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float | No
     log_dmax : float
         ``~ log(max_c d_c)``; ``log_s2 + log_dmax`` is the log of the longest flat cell, mm.
     """
-    N = anp.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
-    N = N / anp.sqrt(anp.sum(N * N, axis=1, keepdims=True))
-    # (the layout refuses folds over 178 deg; -0.99 keeps tan finite before that)
-    cphi = anp.clip(anp.sum(N[fa] * N[fb], axis=1), -0.99, 1.0)
-    cos_t = anp.sqrt((1.0 + cphi) / 2.0)
-    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + 1e-30)
-    D = anp.sqrt(anp.sum((X[o1] - X[o2]) ** 2, axis=1)) / 3.0
-    d = anp.sqrt(anp.sum((Q[o1] - Q[o2]) ** 2, axis=1)) / 3.0
+    cos_t, tan_t, D, d = _cell_geometry(Q, X, F, fa, fb, o1, o2)
+
     def smax(v):  # log of the (smoothed) maximum of positive v
         return anp.max(anp.log(v)) if sharpness is None else \
             logsumexp(sharpness * anp.log(v)) / sharpness
@@ -141,14 +164,57 @@ def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float | No
     return log_s3, smax(r2), smax(d)
 
 
+def timing_misfit(Q, X, F, fa, fb, o1, o2, boundary, log_t_star, log_s3, log_s2,
+                  params: UnitCell, settings: StencilSearch):
+    """How far the cells' achievable times miss the time landscape (autograd-friendly).
+
+    The fastest and slowest times a cell can reach (thinnest and thickest bracket) follow,
+    closely, ``log t ~ c + a log b0 + e log x + k [boundary cell]``
+    (``settings.timing_fastest``, ``settings.timing_slowest``): ``b0`` is the cell's bracket
+    length and ``x`` its compression (flat central length minus the contact length
+    ``s3 D / cos t``), both mm.  A cell whose requested time ``t*`` falls outside that
+    range is clamped; the misfit is the mean over cells of the squared distance (in log
+    time) from ``log t*`` to the range narrowed by ``settings.timing_margin`` at both ends
+    (the estimate's own error is about 0.25).
+
+    Parameters
+    ----------
+    boundary : (c,) float
+        1 for cells with a base on the stencil's rim, else 0.
+    log_t_star : (c,) float
+        Log of each cell's requested time (s).
+    log_s3, log_s2 : float
+        The scalings (:func:`layout_logs`).
+
+    Returns
+    -------
+    float
+    """
+    cos_t, _, D, d = _cell_geometry(Q, X, F, fa, fb, o1, o2)
+    L = anp.exp(log_s2) * d
+    log_b0 = anp.log(anp.maximum(L - params.bracket_offset, settings.opt_tiny))
+    log_x = anp.log(anp.maximum(L - anp.exp(log_s3) * D / cos_t, settings.opt_tiny))
+
+    def estimate(m):
+        return m[0] + m[1] * log_b0 + m[2] * log_x + m[3] * boundary
+
+    lo, hi = estimate(settings.timing_fastest), estimate(settings.timing_slowest)
+    m = settings.timing_margin
+    early = anp.maximum(lo - log_t_star + m, 0.0)
+    late = anp.maximum(log_t_star - hi + m, 0.0)
+    return anp.mean(early**2 + late**2)
+
+
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
-                     settings: StencilSearch = STENCIL):
+                     settings: StencilSearch = STENCIL, t_vertex=None):
     """Move the interior stencil vertices to shorten the longest flat cell.
 
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
     corner angles outside ``opt_min_angle_deg``-``opt_max_angle_deg`` and on base centres
     nearer than ``opt_centroid_edge_mm`` to their triangle's edges, and a log barrier on flat
-    orientation.
+    orientation.  With a time landscape, ``opt_timing_weight`` times the cells' timing
+    misfit (:func:`timing_misfit`) joins it: cells whose speed suits their requested time
+    need fewer clamped thicknesses.
     Shortening the longest flat cells mostly enlarges the smallest target cells, which lowers
     the 3D scaling at a given vertex count; the count search of
     :func:`pysolver.design.remesh.remesh_surface` then restores the size with more vertices.  A
@@ -167,7 +233,13 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     settings : StencilSearch
         ``opt_sharpness``, ``opt_s3_weight``, ``opt_min_angle_deg``, ``opt_max_angle_deg``,
         ``opt_centroid_edge_mm``, ``opt_angle_weight``,
-        ``opt_rounds``, ``opt_iterations``, ``opt_barrier``.
+        ``opt_rounds``, ``opt_iterations``, ``opt_barrier``, ``opt_timing_weight``,
+        ``timing_fastest``, ``timing_slowest``.
+    t_vertex : (n,) float, s, optional
+        The time landscape at the stencil vertices (kept fixed while they move).  A
+        constant landscape leaves the term out: temporal programming then picks the
+        constant time most cells can reach, and evening the cells' speeds for it costs
+        more flat length and 3D scaling than it saves (measured on the stand and cover).
 
     Returns
     -------
@@ -184,6 +256,19 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     fa, fb = cells.faces[:, 0], cells.faces[:, 1]
     o = opposite_vertices(F, cells)
     o1, o2 = o[:, 0], o[:, 1]
+    varies = t_vertex is not None and np.ptp(np.asarray(t_vertex, float)) > 0
+    w_t = settings.opt_timing_weight if varies else 0.0
+    if w_t > 0:
+        log_ts = np.log(np.maximum(cell_target_times(t_vertex, cells.verts[:, 0],
+                                                     cells.verts[:, 1]), settings.opt_tiny))
+        rim = np.any(face_adjacency(F) < 0, axis=1)
+        bnd = (rim[fa] | rim[fb]).astype(float)
+
+    def timing(Q, X, log_s3, log_s2):
+        if w_t <= 0:
+            return 0.0
+        return w_t * timing_misfit(Q, X, F, fa, fb, o1, o2, bnd, log_ts, log_s3, log_s2,
+                                   params, settings)
     fixed = np.zeros(len(P), dtype=bool)
     fixed[igl.boundary_loop(F)] = True
     free = np.flatnonzero(~fixed)
@@ -211,7 +296,8 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         a, b, c = layout_logs(Q, X, F, fa, fb, o1, o2, params, settings.opt_sharpness)
         s2 = float(layout_logs(Q, X, F, fa, fb, o1, o2, params, None)[1])
         short = float(np.max(log_clear - s2 - np.log(_np(centroid_edge_distances(Q, F)))))
-        return float(b + c + settings.opt_s3_weight * a), max(short, 0.0)
+        return (float(b + c + settings.opt_s3_weight * a + timing(Q, X, a, b)),
+                max(short, 0.0))
 
     current, short_now = exact(P)
 
@@ -234,6 +320,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
             near = anp.maximum(log_clear - log_s2_exact - anp.log(anp.maximum(
                 centroid_edge_distances(Q, F), settings.opt_tiny)), 0.0)
             return (log_s2 + log_d + settings.opt_s3_weight * log_s3
+                    + timing(Q, X, log_s3, log_s2)
                     + settings.opt_angle_weight * anp.sum(bad**2)
                     + settings.opt_clearance_weight * anp.sum(near**2)
                     - mu * anp.sum(anp.log(anp.maximum(A, settings.opt_tiny))))
@@ -261,4 +348,4 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
 
 __all__ = ["opposite_vertices", "flat_corner_angles", "centroid_edge_distances", "layout_logs",
-           "optimize_stencil"]
+           "timing_misfit", "optimize_stencil"]

@@ -18,6 +18,7 @@ import numpy as np
 import triangle as tr
 
 from ..errors import InputError
+from ..params import tol as TOL
 from .time_landscape import interpolate_to_stencil
 
 
@@ -418,7 +419,7 @@ def weave(size: float = 1.0, large: bool = False, edge: float = 13.0, rows: int 
     for k, tk in enumerate((45.0, 65.0, 85.0)):
         s = P @ A[k]
         t = P @ B[k]
-        strip = (t >= t_lo - 1e-6) & (t <= t_lo + width + 1e-6)
+        strip = (t >= t_lo - TOL.merge) & (t <= t_lo + width + TOL.merge)
         inarm = strip & (s > s0)
         sp_ = s[inarm] - s0
         beta = np.minimum(sp_ / Rcs[k], np.pi)

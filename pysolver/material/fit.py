@@ -77,6 +77,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import SIM, UNIT_CELL
+from ..params import tol as TOL
 from .creep import INTEGRATIONS, CreepModel
 from .measurements import (
     REPO_ROOT,
@@ -285,13 +286,13 @@ def _independent_terms(E, X):
     basis order must be kept, which column-pivoted QR does not guarantee.
     """
     D = design_matrix(E, X)
-    D = D / np.maximum(np.linalg.norm(D, axis=0), 1e-300)
+    D = D / np.maximum(np.linalg.norm(D, axis=0), TOL.tiny)
     R = np.linalg.qr(D, mode="r")
     keep = []
     for j in range(R.shape[1]):
         cand = keep + [j]
         s = np.linalg.svd(R[:, cand], compute_uv=False)
-        if s[-1] > 1e-9 * s[0]:
+        if s[-1] > TOL.rank_rtol * s[0]:
             keep = cand
     dropped = [E[j].tolist() for j in range(len(E)) if j not in keep]
     return E[keep], dropped
@@ -327,7 +328,7 @@ def invert_to_force_polynomials(creep: CreepModel, opts: FitOptions, progress: b
     nh, nb, nt = opts.grid_num
     t_panel_min = opts.grid_t_step_s / 60.0
     F = opts.load_F_step_N * np.arange(int(round(opts.load_F_max_N / opts.load_F_step_N)) + 1)
-    F = F[F < opts.load_F_max_N - 1e-12]
+    F = F[F < opts.load_F_max_N - TOL.exact]
     X = np.empty((nh, nb, len(F), nt))
     for ih, h in enumerate(hg):
         H = np.full((nb, len(F)), h)
@@ -430,7 +431,7 @@ def model_residuals(model, obs: Observations) -> dict:
 def wet_eval_rows(wet_table, strain_cut: float, t_max_s: float) -> Observations:
     """Wet rows used to score models: tail cut, ``x/b < strain_cut``, ``t <= t_max_s``."""
     obs = preprocess_wet(wet_table, strain_cut=strain_cut)
-    return obs.subset(obs.t * 60.0 <= t_max_s + 1e-9)
+    return obs.subset(obs.t * 60.0 <= t_max_s + TOL.rel)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -545,11 +546,12 @@ def monotonicity_violations(model, n: int = 100_000, seed: int = 0) -> dict:
         t = rng.uniform(0.0, 120.0, n)
         x = rng.uniform(0.0, xf, n) * b
         F = model.force(h, b, t, x)
-        tol = 1e-3 * np.abs(F) + 1e-4
-        out[dom] = {"h": float(np.mean(model.force(h + 1e-3, b, t, x) - F < -tol)),
-                    "b": float(np.mean(model.force(h, b + 1e-3, t, x) - F > tol)),
+        tol = TOL.monotone_rtol * np.abs(F) + TOL.monotone_atol
+        dx = TOL.monotone_step
+        out[dom] = {"h": float(np.mean(model.force(h + dx, b, t, x) - F < -tol)),
+                    "b": float(np.mean(model.force(h, b + dx, t, x) - F > tol)),
                     "t": float(np.mean(model.force(h, b, t + 0.1, x) - F > tol)),
-                    "x": float(np.mean(model.force(h, b, t, x + 1e-3) - F < -tol))}
+                    "x": float(np.mean(model.force(h, b, t, x + dx) - F < -tol))}
     return out
 
 

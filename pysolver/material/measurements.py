@@ -290,7 +290,7 @@ def read_test_table(path, wet: bool) -> TestTable:
     b = UNIT_CELL.bracket_length(l)
     if "bracket_length_mm" in cols:
         bl = _to_float(path, cols, "bracket_length_mm")[order]
-        bad = np.flatnonzero(np.abs(bl - b) > 1e-3)
+        bad = np.flatnonzero(np.abs(bl - b) > TOL.length_match)
         if bad.size:
             i = int(order[bad[0]])
             raise InputError(
@@ -305,7 +305,7 @@ def read_test_table(path, wet: bool) -> TestTable:
     for _k, name, sl in t.series_slices():
         for arr, col in ((t.h, "thickness_mm"), (t.l, "central_length_mm"),
                          (t.nominal, "nominal_load_N")):
-            if arr is not None and np.ptp(arr[sl]) > 1e-9:
+            if arr is not None and np.ptp(arr[sl]) > TOL.rel:
                 raise InputError(f"{path}: series {name!r} has more than one {col} value.",
                                  fix="each specimen (series) must have one thickness, length "
                                      "and nominal load.")

@@ -115,7 +115,7 @@ class BracketModel:
     def in_grid(self, h_mm, b_mm, t_s):
         """True where (h, b, t) lies inside the tabulated grid (no clamping/extrapolation)."""
         h, b, t = np.broadcast_arrays(*(np.asarray(v, float) for v in (h_mm, b_mm, t_s)))
-        eps = 1e-9
+        eps = TOL.rel
         lo, hi = self.grid_min - eps, self.grid_max + eps
         return ((h >= lo[0]) & (h <= hi[0]) & (b >= lo[1]) & (b <= hi[1]) & (t >= lo[2])
                 & (t <= hi[2]))
@@ -233,7 +233,7 @@ class BracketModel:
         b, x, t, f = b.ravel(), x.ravel(), t.ravel(), f.ravel()
         hmin, hmax = UNIT_CELL.thickness_min, UNIT_CELL.thickness_max
         hn = self.axes()[0]
-        hn = hn[(hn >= hmin - 1e-9) & (hn <= hmax + 1e-9)]
+        hn = hn[(hn >= hmin - TOL.rel) & (hn <= hmax + TOL.rel)]
         Fn = np.stack([self.force(hk, b, t, x, eta) for hk in hn], axis=1)  # (n, nh)
         h = np.full(len(b), np.nan)
         lo, hi = f < Fn[:, 0], f > Fn[:, -1]

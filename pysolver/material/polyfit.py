@@ -19,6 +19,7 @@ import numpy as np
 import qpsolvers
 
 from ..errors import MorphshellError
+from ..params import tol as TOL
 
 
 def mv(M, v) -> np.ndarray:
@@ -151,7 +152,7 @@ def constrained_normal_lstsq(N, r, A=None, ridge=0.0, viol_tol: float = 1e-10):
     if G is not None:
         g = mv(G, gamma)
         info["max_violation"] = float(max(0.0, g.max()))
-        info["n_active"] = int(np.sum(g > -1e-9))
+        info["n_active"] = int(np.sum(g > -TOL.active_set))
     return gamma / scale, info
 
 
@@ -175,7 +176,7 @@ def _solve_cutting_plane(P, q, G, tol: float, max_rounds: int = 100):
         # configuration on which quadprog was seen to cycle forever; relaxing row i by a
         # distinct 1e-11 * (1 + frac(i * golden ratio)) breaks the degeneracy (deterministic,
         # far below the accepted violation ``tol``).
-        relax = 1e-11 * (1.0 + (np.arange(len(G)) * 0.6180339887498949) % 1.0)
+        relax = TOL.qp_relax * (1.0 + (np.arange(len(G)) * 0.6180339887498949) % 1.0)
 
     if G is None:
         gamma = qp(None)

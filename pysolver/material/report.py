@@ -139,7 +139,7 @@ def plot_rates(meas, res, out_png) -> None:
                 s &= (obs.t >= window[0]) & (obs.t <= window[1])
                 if np.count_nonzero(s) >= 3:
                     rate = np.polyfit(obs.t[s], obs.x[s], 1)[0]
-                    pts.append((obs.h[s][0], max(rate, 1e-3) / F))
+                    pts.append((obs.h[s][0], max(rate, TOL.rate_floor) / F))
             if pts:
                 p = np.array(pts)
                 ax.semilogy(p[:, 0], p[:, 1], "o", color=col, ms=4)

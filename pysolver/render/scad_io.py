@@ -35,6 +35,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..params import LAYERS, SUPPORT_FRAME, UNIT_CELL, layer_sign
+from ..params import tol as TOL
 from ..tables import read_design as _read
 
 SCAD_DIR = Path(__file__).resolve().parents[2] / "scad"
@@ -271,7 +272,7 @@ def node_arguments(design: dict, base_id: int, layer: str, *, actuated: bool = F
             off = s * _layer_centre_offset()
             span = float(np.linalg.norm((tgt[nrow] + off * nrm[nrow])
                                         - (tgt[row] + off * nrm[row])))
-            entry.append(float(np.clip(span, UNIT_CELL.bracket_offset + 1e-6, entry[1])))
+            entry.append(float(np.clip(span, UNIT_CELL.bracket_offset + TOL.merge, entry[1])))
             entry.append(float(cells["fold_angle_deg"][c]))  # opened arms stop short by it
         entries.append((slot, entry))
     brackets = [e for _, e in sorted(entries, key=lambda se: se[0])]

@@ -19,6 +19,7 @@ import numpy as np
 from .. import tables, temporal
 from ..design.time_landscape import cell_target_times
 from ..errors import InputError
+from ..params import tol as TOL
 from ..temporal import program_cells
 from ..temporal.membrane_model import load_membrane_model
 
@@ -74,7 +75,7 @@ def parse_constraints(payload, n_vertices: int) -> tuple[list, list]:
     out_k = [(number(k, "vertex", 0, n_vertices - 1, f"keyframe {i}", True),
               number(k, "time", 0.0, MAX_TIME_S, f"keyframe {i}")) for i, k in enumerate(kfs)]
     out_b = [(number(b, "vertex", 0, n_vertices - 1, f"brush {i}", True),
-              number(b, "radius", 1e-6, 1000.0, f"brush {i}"),
+              number(b, "radius", TOL.merge, 1000.0, f"brush {i}"),
               number(b, "time", 0.0, MAX_TIME_S, f"brush {i}")) for i, b in enumerate(brs)]
     return out_k, out_b
 

@@ -46,7 +46,7 @@ from sim.viewer import STATIC_DIR as VIEWER_DIR
 from .. import tables
 from ..atomic import _manifest, atomic_write_text, write_stamp
 from ..errors import InputError, MorphshellError
-from ..tables import read_stencil, read_table
+from ..tables import read_record, read_stencil, read_table
 from .landscape import Feasibility, constraint_values, harmonic_landscape, parse_constraints
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -64,13 +64,6 @@ def _static_files() -> dict:
 
 _TYPES = {".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8",
           ".html": "text/html; charset=utf-8"}
-
-
-def _read_json(path):
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def _jsonable(a):
@@ -227,7 +220,7 @@ class Job:
                 cmd = [sys.executable, "-m", "pysolver.cli", stage, str(build.folder)]
                 if stage == "simulate":   # the build's own simulated time and step
                     cmd.append("--no-resume")
-                    opts = (_read_json(build.folder / "summary.json") or {}).get("options", {})
+                    opts = (read_record(build.folder / "summary.json") or {}).get("options", {})
                     for key, flag in (("t_end", "--t-end"), ("dt", "--dt")):
                         if isinstance(opts.get(key), (int, float)):
                             cmd += [flag, repr(float(opts[key]))]

@@ -4,7 +4,8 @@ Modules: :mod:`.program` (force balance, thickness solve, :func:`program_design`
 :mod:`.membrane_model` (the linearised membrane model ``F_mem``, the FEM membrane of the
 per-cell correction), :mod:`.plots`; offline, apart from the runtime: :mod:`.membrane_fit`
 (the fit of ``F_mem``, ``make membrane-model``) and :mod:`.cell_membrane` (membrane traction
-samples from the simulator).
+samples from the simulator's model and solver).  Every membrane here is the one membrane
+energy of :mod:`pysolver.mechanics.energies`; nothing here imports the simulator (``sim``).
 """
 from .program import (
     COMPLETION_TOL_MM,

@@ -1,15 +1,16 @@
 """Membrane traction on a unit cell at prescribed bracket lengths (for temporal programming).
 
 Supplementary Note 4 models the membrane of a cell as a linear spring ``F_mem(b, d)`` fitted to
-FEM simulations.  :func:`membrane_traction` provides such samples from *this* simulator:
+FEM simulations.  :func:`membrane_traction` provides such samples from *this* simulator's
+mechanics (:mod:`pysolver.mechanics`, the model, energy and solver the simulator steps):
 
 1. a flat regular patch (equilateral stencil, ``nx`` x ``ny`` vertices) whose cells all have
    the flat bracket length ``b0`` (central length ``b0 + 2 r cos 37``);
 2. every bracket spring is replaced by a stiff linear spring (``k = 1e4 N/mm``) with rest
    length ``b0 - d`` -- the brackets are "prescribed" to length ``b0 - d``; the cross pairs and
    the membrane (pre-stretch, neo-Hookean, same mesh as a design) are unchanged;
-3. the static equilibrium is solved (:func:`sim.model.solver.newton`): bases and free membrane
-   vertices relax;
+3. the static equilibrium is solved (:func:`pysolver.mechanics.solver.newton`): bases and
+   free membrane vertices relax;
 4. the traction of the most interior cell is the compression force of its four springs,
    ``sum k (rest - L)`` (N): the force with which the membrane pulls the two bases together,
    which the brackets must carry.  Per bracket it is a quarter of that.
@@ -31,10 +32,10 @@ import numpy as np
 from pysolver.design.cellnodes import model_arrays
 from pysolver.design.surfaces import regular_grid
 from pysolver.errors import InputError
+from pysolver.mechanics import build_model
+from pysolver.mechanics.energies import ShellEnergy, State
+from pysolver.mechanics.solver import StaticProblem, newton
 from pysolver.params import SIM, UNIT_CELL
-from sim.model import build_model
-from sim.model.energies import ShellEnergy, State
-from sim.model.solver import StaticProblem, newton
 
 K_PRESCRIBE = 1e4  # N/mm, stiffness of the length-prescribing springs
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..atomic import atomic_write_text
 from ..params import SIM, UNIT_CELL
+from ..params import tol as TOL
 from .membrane_model import (
     FORM,
     MESH_MAX_AREA,
@@ -202,7 +203,7 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
     for k, l0 in enumerate(l0_values):
         b0 = UNIT_CELL.bracket_length(l0)
         ds = [d for d in d_values
-              if b0 - d >= max(MIN_BRACKET, MIN_BRACKET_FRACTION * b0) - 1e-12]
+              if b0 - d >= max(MIN_BRACKET, MIN_BRACKET_FRACTION * b0) - TOL.exact]
         res = sample_patch(l0, ds, rings, max_area)
         mesh = res["mesh"]
         inner = (mesh.cell_depth >= 2) & ~mesh.cell_boundary

@@ -52,8 +52,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from sim.model.rim import rim_margin
-
 from ..errors import InputError
 from ..geometry import boundary_vertex_mask, face_adjacency, unit_cells
 from ..material.validate import (
@@ -66,7 +64,10 @@ from ..material.validate import (
     _vector,
     validate_model_file,
 )
+from ..mechanics.energies import membrane_terms
+from ..mechanics.rim import rim_margin
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
+from ..params import tol as TOL
 
 MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by
@@ -480,42 +481,39 @@ def _locate(p, V, F):
     w = p[:, None, :] - A[None]
     l1 = (w[..., 0] * v1[None, :, 1] - w[..., 1] * v1[None, :, 0]) / det
     l2 = (v0[None, :, 0] * w[..., 1] - v0[None, :, 1] * w[..., 0]) / det
-    inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
+    inside = (l1 >= -TOL.rel) & (l2 >= -TOL.rel) & (l1 + l2 <= 1 + TOL.rel)
     return np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
 
 
 # ----------------------------------------------------------------------------------------------
-# 2D incompressible neo-Hookean CST membrane (the simulator's MEM_FINE energy, in the plane)
+# The simulator's membrane energy (pysolver.mechanics.energies.membrane_terms) in the plane
 # ----------------------------------------------------------------------------------------------
 
 
 class PlaneMembrane:
-    """Energy, gradient and Hessian of a flat pre-stretched membrane patch.
+    """Energy, gradient and Hessian of a flat pre-stretched membrane patch, in-plane.
 
-    ``Psi = mu/2 (tr C + 1/det C - 3)`` per unit rest volume, rest state = flat
-    mesh / tau, thickness ``h`` (``simulator.md`` §6.5).  In-plane only: the
-    sampling patches stay flat.  Hand-written (rather than the 3D simulator's
-    energy) because the sampler must run before/without the simulator and a
-    2x2 deformation gradient keeps it small and exact.
+    The energy is the simulator's, :func:`pysolver.mechanics.energies.membrane_terms`
+    (incompressible neo-Hookean CST, ``Psi = mu/2 (tr C + 1/det C - 3)`` per unit rest
+    volume, rest state = flat mesh / tau, thickness ``h``; ``simulator.md`` §6.5), evaluated
+    with ``z = 0`` and restricted to the in-plane degrees of freedom (the sampling patches
+    stay flat: by symmetry the out-of-plane gradient is zero there).  Positions ``x`` are
+    ``(n, 2)`` mm; degrees of freedom are ordered ``2 * node + axis``.
     """
 
     def __init__(self, X, tri, tau=SIM.tau, mu=SIM.mu, h=SIM.membrane_h):
         self.tri = np.asarray(tri)
+        X = np.asarray(X, dtype=float)
+        Dm = np.stack([X[self.tri[:, 1]] - X[self.tri[:, 0]],
+                       X[self.tri[:, 2]] - X[self.tri[:, 0]]], axis=-1)  # (m, 2, 2), flat
         if np.ndim(tau) == 0:
-            Xr = np.asarray(X, dtype=float) / tau
-            Dm = np.stack([Xr[self.tri[:, 1]] - Xr[self.tri[:, 0]],
-                           Xr[self.tri[:, 2]] - Xr[self.tri[:, 0]]], axis=-1)  # (m, 2, 2)
-        else:  # a pre-stretch per triangle (the rim margin, sim.model.rim)
-            X = np.asarray(X, dtype=float)
-            Dm = np.stack([X[self.tri[:, 1]] - X[self.tri[:, 0]],
-                           X[self.tri[:, 2]] - X[self.tri[:, 0]]], axis=-1)
+            Dm = Dm / tau
+        else:  # a pre-stretch per triangle (the rim margin, pysolver.mechanics.rim)
             Dm = Dm / np.asarray(tau, float)[:, None, None]
+        self.Dm = Dm
         self.Dm_inv = np.linalg.inv(Dm)
         self.area = 0.5 * np.abs(np.linalg.det(Dm))                            # rest area
         self.mu, self.h = mu, h
-        Di = self.Dm_inv
-        # D[n, b]: dF_ab / dx_{n,a}
-        self.D = np.stack([-Di[:, 0, :] - Di[:, 1, :], Di[:, 0, :], Di[:, 1, :]], axis=1)
         n = len(X)
         dofs = np.stack([2 * self.tri, 2 * self.tri + 1], axis=-1).reshape(len(tri), 6)
         self.rows = np.repeat(dofs, 6, axis=1).ravel()
@@ -523,49 +521,43 @@ class PlaneMembrane:
         self.ndof = 2 * n
 
     def deformation(self, x):
+        """In-plane deformation gradient per element, (m, 2, 2)."""
         Ds = np.stack([x[self.tri[:, 1]] - x[self.tri[:, 0]],
                        x[self.tri[:, 2]] - x[self.tri[:, 0]]], axis=-1)
         return Ds @ self.Dm_inv
 
+    def _terms(self, x, hessian):
+        X3 = np.c_[np.asarray(x, float), np.zeros(len(x))][self.tri]          # (m, 3, 3)
+        return membrane_terms(X3, self.Dm_inv, self.area, self.mu, self.h, hessian=hessian)
+
     def stress(self, x):
-        """First Piola-Kirchhoff stress per element, (m, 2, 2) MPa."""
-        Fm = self.deformation(x)
-        J = np.linalg.det(Fm)
-        cof = np.stack([np.stack([Fm[:, 1, 1], -Fm[:, 1, 0]], -1),
-                        np.stack([-Fm[:, 0, 1], Fm[:, 0, 0]], -1)], axis=1)
-        return self.mu * (Fm - cof / J[:, None, None] ** 3)
+        """First Piola-Kirchhoff stress per element, (m, 2, 2) MPa.
+
+        Read from the element gradient of :func:`membrane_terms`: the forces on an element's
+        vertices 1 and 2 are ``h A P Dm^-T`` (columns), so ``P = [g1 g2] Dm^T / (h A)``.
+        """
+        _, g, _ = self._terms(x, hessian=False)
+        G = np.stack([g[:, 1, :2], g[:, 2, :2]], axis=-1)                     # (m, 2, 2)
+        return G @ np.transpose(self.Dm, (0, 2, 1)) / (self.h * self.area)[:, None, None]
 
     def energy(self, x):
-        Fm = self.deformation(x)
-        J = np.linalg.det(Fm)
-        if np.any(J <= 0):
+        """Total energy, N mm; ``inf`` if an element is inverted (``det F <= 0``)."""
+        if np.any(np.linalg.det(self.deformation(x)) <= 0):
             return np.inf
-        psi = 0.5 * self.mu * (np.einsum("mab,mab->m", Fm, Fm) + J ** -2.0 - 3.0)
-        return float(np.sum(psi * self.h * self.area))
+        E, _, _ = self._terms(x, hessian=False)
+        return float(np.sum(E))
 
     def gradient(self, x):
-        P = self.stress(x) * (self.h * self.area)[:, None, None]
-        # dE/dx_{n,a} = sum_b P_ab D[n, b]
-        g_el = np.einsum("mab,mnb->mna", P, self.D)
-        g = np.zeros_like(x)
-        np.add.at(g, self.tri, g_el)
-        return g
+        """Gradient, (n, 2) N."""
+        _, g, _ = self._terms(x, hessian=False)
+        out = np.zeros_like(np.asarray(x, float))
+        np.add.at(out, self.tri, g[:, :, :2])
+        return out
 
     def hessian(self, x):
-        Fm = self.deformation(x)
-        J = np.linalg.det(Fm)
-        c = np.stack([Fm[:, 1, 1], -Fm[:, 1, 0], -Fm[:, 0, 1], Fm[:, 0, 0]], axis=-1)
-        K = np.array([[0, 0, 0, 1], [0, 0, -1, 0], [0, -1, 0, 0], [1, 0, 0, 0]], dtype=float)
-        H = (np.eye(4)[None] + 3.0 * J[:, None, None] ** -4 * c[:, :, None] * c[:, None, :]
-             - J[:, None, None] ** -3 * K[None])
-        H *= (self.mu * self.h * self.area)[:, None, None]
-        # B[(a,b), (n,c)] = delta_ac D[n, b]; F index (a, b) -> 2a + b, dof (n, c) -> 2n + c
-        m = len(Fm)
-        B = np.zeros((m, 4, 6))
-        for a in range(2):
-            for b in range(2):
-                B[:, 2 * a + b, a::2] = self.D[:, :, b]
-        He = np.einsum("mia,mij,mjb->mab", B, H, B)
+        """Hessian, sparse (2n, 2n) N/mm."""
+        _, _, H = self._terms(x, hessian=True)                                # (m, 3, 3, 3, 3)
+        He = np.transpose(H[..., :2, :2], (0, 1, 3, 2, 4)).reshape(len(self.tri), 6, 6)
         return sp.csr_matrix((He.ravel(), (self.rows, self.cols)), shape=(self.ndof,) * 2)
 
 
@@ -679,7 +671,7 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
     model : MembraneModel, optional (default: the committed model)
     rim : (float, float), optional
         ``(margin_mm, stretch)``: the membrane as fabricated at the rim
-        (:func:`sim.model.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
+        (:func:`pysolver.mechanics.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
 
     Returns
     -------

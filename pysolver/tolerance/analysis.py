@@ -36,9 +36,9 @@ bracket model) with these factors drawn independently (defaults in
 Everything a simulation needs travels with its task (:class:`DesignPayload`: the design
 folder's files as bytes, the material file as bytes, a :class:`Perturbation`), so any Dask
 worker can run it (:mod:`pysolver.distributed`).  The worker rebuilds the nominal
-:class:`~sim.model.ShellModel` once per design and applies a perturbation with
-:func:`sim.model.vary_model`, simulates (:func:`sim.model.simulate.simulate_model`) and checks the
-result with the report's own metrics and verdict (:func:`sim.report.decide`).
+:class:`~pysolver.mechanics.ShellModel` once per design and applies a perturbation with
+:func:`pysolver.mechanics.vary_model`, simulates (:func:`sim.model.simulate.simulate_model`)
+and checks the result with the report's own metrics and verdict (:func:`sim.report.decide`).
 
 Outputs in ``<design>/tolerance/`` (``summary.json``, ``report.html``, pictures and
 ``samples/*.json``, one result per task, written atomically so a rerun only computes what
@@ -78,9 +78,9 @@ from pysolver.errors import InputError, MorphshellError
 from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
 from pysolver.material.measurements import REPO_ROOT, load_measurements
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
+from pysolver.mechanics import load_model, vary_model
 from pysolver.params import SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
 from pysolver.tables import MODEL_FILE, read_design, read_table
-from sim.model import load_model, vary_model
 from sim.model.collisions import base_collisions, membrane_collisions
 from sim.model.simulate import SimSettings, simulate_model
 from sim.report import (

@@ -1,26 +1,7 @@
-"""The simulator proper: model assembly from the design folder, energies, solver, time stepping.
+"""The simulator proper: time stepping of the shell mechanics read from the design folder.
 
-Modules: :mod:`.model` (:class:`ShellModel` from the design tables and ``model.npz``),
-:mod:`.energies`, :mod:`.kernels`, :mod:`.solver`, :mod:`.contact`, :mod:`.physics`,
-:mod:`.rim`, :mod:`.collisions` and :mod:`.simulate` (``simulate_design``,
-``completion_times``).
+The mechanics it steps (model assembly from the design tables and ``model.npz``, energies,
+kernels, the Newton solver, the rim margin) are :mod:`pysolver.mechanics`, shared with the
+membrane model of temporal programming.  Modules here: :mod:`.contact`, :mod:`.physics`,
+:mod:`.collisions` and :mod:`.simulate` (``simulate_design``, ``completion_times``).
 """
-from .model import (
-    CROSS_REST_MODES,
-    ShellModel,
-    build_model,
-    load_model,
-    membrane_mesh,
-    rim_margin,
-    vary_model,
-)
-
-__all__ = [
-    "CROSS_REST_MODES",
-    "ShellModel",
-    "build_model",
-    "load_model",
-    "membrane_mesh",
-    "rim_margin",
-    "vary_model",
-]

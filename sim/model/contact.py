@@ -55,8 +55,8 @@ def _ipctk():
     except ImportError:  # soft dependency
         raise InputError("physics effect 'contact' needs the IPC Toolkit's Python bindings",
                          fix="pip install ipctk") from None
-    # one thread, as every solve here (sim.model.solver): on 2 cores its TBB pool doubled the CPU
-    # time and cost wall time (contact on the 575-base bench: 42 s wall, 64 s CPU)
+    # one thread, as every solve here (pysolver.mechanics.solver): on 2 cores its TBB pool
+    # doubled the CPU time and cost wall time (contact on the 575-base bench: 42 s wall, 64 s CPU)
     ipctk.set_num_threads(1)
     return ipctk
 

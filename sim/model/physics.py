@@ -8,11 +8,11 @@ all off the simulation is the reference model bit for bit).  This module holds
   and lumped latex mass of every membrane vertex;
 * :class:`ExternalTerms`: the energy of the weight (with or without buoyancy) and of a
   frictionless plane (tank floor in water, table when dry), with its reduced gradient and
-  Hessian, added to :class:`sim.model.energies.ShellEnergy` through its ``external`` hook.
+  Hessian, added to :class:`pysolver.mechanics.energies.ShellEnergy` through its ``external`` hook.
 
 Relaxation (``mu`` scaled by the measured curve) lives in the time stepper
-(:mod:`sim.model.simulate`), the rim margin in :func:`sim.model.build_model`; both reuse the one
-membrane energy of :mod:`sim.model.energies`.
+(:mod:`sim.model.simulate`), the rim margin in :func:`pysolver.mechanics.build_model`; both
+reuse the one membrane energy of :mod:`pysolver.mechanics.energies`.
 
 Units: mm, N, s; densities in g/cm^3 = 1e-9 t/mm^3, so a volume ``V`` (mm^3) of density
 ``rho`` weighs ``rho * 1e-9 * V * g`` N with ``g = 9810 mm/s^2``.
@@ -27,9 +27,8 @@ import math
 import numpy as np
 
 from pysolver.errors import InputError
+from pysolver.mechanics.energies import jtkj, skew
 from pysolver.params import PHYSICS_OFF, PhysicsOptions
-
-from .energies import jtkj, skew
 
 DENSITY_TO_T_MM3 = 1e-9  # g/cm^3 -> t/mm^3 (mm-N-s-t units: 1 t mm/s^2 = 1 N)
 FACE_DOWN = ("bottom", "top")

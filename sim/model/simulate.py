@@ -9,8 +9,9 @@ previous equilibrium:
    with plastic scaling ``F(x / (1 - eta))``; rest length ``l = min(l, L0 - eta (L0 - ps))``;
    a spring whose ``ps <= L_c`` is in **bumper contact** for this step: rest ``L_c`` and
    ``E = kappa_c/2 (L - L_c)^2`` (two-sided, decided from the previous frame).
-3. Newton solve (:func:`sim.model.solver.newton`, tolerance 1e-6 N), warm-started from the linear
-   extrapolation of the last two frames (or the previous equilibrium when it still is one).
+3. Newton solve (:func:`pysolver.mechanics.solver.newton`, tolerance 1e-6 N), warm-started
+   from the linear extrapolation of the last two frames (or the previous equilibrium when it
+   still is one).
    A step that does not converge is kept (its best iterate), flagged ``converged = False``
    in the frames and the summary, and reported on stderr.
 4. The mean of the base centres is reset to its flat value (global translation is free), and
@@ -37,7 +38,7 @@ key                         shape                  meaning
 ``newton_iterations``       (n_frames,)            Newton iterations of the solve
 ``newton_regularised``      (n_frames,)            iterations needing more than the base shift
                                                    (indefinite Hessian: buckling, snapping)
-``residual``                (n_frames,)            final residual, N (see sim.model.solver)
+``residual``                (n_frames,)            final residual, N (see pysolver.mechanics.solver)
 ``wall_s``                  (n_frames,)            wall time of the solve, s
 ``converged``               (n_frames,)            residual below tolerance
 ``energy``                  (n_frames,)            total energy, N mm
@@ -68,15 +69,15 @@ from pysolver.atomic import atomic_file, atomic_write_text
 from pysolver.errors import InputError, MorphshellError
 from pysolver.material.model import load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
+from pysolver.mechanics.energies import ShellEnergy, State
+from pysolver.mechanics.model import ShellModel, load_model
+from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newton
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
 
 from .collisions import completion_times
 from .contact import BaseContact
-from .energies import ShellEnergy, State
-from .model import ShellModel, load_model
 from .physics import BracketBending, ExternalTerms, bending_stiffness, check_physics, physics_json
-from .solver import SOLVERS, LinearSolver, StaticProblem, newton
 
 FRAMES_NAME = "frames.npz"
 CHECKPOINT_NAME = "checkpoint.npz"
@@ -104,7 +105,8 @@ class SimSettings:
         Warm start each solve from the extrapolation of the last frames (see
         ``Simulation._predict``); ``False``: from the previous equilibrium.
     solver : {"fast", "reference"}
-        Linear-algebra threading of the Newton solves (:data:`sim.model.solver.SOLVERS`): ``fast``
+        Linear-algebra threading of the Newton solves (:data:`~pysolver.mechanics.solver.SOLVERS`):
+        ``fast``
         runs every solve on one BLAS thread, ``reference`` as before it was measured.  Same
         results; the reference path is kept for ``make bench``'s comparison.
     physics : PhysicsOptions
@@ -133,14 +135,14 @@ class SimSettings:
 
     def times(self) -> np.ndarray:
         n = int(round(self.t_end / self.dt))
-        if n < 0 or abs(n * self.dt - self.t_end) > 1e-9 * max(1.0, self.t_end):
+        if n < 0 or abs(n * self.dt - self.t_end) > TOL.rel * max(1.0, self.t_end):
             raise InputError(f"t_end = {self.t_end} s is not a non-negative multiple of "
                              f"dt = {self.dt} s", fix="choose t_end = k * dt")
         return self.dt * np.arange(n + 1)
 
 
 class Simulation:
-    """Time stepper over a :class:`~sim.model.ShellModel` (in memory).
+    """Time stepper over a :class:`~pysolver.mechanics.ShellModel` (in memory).
 
     Parameters
     ----------
@@ -343,7 +345,7 @@ class Simulation:
         L = self.spring_lengths()
         self._record(t, res, L)
         if self.E_ref is None:
-            self.E_ref = max(abs(res.energy), 1e-9)
+            self.E_ref = max(abs(res.energy), TOL.energy_floor)
         # early stop: every cell at its bumpers in both layers and nothing moved
         ct = self.contact.reshape(-1, 4)
         if not dry and np.all((ct[:, 0] | ct[:, 1]) & (ct[:, 2] | ct[:, 3])):
@@ -415,7 +417,7 @@ class Simulation:
         a = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
         ratio = a / (md.tri_rest_area * md.consts.tau**2)
         j = int(np.argmin(ratio))
-        if ratio[j] < 1e-3:
+        if ratio[j] < TOL.membrane_collapse:
             b = md.mem_body[md.mem_triangles[j]]
             return (f"; likely cause: membrane triangle {j} collapsed (area ratio "
                     f"{ratio[j]:.2g}) next to base(s) {sorted(set(b[b >= 0].tolist()))}")

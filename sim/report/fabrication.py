@@ -13,7 +13,6 @@ import datetime as _dt
 import hashlib
 import html
 import importlib.metadata
-import json
 import sys
 from pathlib import Path
 
@@ -21,6 +20,8 @@ import numpy as np
 
 from pysolver.params import FABRICATION, SIM, UNIT_CELL
 from pysolver.params import MEMBRANE_MODEL_FILE as MODEL_PATH
+from pysolver.params import tol as TOL
+from pysolver.tables import read_record
 
 STL_PURPOSE = {
     "top.stl": "top layer (bases, bumpers, brackets): print brackets-down; glued to the "
@@ -47,13 +48,6 @@ def sha256_file(path) -> str:
     return h.hexdigest()
 
 
-def _read_json(path):
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
-
-
 def _version(dist):
     try:
         return importlib.metadata.version(dist)
@@ -77,9 +71,9 @@ def provenance(folder, build_info=None) -> dict:
     dict of JSON-serialisable values (see the report's provenance table).
     """
     folder = Path(folder)
-    design = _read_json(folder / "design.json") or {}
+    design = read_record(folder / "design.json") or {}
     dopt = design.get("options", {})
-    summ = _read_json(folder / "summary.json") or {}
+    summ = read_record(folder / "summary.json") or {}
     info = dict(build_info or {})
     for k in ("source", "options", "inputs_sha256"):
         info.setdefault(k, summ.get(k))
@@ -92,10 +86,10 @@ def provenance(folder, build_info=None) -> dict:
     else:
         src_hash = dopt.get("source_sha256_16")
         src_kind = dopt.get("source_kind", "builtin")
-    temporal = (_read_json(folder / "temporal.json") or {}).get("summary", {})
-    refine = _read_json(folder / "sim" / "refine.json") or {}
-    sim_sum = _read_json(folder / "sim" / "summary.json") or {}
-    studio = _read_json(folder / "studio_landscape.json")
+    temporal = (read_record(folder / "temporal.json") or {}).get("summary", {})
+    refine = read_record(folder / "sim" / "refine.json") or {}
+    sim_sum = read_record(folder / "sim" / "summary.json") or {}
+    studio = read_record(folder / "studio_landscape.json")
     time_opt = dopt.get("time", opts.get("time"))
     if studio is not None:
         land = (f"edited in morphshell studio: {len(studio.get('keyframes', []))} keyframe(s), "
@@ -347,7 +341,7 @@ def top_layer_side(target_centres, normals) -> str:
     c = np.asarray(target_centres, float)
     n = np.asarray(normals, float)
     s = float(np.mean(np.sum(n * (c.mean(axis=0) - c), axis=1)))
-    if abs(s) < 1e-3 * max(np.ptp(c, axis=0).max(), 1.0):
+    if abs(s) < TOL.orientation_rel * max(np.ptp(c, axis=0).max(), 1.0):
         return "the shape is nearly flat: either side"
     return ("the concave (inner) side of the target" if s > 0
             else "the convex (outer) side of the target")

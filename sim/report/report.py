@@ -39,7 +39,8 @@ from pysolver.atomic import atomic_dir
 from pysolver.errors import InputError
 from pysolver.geometry import fold_angles_deg, rigid_fit
 from pysolver.params import UNIT_CELL
-from pysolver.tables import read_stencil, read_table, read_unit_cell
+from pysolver.params import tol as TOL
+from pysolver.tables import Design, read_design, read_table
 
 from ..model.collisions import base_collisions, membrane_collisions
 from ..model.collisions import completion_times as collision_completion_times
@@ -159,36 +160,36 @@ class Thresholds:
 class SimData:
     """A design folder and its simulation, loaded and validated.
 
+    The design is read by the one design-folder reader (:func:`pysolver.tables.read_design`,
+    tables cross-checked against the stencil); the attributes below are views of it.
+
     Attributes
     ----------
+    design : pysolver.tables.Design
+    frames : dict of arrays — ``sim/frames.npz``
     folder : Path
     bases, cells : dict of (r,) arrays — ``bases.csv`` / ``cells.csv`` columns
-    V, UV : (n, 3), (n, 2) float, mm, or None — stencil (target, flat)
-    F : (m, 3) int or None
-    landscape : (n,) float, s, or None — time landscape per stencil vertex
-    frames : dict of arrays — ``sim/frames.npz``
+    V, UV : (n, 3), (n, 2) float, mm — stencil (target, flat)
+    F : (m, 3) int
+    landscape : (n,) float, s — time landscape per stencil vertex
     """
 
-    folder: Path
-    bases: dict
-    cells: dict
-    V: np.ndarray | None
-    UV: np.ndarray | None
-    F: np.ndarray | None
-    landscape: np.ndarray | None
+    design: Design
     frames: dict
+
+    folder = property(lambda self: self.design.folder)
+    bases = property(lambda self: self.design.bases)
+    cells = property(lambda self: self.design.cells)
+    V = property(lambda self: self.design.V)
+    UV = property(lambda self: self.design.UV)
+    F = property(lambda self: self.design.F)
+    landscape = property(lambda self: self.design.time)
+    n_bases = property(lambda self: self.design.n_bases)
+    n_cells = property(lambda self: self.design.n_cells)
 
     @property
     def t(self):
         return self.frames["t"]
-
-    @property
-    def n_bases(self):
-        return len(self.bases["base_id"])
-
-    @property
-    def n_cells(self):
-        return len(self.cells["cell_id"])
 
     @property
     def target(self):
@@ -273,27 +274,14 @@ def load_frames(path, n_bases=None, n_cells=None) -> dict:
 
 
 def load_sim(design_dir) -> SimData:
-    """Load the tables, the stencil (optional) and ``sim/frames.npz`` of a design folder."""
+    """Load a design folder (:func:`pysolver.tables.read_design`) and its ``sim/frames.npz``."""
     folder = Path(design_dir)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a design folder",
                          fix="pass the folder written by the design stage (build/<shape>)")
-    bases = read_table(folder, "bases")
-    cells = read_table(folder, "cells")
-    n_b = len(bases["base_id"])
-    for c in ("base_a", "base_b"):
-        if len(cells[c]) and (cells[c].min() < 0 or cells[c].max() >= n_b):
-            raise InputError(f"{folder / 'cells.csv'}: {c} outside 0..{n_b - 1}",
-                             fix="re-run the design stage")
-    V = UV = F = land = None
-    if (folder / "stencil.obj").exists():
-        V, UV, F = read_stencil(folder / "stencil.obj")
-        if (folder / "time_landscape.csv").exists():
-            land = read_table(folder, "time_landscape")["time_s"]
-            if len(land) != len(V):
-                land = None
-    frames = load_frames(folder / "sim" / "frames.npz", n_b, len(cells["cell_id"]))
-    return SimData(folder, bases, cells, V, UV, F, land, frames)
+    design = read_design(folder)
+    frames = load_frames(folder / "sim" / "frames.npz", design.n_bases, design.n_cells)
+    return SimData(design, frames)
 
 
 def _n_valid_frames(fr: dict) -> int:
@@ -742,7 +730,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     mc = None
     if M_all is not None and M_all.shape[1]:
 
-        uc = read_unit_cell(sd.folder)  # the design's own max cell length, not the default
+        uc = sd.design.params  # the design's own max cell length, not the default
         mc = membrane_collisions(C_all[:n_ok], R_all[:n_ok], M_all[:n_ok], t=t[:n_ok],
                                  tol=th.collision_depth_mm,
                                  local_radius=uc.base_r + uc.max_cell_length,
@@ -878,7 +866,8 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
     out["renders"] = names
     out["render_frames"] = sel
     err = sh["err"]
-    img = ren.images([last], base_scalars=err, clim=(0.0, max(float(err.max()), 1e-3)),
+    clim = (0.0, max(float(err.max()), TOL.colour_floor_mm))
+    img = ren.images([last], base_scalars=err, clim=clim,
                      cmap="plasma", scalar_title="error (mm)", fit="these")[0]
     out["shape_error"] = rp.save_png(img, tmp / "shape_error.png").name
     if bc.count:

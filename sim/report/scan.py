@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation
 from pysolver.atomic import atomic_write_text
 from pysolver.errors import InputError
 from pysolver.geometry import rigid_fit
+from pysolver.params import tol as TOL
 from pysolver.tables import read_table
 
 from .report import load_frames
@@ -80,7 +81,7 @@ def l1_rigid_fit(A, B, *, Q0=None, s0=None, max_iter=IRLS_MAX_ITER, eps=IRLS_EPS
     for _ in range(max_iter):
         d = np.linalg.norm(A @ Q.T + s - B, axis=1)
         obj = d.sum()
-        if prev - obj <= 1e-10 * max(obj, 1e-12):
+        if prev - obj <= TOL.irls_rel * max(obj, TOL.exact):
             break
         prev = obj
         Q, s = rigid_fit(A, B, weights=1.0 / np.maximum(d, eps))
@@ -335,7 +336,7 @@ def _plot(path, P, M, reg, title):
                    label=f"scan, outliers ({len(reg['outliers'])})", depthshade=False)
     if len(pr):
         segs = np.stack([X[pr[:, 0]], M[pr[:, 1]]], axis=1)
-        lc = Line3DCollection(segs, colors=plt.cm.plasma(d / max(d.max(), 1e-9)), linewidths=1.5)
+        lc = Line3DCollection(segs, colors=plt.cm.plasma(d / max(d.max(), TOL.rel)), linewidths=1.5)
         ax.add_collection3d(lc)
     allp = np.concatenate([M, X])
     mid = 0.5 * (allp.min(0) + allp.max(0))

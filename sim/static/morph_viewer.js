@@ -116,6 +116,44 @@
     distance: {label: "distance to target (mm)", map: VIRIDIS, perFrame: true},
   };
 
+  // A white WebGL canvas in `parent` with a camera, a sky/ground light and a sun: sets
+  // obj.renderer, obj.canvas, obj.scene, obj.camera (the viewer's and the studio editor's).
+  function stage(obj, parent, w, h, light) {
+    obj.renderer = new THREE.WebGLRenderer({antialias: true, preserveDrawingBuffer: true});
+    obj.renderer.setPixelRatio(1);
+    obj.renderer.setSize(w, h);
+    obj.renderer.setClearColor(0xffffff, 1);
+    parent.appendChild(obj.renderer.domElement);
+    obj.canvas = obj.renderer.domElement;
+    obj.scene = new THREE.Scene();
+    obj.camera = new THREE.PerspectiveCamera(35, w / h, 0.1, 10000);
+    obj.scene.add(new THREE.HemisphereLight(0xffffff, light.ground, light.sky));
+    var sun = new THREE.DirectionalLight(0xffffff, light.sun);
+    sun.position.set(1, light.sunY, 3);
+    obj.scene.add(sun);
+  }
+
+  // Calls fn(clientX, clientY) on a click of `dom` that does not end a drag (moved < 4 px).
+  function onClick(dom, fn) {
+    var down = null;
+    dom.addEventListener("pointerdown", function (e) { down = [e.clientX, e.clientY]; });
+    dom.addEventListener("pointerup", function (e) {
+      if (down && Math.abs(e.clientX - down[0]) + Math.abs(e.clientY - down[1]) < 4) {
+        fn(e.clientX, e.clientY);
+      }
+      down = null;
+    });
+  }
+
+  // The intersections of `object` with the camera ray through the client point (x, y) of `dom`.
+  function hits(dom, camera, object, x, y) {
+    var r = dom.getBoundingClientRect();
+    var ndc = new THREE.Vector2(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
+    var ray = new THREE.Raycaster();
+    ray.setFromCamera(ndc, camera);
+    return ray.intersectObject(object, false);
+  }
+
   function MorphViewer(container, data, opts) {
     opts = opts || {};
     this.data = data; this.opts = opts; this.frame = 0; this.renderCount = 0;
@@ -149,18 +187,7 @@
       container);
 
     var w = opts.width || container.clientWidth || 640, h = opts.height || Math.round(w * 0.62);
-    this.renderer = new THREE.WebGLRenderer({antialias: true, preserveDrawingBuffer: true});
-    this.renderer.setPixelRatio(1);
-    this.renderer.setSize(w, h);
-    this.renderer.setClearColor(0xffffff, 1);
-    this.view.appendChild(this.renderer.domElement);
-    this.canvas = this.renderer.domElement;
-    this.scene = new THREE.Scene();
-    this.camera = new THREE.PerspectiveCamera(35, w / h, 0.1, 10000);
-    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x667788, 1.6));
-    var sun = new THREE.DirectionalLight(0xffffff, 1.4);
-    sun.position.set(1, -1.5, 3);
-    this.scene.add(sun);
+    stage(this, this.view, w, h, {ground: 0x667788, sky: 1.6, sun: 1.4, sunY: -1.5});
 
     var geo = new THREE.CylinderGeometry(data.base_r, data.base_r, 2 * data.layer_h, 24);
     geo.rotateX(Math.PI / 2);   // three's cylinder axis is y; a base's axis is its flat +z
@@ -197,14 +224,7 @@
       self.setFrame(parseInt(self.slider.value, 10));
     });
     this.select.addEventListener("change", function () { self.setColorMode(self.select.value); });
-    var down = null;
-    this.canvas.addEventListener("pointerdown", function (e) { down = [e.clientX, e.clientY]; });
-    this.canvas.addEventListener("pointerup", function (e) {
-      if (down && Math.abs(e.clientX - down[0]) + Math.abs(e.clientY - down[1]) < 4) {
-        self.pickAt(e.clientX, e.clientY);
-      }
-      down = null;
-    });
+    onClick(this.canvas, function (x, y) { self.pickAt(x, y); });
   }
 
   MorphViewer.prototype.fit = function () {
@@ -337,11 +357,7 @@
   };
 
   MorphViewer.prototype.pickAt = function (x, y) {
-    var r = this.canvas.getBoundingClientRect();
-    var ndc = new THREE.Vector2(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
-    var ray = new THREE.Raycaster();
-    ray.setFromCamera(ndc, this.camera);
-    var hit = ray.intersectObject(this.bases, false);
+    var hit = hits(this.canvas, this.camera, this.bases, x, y);
     this.selectBase(hit.length ? hit[0].instanceId : null);
   };
 
@@ -410,5 +426,8 @@
   MorphViewer.decode = {positions: positions, f32: f32, u32: u32};
   MorphViewer.cmap = function (name, x) { return cmap(name === "diverging" ? DIVERGING : VIRIDIS, x); };
   MorphViewer.Orbit = Orbit;
+  MorphViewer.stage = stage;
+  MorphViewer.onClick = onClick;
+  MorphViewer.hits = hits;
   global.MorphViewer = MorphViewer;
 })(window);

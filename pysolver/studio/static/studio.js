@@ -53,28 +53,10 @@
     this.container = container;
     this.keyframes = [];   // {kind: "keyframe"|"brush", vertex, time, radius}
     var w = 640, h = 440;
-    this.renderer = new THREE.WebGLRenderer({antialias: true, preserveDrawingBuffer: true});
-    this.renderer.setPixelRatio(1);
-    this.renderer.setSize(w, h);
-    this.renderer.setClearColor(0xffffff, 1);
-    container.appendChild(this.renderer.domElement);
-    this.canvas = this.renderer.domElement;
-    this.scene = new THREE.Scene();
-    this.camera = new THREE.PerspectiveCamera(35, w / h, 0.1, 10000);
-    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x778899, 2.0));
-    var sun = new THREE.DirectionalLight(0xffffff, 1.0);
-    sun.position.set(1, -1, 3);
-    this.scene.add(sun);
+    MorphViewer.stage(this, container, w, h, {ground: 0x778899, sky: 2.0, sun: 1.0, sunY: -1});
     var self = this;
     this.orbit = new MorphViewer.Orbit(this.camera, this.canvas, function () { self.render(); });
-    var down = null;
-    this.canvas.addEventListener("pointerdown", function (e) { down = [e.clientX, e.clientY]; });
-    this.canvas.addEventListener("pointerup", function (e) {
-      if (down && Math.abs(e.clientX - down[0]) + Math.abs(e.clientY - down[1]) < 4) {
-        self.clickAt(e.clientX, e.clientY);
-      }
-      down = null;
-    });
+    MorphViewer.onClick(this.canvas, function (x, y) { self.clickAt(x, y); });
   }
 
   Editor.prototype.load = function (build) {
@@ -241,11 +223,7 @@
   };
 
   Editor.prototype.vertexAt = function (x, y) {
-    var r = this.canvas.getBoundingClientRect();
-    var ndc = new THREE.Vector2(((x - r.left) / r.width) * 2 - 1, -((y - r.top) / r.height) * 2 + 1);
-    var ray = new THREE.Raycaster();
-    ray.setFromCamera(ndc, this.camera);
-    var hit = ray.intersectObject(this.mesh, false);
+    var hit = MorphViewer.hits(this.canvas, this.camera, this.mesh, x, y);
     if (!hit.length) return null;
     var f = hit[0].face, V = this.V, best = null, bd = Infinity;
     [f.a, f.b, f.c].forEach(function (v) {

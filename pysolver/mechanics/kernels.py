@@ -7,13 +7,13 @@ These two loops are written here once, element by element, and compiled with num
 
 * :func:`membrane_kernel` -- energy, gradient (accumulated per point) and the 9x9 point-space
   Hessian of every incompressible neo-Hookean triangle (same formulas as
-  :func:`sim.model.energies.membrane_terms`, which stays the reference implementation);
+  :func:`pysolver.mechanics.energies.membrane_terms`, which stays the reference implementation);
 * :func:`reduce_scatter` -- rigid-body reduction ``J_p^T K J_q`` (``J = [I, -[v]x]``) of every
   3x3 point block of a batch of elements and summation into the CSC data array of the reduced
   Hessian through precomputed positions (-1 = not stored: upper triangle or the rotation
   columns of a free vertex).
 
-Both are optional: without numba, :class:`sim.model.energies.ShellEnergy` uses the vectorised numpy
+Both are optional: without numba, :class:`.energies.ShellEnergy` uses the vectorised numpy
 path (same results to round-off; tested).
 """
 
@@ -201,7 +201,7 @@ def stored_pairs(pos) -> np.ndarray:
 def cross_point_hessian(weight, G, Ka, Kb, out):  # pragma: no cover
     """Point-space Hessians (n, 12, 12) of cross pairs: ``w G G^T`` plus ``[[K,-K],[-K,K]]``
     with ``Ka`` on points (0, 1) and ``Kb`` on points (2, 3) (see
-    ``sim.model.energies.cross_terms``).
+    ``pysolver.mechanics.energies.cross_terms``).
     """
     n = G.shape[0]
     for e in range(n):

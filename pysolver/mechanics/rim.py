@@ -2,10 +2,10 @@
 
 The sheet is released from stretch 3 to about 2 before the shell is cut out, and a thin margin
 of latex is kept at the border.  :func:`rim_margin` adds that margin to a flat membrane mesh;
-the simulator (:func:`sim.model.build_model`, ``PhysicsOptions.rim``) and the ``F_mem``
+the shell model (:func:`.model.build_model`, ``PhysicsOptions.rim``) and the ``F_mem``
 correction of the design (:func:`pysolver.temporal.membrane_model.cell_membrane_factors`)
-both use it,
-with the margin's triangles at rest at the rim stretch instead of the pre-stretch ``tau``.
+both use it, with the margin's triangles at rest at the rim stretch instead of the
+pre-stretch ``tau``.
 """
 
 from __future__ import annotations

@@ -34,8 +34,10 @@ import numpy as np
 from pysolver.errors import InputError
 from pysolver.geometry import Cells, base_rotations, face_centroids, rotvec_to_matrix
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
+from pysolver.params import tol as TOL
 from pysolver.tables import check_thickness, read_design, read_model
-from sim.model.rim import rim_margin
+
+from .rim import rim_margin
 
 CROSS_REST_MODES = ("flat", "zero")
 
@@ -270,7 +272,7 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
     area = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     flip = area < 0
     tris[flip] = tris[flip][:, [0, 2, 1]]
-    if np.any(np.abs(area) < 1e-12):
+    if np.any(np.abs(area) < TOL.degenerate):
         raise InputError("membrane meshing produced a degenerate triangle",
                          fix="check the flat layout for overlapping bases")
     return xy, tris, body

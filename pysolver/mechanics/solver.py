@@ -4,7 +4,7 @@ Design (documented choices):
 
 * **Linear solver.**  CHOLMOD supernodal LL^T (scikit-sparse) on the lower triangle of the
   reduced Hessian; the symbolic analysis is done once per sparsity pattern (the pattern is
-  fixed by :class:`sim.model.energies.SparsePattern`) and reused, each Newton iteration only
+  fixed by :class:`.energies.SparsePattern`) and reused, each Newton iteration only
   refactorises.  Debian's CHOLMOD starts OpenMP threads regardless of ``OMP_NUM_THREADS``;
   ``OMP_THREAD_LIMIT=1`` is set before importing it (2-3x faster on 2 cores; it must be set
   before any library loads OpenMP, so entry points import this module first).  CHOLMOD's
@@ -289,7 +289,7 @@ class StaticProblem:
         free when the current state was the last one evaluated."""
         scale = (self._scale[1] if self._scale is not None and self._scale[0] is self.state
                  else self.energy.energy_scale(self.state))
-        return 1e-13 * max(scale, 1.0)
+        return TOL.energy_roundoff * max(scale, 1.0)
 
 
 def _step_limit(p, trans, rot, max_step, max_rot) -> float:
@@ -351,7 +351,7 @@ def _wolfe(problem, p, E0, g0, eps_E, alpha_max, c1, c2, max_evals):
                 if dt * (hi - lo) >= 0:
                     hi = lo
                 lo, E_lo = a, Et
-            if abs(hi - lo) < 1e-12 * max(lo, hi, 1e-300):
+            if abs(hi - lo) < TOL.exact * max(lo, hi, TOL.tiny):
                 break
         if best is not None:
             return done(*best)
@@ -378,10 +378,10 @@ def _wolfe(problem, p, E0, g0, eps_E, alpha_max, c1, c2, max_evals):
     return 0.0, None, False, None, None
 
 
-SHIFT_MIN = 1e-8
+SHIFT_MIN = TOL.newton_shift_min
 """Base shift (relative to the mean scaled diagonal) for the exact translation null space."""
 SHIFT_MAX = 1.0
-PSD_SHIFTS = (1e-8, 1e-4, 1e-2, 1.0)
+PSD_SHIFTS = (TOL.newton_shift_min, 1e-4, 1e-2, 1.0)
 
 
 def _candidates(last_shift: float):
@@ -395,7 +395,7 @@ def _candidates(last_shift: float):
     Hessian with PSD_SHIFTS; then a scaled gradient step.
     """
     yield "exact", SHIFT_MIN
-    s = max(last_shift / 4.0, 1e-6)
+    s = max(last_shift / 4.0, TOL.newton_shift_floor)
     while s <= SHIFT_MAX:
         yield "exact", s
         s *= 4.0
@@ -406,7 +406,7 @@ def _candidates(last_shift: float):
 
 @_blas_scoped
 def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_max_iter_wet,
-           linear: LinearSolver | None = None, c1: float = 1e-4, c2: float = 0.9,
+           linear: LinearSolver | None = None, c1: float = TOL.armijo_c1, c2: float = 0.9,
            max_halvings: int = TOL.line_search_halvings, max_step_mm: float = 2.0,
            max_rot_rad: float = 0.3, callback=None) -> NewtonResult:
     """Minimise the energy of ``problem`` by Newton's method with line search.
@@ -466,7 +466,7 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
         eps_E = problem.roundoff()
         for kind, rel in _candidates(shift):
             if kind == "gradient":  # last resort: diagonally scaled steepest descent
-                p = -g / np.maximum(np.abs(_diag(H)), 1e-12 * _scale(H, D) * D)
+                p = -g / np.maximum(np.abs(_diag(H)), TOL.exact * _scale(H, D) * D)
                 n_grad += 1
             else:
                 if kind == "psd" and Hpsd is None:
@@ -533,7 +533,7 @@ def _solve_shifted(H, g, D, rel: float, linear: LinearSolver):
     except NotPositiveDefinite:
         return None
     p = -linear.solve(g)
-    if not np.all(np.isfinite(p)) or not g @ p < -1e-12 * np.linalg.norm(g) * np.linalg.norm(p):
+    if not np.all(np.isfinite(p)) or not g @ p < -TOL.exact * np.linalg.norm(g) * np.linalg.norm(p):
         return None
     return p
 

@@ -19,7 +19,7 @@ rigid-body map ``x = c + exp([theta]x) R t`` **at theta = 0** (the rotation is f
 - d_ab v_i`` (``v = R t``).  The Hessian is scattered into a sparse lower-triangle CSC matrix
 whose pattern (and every element entry's position in it) is computed once
 (:class:`SparsePattern`).  Two assembly backends give the same matrix to round-off: compiled
-element loops (:mod:`sim.model.kernels`, numba; default when installed, ~4x faster) and vectorised
+element loops (:mod:`.kernels`, numba; default when installed, ~4x faster) and vectorised
 numpy (per-cell blocks for springs and cross pairs, per-point-pair blocks for the membrane).
 
 ``psd=True`` returns a convexified Hessian instead: per-element projection onto the positive
@@ -38,6 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from pysolver.errors import InputError
+from pysolver.params import tol as TOL
 
 from .kernels import (
     HAVE_NUMBA,
@@ -69,7 +70,7 @@ def rodrigues(theta):
     """Rotation matrices ``exp([theta]x)`` of rotation vectors ``theta : (n, 3)`` (rad)."""
     theta = np.asarray(theta, float)
     a = np.linalg.norm(theta, axis=-1)
-    small = a < 1e-8
+    small = a < TOL.small_angle
     a_safe = np.where(small, 1.0, a)
     s = np.where(small, 1.0 - a * a / 6.0, np.sin(a) / a_safe)
     c = np.where(small, 0.5 - a * a / 24.0, (1.0 - np.cos(a)) / a_safe**2)
@@ -458,7 +459,7 @@ def full_from_lower(L: sp.spmatrix) -> sp.csc_matrix:
 
 
 class ShellEnergy:
-    """Total energy of a :class:`~sim.model.ShellModel` with reduced gradient and Hessian.
+    """Total energy of a :class:`~.model.ShellModel` with reduced gradient and Hessian.
 
     The bracket springs' state (rest length, force coefficients, contact switch) is held in
     :attr:`spring_rest` and :attr:`spring_coef` and set by the time stepper before each solve.
@@ -467,7 +468,7 @@ class ShellEnergy:
     ----------
     model : ShellModel
     backend : {"auto", "numba", "numpy"}
-        Hessian assembly: compiled kernels (:mod:`sim.model.kernels`) or vectorised numpy; ``auto``
+        Hessian assembly: compiled kernels (:mod:`.kernels`) or vectorised numpy; ``auto``
         uses numba when it is installed.  Both give the same matrix to round-off.
     """
 
