@@ -186,7 +186,7 @@ def test_round_off_does_not_turn_the_shell(tmp_path, monkeypatch):
     9e-6 rad per step without the gauge on this shell), and
     a run whose linear solves carry a relative error of 1e-9 (far more than any BLAS's
     round-off) ends within 1e-6 mm of the unperturbed run, with the same completion times."""
-    from sim.model import solver as SV
+    from pysolver.mechanics import solver as SV
 
     def run(name):
         d = write_design(tmp_path / name, regular_stencil(5, 4), thickness=0.4)

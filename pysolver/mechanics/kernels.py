@@ -225,9 +225,9 @@ def cross_point_hessian(weight, G, Ka, Kb, out):  # pragma: no cover
 def discrete_terms(X, sp, rest, coef, cp, weight, cross_rest, want_hessian,
                    es, gs, Ks, ex, gx, Gx, Ka, Kb):  # pragma: no cover
     """Springs and crossed pairs element by element: the outputs of
-    :func:`sim.model.energies.spring_terms` (``es, gs, Ks``) and
-    :func:`sim.model.energies.cross_terms` (``ex, gx`` and the parts ``Gx, Ka, Kb``), same
-    formulas, written into the given arrays (``Ks, Gx, Ka, Kb`` only when ``want_hessian``;
+    :func:`pysolver.mechanics.energies.spring_terms` (``es, gs, Ks``) and
+    :func:`pysolver.mechanics.energies.cross_terms` (``ex, gx`` and the parts ``Gx, Ka, Kb``),
+    same formulas, written into the given arrays (``Ks, Gx, Ka, Kb`` only when ``want_hessian``;
     no PSD projection).  The numpy versions build a dozen (n, 3, 3) temporaries per call
     (2 ms per evaluation on the benchmark, 1500 evaluations per run).
     """

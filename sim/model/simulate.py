@@ -260,10 +260,11 @@ class Simulation:
         """Undo the net rotation of the step's solve (the rotation gauge).
 
         Nothing holds the shell, and its energy does not change when the whole shell turns:
-        the Newton steps are only regularised along that null space (``sim.model.solver``), so
-        the round-off of each solve turns the whole shell a little, differently on each BLAS
-        and thread count (1e-4 rad, 0.009 mm at the rim, over the benchmark run; after a rigid
-        alignment the two solver paths agreed to 7e-10 mm).  The best-fit rotation (Kabsch,
+        the Newton steps are only regularised along that null space
+        (``pysolver.mechanics.solver``), so the round-off of each solve turns the whole shell a
+        little, differently on each BLAS and thread count, and the predictor extrapolates the
+        turn (the benchmark shell spun by 144 degrees over its run; the two solver paths
+        differed by 0.009 mm, and by 7e-10 mm after a rigid fit).  The best-fit rotation (Kabsch,
         about the centroid) of this step's base centres and free vertices onto the previous
         frame's is undone, so a frame has no net rotation relative to the previous one and the
         result no longer depends on that round-off.  With weight and a table
