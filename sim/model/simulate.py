@@ -276,7 +276,7 @@ class Simulation:
         pc, qc = P.mean(axis=0), Q.mean(axis=0)
         if self.energy.external is None:
             U, S, Vt = np.linalg.svd((P - pc).T @ (Q - qc))
-            if S[1] <= 1e-12 * S[0]:  # collinear: the turn about the line is undefined
+            if S[1] <= TOL.degenerate * S[0]:  # collinear: the turn about the line is undefined
                 return
             d = np.sign(np.linalg.det(Vt.T @ U.T))
             Rg = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T  # Rg (p - pc) ~ q - qc
