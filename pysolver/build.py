@@ -33,6 +33,7 @@ import numpy as np
 from sim.model.physics import parse_physics
 from sim.model.simulate import SimSettings, simulate_design, simulated_completion
 from sim.report import base_base_collisions, make_report, print_verdict
+from sim.report.plots import start_pyvista_probe
 
 from . import tables
 from .atomic import (
@@ -327,6 +328,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
 
         if render:  # the renderer's self-check runs on the core the next stages leave idle
             start_self_check(staging, renderer=renderer)
+        if simulate:  # so does the report's probe of off-screen rendering (a subprocess)
+            start_pyvista_probe()
         stage("design", run_design, source, staging, progress=progress, **design_opts)
         if program:
             # A shape's own landscape gives the order of completion; its seconds are mapped

@@ -4,7 +4,9 @@ its own physics.
 Tolerances:
 * every effect off: the frames of the code before the options existed (stored in
   ``tests/data/physics_off_reference.npz``, made by commit 3522200 with the stand-in bracket
-  model) are reproduced to 1e-12 mm;
+  model) are reproduced to 1e-12 mm before issue #15, to 1e-9 mm up to a rigid rotation
+  since (the simulator now undoes each solve's net rotation, which round-off used to leave:
+  the same shape, turned by 2e-4 mm at the rim of this patch);
 * relaxation: the committed Prony series is the fit of the shipped measurement (to 1e-6), and
   it follows the measured curve within its scatter: over the first 2 h (the fabrication
   window) an RMS residual within 1.5x the sample noise and a largest residual within 5x; over
@@ -62,9 +64,16 @@ def test_every_effect_off_reproduces_the_reference_frames(patch_dir):
     fr = simulate_model(load_model(patch_dir), StandInBracketModel(t_soft=10.0), t_end=40.0,
                         physics=PHYSICS_OFF)
     assert len(fr["t"]) == len(ref["t"])
-    for k in ("base_center", "base_rotation", "bracket_length", "energy"):
-        assert np.abs(fr[k] - ref[k]).max() <= 1e-12, k
-    assert np.abs(fr["membrane_vertices"][-1] - ref["membrane_vertices_last"]).max() <= 1e-12
+    assert np.abs(fr["energy"] - ref["energy"]).max() <= 1e-12
+    assert np.abs(fr["bracket_length"] - ref["bracket_length"]).max() <= 1e-9
+    for k in range(len(fr["t"])):  # the same poses up to the rotation gauge (issue #15)
+        C, Cr = fr["base_center"][k], ref["base_center"][k]
+        U, _, Vt = np.linalg.svd((Cr - Cr.mean(0)).T @ (C - C.mean(0)))
+        Q = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+        assert np.abs((Cr - Cr.mean(0)) @ Q.T + C.mean(0) - C).max() <= 1e-9, k
+        assert np.abs(Q @ ref["base_rotation"][k] - fr["base_rotation"][k]).max() <= 1e-9, k
+    M, Mr = fr["membrane_vertices"][-1], ref["membrane_vertices_last"]
+    assert np.abs((Mr - Cr.mean(0)) @ Q.T + C.mean(0) - M).max() <= 1e-9
     assert np.array_equal(fr["collided"], ref["collided"])
     assert np.array_equal(fr["newton_iterations"], ref["newton_iterations"])
     assert '"relaxation": false' in str(fr["physics"])

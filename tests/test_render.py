@@ -433,3 +433,17 @@ def test_union_helpers_round_trip(built):
     m = to_manifold(built["stl"]["top"])
     back = from_manifold(m)
     assert back.volume == pytest.approx(built["stl"]["top"].volume, rel=1e-9)
+
+
+def test_count_bodies_matches_decompose():
+    """``count_bodies`` (edge-connected triangles of the mesh) counts the solids that
+    ``Manifold.decompose`` splits a union into: two touching cubes are one body, a third
+    apart from them another, an empty solid none."""
+    import manifold3d
+
+    cube = manifold3d.Manifold.cube([1.0, 1.0, 1.0])
+    solids = [cube, cube.translate([0.5, 0.0, 0.0]), cube.translate([3.0, 0.0, 0.0]),
+              manifold3d.Manifold.sphere(0.5, 24).translate([0.0, 5.0, 0.0])]
+    m = render.union(solids)
+    assert render.count_bodies(m) == len(m.decompose()) == 3
+    assert render.count_bodies(render.union([])) == 0

@@ -40,7 +40,17 @@ import scipy.sparse as sp
 from pysolver.errors import InputError
 from pysolver.params import tol as TOL
 
-from .kernels import HAVE_NUMBA, cross_point_hessian, membrane_kernel, reduce_scatter
+from .kernels import (
+    HAVE_NUMBA,
+    cross_point_hessian,
+    discrete_terms,
+    membrane_kernel,
+    reduce_scatter,
+    rigid_gradient,
+    rigid_positions,
+    rigid_rotation_term,
+    stored_pairs,
+)
 from .model import ShellModel
 
 # ------------------------------------------------------------------------------------------------
@@ -490,6 +500,7 @@ class ShellEnergy:
         self.spring_coef = np.zeros((ns, 4))
         self.attached = np.flatnonzero(model.point_body >= 0)
         self.att_body = model.point_body[self.attached]
+        self.att_local = np.ascontiguousarray(model.point_local[self.attached], dtype=float)
         self.free_pts = model.free_points
         pd = model.point_dofs()
         self.point_dofs = pd
@@ -515,6 +526,8 @@ class ShellEnergy:
             self.pos_spring = self.pattern.position_map(1)
             self.pos_cross = self.pattern.position_map(2)
             self.pos_tri = self.pattern.position_map(3)
+            self.use_spring, self.use_cross, self.use_tri = (
+                stored_pairs(p) for p in (self.pos_spring, self.pos_cross, self.pos_tri))
             self._Hm = np.zeros((len(model.tri_points), 9, 9))
         tr, rot = model.dof_slices()
         self.trans_dofs, self.rot_dofs = tr, rot
@@ -530,6 +543,11 @@ class ShellEnergy:
     def positions(self, state: State):
         """Point positions ``(p, 3)`` and rotated local offsets ``v = R t`` of attached points."""
         md = self.model
+        if self.backend == "numba":
+            X, v = np.empty((md.n_points, 3)), np.empty((len(self.attached), 3))
+            rigid_positions(state.c, state.R, state.f, self.attached, self.att_body,
+                            self.att_local, self.free_pts, X, v)
+            return X, v
         t = md.point_local[self.attached]
         v = np.einsum("nij,nj->ni", state.R[self.att_body], t)
         X = np.empty((md.n_points, 3))
@@ -542,6 +560,16 @@ class ShellEnergy:
         """Springs and cross pairs (always numpy: a few thousand elements)."""
         md = self.model
         sp_ = md.spring_points
+        if self.backend == "numba" and not psd:
+            ns, nc = len(sp_), len(md.cross_points)
+            es, gs, ex, gx = np.empty(ns), np.empty((ns, 2, 3)), np.empty(nc), np.empty((nc, 4, 3))
+            Ks, G, Ka, Kb = ((np.empty((ns, 3, 3)), np.empty((nc, 4, 3)), np.empty((nc, 3, 3)),
+                              np.empty((nc, 3, 3))) if hessian else
+                             (np.empty((0, 3, 3)), np.empty((0, 4, 3)), np.empty((0, 3, 3)),
+                              np.empty((0, 3, 3))))
+            discrete_terms(X, sp_, self.spring_rest, self.spring_coef, md.cross_points,
+                           md.cross_weight, md.cross_rest, hessian, es, gs, Ks, ex, gx, G, Ka, Kb)
+            return (es, gs, Ks if hessian else None), (ex, gx, (G, Ka, Kb) if hessian else None)
         es, gs, Ks = spring_terms(X[sp_[:, 0]], X[sp_[:, 1]], self.spring_rest, self.spring_coef,
                                   hessian=hessian, psd=psd)
         cp = md.cross_points
@@ -602,6 +630,10 @@ class ShellEnergy:
 
     def _reduce_gradient(self, G, v):
         m = self.m
+        if self.backend == "numba":
+            g = np.empty(6 * m + 3 * len(self.free_pts))
+            rigid_gradient(G, self.attached, self.att_body, v, self.free_pts, m, g)
+            return g
         Ga = G[self.attached]
         force = np.stack([np.bincount(self.att_body, weights=Ga[:, d], minlength=m)
                           for d in range(3)], 1)
@@ -698,6 +730,10 @@ class ShellEnergy:
 
     def _rotation_term(self, G, v, psd):
         """Second-order term of the rigid map per base: sum_p g_p . d2x_p / dtheta2 (m, 3, 3)."""
+        if self.backend == "numba" and not psd:
+            rot = np.empty((self.m, 3, 3))
+            rigid_rotation_term(G, self.attached, self.att_body, v, rot)
+            return rot
         Ga = G[self.attached]
         gv = Ga[:, :, None] * v[:, None, :]
         term = 0.5 * (gv + np.transpose(gv, (0, 2, 1)))
@@ -721,11 +757,11 @@ class ShellEnergy:
         Hs[:, 3:, 3:] = Ks
         Hs[:, :3, 3:] = -Ks
         Hs[:, 3:, :3] = -Ks
-        reduce_scatter(Hs, md.spring_points, V, self.pos_spring, data)
+        reduce_scatter(Hs, md.spring_points, V, self.pos_spring, data, self.use_spring)
         Hx = np.empty((len(md.cross_points), 12, 12))
         cross_point_hessian(md.cross_weight, *parts, Hx)
-        reduce_scatter(Hx, md.cross_points, V, self.pos_cross, data)
-        reduce_scatter(Hm9, md.tri_points, V, self.pos_tri, data)
+        reduce_scatter(Hx, md.cross_points, V, self.pos_cross, data, self.use_cross)
+        reduce_scatter(Hm9, md.tri_points, V, self.pos_tri, data, self.use_tri)
         return self.pattern.matrix(data)
 
     def _assemble_numpy(self, V, Ks, parts, Hm, rot):

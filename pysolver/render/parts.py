@@ -57,6 +57,8 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ..atomic import atomic_dir, public_mode
 from ..errors import ExternalToolError, InputError, MorphshellError
@@ -668,11 +670,25 @@ def _affine(T):
     return [list(map(float, row)) for row in np.asarray(T, float)[:3, :4]]
 
 
+def count_bodies(m) -> int:
+    """Separate solids of a manifold3d solid: its triangles joined across shared edges, the
+    components that ``Manifold.decompose`` splits it into.  (Counted on the mesh because
+    ``decompose`` builds every part as a new solid: 1.8 s for the 400 nodes of petal's
+    ``actuated.stl``, 0.05 s here.)"""
+    if m.is_empty():
+        return 0
+    mesh = from_manifold(m)
+    adj = mesh.face_adjacency
+    n = len(mesh.faces)
+    graph = coo_matrix((np.ones(len(adj)), (adj[:, 0], adj[:, 1])), shape=(n, n))
+    return int(connected_components(graph, directed=False)[0])
+
+
 def describe_stl(path, m) -> dict:
     """Figures of one written STL: watertight (as re-read from the file), bodies, volume, bbox."""
     mesh = load_stl(path)
     return {"watertight": bool(mesh.is_watertight and mesh.is_volume),
-            "bodies": len(m.decompose()) if not m.is_empty() else 0,
+            "bodies": count_bodies(m),
             "volume_mm3": float(m.volume()),
             "bbox_mm": np.asarray(mesh.bounds, float).round(6).tolist(),
             "triangles": int(len(mesh.faces))}
@@ -854,6 +870,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
 
 __all__ = ["render_design", "render_parts", "find_openscad", "openscad_version",
            "library_digest", "part_key", "default_cache_dir", "load_stl", "to_manifold",
-           "from_manifold", "union", "describe_stl", "STL_FILES", "OPENSCAD_ENV", "FACET_TOL_MM",
+           "from_manifold", "union", "count_bodies", "describe_stl", "STL_FILES", "OPENSCAD_ENV",
+           "FACET_TOL_MM",
            "RENDERERS", "DEFAULT_RENDERER", "check_renderer", "fast_self_check", "start_self_check",
            "RendererFallbackWarning"]

@@ -14,7 +14,8 @@ previous equilibrium:
    still is one).
    A step that does not converge is kept (its best iterate), flagged ``converged = False``
    in the frames and the summary, and reported on stderr.
-4. The mean of the base centres is reset to its flat value (global translation is free).
+4. The mean of the base centres is reset to its flat value (global translation is free), and
+   the net rotation of the solve is undone (global rotation is free: ``Simulation._unrotate``).
 5. Early stop once every cell is at its bumpers in both layers and nothing moves any more.
    Divergence (NaN, energy above 100x the dry equilibrium, runaway motion) stops the run,
    keeps the frames so far and raises :class:`~pysolver.errors.MorphshellError` naming the
@@ -255,6 +256,44 @@ class Simulation:
         fr["marker_top"][k] = s.c + s.R[:, :, 2] * h
         fr["marker_bottom"][k] = s.c - s.R[:, :, 2] * h
 
+    def _unrotate(self, before: State) -> None:
+        """Undo the net rotation of the step's solve (the rotation gauge).
+
+        Nothing holds the shell, and its energy does not change when the whole shell turns:
+        the Newton steps are only regularised along that null space
+        (``pysolver.mechanics.solver``), so the round-off of each solve turns the whole shell a
+        little, differently on each BLAS and thread count, and the predictor extrapolates the
+        turn (the benchmark shell spun by 144 degrees over its run; the two solver paths
+        differed by 0.009 mm, and by 7e-10 mm after a rigid fit).  The best-fit rotation (Kabsch,
+        about the centroid) of this step's base centres and free vertices onto the previous
+        frame's is undone, so a frame has no net rotation relative to the previous one and the
+        result no longer depends on that round-off.  With weight and a table
+        (``physics.gravity``) only the turn about the vertical is free, and only it is undone.
+        """
+        s = self.state
+        P = np.concatenate([s.c, s.f])
+        Q = np.concatenate([before.c, before.f])
+        pc, qc = P.mean(axis=0), Q.mean(axis=0)
+        if self.energy.external is None:
+            U, S, Vt = np.linalg.svd((P - pc).T @ (Q - qc))
+            if S[1] <= TOL.degenerate * S[0]:  # collinear: the turn about the line is undefined
+                return
+            d = np.sign(np.linalg.det(Vt.T @ U.T))
+            Rg = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T  # Rg (p - pc) ~ q - qc
+        else:
+            up = np.abs(self.energy.external.up)
+            e1, e2 = np.eye(3)[np.argsort(up)[:2]]  # the horizontal axes
+            A, B = P - pc, Q - qc
+            a = float(np.sum((A @ e1) * (B @ e2) - (A @ e2) * (B @ e1)))
+            b = float(np.sum((A @ e1) * (B @ e1) + (A @ e2) * (B @ e2)))
+            th = np.arctan2(a, b)
+            w = np.cross(e1, e2)  # the turn by th about w maps e1 towards e2
+            K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+            Rg = np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+        s.c = (s.c - pc) @ Rg.T + pc
+        s.f = (s.f - pc) @ Rg.T + pc
+        s.R = Rg @ s.R
+
     def _recentre(self) -> None:
         shift = self.state.c.mean(axis=0) - self.model.base_flat.mean(axis=0)
         if self.energy.external is not None:
@@ -290,6 +329,11 @@ class Simulation:
         problem = StaticProblem(self.energy, start)
         res = newton(problem, tol=st.tol, linear=self.linear,
                      max_iter=st.max_iter_dry if dry else st.max_iter_wet)
+        if res.status == "nan" and res.iterations == 0 and start is not self.state:
+            # the extrapolation left the energy's domain: start from the last equilibrium
+            problem = StaticProblem(self.energy, self.state)
+            res = newton(problem, tol=st.tol, linear=self.linear,
+                         max_iter=st.max_iter_dry if dry else st.max_iter_wet)
         self.state = problem.state
         self.state.orthonormalize()
         cause = self._divergence(res, t)
@@ -297,6 +341,7 @@ class Simulation:
             self.state = before
             raise MorphshellError(f"simulation diverged at step {self.k} (t = {t:g} s): "
                                   f"{cause}", fix=self._divergence_fix(cause))
+        self._unrotate(before)
         self._recentre()
         L = self.spring_lengths()
         self._record(t, res, L)
@@ -333,8 +378,10 @@ class Simulation:
         pred = State(2 * c1 - c0, (R1 @ np.transpose(R0, (0, 2, 1))) @ R1,
                      2 * hist[-1] - hist[-2])
         pred.orthonormalize()
+        if self.settings.predictor != "guarded":
+            return pred  # (a non-finite energy there is caught by step(): solved from the last)
         E_pred = self.energy.energy(pred)
-        if self.settings.predictor == "guarded" and E_pred >= self.energy.energy(self.state):
+        if E_pred >= self.energy.energy(self.state):
             return self.state
         return pred if np.isfinite(E_pred) else self.state
 

@@ -19,6 +19,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
 
 import matplotlib
 
@@ -48,9 +49,27 @@ print("ok")
 """
 
 
-@functools.lru_cache(maxsize=1)
+_PROBE_LOCK = threading.Lock()  # one probe; a second caller waits for its result
+
+
 def pyvista_status() -> tuple[bool, str]:
-    """Whether pyvista renders off-screen here: ``(ok, reason)``; probed once, in a subprocess."""
+    """Whether pyvista renders off-screen here: ``(ok, reason)``; probed once, in a subprocess
+    (a Python start, VTK's import and one off-screen render: 1-3 s of mostly waiting, which
+    :func:`start_pyvista_probe` moves off the report's critical path)."""
+    with _PROBE_LOCK:
+        return _pyvista_status()
+
+
+def start_pyvista_probe() -> threading.Thread:
+    """Probe :func:`pyvista_status` in a background thread (the build starts it with the
+    build, so the report stage reads the memoised result instead of waiting for the probe)."""
+    th = threading.Thread(target=pyvista_status, name="pyvista-probe", daemon=True)
+    th.start()
+    return th
+
+
+@functools.lru_cache(maxsize=1)
+def _pyvista_status() -> tuple[bool, str]:
     try:
         import pyvista  # noqa: F401
     except Exception as e:  # soft dependency
@@ -612,6 +631,7 @@ def plot_time_landscape(path, flat_xy, cells_ab, t_star, t_done, *, uv=None, fac
     return _save(fig, path)
 
 
-__all__ = ["ShellRenderer", "pyvista_status", "layer_templates", "place", "view_frame",
+__all__ = ["ShellRenderer", "pyvista_status", "start_pyvista_probe", "layer_templates", "place",
+           "view_frame",
            "save_png", "save_gif", "plot_timing", "plot_solver", "plot_clearance",
            "plot_layout_thickness", "plot_time_landscape", "fit_titles", "titles_fit"]
