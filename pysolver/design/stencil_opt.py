@@ -17,9 +17,9 @@ and a log barrier that keeps every flat triangle positively oriented.  Given a t
 landscape that varies, a fourth term moves each cell's achievable completion times
 (estimated from its bracket length and compression, :func:`timing_misfit`) toward its
 requested time: on the paper's cover with its own landscape this clamps 17 % of the cells
-instead of 22 % (``bench/bench_design_cover.py``).  The target positions are the exact lift of the flat points, linearised
-per vertex (the Jacobian of the dense piecewise linear map) inside each of a few outer
-rounds and lifted again after each.
+instead of 22 % (``bench/bench_design_cover.py``).  The target positions are the exact
+lift of the flat points, linearised per vertex (the Jacobian of the dense piecewise linear
+map) inside each of a few outer rounds and lifted again after each.
 
 Gradients are taken by :mod:`autograd` (reverse mode over numpy) rather than by hand: the
 objective chains normals, half fold angles and three smoothed maxima, and a hand-written
