@@ -10,7 +10,9 @@ benchmark: a clone on its own skips it with a message) and writes ``<out>/design
    reference 396 bases);
 3. the reference's cover landscape (per vertex of its stencil) carried onto the cover target
    (similarity alignment by closest points, barycentric interpolation) and programmed on
-   morphshell's own cover design: the fraction of clamped cells (bar: <= 10 %).
+   morphshell's own cover design: the fraction of clamped cells (bar: <= 10 %), and the
+   fraction of brackets at either thickness bound (the reference's own figure for its own
+   design: 1 % at 0.30 mm and 8 % at 0.65 mm).
 
 Usage::
 
@@ -36,6 +38,7 @@ from _reference import reference_options  # noqa: E402  (bench/, beside this scr
 
 from pysolver.design import run_design, unit_cell_options  # noqa: E402
 from pysolver.design.mesh_input import load_input  # noqa: E402
+from pysolver.params import TOL, UNIT_CELL  # noqa: E402
 from pysolver.tables import read_cells  # noqa: E402
 from pysolver.temporal import program_design  # noqa: E402
 
@@ -135,12 +138,19 @@ def main() -> int:
         p = program_design(d, progress=False, picture=False)
         cells = read_cells(d / "cells.csv")
         frac = float(np.mean(np.asarray(cells["clamped"], bool)))
+        # the reference states its own figure per bracket (1 % at 0.30 mm, 8 % at 0.65 mm)
+        th = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]]
+        at_min = np.isclose(th, UNIT_CELL.thickness_min, rtol=0, atol=TOL.rel)
+        at_max = np.isclose(th, UNIT_CELL.thickness_max, rtol=0, atol=TOL.rel)
         res["cover_reference_landscape"] = {
             "landscape_s": [round(float(t_ref.min()), 2), round(float(t_ref.max()), 2)],
             "clamped_fraction": round(frac, 4), "cells": int(len(cells["clamped"])),
+            "brackets_at_bound_fraction": {"thickness_min": round(float(at_min.mean()), 4),
+                                           "thickness_max": round(float(at_max.mean()), 4)},
             "program": {k: v for k, v in p.items() if isinstance(v, (int, float, str))}}
-        print(f"reference landscape on morphshell's cover: {100 * frac:.1f} % of cells clamped",
-              flush=True)
+        print(f"reference landscape on morphshell's cover: {100 * frac:.1f} % of cells clamped, "
+              f"{100 * at_min.mean():.1f} % / {100 * at_max.mean():.1f} % of the brackets at "
+              f"{UNIT_CELL.thickness_min:g} / {UNIT_CELL.thickness_max:g} mm", flush=True)
     (out / "design_cover.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
     print(f"-> {out / 'design_cover.json'}")
     return 0
