@@ -38,7 +38,7 @@ from _reference import reference_options  # noqa: E402  (bench/, beside this scr
 
 from pysolver.design import run_design, unit_cell_options  # noqa: E402
 from pysolver.design.mesh_input import load_input  # noqa: E402
-from pysolver.params import TOL, UNIT_CELL  # noqa: E402
+from pysolver.params import UNIT_CELL, tol  # noqa: E402
 from pysolver.tables import read_cells  # noqa: E402
 from pysolver.temporal import program_design  # noqa: E402
 
@@ -140,8 +140,8 @@ def main() -> int:
         frac = float(np.mean(np.asarray(cells["clamped"], bool)))
         # the reference states its own figure per bracket (1 % at 0.30 mm, 8 % at 0.65 mm)
         th = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]]
-        at_min = np.isclose(th, UNIT_CELL.thickness_min, rtol=0, atol=TOL.rel)
-        at_max = np.isclose(th, UNIT_CELL.thickness_max, rtol=0, atol=TOL.rel)
+        at_min = np.isclose(th, UNIT_CELL.thickness_min, rtol=0, atol=tol.rel)
+        at_max = np.isclose(th, UNIT_CELL.thickness_max, rtol=0, atol=tol.rel)
         res["cover_reference_landscape"] = {
             "landscape_s": [round(float(t_ref.min()), 2), round(float(t_ref.max()), 2)],
             "clamped_fraction": round(frac, 4), "cells": int(len(cells["clamped"])),
