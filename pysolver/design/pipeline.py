@@ -102,15 +102,17 @@ def _target_times(time, surf, mesh):
     """(n,) float, s, or None: the time landscape at the target's own vertices, before
     remeshing, so that the stencil optimisation can suit the cells' speeds to it (None when
     it is constant: programming then picks the constant itself).  Coordinates are centred on
-    the target (the stencil's are centred on the stencil, a shift of a few tenths of a mm
-    that the optimisation's estimate does not feel)."""
+    the target and unscaled; the final landscape sees the stencil, centred on itself and
+    scaled by the 3D rule (which the count search keeps within a few per cent of 1): an
+    expression of x, y, z differs by that much, which the optimisation's estimate (error
+    about 25 % in time) does not feel."""
     c = np.asarray(surf.V, float).mean(axis=0)
     if time is None and surf.time is not None:
         t = resolve_time(None, surf.V - c, default=lambda X: surf.time(X + c))[0]
     else:
         src = None if mesh is None else mesh.transformed(-c, 1.0)
         t = resolve_time(time, surf.V - c, source_mesh=src)[0]
-    return t if np.ptp(t) > 0 else None
+    return t if np.ptp(t) > TOL.time else None
 
 
 def _time_file_source(path, mesh, surf, stencil_order: bool):

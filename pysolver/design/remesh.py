@@ -49,6 +49,7 @@ from shapely.geometry import LinearRing, Polygon
 from ..errors import InputError
 from ..geometry import face_adjacency, face_normals
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from ..params import tol as TOL
 from .flatten import cetm
 from .layout import build_layout
 from .stencil_opt import optimize_stencil
@@ -464,6 +465,8 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         if time.shape != (len(V),):
             raise InputError(f"time has shape {time.shape}, expected ({len(V)},): one value "
                              "per target vertex", fix="give the time landscape per vertex of V")
+    if time is not None and np.ptp(time) <= TOL.time:
+        time = None  # a constant landscape: programming picks the constant itself
     if dense:
         V2, F2 = resample_dense(V, F, settings.dense_faces)
         if time is not None:

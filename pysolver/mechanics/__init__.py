@@ -6,9 +6,9 @@ arrays or read from a design folder (:mod:`.model`), its energies with analytic 
 Hessians (:mod:`.energies`, compiled element loops in :mod:`.kernels`), the Newton solver of
 the static equilibrium (:mod:`.solver`) and the latex margin at the rim (:mod:`.rim`).
 
-It sits in the core layer: it imports only the other core modules (``errors``, ``params``,
-``geometry``, ``tables``), so the simulator and the design side both stand above it
-(``tests/test_architecture.py``).
+It is its own layer just above the core: it imports only core modules (``errors``,
+``params``, ``geometry``, ``tables``), so the simulator and the design side both stand above
+it (``tests/test_architecture.py``).
 """
 from .model import (
     CROSS_REST_MODES,

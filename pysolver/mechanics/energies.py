@@ -557,7 +557,8 @@ class ShellEnergy:
 
     # -- element terms -----------------------------------------------------------------------------
     def _discrete(self, X, hessian, psd):
-        """Springs and cross pairs (always numpy: a few thousand elements)."""
+        """Springs and cross pairs (:func:`.kernels.discrete_terms` with the numba backend,
+        else numpy)."""
         md = self.model
         sp_ = md.spring_points
         if self.backend == "numba" and not psd:

@@ -1,9 +1,9 @@
-"""Compiled (numba) kernels for the two hot loops of the Hessian assembly.
+"""Compiled (numba) kernels for the hot loops of the energy, gradient and Hessian assembly.
 
 Profiling the benchmark shell (~460 bases, ~8000 membrane triangles, ~9800 DOFs) showed the
 numpy assembly at ~80 ms per Newton iteration, most of it in many small array operations on
 (n, 3, 3) stacks (membrane element Hessians, rigid-body reduction of every 3x3 block, scatter).
-These two loops are written here once, element by element, and compiled with numba:
+These loops are written here once, element by element, and compiled with numba:
 
 * :func:`membrane_kernel` -- energy, gradient (accumulated per point) and the 9x9 point-space
   Hessian of every incompressible neo-Hookean triangle (same formulas as
@@ -11,9 +11,13 @@ These two loops are written here once, element by element, and compiled with num
 * :func:`reduce_scatter` -- rigid-body reduction ``J_p^T K J_q`` (``J = [I, -[v]x]``) of every
   3x3 point block of a batch of elements and summation into the CSC data array of the reduced
   Hessian through precomputed positions (-1 = not stored: upper triangle or the rotation
-  columns of a free vertex).
+  columns of a free vertex);
+* :func:`discrete_terms` -- springs and cross pairs; :func:`cross_point_hessian`;
+* :func:`rigid_positions`, :func:`rigid_gradient`, :func:`rigid_rotation_term` -- the
+  points of the rigid bases from their poses, and the reduction of point gradients to the
+  bases' degrees of freedom.
 
-Both are optional: without numba, :class:`.energies.ShellEnergy` uses the vectorised numpy
+All are optional: without numba, :class:`.energies.ShellEnergy` uses the vectorised numpy
 path (same results to round-off; tested).
 """
 
