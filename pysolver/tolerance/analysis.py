@@ -76,7 +76,7 @@ import numpy as np
 from pysolver import distributed
 from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
 from pysolver.build import check_sim_span, simulate_and_check
-from pysolver.errors import InputError, MorphshellError
+from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
 from pysolver.material.measurements import REPO_ROOT, load_measurements
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
@@ -700,11 +700,12 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     n_cells = len(cells["cell_id"])
     th = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
     ts = np.asarray(cells["t_star_s"], float)
-    bad = np.flatnonzero(~(np.all(np.isfinite(th) & (th > 0), axis=1) & np.isfinite(ts)))
-    if len(bad):  # refused here, not by every worker
-        raise InputError(f"{folder / 'cells.csv'}:{int(bad[0]) + 2}: cell {int(bad[0])} has no "
-                         "programmed thickness or t*", fix="run the program stage first "
-                         "(morphshell build NAME --no-render, or make sim shape=NAME)")
+    refuse_first(~(np.all(np.isfinite(th) & (th > 0), axis=1) & np.isfinite(ts)),
+                 # refused here, not by every worker
+                 lambda i, _: f"{folder / 'cells.csv'}:{i + 2}: cell {i} has no programmed "
+                              "thickness or t*",
+                 fix="run the program stage first (morphshell build NAME --no-render, or "
+                     "make sim shape=NAME)")
     n_bases = len(read_table(folder, "bases")["base_id"])
     out = _claim(Path(out) if out is not None else folder / "tolerance")
     t_start = time.perf_counter()
