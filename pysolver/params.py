@@ -485,12 +485,6 @@ class StencilSearch:
         (:func:`pysolver.design.remesh.remesh_surface`; 0 = no second pass): the count
         search's scaling lands within a few per cent of 1 (its tolerance, and the seeds'
         noise), this pass brings it within 0.5 % (30 left 1-4 %).
-    min_cover : float
-        A rim inset (``rim_insets``) is skipped when the region inside it holds less than this
-        fraction of the target's area: on a narrow target it removes whole rows of cells
-        and leaves the rim cells short and slow (the spiral, 25 mm wide: 73 % with the
-        4 mm inset, 14 rim cells that never complete and 2.7 % RMS; 0.6 % without).  The
-        reference's stencils cover 80-88 %; petal's inset region holds 78 %, dome's 83 %.
     """
 
     dense_faces: int = 6000
@@ -527,7 +521,6 @@ class StencilSearch:
     candidates: tuple = ()
     margin: float = 0.3
     opt_pin_weight: float = 100.0
-    min_cover: float = 0.75
 
 
 STENCIL = StencilSearch()

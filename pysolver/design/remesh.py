@@ -267,14 +267,6 @@ class FlatDomain:
         t = np.linspace(0.0, s[-1], max(4 * len(self.loop), 200))
         return np.c_[np.interp(t, s, R[:, 0]), np.interp(t, s, R[:, 1])]
 
-    def covered(self, inset: float) -> float:
-        """Fraction of the target's area (3D) inside the curve ``inset`` mm from its rim."""
-        if inset <= 0:
-            return 1.0
-        inside = PolygonPath(self.boundary_polygon(inset)).contains_points(self.quad)
-        w = np.tile(self.area3, 4) / 4
-        return float(w[inside].sum() / w.sum())
-
     def cvt(self, n: int, seed: int = 0, inset: float = 0.0):
         """Flat points of a weighted CVT with ``n`` points, boundary first, the boundary
         ``inset`` mm inside the target's rim.
@@ -571,8 +563,6 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
 
     for inset in insets:
         try:
-            if method == "cvt" and inset > 0 and dom.covered(inset) < settings.min_cover:
-                continue  # a narrow target would lose whole rows of cells to the inset
             search_counts(inset)
         except RimInsetError:
             continue
