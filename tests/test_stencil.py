@@ -299,3 +299,19 @@ def test_constant_landscape_through_the_search_is_no_landscape():
     V0, F0, _ = remesh.remesh_surface(s.V, s.F, **kw)
     V1, F1, _ = remesh.remesh_surface(s.V, s.F, time=np.full(len(s.V), 60.0), **kw)
     assert np.array_equal(F0, F1) and np.array_equal(V0, V1)
+
+
+@pytest.mark.parametrize("n", [50, 70])
+def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome_domain, n):
+    """The count search's last pass: the 3D scaling held at 1 (from 0.80 and 0.97 here, to
+    0.5 %), the longest flat cell per unit of scaling shorter than before."""
+    P, F = dome_domain.stencil(n, seed=0)
+    before = remesh.stencil_figures(dome_domain.lift(P), F)
+    Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+                                           pin=True)
+    after = remesh.stencil_figures(dome_domain.lift(Q), F)
+    assert info["rounds"] >= 1
+    assert after["scale3d"] == pytest.approx(1.0, abs=0.005)
+    assert (after["max_cell_length_mm"] / after["scale3d"]
+            < before["max_cell_length_mm"] / before["scale3d"] - 0.2)
+    assert np.all(stencil_opt._signed_areas(Q, F) > 0)

@@ -34,7 +34,10 @@ Vertex count: ``vertices=N`` or searched: secant steps on the 3D scaling (about
 ``sqrt(N)``) toward 1, so that the shell keeps the size of its target, then another seed when
 the first leaves no margin, then the next rim inset when nothing is printable; among the
 candidates whose longest flat cell is within the limit the one with the scaling closest to 1
-wins (:func:`remesh_surface`).  Nothing is tuned per shape.
+wins (:func:`remesh_surface`).  The winner is optimised once more with its 3D scaling held at
+1 (``StencilSearch.opt_pin_weight``), and kept when that is nearer the target's size at no
+longer cell (or still printable and no longer per unit of scaling).  Nothing is tuned per
+shape.
 """
 
 from __future__ import annotations
@@ -447,8 +450,9 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     info : dict
         ``vertices``, ``requested``, ``seed``, ``rim_inset_mm``, ``estimate_paper``,
         ``scale3d``, ``max_cell_length_mm``, ``before_optimisation`` / ``after_optimisation``
-        (:func:`stencil_figures` of the chosen stencil) and ``candidates``
-        [[N, seed, inset, scale3d, longest flat cell], ...].
+        (:func:`stencil_figures` of the chosen stencil), ``candidates``
+        [[N, seed, inset, scale3d, longest flat cell], ...] and ``polish`` (the last pass at
+        scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -482,7 +486,15 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             if optimize:
                 t_P = None if time is None else dom.interpolate(time, P)
                 P, _ = optimize_stencil(dom, P, F2, params, settings, t_vertex=t_P)
+                flat[(n, sd, float(inset))] = (P, t_P)
             return dom.lift(P), F2, before
+
+        def polish(key, F2):
+            # the chosen stencil again, its 3D scaling held at 1: the longest flat cell per
+            # unit of scaling, with the shell at its target's size
+            P, t_P = flat[key]
+            P, _ = optimize_stencil(dom, P, F2, params, settings, t_vertex=t_P, pin=True)
+            return dom.lift(P)
         # insets in mm: a fraction of the edge of the smallest regular cell the min-bumper rule
         # allows (fixed, so that the 3D scaling stays monotone in the vertex count)
         edge = np.sqrt(3) * 2 * (params.base_r + params.min_bumper)
@@ -495,6 +507,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         insets = (0.0,)
     tried: dict = {}
     meshes: dict = {}
+    flat: dict = {}  # (N, seed, inset) -> optimised flat points, time at them
 
     def trial(n, sd, inset):
         n = max(int(n), 8)
@@ -564,11 +577,30 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                          fix="check the target (it may fold sharply or be too small for 4 mm "
                              "bases), or give --vertices")
     V2, F2, before = meshes[best]
+    chosen = tried[best]
+    if best in flat and settings.opt_pin_weight > 0:
+        Vp = polish(best, F2)
+        fig = stencil_figures(Vp, F2, params)
+        L0 = chosen["max_cell_length_mm"]
+        # kept when it is nearer the target's size and no longer (or still printable, with
+        # no longer cell per unit of scaling)
+        if _laid_out(fig) and abs(np.log(fig["scale3d"])) <= abs(np.log(chosen["scale3d"])) \
+                and (fig["max_cell_length_mm"] <= max(L0, limit - settings.margin)
+                     or (fig["max_cell_length_mm"] <= limit and fig["max_cell_length_mm"]
+                         / fig["scale3d"] <= L0 / chosen["scale3d"])):
+            V2, chosen = Vp, fig
+        info["polish"] = {"scale3d": fig["scale3d"], "max_cell_length_mm":
+                          fig["max_cell_length_mm"], "kept": chosen is fig}
+        if progress is not None:
+            progress(f"N={best[0]} seed={best[1]} held at scale 1: "
+                     + (f"scale3d {fig['scale3d']:.3f}, longest flat cell "
+                        f"{fig['max_cell_length_mm']:.2f} mm" if _laid_out(fig)
+                        else "no layout") + (" (kept)" if chosen is fig else " (dropped)"))
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
-                rim_inset_mm=float(best[2]), scale3d=tried[best]["scale3d"],
-                max_cell_length_mm=tried[best]["max_cell_length_mm"],
+                rim_inset_mm=float(best[2]), scale3d=chosen["scale3d"],
+                max_cell_length_mm=chosen["max_cell_length_mm"],
                 before_optimisation=stencil_figures(*before, params) if optimize else None,
-                after_optimisation=tried[best],
+                after_optimisation=chosen,
                 candidates=[[k[0], k[1], k[2], v["scale3d"], v["max_cell_length_mm"]]
                             for k, v in sorted(tried.items())])
     return V2, F2, info

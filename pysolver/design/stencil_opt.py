@@ -207,7 +207,7 @@ def timing_misfit(Q, X, F, fa, fb, o1, o2, boundary, log_t_star, log_s3, log_s2,
 
 
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
-                     settings: StencilSearch = STENCIL, t_vertex=None):
+                     settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False):
     """Move the interior stencil vertices to shorten the longest flat cell.
 
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
@@ -218,9 +218,11 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     need fewer clamped thicknesses.
     Shortening the longest flat cells mostly enlarges the smallest target cells, which lowers
     the 3D scaling at a given vertex count; the count search of
-    :func:`pysolver.design.remesh.remesh_surface` then restores the size with more vertices.  A
-    positive ``opt_s3_weight`` trades flat length for fewer bases (measured: it hardly moves
-    the 3D scaling, so the default is 0).
+    :func:`pysolver.design.remesh.remesh_surface` then restores the size with more vertices.
+    A negative ``opt_s3_weight`` credits that back (the default -0.7: measured figures in
+    :class:`pysolver.params.StencilSearch`).  With ``pin`` the objective is the longest flat
+    cell per unit of 3D scaling, ``log lmax - log s3``, and ``opt_pin_weight (log s3)^2`` (exact
+    s3) holds the shell at its target's size: the count search's last pass.
 
     Parameters
     ----------
@@ -236,12 +238,14 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         ``opt_centroid_edge_mm``, ``opt_angle_weight``,
         ``opt_rounds``, ``opt_iterations``, ``opt_barrier``, ``opt_timing_weight``,
         ``timing_fastest``, ``timing_slowest``, ``timing_margin``, ``opt_cap_weight``,
-        ``opt_timing_iterations``, ``margin``.
+        ``opt_timing_iterations``, ``margin``, ``opt_pin_weight``.
     t_vertex : (n,) float, s, optional
         The time landscape at the stencil vertices (kept fixed while they move).  A
         constant landscape leaves the term out: temporal programming then picks the
         constant time most cells can reach, and evening the cells' speeds for it costs
         more flat length and 3D scaling than it saves (measured on the stand and cover).
+    pin : bool
+        Hold the 3D scaling at 1 and minimise the longest flat cell per unit of scaling.
 
     Returns
     -------
@@ -269,6 +273,15 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         bnd = (rim[fa] | rim[fb]).astype(float)
 
     log_cap = np.log(params.max_cell_length - settings.margin)
+    pin = settings.opt_pin_weight if pin else 0.0
+
+    def main_terms(log_s3, log_s2, log_d, ex):
+        # pinned: the longest flat cell per unit of 3D scaling, with the exact 3D scaling held
+        # at 1 (the shell keeps its target's size, so the count search can trade vertices for
+        # flat length); else the longest flat cell (+ the optional 3D scaling weight)
+        if pin > 0:
+            return log_s2 + log_d - log_s3 + pin * ex[0] ** 2
+        return log_s2 + log_d + settings.opt_s3_weight * log_s3
 
     def timing(Q, X, log_s3, log_s2, ex):
         # the misfit, at the smoothed scalings: they over-estimate s2 by 6-7 % (so every
@@ -310,7 +323,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         ex = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)
         short = float(np.max(log_clear - float(ex[1])
                              - np.log(_np(centroid_edge_distances(Q, F)))))
-        return (float(b + c + settings.opt_s3_weight * a + timing(Q, X, a, b, ex)),
+        return (float(main_terms(a, b, c, ex) + timing(Q, X, a, b, ex)),
                 max(short, 0.0))
 
     current, short_now = exact(P)
@@ -333,7 +346,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
             ex = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)
             near = anp.maximum(log_clear - ex[1] - anp.log(anp.maximum(
                 centroid_edge_distances(Q, F), settings.opt_tiny)), 0.0)
-            return (log_s2 + log_d + settings.opt_s3_weight * log_s3
+            return (main_terms(log_s3, log_s2, log_d, ex)
                     + timing(Q, X, log_s3, log_s2, ex)
                     + settings.opt_angle_weight * anp.sum(bad**2)
                     + settings.opt_clearance_weight * anp.sum(near**2)
