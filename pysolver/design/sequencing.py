@@ -39,6 +39,12 @@ _SOURCES_PER_SWEEP = 64  # Dijkstra rows at a time: bounds memory at 64 x n dist
 _VOTES = 64  # facing pairs that vote on which of two parts lies outside
 
 
+def _edges(F):
+    """(k, 2) int unique edges (sorted ends) and (k,) int how many faces use each."""
+    E = np.sort(np.asarray(F)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(E, axis=0, return_counts=True)
+
+
 def edge_graph(V, F) -> sp.csr_matrix:
     """Edge-length graph of a triangle mesh.
 
@@ -52,7 +58,7 @@ def edge_graph(V, F) -> sp.csr_matrix:
     G : (n, n) sparse float, mm -- symmetric, ``G[i, j]`` = length of edge ij
     """
     V = np.asarray(V, float)
-    E = np.unique(np.sort(np.asarray(F)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    E, _ = _edges(F)
     w = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
     n = len(V)
     return sp.coo_matrix((np.r_[w, w], (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
@@ -96,8 +102,7 @@ def facing_pairs(V, F, reach: float, detour: float, G=None) -> np.ndarray:
 
 def _rim_distance(G, F) -> np.ndarray:
     """(n,) float, mm: distance along edges to the nearest rim vertex."""
-    E = np.sort(np.asarray(F)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    edges, count = np.unique(E, axis=0, return_counts=True)
+    edges, count = _edges(F)
     rim = np.unique(edges[count == 1])
     if len(rim) == 0:  # a closed surface: no lobes
         return np.zeros(G.shape[0])
