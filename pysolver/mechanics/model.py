@@ -207,9 +207,9 @@ class MembraneMesh:
     xy : (v, 2) float, mm -- flat vertices
     tris : (t, 3) int -- triangles, counter-clockwise in the flat layout
     body : (v,) int -- base a vertex is attached to (it lies on the base outline), -1 free
-    edge_segments : (e, 2) int -- vertex pairs along the cells' stencil edges (mesh edges;
-        an edge ends at its interior stencil vertex, or where it crosses the free membrane
-        edge at a boundary vertex)
+    edge_segments : (e, 2) int -- vertex pairs along the cells' cuts (mesh edges): the
+        stencil edge between its interior vertices; an end at a boundary vertex is moved to
+        the facing base corner next to it (base a at ``cell_verts[:, 0]``, b at ``[:, 1]``)
     edge_cell : (e,) int -- unit cell of each edge segment
     """
 
@@ -272,9 +272,10 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
     (f,j,1)-(f,(j+1)%3,0) (interior vertex) or, at a boundary vertex, an open segment across
     the cell to the partner's facing node (free membrane edge).  Holes at the base centres
     remove the bases.  The stencil edge of every cell is a segment too (a constraint inside
-    the membrane, it changes nothing of the physics): it runs from an interior stencil
-    vertex, or from the point where it crosses the free membrane edge at a boundary vertex,
-    so the force the membrane carries across each cell is a sum over mesh edges
+    the membrane, it changes nothing of the physics): it runs between its interior stencil
+    vertices; at a boundary vertex it ends at the facing corner of base a (first vertex)
+    or b (second vertex), so no vertex is added on the free edge.  The force the membrane
+    carries across each cell is then a sum over mesh edges
     (:func:`pysolver.temporal.membrane_model.cell_tractions`).  Triangle (``pzq<min_angle>
     a<max_area>Q``) adds points on segments where quality or size need them: on a base
     outline they are attached to that base, elsewhere free.
@@ -321,7 +322,6 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
     j = np.r_[ja, jb]
     fo = np.r_[b, a]
     jo = np.r_[jb, ja]
-    cell = np.r_[np.arange(c), np.arange(c)]
     cid = lambda ff_, jj, kk: 6 * ff_ + 2 * jj + kk  # noqa: E731
     side = np.c_[cid(f, j, 0), cid(f, j, 1)]
     corner_vertex = F[f, (j + 2) % 3]
@@ -333,38 +333,25 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
     xy_all = corner_xy.reshape(-1, 2)
     renum = -np.ones(6 * m, dtype=np.int64)
     renum[used] = np.arange(len(used))
-    # free stencil-edge ends: interior vertices of the cells' edges, then the crossings of
-    # each edge with the free segment at its boundary ends (one per open corner)
+    # stencil-edge ends: an interior vertex is a (free) mesh vertex; at a boundary vertex the
+    # cut ends at the corner next to it, of base a at the edge's first vertex and of base b
+    # at its second (no new vertex on the free edge: any cut from one end to the free
+    # boundary between the two bases separates the same two membrane pieces)
     inner_v = np.unique(cells.verts[~vertex_boundary[cells.verts]])
     vnode = -np.ones(len(UV), dtype=np.int64)
     vnode[inner_v] = len(used) + np.arange(len(inner_v))
-    oc, ov = cell[open_], corner_vertex[open_]
-    p0, p1 = xy_all[corner[open_, 0]], xy_all[corner[open_, 1]]
-    A, B = UV[cells.verts[oc, 0]], UV[cells.verts[oc, 1]]
-    # A + t (B - A) = p0 + u (p1 - p0); on very skewed boundary faces the edge line may miss
-    # the free segment: then it ends inside it (any cut from the inner vertex to the free
-    # edge between the two bases separates the same two membrane pieces)
-    det = _cross2(B - A, p0 - p1)
-    ok = np.abs(det) > TOL.degenerate
-    u = np.where(ok, _cross2(B - A, p0 - A) / np.where(ok, det, 1.0), 0.5)
-    u = np.clip(u, 0.1, 0.9)
-    X = p0 + u[:, None] * (p1 - p0)
-    xnode = len(used) + len(inner_v) + np.arange(len(oc))
-    # edge ends: the vertex node, or the crossing at a boundary vertex
     ends = vnode[cells.verts]
-    key = oc * len(UV) + ov
-    order = np.argsort(key)
-    for e in (0, 1):
-        bnd_end = ends[:, e] < 0
-        k = np.arange(c)[bnd_end] * len(UV) + cells.verts[bnd_end, e]
-        ends[bnd_end, e] = xnode[order[np.searchsorted(key[order], k)]]
-    P = np.r_[xy_all[used], UV[inner_v], X]
+    for e, (ff_, jj) in enumerate(((a, ja), (b, jb))):
+        w = cells.verts[:, e]
+        kk = np.where(F[ff_, (jj + 1) % 3] == w, 0, 1)
+        ends[:, e] = np.where(ends[:, e] >= 0, ends[:, e], renum[cid(ff_, jj, kk)])
+    P = np.r_[xy_all[used], UV[inner_v]]
     S_out = renum[outline]
     _check_bases_inside(UV, F, cells, P, S_out, outline_face, ends, cells.cell_of)
-    free_seg = np.r_[np.c_[renum[corner[open_, 0]], xnode], np.c_[xnode, renum[corner[open_, 1]]]]
+    free_seg = renum[corner[open_]]
     seg = np.r_[S_out, free_seg, ends]
     mark = np.r_[outline_face + 2, np.ones(len(free_seg), np.int64), -(np.arange(c) + 1)]
-    vmark = np.r_[used // 6 + 2, np.zeros(len(inner_v) + len(X), np.int64)]
+    vmark = np.r_[used // 6 + 2, np.zeros(len(inner_v), np.int64)]
     pslg = {"vertices": P, "segments": seg, "segment_markers": mark[:, None].astype(np.int32),
             "vertex_markers": vmark[:, None].astype(np.int32),
             "holes": xy_all.reshape(m, 6, 2).mean(axis=1)}

@@ -12,13 +12,13 @@ This module does that sampling itself (the reference's fit is not available):
 
 * **Patch.** A hexagonal patch of a regular (equilateral) stencil with flat
   central length ``l0`` between neighbouring base centres; bracket length
-  ``b0 = l0 - 4 cos 37 deg``.  Bases are rigid hexagons with their corners at
-  radius ``base_r`` and +-37 deg around each neighbour direction, the membrane
-  mesh follows the simulator's construction (``simulator.md`` §6.6: corners
-  attached to their base, free boundary segments between the corners of
-  neighbouring bases at boundary vertices).  The mesh also conforms to the
-  stencil edges (clipped at the free boundary) so the force across each cell
-  can be read exactly element by element.
+  ``b0 = l0 - 4 cos 37 deg``.  Bases are rigid, bounded by their bracket corner
+  nodes (radius ``base_r``, +-37 deg around each neighbour direction; the design
+  stage's ``model_arrays``).  The membrane mesh is the simulator's own
+  (:func:`pysolver.mechanics.membrane_mesh`, ``simulator.md`` §6.6: corners attached
+  to their base, free boundary segments between the corners of neighbouring bases
+  at boundary vertices), which conforms to the stencil edges (clipped at the free
+  boundary) so the force across each cell can be read exactly element by element.
 * **Loading.** The patch contracts uniformly: every base centre is moved to
   ``s * c`` with ``s = (l0 - d) / l0`` (bases translate, do not rotate, do not
   shrink), so every cell's bracket length goes from ``b0`` to ``b0 - d``.  The
@@ -73,7 +73,7 @@ MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by
 :func:`pysolver.temporal.membrane_fit.fit_membrane_model`)."""
 
-MESH_MAX_AREA = 0.5          # mm^2, flat; converged to ~0.3 % (the simulator uses 5)
+MESH_MAX_AREA = 0.5          # mm^2, flat, of the fit; converged to ~0.3 % (the simulator uses 5)
 NEWTON_TOL = 1e-9            # N, infinity norm of the free-node gradient
 FACTOR_MESH_AREA = 1.0       # mm^2, mesh of a design's own stencil (per-cell factors)
 
