@@ -209,7 +209,9 @@ class MembraneMesh:
     body : (v,) int -- base a vertex is attached to (it lies on the base outline), -1 free
     edge_segments : (e, 2) int -- vertex pairs along the cells' cuts (mesh edges): the
         stencil edge between its interior vertices; an end at a boundary vertex is moved to
-        the facing base corner next to it (base a at ``cell_verts[:, 0]``, b at ``[:, 1]``)
+        the facing base corner next to it (base a at ``cell_verts[:, 0]``, b at ``[:, 1]``;
+        the other way round, or the stencil edge's crossing with the free edge, where that
+        cut would cross a base)
     edge_cell : (e,) int -- unit cell of each edge segment
     """
 
@@ -224,12 +226,11 @@ def _cross2(a, b):
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def _check_bases_inside(UV, F, cells, P, S, seg_face, E, cell_of):
-    """Refuse a layout whose base outline crosses a stencil edge of its own triangle.
+def _crossing_cells(P, S, seg_face, E, cell_of):
+    """Cells whose cut crosses an outline segment of one of its two bases, (c,) bool.
 
     ``P`` (k, 2) mm PSLG vertices, ``S`` (s, 2) outline segments of base ``seg_face`` (s,),
-    ``E`` (c, 2) the cells' stencil edge segments.  A base reaches across its triangle's
-    edge when the triangle is too thin or too obtuse for a base at its centroid.
+    ``E`` (c, 2) the cells' cuts, ``cell_of`` (m, 3) the cell of each base slot (-1 none).
     """
     sf = np.repeat(np.arange(len(S)), 3)
     cc = cell_of[seg_face].ravel()
@@ -239,22 +240,24 @@ def _check_bases_inside(UV, F, cells, P, S, seg_face, E, cell_of):
     o1, o2 = _cross2(q - p, r - p), _cross2(q - p, s - p)
     o3, o4 = _cross2(s - r, p - r), _cross2(s - r, q - r)
     bad = (o1 * o2 < 0) & (o3 * o4 < 0)
-    if not bad.any():
-        return
-    ci = int(cc[np.argmax(bad)])
+    return np.bincount(cc[bad], minlength=len(E)) > 0
+
+
+def _bases_reach_across(UV, F, cells, ci):
+    """The error for a cell whose bases reach across its stencil edge."""
     fa, fb = (int(x) for x in cells.faces[ci])
     C = UV[F].mean(axis=1)
     d = []
     for f in (fa, fb):
         A, B = UV[F[f]], UV[F[f, [1, 2, 0]]]
         d.append(float(np.min(np.abs(_cross2(B - A, C[f] - A)) / np.linalg.norm(B - A, axis=1))))
-    raise InputError(f"the stencil's bases reach across its edges at cell {ci} (bases {fa}, "
-                     f"{fb}: their centres are {d[0]:.2f} and {d[1]:.2f} mm from their "
-                     "triangles' edges): a flat triangle is too thin or too obtuse for a "
-                     "4 mm base at its centroid",
-                     fix="let morphshell remesh the surface (its stencils keep every base centre "
-                         ">= 2.3 mm from its triangle's edges), or improve that region of your "
-                         "stencil")
+    return InputError(f"the stencil's bases reach across its edges at cell {ci} (bases {fa}, "
+                      f"{fb}: their centres are {d[0]:.2f} and {d[1]:.2f} mm from their "
+                      "triangles' edges): a flat triangle is too thin or too obtuse for a "
+                      "4 mm base at its centroid",
+                      fix="let morphshell remesh the surface (its stencils keep every base "
+                          "centre >= 2.3 mm from its triangle's edges), or improve that region "
+                          "of your stencil")
 
 
 def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
@@ -274,8 +277,9 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
     remove the bases.  The stencil edge of every cell is a segment too (a constraint inside
     the membrane, it changes nothing of the physics): it runs between its interior stencil
     vertices; at a boundary vertex it ends at the facing corner of base a (first vertex)
-    or b (second vertex), so no vertex is added on the free edge.  The force the membrane
-    carries across each cell is then a sum over mesh edges
+    or b (second vertex), so no vertex is added on the free edge (on skewed faces whose
+    bases would be crossed: the other corners, else the crossing with the free edge).  The
+    force the membrane carries across each cell is then a sum over mesh edges
     (:func:`pysolver.temporal.membrane_model.cell_tractions`).  Triangle (``pzq<min_angle>
     a<max_area>Q``) adds points on segments where quality or size need them: on a base
     outline they are attached to that base, elsewhere free.
@@ -334,24 +338,49 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
     renum = -np.ones(6 * m, dtype=np.int64)
     renum[used] = np.arange(len(used))
     # stencil-edge ends: an interior vertex is a (free) mesh vertex; at a boundary vertex the
-    # cut ends at the corner next to it, of base a at the edge's first vertex and of base b
+    # cut ends at a base corner next to it, of base a at the edge's first vertex and of base b
     # at its second (no new vertex on the free edge: any cut from one end to the free
-    # boundary between the two bases separates the same two membrane pieces)
+    # boundary between the two bases separates the same two membrane pieces).  Where that cut
+    # would cross a base outline (skewed faces) the other bases' corners are tried, then the
+    # points where the stencil edge line meets the free edge (free vertices splitting it).
     inner_v = np.unique(cells.verts[~vertex_boundary[cells.verts]])
     vnode = -np.ones(len(UV), dtype=np.int64)
     vnode[inner_v] = len(used) + np.arange(len(inner_v))
-    ends = vnode[cells.verts]
-    for e, (ff_, jj) in enumerate(((a, ja), (b, jb))):
+    bnd_end = vnode[cells.verts] < 0
+    corner_at = np.empty((c, 2, 2), dtype=np.int64)    # [cell, end, base a/b] PSLG vertex
+    for e in (0, 1):
         w = cells.verts[:, e]
-        kk = np.where(F[ff_, (jj + 1) % 3] == w, 0, 1)
-        ends[:, e] = np.where(ends[:, e] >= 0, ends[:, e], renum[cid(ff_, jj, kk)])
+        for q, (ff_, jj) in enumerate(((a, ja), (b, jb))):
+            corner_at[:, e, q] = renum[cid(ff_, jj, np.where(F[ff_, (jj + 1) % 3] == w, 0, 1))]
+    ends = np.where(bnd_end, corner_at[:, [0, 1], [0, 1]], vnode[cells.verts])
     P = np.r_[xy_all[used], UV[inner_v]]
     S_out = renum[outline]
-    _check_bases_inside(UV, F, cells, P, S_out, outline_face, ends, cells.cell_of)
-    free_seg = renum[corner[open_]]
+    split = {}
+    # hand-written: a loop over the few cells of skewed faces, none in a regular stencil
+    for ci in np.flatnonzero(_crossing_cells(P, S_out, outline_face, ends, cells.cell_of)):
+        be = np.flatnonzero(bnd_end[ci])
+        ends[ci, be] = corner_at[ci, be, 1 - be]                  # the other bases' corners
+        if not _crossing_cells(P, S_out, outline_face, ends, cells.cell_of)[ci]:
+            continue
+        A, B = UV[cells.verts[ci, 0]], UV[cells.verts[ci, 1]]
+        for e in be:                                              # the free-edge crossings
+            p0, p1 = P[corner_at[ci, e, 0]], P[corner_at[ci, e, 1]]
+            den = _cross2(B - A, p0 - p1)
+            u = _cross2(B - A, p0 - A) / den if abs(den) > TOL.degenerate else 0.5
+            P = np.r_[P, [p0 + min(max(u, 0.1), 0.9) * (p1 - p0)]]
+            ends[ci, e] = len(P) - 1
+            split[frozenset((int(corner_at[ci, e, 0]), int(corner_at[ci, e, 1])))] = len(P) - 1
+    bad = _crossing_cells(P, S_out, outline_face, ends, cells.cell_of)
+    if bad.any():
+        raise _bases_reach_across(UV, F, cells, int(np.argmax(bad)))
+    free_seg = []
+    for i0, i1 in renum[corner[open_]]:
+        x = split.get(frozenset((int(i0), int(i1))))
+        free_seg += [(i0, i1)] if x is None else [(i0, x), (x, i1)]
+    free_seg = np.array(free_seg, dtype=np.int64).reshape(-1, 2)
     seg = np.r_[S_out, free_seg, ends]
     mark = np.r_[outline_face + 2, np.ones(len(free_seg), np.int64), -(np.arange(c) + 1)]
-    vmark = np.r_[used // 6 + 2, np.zeros(len(inner_v), np.int64)]
+    vmark = np.r_[used // 6 + 2, np.zeros(len(P) - len(used), np.int64)]
     pslg = {"vertices": P, "segments": seg, "segment_markers": mark[:, None].astype(np.int32),
             "vertex_markers": vmark[:, None].astype(np.int32),
             "holes": xy_all.reshape(m, 6, 2).mean(axis=1)}
