@@ -874,3 +874,36 @@ class Fabrication:
 
 FABRICATION = Fabrication()
 __all__ += ["Fabrication", "FABRICATION"]
+
+
+@dataclass(frozen=True)
+class Sequencing:
+    """Settings of the automatic sequencing landscape (:mod:`pysolver.design.sequencing`):
+    where parts of the target lie over other parts (the petals of a closed bud), the part
+    underneath must be in place before the one on top arrives, else they jam halfway.
+
+    Attributes
+    ----------
+    reach_mm : float, mm
+        Two points of the target closer than this, in space, face each other ...
+    detour : float
+        ... when the path between them on the surface is over ``detour`` times longer.
+    min_pairs : int
+        Fewest facing vertex pairs that make an overlap (fewer are ignored as noise).
+    saddle_ratio : float
+        Two lobes of the surface (watershed basins of the distance to the rim) stay apart when
+        the neck between them is under ``saddle_ratio`` of the smaller lobe's half-width;
+        wider necks merge them into one part.
+    times_s : (2,) float, s
+        Completion times of the first and of the last part (the paper's cover: 30-80 s).
+    """
+
+    reach_mm: float = 12.0
+    detour: float = 3.0
+    min_pairs: int = 20
+    saddle_ratio: float = 0.75
+    times_s: tuple = (30.0, 80.0)
+
+
+SEQUENCING = Sequencing()
+__all__ += ["Sequencing", "SEQUENCING"]

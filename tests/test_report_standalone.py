@@ -96,7 +96,8 @@ def test_provenance_lists_input_options_models_versions(page, petal):
     design = json.loads((petal / "design.json").read_text())["options"]
     assert rows["input"] == "petal (builtin)"
     assert rows["input sha256"] == design["source_sha256_16"]
-    assert rows["time landscape"].startswith("the shape's own landscape")
+    source = json.loads((petal / "design.json").read_text())["summary"]["time"]["source"]
+    assert rows["time landscape"].startswith(source)  # as design recorded it: "shape default"
     assert rows["refinement rounds"] == "0"
     for k in ("vertices", "time", "scale", "flattening", "refine", "material", "t_end"):
         assert f"option {k}" in rows, k

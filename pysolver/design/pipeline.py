@@ -35,6 +35,7 @@ from .layout import Layout, build_layout
 from .mesh_input import load_input, size_factor
 from .plots import write_design_plots
 from .remesh import remesh_surface, stencil_figures, surface_area
+from .sequencing import sequencing_landscape
 from .time_landscape import (
     TIME_FILE_ATTRIBUTE,
     cell_target_times,
@@ -333,6 +334,9 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     if time_file is not None:
         time, time_file_info = _time_file_source(time_file, mesh, surf, stencil_order)
     check_time_source(time, mesh)
+    sequence = None
+    if time is None and surf.time is None and mesh is not None:
+        time, sequence = sequencing_landscape(mesh.V, mesh.F)
     clock.step("load")
 
 
@@ -392,6 +396,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         t_vertex, t_desc = resolve_time(time, lay.V, source_mesh=src_mesh)
         if time_file_info is not None:
             t_desc = f"--time-file {time_file_info['path']}, {time_file_info['carried']}"
+        elif time is not None and sequence is not None:
+            t_desc = sequence["description"]
     t_star = cell_target_times(t_vertex, lay.cells.verts[:, 0], lay.cells.verts[:, 1])
     th = np.full((len(lay.cells.faces), 2), float(thickness))
     clock.step("time")
@@ -433,6 +439,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
                  else "array"),
         "time_file": time_file_info,
+        "sequencing": sequence,
         "scale": scale, "size_mm": size, "input_scale": input_scale,
         "flattening": flattening, "thickness_mm": thickness,
         "central_length_mm": cl, "stencil_order": stencil_order,

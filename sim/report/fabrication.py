@@ -94,8 +94,9 @@ def provenance(folder, build_info=None) -> dict:
     if studio is not None:
         land = (f"edited in morphshell studio: {len(studio.get('keyframes', []))} keyframe(s), "
                 f"{len(studio.get('brushes', []))} brush(es), {studio.get('interpolation', '')}")
-    elif time_opt is None:
-        land = "the shape's own landscape"
+    elif time_opt is None:  # the shape's own, a --time-file, or the automatic sequencing
+        land = (design.get("summary", {}).get("time", {}).get("source")
+                or "the shape's own landscape")
     else:
         land = f"TIME = {time_opt}"
     if temporal.get("landscape_rescaled"):
