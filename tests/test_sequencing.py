@@ -111,3 +111,12 @@ def test_cover_petals_close_in_the_papers_order():
     # deterministic
     t2, info2 = sequencing_landscape(m.V, m.F)
     assert np.array_equal(t, t2) and info == info2
+
+
+def test_a_cycle_loses_its_weakest_edge_only():
+    from pysolver.design.sequencing import _levels
+
+    # 0 under 1 under 2 under 0 (a pinwheel no order satisfies), and 2 under 3
+    level, dropped = _levels(5, [(0, 1, 50), (1, 2, 40), (2, 0, 10), (2, 3, 5)])
+    assert dropped == [(2, 0, 10)]
+    assert level.tolist() == [0, 1, 2, 3, -1]

@@ -193,36 +193,29 @@ def stacking_order(V, F, pairs, part, min_pairs: int):
 
 
 def _levels(n_parts: int, under):
-    """Longest-path levels of the "is under" graph; drops the weakest edge of each cycle.
+    """Longest-path levels of the "is under" graph, after dropping the weakest edge of each
+    cycle (edges whose ends share a strongly connected component) until none is left.
 
     Returns
     -------
     level : (n_parts,) int, -1 for parts under or over nothing
     dropped : list of (inner, outer, pairs)
     """
-    edges = sorted(under, key=lambda e: (-e[2], e[0], e[1]))
+    edges = sorted(under, key=lambda e: (-e[2], e[0], e[1]))  # strongest first
     dropped = []
-    while True:
-        indeg = np.zeros(n_parts, int)
-        for _, q, _ in edges:
-            indeg[q] += 1
-        level = np.zeros(n_parts, int)
-        ready = sorted(np.flatnonzero(indeg == 0).tolist())
-        done = 0
-        while ready:
-            p = ready.pop(0)
-            done += 1
-            for e in edges:
-                if e[0] == p:
-                    level[e[1]] = max(level[e[1]], level[p] + 1)
-                    indeg[e[1]] -= 1
-                    if indeg[e[1]] == 0:
-                        ready.append(e[1])
-        if done == n_parts:
+    while edges:
+        ij = np.array([e[:2] for e in edges]).T
+        A = sp.coo_matrix((np.ones(len(edges)), (ij[0], ij[1])), shape=(n_parts, n_parts))
+        _, scc = csgraph.connected_components(A, directed=True, connection="strong")
+        in_cycle = [e for e in edges if scc[e[0]] == scc[e[1]]]
+        if not in_cycle:
             break
-        stuck = [e for e in edges if indeg[e[0]] > 0 and indeg[e[1]] > 0]
-        dropped.append(stuck[-1])  # the weakest edge among those left in cycles
-        edges.remove(stuck[-1])
+        dropped.append(in_cycle[-1])
+        edges.remove(in_cycle[-1])
+    level = np.zeros(n_parts, int)
+    for _ in range(n_parts):  # a DAG's longest paths settle within n_parts relaxations
+        for p, q, _ in edges:
+            level[q] = max(level[q], level[p] + 1)
     involved = {p for e in edges for p in e[:2]}
     level[[p for p in range(n_parts) if p not in involved]] = -1
     return level, dropped
