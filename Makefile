@@ -42,34 +42,20 @@ export PYTHONDONTWRITEBYTECODE := 1
 USER_VARS  := shape SURFACE MATERIAL DATA VERTICES TIME TIMEFILE REFINE JOBS ARGS OUT \
               SAMPLES SCHEDULER WORKERS SPEC
 $(foreach v,$(USER_VARS),$(eval override $(v) := $$(value $(v))))
+# Each of them reaches the recipes as MS_<NAME> (shape and SURFACE together as MS_SOURCE).
+# (The eval expands $(X) once, as `:=` does: the value stays text.)
 export MS_SOURCE   := $(if $(SURFACE),$(SURFACE),$(shape))
 export MS_NAME     := $(notdir $(basename $(MS_SOURCE)))
-export MS_MATERIAL := $(MATERIAL)
-export MS_DATA     := $(DATA)
-export MS_VERTICES := $(VERTICES)
-export MS_TIME     := $(TIME)
-export MS_TIMEFILE := $(TIMEFILE)
-export MS_REFINE   := $(REFINE)
-export MS_JOBS     := $(JOBS)
-export MS_ARGS     := $(ARGS)
-export MS_OUT      := $(OUT)
-export MS_SAMPLES  := $(SAMPLES)
-export MS_SCHEDULER := $(SCHEDULER)
-export MS_WORKERS  := $(WORKERS)
-export MS_SPEC     := $(SPEC)
+$(foreach v,$(filter-out shape SURFACE,$(USER_VARS)),$(eval export MS_$(v) := $$($(v))))
 unexport $(USER_VARS)
 
 # Options from the variables above, expanded by the shell (set -f: no globbing of ARGS,
 # which is split into words on spaces).
-BUILD_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
-              $${MS_VERTICES:+--vertices "$$MS_VERTICES"} \
-              $${MS_TIME:+--time "$$MS_TIME"} $${MS_TIMEFILE:+--time-file "$$MS_TIMEFILE"} \
-              $${MS_REFINE:+--refine "$$MS_REFINE"} \
-              $${MS_JOBS:+--jobs "$$MS_JOBS"} $$MS_ARGS
 DESIGN_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
               $${MS_VERTICES:+--vertices "$$MS_VERTICES"} \
               $${MS_TIME:+--time "$$MS_TIME"} $${MS_TIMEFILE:+--time-file "$$MS_TIMEFILE"} \
               $${MS_REFINE:+--refine "$$MS_REFINE"}
+BUILD_OPTS := $(DESIGN_OPTS) $${MS_JOBS:+--jobs "$$MS_JOBS"} $$MS_ARGS
 RUN        := set -f;
 DASK_OPTS  := $${MS_SCHEDULER:+--scheduler "$$MS_SCHEDULER"} \
               $${MS_WORKERS:+--workers "$$MS_WORKERS"}

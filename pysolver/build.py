@@ -31,9 +31,19 @@ from pathlib import Path
 import numpy as np
 
 from sim.model.physics import parse_physics
-from sim.model.simulate import SimSettings, simulate_design, simulated_completion
-from sim.report import base_base_collisions, make_report, print_verdict
+from sim.model.simulate import SimSettings, simulate_design, simulate_model, simulated_completion
+from sim.report import (
+    base_base_collisions,
+    check_frames,
+    completion_times,
+    load_sim,
+    make_report,
+    print_verdict,
+)
 from sim.report.plots import start_pyvista_probe
+from sim.viewer import ASSETS as VIEWER_ASSETS
+from sim.viewer import STATIC_DIR as VIEWER_DIR
+from sim.viewer import viewer_data
 
 from . import tables
 from .atomic import (
@@ -573,6 +583,94 @@ def _contact_if_needed(folder: Path, name: str, progress: bool):
          f"(first bases {f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s); "
          "simulating again with barrier contact (--physics contact)", progress)
     return parse_physics("contact"), hit
+
+
+# ------------------------------------------------------------------------------------------
+# The simulator and its check for the other front ends.  The tolerance analysis and the
+# studio ask the orchestrator, the one module that composes the stages, rather than import
+# the simulator or its report (data flows forward: docs/for-contributors.md).
+
+
+def check_sim_span(t_end: float, dt: float) -> None:
+    """Refuse a simulated span that the simulator would refuse, before any work is spent.
+
+    Parameters
+    ----------
+    t_end : float, s
+        End of the simulated time.
+    dt : float, s
+        Time step; ``t_end`` must be a whole number of steps.
+
+    Raises
+    ------
+    InputError
+        Naming the value and the rule.
+    """
+    SimSettings(t_end=float(t_end), dt=float(dt)).times()
+
+
+def simulate_and_check(model, material, ctx: dict, *, t_end: float, dt: float,
+                       thresholds=None):
+    """Simulate a shell model in memory and check it as the report does.
+
+    Parameters
+    ----------
+    model : pysolver.mechanics.ShellModel
+        The shell (e.g. a perturbed copy from :func:`pysolver.mechanics.vary_model`).
+    material : BracketModel
+        Anything with the bracket model's ``coefficients``.
+    ctx : dict
+        The design's arrays for the check (:func:`sim.report.check_frames`).
+    t_end, dt : float, s
+        Simulated span and time step.
+    thresholds : Thresholds or dict, optional
+        Verdict limits (default: the report's).
+
+    Returns
+    -------
+    frames : dict
+        As :func:`sim.model.simulate.simulate_model` returns them.
+    check : dict or None
+        :func:`sim.report.check_frames` of the frames; None with fewer than two frames.
+
+    Raises
+    ------
+    MorphshellError
+        When the simulation diverges (raised by the simulator, before any check).
+    """
+    frames = simulate_model(model, material, t_end=t_end, dt=dt)
+    if len(frames["t"]) < 2:
+        return frames, None
+    return frames, check_frames(frames, ctx, thresholds)
+
+
+def viewer_assets() -> dict:
+    """The 3D morph viewer's static files, ``{name: path}`` (the studio serves them)."""
+    return {name: VIEWER_DIR / name for name in VIEWER_ASSETS}
+
+
+def morph_viewer(folder, *, max_frames: int, quantise: bool) -> dict:
+    """The 3D viewer's data of a simulated design folder (:func:`sim.viewer.viewer_data`).
+
+    Parameters
+    ----------
+    folder : path-like
+        Design folder with ``sim/frames.npz``.
+    max_frames : int
+        Frames kept (evenly spaced, the end kept).
+    quantise : bool
+        Positions as uint16 over their box (smaller) rather than float32.
+
+    Returns
+    -------
+    dict
+        The JSON the viewer reads.
+    """
+    sd = load_sim(folder)
+    fr = sd.frames
+    t_done, _ = completion_times(fr["t"], fr["collided"], fr.get("bracket_length"),
+                                 fr.get("collision_length"))
+    return viewer_data(sd, t_done, max_frames=max_frames, quantise=quantise)
 
 
 def _now() -> float:

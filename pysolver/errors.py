@@ -56,3 +56,32 @@ class ExternalToolError(MorphshellError):
     """An external program (OpenSCAD) is missing or failed on some part."""
 
     exit_code = EXIT_BAD_INPUT
+
+
+def refuse_first(bad, message, fix: str | None = None) -> None:
+    """Raise :class:`InputError` naming the first row that breaks a rule, if any does.
+
+    The one "check every row, name the first bad one" of the table and file readers.
+
+    Parameters
+    ----------
+    bad : (n,) bool
+        Rows (cells, data rows, ...) that break the rule.
+    message : callable
+        ``message(i, count) -> str``: what is wrong with the first bad row ``i``, given the
+        ``count`` of bad rows.  Called only when some row is bad.
+    fix : str, optional
+        How to fix it.
+
+    Raises
+    ------
+    InputError
+        ``message(i, count)`` with ``fix``, when ``bad`` has a true entry.
+    """
+    # numpy is imported here, not at module level: the command line imports this module,
+    # and `morphshell --help` stays instant without numpy
+    import numpy as np
+
+    rows = np.flatnonzero(np.asarray(bad, bool))
+    if rows.size:
+        raise InputError(message(int(rows[0]), int(rows.size)), fix=fix)

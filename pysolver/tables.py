@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, refuse_first
 from .geometry import unit_cells
 from .params import UNIT_CELL, check_unit_cell
 from .params import tol as TOL
@@ -557,24 +557,22 @@ def check_thickness(th, where: str, *, cell_ids=None, rows: bool = True,
         raise InputError(f"{where}: thickness has shape {th.shape}, expected (cells, 2) "
                          "(cells x layers)", fix="pass one thickness per cell and layer")
     if programmed:
-        bad = np.flatnonzero(~np.all(np.isfinite(th) & (th > 0), axis=1))
-        if len(bad):
-            k = int(bad[0])
-            raise InputError(f"{at(k)}: cell {int(ids[k])} has bracket thickness "
-                             f"{th[k].tolist()} mm", fix="run the program (temporal) stage so "
-                             f"every cell has a thickness in {lo:.2f}-{hi:.2f} mm")
+        refuse_first(~np.all(np.isfinite(th) & (th > 0), axis=1),
+                     lambda k, _: f"{at(k)}: cell {int(ids[k])} has bracket thickness "
+                                  f"{th[k].tolist()} mm",
+                     fix="run the program (temporal) stage so every cell has a thickness in "
+                         f"{lo:.2f}-{hi:.2f} mm")
     if not in_range:
         return
     for j, col in enumerate(("thickness_top_mm", "thickness_bottom_mm")):
         h = th[:, j]
-        bad = np.flatnonzero((h < lo - TOL.thickness) | (h > hi + TOL.thickness))
-        if len(bad):
-            i = int(bad[0])
-            raise InputError(f"{at(i)} (cell {int(ids[i])}): {col} = {h[i]:g} mm is outside "
-                             f"the bracket thickness range {lo}-{hi} mm ({len(bad)} cell(s) in "
-                             "all)", fix="use thicknesses in range (thinner brackets do not "
-                                         "print, thicker ones are outside the material "
-                                         "model), or re-run 'morphshell program DIR'")
+        refuse_first((h < lo - TOL.thickness) | (h > hi + TOL.thickness),
+                     lambda i, n, col=col, h=h:  # (the loop's values, bound now)
+                         f"{at(i)} (cell {int(ids[i])}): {col} = {h[i]:g} mm is outside the "
+                         f"bracket thickness range {lo}-{hi} mm ({n} cell(s) in all)",
+                     fix="use thicknesses in range (thinner brackets do not print, thicker "
+                         "ones are outside the material model), or re-run 'morphshell "
+                         "program DIR'")
 
 
 def check_design(d: Design) -> None:
@@ -585,21 +583,19 @@ def check_design(d: Design) -> None:
     # references to bases / vertices that do not exist (hand edits), named row by row
     for col, count, what in (("base_a", m, "base"), ("base_b", m, "base"),
                              ("vertex_a", n, "stencil vertex"), ("vertex_b", n, "stencil vertex")):
-        bad = np.flatnonzero((c[col] < 0) | (c[col] >= count))
-        if len(bad):
-            i = int(bad[0])
-            raise InputError(f"{f}/cells.csv:{i + 2} (cell {int(c['cell_id'][i])}): {col} = "
-                             f"{int(c[col][i])} refers to a {what} that does not exist (the design "
-                             f"has {count}, ids 0..{count - 1})",
-                             fix="undo the hand edit of cells.csv, or re-run the design stage")
+        refuse_first((c[col] < 0) | (c[col] >= count),
+                     lambda i, _, col=col, what=what, count=count:  # (bound now)
+                         f"{f}/cells.csv:{i + 2} (cell {int(c['cell_id'][i])}): {col} = "
+                         f"{int(c[col][i])} refers to a {what} that does not exist (the design "
+                         f"has {count}, ids 0..{count - 1})",
+                     fix="undo the hand edit of cells.csv, or re-run the design stage")
     for col, count in (("base_id", m), ("neighbour", m), ("cell_id", len(c["cell_id"]))):
         v = d.bumpers[col]
-        bad = np.flatnonzero((v < 0) | (v >= count))
-        if len(bad):
-            i = int(bad[0])
-            raise InputError(f"{f}/bumpers.csv:{i + 2}: {col} = {int(v[i])} does not exist "
-                             f"(ids 0..{count - 1})",
-                             fix="undo the hand edit of bumpers.csv, or re-run the design stage")
+        refuse_first((v < 0) | (v >= count),
+                     lambda i, _, col=col, v=v, count=count:  # (bound now)
+                         f"{f}/bumpers.csv:{i + 2}: {col} = {int(v[i])} does not exist (ids "
+                         f"0..{count - 1})",
+                     fix="undo the hand edit of bumpers.csv, or re-run the design stage")
     # bracket thickness: printable and inside the measured material model
     check_thickness(np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]], f"{f}/cells.csv",
                     cell_ids=c["cell_id"])
@@ -607,10 +603,9 @@ def check_design(d: Design) -> None:
         raise InputError(f"{f}/bases.csv: {len(d.bases['base_id'])} rows for {m} stencil faces",
                          fix="re-run the design stage")
     Fb = np.c_[d.bases["v0"], d.bases["v1"], d.bases["v2"]]
-    bad = np.flatnonzero(np.any(Fb != d.F, axis=1))
-    if len(bad):
-        raise InputError(f"{f}/bases.csv:{bad[0] + 2}: vertices {Fb[bad[0]].tolist()} differ "
-                         f"from stencil face {d.F[bad[0]].tolist()}")
+    refuse_first(np.any(Fb != d.F, axis=1),
+                 lambda i, _: f"{f}/bases.csv:{i + 2}: vertices {Fb[i].tolist()} differ from "
+                              f"stencil face {d.F[i].tolist()}")
     if len(d.time) != n:
         raise InputError(f"{f}/time_landscape.csv: {len(d.time)} rows for {n} stencil vertices")
     cells = unit_cells(d.F)
@@ -620,11 +615,10 @@ def check_design(d: Design) -> None:
     got = np.c_[d.cells["base_a"], d.cells["base_b"], d.cells["slot_a"], d.cells["slot_b"],
                 d.cells["vertex_a"], d.cells["vertex_b"]]
     exp = np.c_[cells.faces, cells.slots, cells.verts]
-    bad = np.flatnonzero(np.any(got != exp, axis=1))
-    if len(bad):
-        raise InputError(f"{f}/cells.csv:{bad[0] + 2}: (base_a, base_b, slot_a, slot_b, "
-                         f"vertex_a, vertex_b) = {got[bad[0]].tolist()}, stencil gives "
-                         f"{exp[bad[0]].tolist()}")
+    refuse_first(np.any(got != exp, axis=1),
+                 lambda i, _: f"{f}/cells.csv:{i + 2}: (base_a, base_b, slot_a, slot_b, "
+                              f"vertex_a, vertex_b) = {got[i].tolist()}, stencil gives "
+                              f"{exp[i].tolist()}")
     b = d.bumpers
     if len(b["base_id"]) and (b["base_id"].max() >= m or b["cell_id"].max() >= d.n_cells):
         raise InputError(f"{f}/bumpers.csv: base_id or cell_id out of range")

@@ -12,7 +12,7 @@ import pytest
 
 from pysolver.atomic import atomic_dir, atomic_write_text, build_lock
 from pysolver.cli import main
-from pysolver.errors import EXIT_BAD_INPUT, InputError
+from pysolver.errors import EXIT_BAD_INPUT, InputError, refuse_first
 from pysolver.params import UNIT_CELL
 
 REPO = Path(__file__).resolve().parent.parent
@@ -83,3 +83,19 @@ def test_input_error_is_value_error_with_fix():
     e = InputError("bad thing", fix="do this")
     assert isinstance(e, ValueError)
     assert "Fix: do this" in str(e)
+
+
+def test_refuse_first_names_the_first_bad_row_and_the_count():
+    calls = []
+
+    def message(i, n):
+        calls.append((i, n))
+        return f"row {i}: bad ({n} in all)"
+
+    refuse_first([False, False], message, fix="unused")
+    refuse_first([], message)
+    assert calls == []  # no bad row: no message is built, nothing is raised
+    with pytest.raises(InputError) as e:
+        refuse_first([False, True, False, True], message, fix="repair it")
+    assert calls == [(1, 2)]
+    assert e.value.problem == "row 1: bad (2 in all)" and e.value.fix == "repair it"

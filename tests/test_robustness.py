@@ -63,43 +63,82 @@ def _names(msg: str, *patterns: str) -> None:
 
 
 # ------------------------------------------------------------------------------------------
-# meshes
+# meshes: each bad mesh with the patterns its message must contain
+
+MESH_CASES = {}
+"""``{case: (builder, patterns)}``: ``builder(folder) -> path`` writes the bad mesh
+``_m_<case>``; every pattern must be found in the message of the refusal."""
 
 
+def bad_mesh(*patterns):
+    """Register the decorated builder ``_m_<case>`` as the case ``<case>`` of
+    :data:`MESH_CASES`."""
+    def register(build):
+        MESH_CASES[build.__name__.removeprefix("_m_")] = (build, list(patterns))
+        return build
+    return register
+
+
+def _file(d, name: str, content) -> Path:
+    """Write ``content`` (bytes or text) as the file ``name`` in ``d``; its path."""
+    path = d / name
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    return path
+
+
+def _grid_in_unit(d, name: str, unit_mm: float) -> Path:
+    """A 100 mm flat grid written in a unit of ``unit_mm`` mm (metres: 1000), not in mm."""
+    V, F = flat_grid(size=100.0)
+    return save_mesh(d / name, V / unit_mm, F)
+
+
+@bad_mesh(r"nope\.obj: file not found",
+          r"Fix: check the path")
 def _m_missing(d):
     return d / "nope.obj"
 
 
+@bad_mesh(r"empty\.stl: empty file")
 def _m_empty(d):
-    (d / "empty.stl").write_bytes(b"")
-    return d / "empty.stl"
+    return _file(d, "empty.stl", b"")
 
 
+@bad_mesh(r"bad\.obj: cannot read the OBJ file, it is corrupt",
+          r"index 8 is out of bounds")
 def _m_corrupt_obj(d):
-    (d / "bad.obj").write_text("v 0 0 0\nv 40 0 0\nv 0 40 0\nf 1 2 9\n")  # vertex 9 missing
-    return d / "bad.obj"
+    return _file(d, "bad.obj", "v 0 0 0\nv 40 0 0\nv 0 40 0\nf 1 2 9\n")  # vertex 9 missing
 
 
+@bad_mesh(r"noise\.stl: no triangles found: the file is empty, "
+           r"truncated or corrupt")
 def _m_corrupt_stl(d):
-    (d / "noise.stl").write_bytes(np.random.default_rng(0).bytes(300))
-    return d / "noise.stl"
+    return _file(d, "noise.stl", np.random.default_rng(0).bytes(300))
 
 
+@bad_mesh(r"junk\.ply: cannot read the PLY file")
 def _m_corrupt_ply(d):
-    (d / "junk.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
-    return d / "junk.ply"
+    return _file(d, "junk.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
 
 
+@bad_mesh(r"shape\.3ds: unsupported format '\.3ds'",
+          r"\.obj, \.stl, \.ply, \.off")
 def _m_unsupported(d):
-    (d / "shape.3ds").write_bytes(b"MM\x00\x00")
-    return d / "shape.3ds"
+    return _file(d, "shape.3ds", b"MM\x00\x00")
 
 
+@bad_mesh(r"folder\.obj: is a directory, not a mesh file")
 def _m_directory(d):
     (d / "folder.obj").mkdir()
     return d / "folder.obj"
 
 
+@bad_mesh(r"fin\.obj: 1 non-manifold edge\(s\)",
+          r"edge \(0, 1\) used by 3 triangles",
+          r"at \(2\.9, 0\.0, 0\.0\) mm",
+          r"Repair non Manifold Edges")
 def _m_nonmanifold_edge(d):
     V, F = flat_grid()
     V = np.vstack([V, [[2.9, 0.0, 10.0]]])
@@ -108,6 +147,8 @@ def _m_nonmanifold_edge(d):
     return save_mesh(d / "fin.obj", V, F)
 
 
+@bad_mesh(r"bowtie\.obj: 1 non-manifold vertex",
+          r"at \(0\.0, 0\.0, 0\.0\) mm")
 def _m_nonmanifold_vertex(d):
     V, F = flat_grid()
     F = np.where(F == 63, 0, F)  # glue the far corner onto the first: a bow-tie vertex
@@ -115,38 +156,56 @@ def _m_nonmanifold_vertex(d):
     return save_mesh(d / "bowtie.obj", V, F)
 
 
+@bad_mesh(r"two\.ply: 2 separate pieces \(faces per piece: \[98, 98\]\)",
+          r"delete the small pieces")
 def _m_components(d):
     V, F = flat_grid()
     return save_mesh(d / "two.ply", np.vstack([V, V + [60, 0, 0]]), np.vstack([F, F + len(V)]))
 
 
+@bad_mesh(r"hole\.obj: the surface has 1 hole\(s\)",
+          r"hole around \(20\.0, 20\.0, 0\.0\) mm",
+          r"cut from each hole")
 def _m_hole(d):
     V, F = flat_grid()
     q = 2 * (3 * 7 + 3)  # the two triangles of the quad in row 3, column 3
     return save_mesh(d / "hole.obj", V, np.delete(F, [q, q + 1], axis=0))
 
 
+@bad_mesh(r"handle\.off: the surface has 1 handle\(s\) \(genus 1\)",
+          r"cut through each handle")
 def _m_handle(d):
     t = trimesh.creation.torus(30.0, 10.0)
     return save_mesh(d / "handle.off", t.vertices, t.faces[3:])
 
 
+@bad_mesh(r"ball\.stl: the surface is closed \(no boundary\)",
+          r"Fix: cut it open, e.g. delete the faces around \(0\.0, 0\.0, "
+           r"-30\.0\) mm")
 def _m_closed(d):
     s = trimesh.creation.icosphere(2, radius=30.0)
     return save_mesh(d / "ball.stl", s.vertices, s.faces)
 
 
+@bad_mesh(r"ring\.obj: the surface is closed \(no boundary, "
+           r"genus 1\)",
+          r"cut it open")
 def _m_closed_torus(d):
     t = trimesh.creation.torus(30.0, 10.0)
     return save_mesh(d / "ring.obj", t.vertices, t.faces)
 
 
+@bad_mesh(r"repeat\.obj: 1 degenerate triangle",
+          r"e\.g\. face 5 at \(",
+          r"Remove Zero Area")
 def _m_repeated_vertex(d):
     V, F = flat_grid()
     F[5] = [F[5, 0], F[5, 0], F[5, 2]]
     return save_mesh(d / "repeat.obj", V, F)
 
 
+@bad_mesh(r"sliver\.obj: 1 degenerate triangle\(s\) \(zero area",
+          r"face 3 at \(20\.0, 20\.0, 0\.0\) mm")
 def _m_zero_area(d):
     # square split along its diagonal; one half split again at the diagonal's midpoint M,
     # and the T-junction closed by the zero-area triangle (A, M, C)
@@ -155,89 +214,52 @@ def _m_zero_area(d):
     return save_mesh(d / "sliver.obj", V, F)
 
 
+@bad_mesh(r"nan\.obj: 1 vertex coordinate\(s\) are NaN or infinite",
+          r"first: vertex 3")
 def _m_nan(d):
-    (d / "nan.obj").write_text("v 0 0 0\nv 40 0 0\nv 0 40 0\nv nan 40 0\nf 1 2 3\nf 2 4 3\n")
-    return d / "nan.obj"
+    return _file(d, "nan.obj", "v 0 0 0\nv 40 0 0\nv 0 40 0\nv nan 40 0\nf 1 2 3\nf 2 4 3\n")
 
 
+@bad_mesh(r"inf\.obj: 1 vertex coordinate\(s\) are NaN or infinite")
 def _m_inf(d):
-    (d / "inf.obj").write_text("v 0 0 0\nv 40 0 0\nv 0 40 0\nv 40 inf 0\nf 1 2 3\nf 2 4 3\n")
-    return d / "inf.obj"
+    return _file(d, "inf.obj", "v 0 0 0\nv 40 0 0\nv 0 40 0\nv 40 inf 0\nf 1 2 3\nf 2 4 3\n")
 
 
+@bad_mesh(r"nan\.stl: 6 triangle\(s\) with NaN or infinite vertex "
+           r"coordinates \(first: triangle 20\)")
 def _m_nan_stl(d):
     V, F = flat_grid()
     V[20] = [np.nan, 5.0, 0.0]      # (trimesh's STL processing would drop these triangles
     return save_mesh(d / "nan.stl", V, F)  # and the surface would show a misleading "hole")
 
 
-def _m_flipped(d):
+@bad_mesh(r"flip\.obj: the faces are not consistently oriented",
+          r"Re-Orient all faces")
+def _m_orientation(d):
     V, F = flat_grid()
     F[10] = F[10, ::-1]
     return save_mesh(d / "flip.obj", V, F)
 
 
+@bad_mesh(r"metres\.stl: the surface is only 0\.141 mm across",
+          r"probably in metres",
+          r"--scale 1000 .*it would be 141 mm across")
 def _m_metres(d):
-    V, F = flat_grid(size=100.0)
-    return save_mesh(d / "metres.stl", V / 1000.0, F)
+    return _grid_in_unit(d, "metres.stl", 1000.0)
 
 
+@bad_mesh(r"inches\.obj: the surface is only 5\.57 mm across",
+          r"probably in inches",
+          r"--scale 25\.4 .*it would be 141 mm across")
 def _m_inches(d):
-    V, F = flat_grid(size=100.0)
-    return save_mesh(d / "inches.obj", V / 25.4, F)
+    return _grid_in_unit(d, "inches.obj", 25.4)
 
 
+@bad_mesh(r"um\.ply: the surface is 1\.414e\+05 mm across; that is "
+           r"implausibly large",
+          r"--scale 0\.001")
 def _m_micrometres(d):
-    V, F = flat_grid(size=100.0)
-    return save_mesh(d / "um.ply", V * 1000.0, F)
-
-
-MESH_CASES = {
-    # id: (builder, patterns the message must contain)
-    "missing": (_m_missing, [r"nope\.obj: file not found", r"Fix: check the path"]),
-    "empty": (_m_empty, [r"empty\.stl: empty file"]),
-    "corrupt_obj": (_m_corrupt_obj, [r"bad\.obj: cannot read the OBJ file, it is corrupt",
-                                     r"index 8 is out of bounds"]),
-    "corrupt_stl": (_m_corrupt_stl, [r"noise\.stl: no triangles found: the file is empty, "
-                                     r"truncated or corrupt"]),
-    "corrupt_ply": (_m_corrupt_ply, [r"junk\.ply: cannot read the PLY file"]),
-    "unsupported": (_m_unsupported, [r"shape\.3ds: unsupported format '\.3ds'",
-                                     r"\.obj, \.stl, \.ply, \.off"]),
-    "directory": (_m_directory, [r"folder\.obj: is a directory, not a mesh file"]),
-    "nonmanifold_edge": (_m_nonmanifold_edge, [
-        r"fin\.obj: 1 non-manifold edge\(s\)", r"edge \(0, 1\) used by 3 triangles",
-        r"at \(2\.9, 0\.0, 0\.0\) mm", r"Repair non Manifold Edges"]),
-    "nonmanifold_vertex": (_m_nonmanifold_vertex, [
-        r"bowtie\.obj: 1 non-manifold vertex", r"at \(0\.0, 0\.0, 0\.0\) mm"]),
-    "components": (_m_components, [r"two\.ply: 2 separate pieces \(faces per piece: \[98, 98\]\)",
-                                   r"delete the small pieces"]),
-    "hole": (_m_hole, [r"hole\.obj: the surface has 1 hole\(s\)",
-                       r"hole around \(20\.0, 20\.0, 0\.0\) mm", r"cut from each hole"]),
-    "handle": (_m_handle, [r"handle\.off: the surface has 1 handle\(s\) \(genus 1\)",
-                           r"cut through each handle"]),
-    "closed": (_m_closed, [r"ball\.stl: the surface is closed \(no boundary\)",
-                           r"Fix: cut it open, e.g. delete the faces around \(0\.0, 0\.0, "
-                           r"-30\.0\) mm"]),
-    "closed_torus": (_m_closed_torus, [r"ring\.obj: the surface is closed \(no boundary, "
-                                       r"genus 1\)", r"cut it open"]),
-    "repeated_vertex": (_m_repeated_vertex, [r"repeat\.obj: 1 degenerate triangle",
-                                             r"e\.g\. face 5 at \(", r"Remove Zero Area"]),
-    "zero_area": (_m_zero_area, [r"sliver\.obj: 1 degenerate triangle\(s\) \(zero area",
-                                 r"face 3 at \(20\.0, 20\.0, 0\.0\) mm"]),
-    "nan": (_m_nan, [r"nan\.obj: 1 vertex coordinate\(s\) are NaN or infinite",
-                     r"first: vertex 3"]),
-    "nan_stl": (_m_nan_stl, [r"nan\.stl: 6 triangle\(s\) with NaN or infinite vertex "
-                             r"coordinates \(first: triangle 20\)"]),
-    "inf": (_m_inf, [r"inf\.obj: 1 vertex coordinate\(s\) are NaN or infinite"]),
-    "orientation": (_m_flipped, [r"flip\.obj: the faces are not consistently oriented",
-                                 r"Re-Orient all faces"]),
-    "metres": (_m_metres, [r"metres\.stl: the surface is only 0\.141 mm across",
-                           r"probably in metres", r"--scale 1000 .*it would be 141 mm across"]),
-    "inches": (_m_inches, [r"inches\.obj: the surface is only 5\.57 mm across",
-                           r"probably in inches", r"--scale 25\.4 .*it would be 141 mm across"]),
-    "micrometres": (_m_micrometres, [r"um\.ply: the surface is 1\.414e\+05 mm across; that is "
-                                     r"implausibly large", r"--scale 0\.001"]),
-}
+    return _grid_in_unit(d, "um.ply", 1e-3)
 
 
 @pytest.mark.parametrize("case", list(MESH_CASES))

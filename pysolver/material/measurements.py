@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, refuse_first
 from ..params import UNIT_CELL
 from ..params import tol as TOL
 
@@ -194,13 +194,10 @@ def _to_float(path: Path, cols: dict, name: str) -> np.ndarray:
                 f"{path}, data row {i + 1}, column {name}: {v!r} is not a number.",
                 fix="every cell of the numeric columns must be a number in the documented unit."
             ) from None
-    bad = np.flatnonzero(~np.isfinite(out))
-    if bad.size:
-        i = int(bad[0])
-        raise InputError(
-            f"{path}, data row {i + 1}, column {name}: value {vals[i]!r} is NaN/infinite "
-            f"({bad.size} such row(s) in this column).",
-            fix="remove or repair the rows with missing values.")
+    refuse_first(~np.isfinite(out),
+                 lambda i, n: f"{path}, data row {i + 1}, column {name}: value {vals[i]!r} is "
+                              f"NaN/infinite ({n} such row(s) in this column).",
+                 fix="remove or repair the rows with missing values.")
     return out
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, refuse_first
 from ..params import LAYERS, SUPPORT_FRAME, UNIT_CELL, layer_sign
 from ..params import tol as TOL
 from ..tables import read_design as _read
@@ -177,13 +177,11 @@ def read_design(design_dir):
     d = _read(design_dir)
     cells = d.cells  # thickness range: checked by pysolver.tables.check_design
     l = np.asarray(cells["central_length_mm"], float)
-    bad = np.flatnonzero(~(l > UNIT_CELL.bracket_offset))
-    if bad.size:
-        i = int(bad[0])
-        raise InputError(
-            f"{design_dir / 'cells.csv'}:{i + 2}: central_length_mm = {l[i]!r} is not above "
-            f"2 base_r cos(alpha) = {UNIT_CELL.bracket_offset:.4f} mm (the bases would overlap).",
-            fix="re-run the design stage; the 2D scaling rule keeps every cell long enough.")
+    refuse_first(~(l > UNIT_CELL.bracket_offset),
+                 lambda i, _: f"{design_dir / 'cells.csv'}:{i + 2}: central_length_mm = "
+                              f"{l[i]!r} is not above 2 base_r cos(alpha) = "
+                              f"{UNIT_CELL.bracket_offset:.4f} mm (the bases would overlap).",
+                 fix="re-run the design stage; the 2D scaling rule keeps every cell long enough.")
     if len(d.support) < 3:
         raise InputError(f"{design_dir / 'support_frame.csv'}: the outline has "
                          f"{len(d.support)} points, at least 3 are needed.",

@@ -39,12 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.report import completion_times, load_sim
-from sim.viewer import ASSETS, viewer_data
-from sim.viewer import STATIC_DIR as VIEWER_DIR
-
 from .. import tables
 from ..atomic import _manifest, atomic_write_text, write_stamp
+from ..build import morph_viewer, viewer_assets
 from ..errors import InputError, MorphshellError
 from ..tables import read_record, read_stencil, read_table
 from .landscape import Feasibility, constraint_values, harmonic_landscape, parse_constraints
@@ -56,8 +53,7 @@ LANDSCAPE_SOURCE = "studio_landscape.json"
 
 
 def _static_files() -> dict:
-
-    files = {name: VIEWER_DIR / name for name in ASSETS}
+    files = viewer_assets()
     files.update({name: STATIC_DIR / name for name in ("index.html", "studio.js", "studio.css")})
     return files
 
@@ -94,12 +90,7 @@ class Build:
         key = (p.stat().st_mtime_ns, (self.folder / "cells.csv").stat().st_mtime_ns)
         with self.lock:
             if self._viewer_key != key:
-
-                sd = load_sim(self.folder)
-                fr = sd.frames
-                t_done, _ = completion_times(fr["t"], fr["collided"], fr.get("bracket_length"),
-                                             fr.get("collision_length"))
-                self._viewer = viewer_data(sd, t_done, max_frames=241, quantise=False)
+                self._viewer = morph_viewer(self.folder, max_frames=241, quantise=False)
                 self._viewer_key = key
             return self._viewer
 

@@ -37,8 +37,9 @@ Everything a simulation needs travels with its task (:class:`DesignPayload`: the
 folder's files as bytes, the material file as bytes, a :class:`Perturbation`), so any Dask
 worker can run it (:mod:`pysolver.distributed`).  The worker rebuilds the nominal
 :class:`~pysolver.mechanics.ShellModel` once per design and applies a perturbation with
-:func:`pysolver.mechanics.vary_model`, simulates (:func:`sim.model.simulate.simulate_model`)
-and checks the result with the report's own metrics and verdict (:func:`sim.report.decide`).
+:func:`pysolver.mechanics.vary_model`, and asks the orchestrator to simulate it and check the
+result with the report's own metrics and verdict (:func:`pysolver.build.simulate_and_check`,
+:func:`sim.report.check_frames`).
 
 Outputs in ``<design>/tolerance/`` (``summary.json``, ``report.html``, pictures and
 ``samples/*.json``, one result per task, written atomically so a rerun only computes what
@@ -74,23 +75,14 @@ import numpy as np
 
 from pysolver import distributed
 from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
-from pysolver.errors import InputError, MorphshellError
+from pysolver.build import check_sim_span, simulate_and_check
+from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
 from pysolver.material.measurements import REPO_ROOT, load_measurements
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
 from pysolver.mechanics import load_model, vary_model
 from pysolver.params import SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
 from pysolver.tables import MODEL_FILE, read_design, read_table
-from sim.model.collisions import base_collisions, membrane_collisions
-from sim.model.simulate import SimSettings, simulate_model
-from sim.report import (
-    Thresholds,
-    decide,
-    fold_metrics,
-    shape_metrics,
-    solver_metrics,
-    timing_metrics,
-)
 
 from .report import write_report
 
@@ -359,64 +351,6 @@ def _context(payload: DesignPayload) -> dict:
     return ctx
 
 
-def _finite_list(a):
-    return [None if not np.isfinite(v) else float(v) for v in np.ravel(a)]
-
-
-def check_frames(frames: dict, ctx: dict, thresholds=None) -> dict:
-    """The simulation check of ``sim.report`` on in-memory frames.
-
-    Parameters
-    ----------
-    frames : dict
-        As returned by :func:`sim.model.simulate.simulate_model`.
-    ctx : dict
-        ``target`` (m, 3) mm, ``normals`` (m, 3), ``pairs`` (c, 2), ``t_star`` (c,) s,
-        ``fold`` (c,) deg, ``clamped`` (c,) bool or None.
-
-    Returns
-    -------
-    dict
-        ``verdict``, ``reasons``, figures, ``t_done`` (c,) s (None = never),
-        ``base_final`` (m, 3) mm (final centres rigidly aligned to the target).
-    """
-    th = Thresholds.coerce(thresholds)
-    t = np.asarray(frames["t"], float)
-    C, R = np.asarray(frames["base_center"], float), np.asarray(frames["base_rotation"], float)
-    M = frames.get("membrane_vertices")
-    last = len(t) - 1
-    metrics = {"t_end_s": float(t[-1])}
-    sh = shape_metrics(C[last], R[last], ctx["target"], ctx["normals"])
-    metrics["shape"] = sh
-    metrics["fold"] = fold_metrics(C[last], R[last], ctx["pairs"], ctx["fold"], th)
-    tm = timing_metrics(t, frames["collided"], ctx["t_star"], th,
-                        frames.get("bracket_length"), frames.get("collision_length"),
-                        ctx["clamped"])
-    metrics["timing"] = tm
-    bc = base_collisions(C, R, ctx["pairs"], t=t, tol=th.collision_depth_mm)
-    col = {"base_base": bc.summary()}
-    if M is not None and np.asarray(M).shape[1]:
-        col["membrane_base"] = membrane_collisions(
-            C, R, M, t=t, tol=th.collision_depth_mm,
-            flat_vertices=frames.get("flat_membrane_vertices"),
-            flat_centers=frames.get("flat_base_center")).summary()
-    metrics["collisions"] = col
-    metrics["solver"] = solver_metrics(frames, th)
-    verdict, reasons = decide(metrics, th)
-    t_done = tm["t_done"]
-    return {"verdict": verdict,
-            "reasons": [f"{r['level']} {r['check']}: {r['message']}" for r in reasons],
-            "shape_rms_pct": sh["rms_pct"], "shape_rms_mm": sh["rms_mm"],
-            "shape_max_mm": sh["max_mm"], "normal_rms_deg": sh["normal_rms_deg"],
-            "fold_rms_deg": metrics["fold"]["rms_deg"],
-            "timing_rms_s": tm["rms_s"], "timing_bias_s": tm["bias_s"],
-            "timing_max_abs_s": tm["max_abs_s"], "n_never_due": tm["n_never_due"],
-            "n_completed": tm["n_completed"],
-            "longest_cell_s": float(np.nanmax(t_done)) if np.isfinite(t_done).any() else None,
-            "t_done": _finite_list(t_done),
-            "base_final": np.asarray(sh["aligned"], float).tolist()}
-
-
 def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> dict:
     """Simulate and check one perturbed shell (the Dask task).
 
@@ -430,7 +364,7 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
     Returns
     -------
     dict
-        The figures of :func:`check_frames`, plus ``diverged`` (bool), ``message``,
+        The figures of :func:`sim.report.check_frames`, plus ``diverged`` (bool), ``message``,
         ``steps`` and ``wall_s`` (the only non-reproducible field).
     """
     t0 = time.perf_counter()
@@ -446,11 +380,13 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
                 else CompliantBracketModel(ctx["material"], pert.compliance))
     diverged, message = False, ""
     try:
-        frames = simulate_model(varied, material, t_end=settings["t_end"], dt=settings["dt"])
+        frames, check = simulate_and_check(varied, material, ctx, t_end=settings["t_end"],
+                                           dt=settings["dt"],
+                                           thresholds=settings.get("thresholds"))
     except MorphshellError as e:  # a diverged sample is a result: it fails the check
         diverged, message = True, str(e)
-        frames = None
-    if frames is None or len(frames["t"]) < 2:
+        frames = check = None
+    if check is None:
         n_c, n_b = model.n_cells, model.n_bases
         out = {"verdict": "FAIL", "reasons": [f"FAIL solver: {message}"],
                "t_done": [None] * n_c, "base_final": [[None] * 3] * n_b,
@@ -460,7 +396,7 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
                "n_completed": 0, "longest_cell_s": None}
         steps = 0
     else:
-        out = check_frames(frames, ctx, settings.get("thresholds"))
+        out = check
         steps = int(len(frames["t"]))
     dth = np.asarray(pert.thickness_delta, float)
     out.update({"name": pert.name, "diverged": diverged, "message": message, "steps": steps,
@@ -752,7 +688,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         sensitivity = min(TOLERANCE_RUN.sensitivity_samples, samples)
     _check_options(samples, sensitivity, uncertainty, time_tol_s)
 
-    SimSettings(t_end=float(t_end), dt=float(dt)).times()  # a bad t_end/dt is refused now
+    check_sim_span(t_end, dt)  # a bad t_end/dt is refused now
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
         raise InputError(f"--seed {seed!r}", fix="use a whole number >= 0")
     if material is not None:  # a bad model file is refused here, not on every worker
@@ -764,11 +700,12 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     n_cells = len(cells["cell_id"])
     th = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
     ts = np.asarray(cells["t_star_s"], float)
-    bad = np.flatnonzero(~(np.all(np.isfinite(th) & (th > 0), axis=1) & np.isfinite(ts)))
-    if len(bad):  # refused here, not by every worker
-        raise InputError(f"{folder / 'cells.csv'}:{int(bad[0]) + 2}: cell {int(bad[0])} has no "
-                         "programmed thickness or t*", fix="run the program stage first "
-                         "(morphshell build NAME --no-render, or make sim shape=NAME)")
+    refuse_first(~(np.all(np.isfinite(th) & (th > 0), axis=1) & np.isfinite(ts)),
+                 # refused here, not by every worker
+                 lambda i, _: f"{folder / 'cells.csv'}:{i + 2}: cell {i} has no programmed "
+                              "thickness or t*",
+                 fix="run the program stage first (morphshell build NAME --no-render, or "
+                     "make sim shape=NAME)")
     n_bases = len(read_table(folder, "bases")["base_id"])
     out = _claim(Path(out) if out is not None else folder / "tolerance")
     t_start = time.perf_counter()
@@ -859,7 +796,7 @@ def _clean(o):
     return o
 
 
-__all__ = ["tolerance_analysis", "run_sample", "check_frames", "Perturbation",
+__all__ = ["tolerance_analysis", "run_sample", "Perturbation",
            "DesignPayload", "read_payload", "CompliantBracketModel", "material_scatter",
            "relaxation_curve", "relaxation_factor", "aggregate", "sensitivity_table",
            "regression_sensitivity",

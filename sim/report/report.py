@@ -583,6 +583,64 @@ def decide(metrics: dict, th: Thresholds):
     return verdict, reasons
 
 
+def _finite_list(a):
+    return [None if not np.isfinite(v) else float(v) for v in np.ravel(a)]
+
+
+def check_frames(frames: dict, ctx: dict, thresholds=None) -> dict:
+    """The report's simulation check on in-memory frames (the tolerance analysis's samples).
+
+    Parameters
+    ----------
+    frames : dict
+        As returned by :func:`sim.model.simulate.simulate_model`.
+    ctx : dict
+        ``target`` (m, 3) mm, ``normals`` (m, 3), ``pairs`` (c, 2), ``t_star`` (c,) s,
+        ``fold`` (c,) deg, ``clamped`` (c,) bool or None.
+
+    Returns
+    -------
+    dict
+        ``verdict``, ``reasons``, figures, ``t_done`` (c,) s (None = never),
+        ``base_final`` (m, 3) mm (final centres rigidly aligned to the target).
+    """
+    th = Thresholds.coerce(thresholds)
+    t = np.asarray(frames["t"], float)
+    C, R = np.asarray(frames["base_center"], float), np.asarray(frames["base_rotation"], float)
+    M = frames.get("membrane_vertices")
+    last = len(t) - 1
+    metrics = {"t_end_s": float(t[-1])}
+    sh = shape_metrics(C[last], R[last], ctx["target"], ctx["normals"])
+    metrics["shape"] = sh
+    metrics["fold"] = fold_metrics(C[last], R[last], ctx["pairs"], ctx["fold"], th)
+    tm = timing_metrics(t, frames["collided"], ctx["t_star"], th,
+                        frames.get("bracket_length"), frames.get("collision_length"),
+                        ctx["clamped"])
+    metrics["timing"] = tm
+    bc = base_collisions(C, R, ctx["pairs"], t=t, tol=th.collision_depth_mm)
+    col = {"base_base": bc.summary()}
+    if M is not None and np.asarray(M).shape[1]:
+        col["membrane_base"] = membrane_collisions(
+            C, R, M, t=t, tol=th.collision_depth_mm,
+            flat_vertices=frames.get("flat_membrane_vertices"),
+            flat_centers=frames.get("flat_base_center")).summary()
+    metrics["collisions"] = col
+    metrics["solver"] = solver_metrics(frames, th)
+    verdict, reasons = decide(metrics, th)
+    t_done = tm["t_done"]
+    return {"verdict": verdict,
+            "reasons": [f"{r['level']} {r['check']}: {r['message']}" for r in reasons],
+            "shape_rms_pct": sh["rms_pct"], "shape_rms_mm": sh["rms_mm"],
+            "shape_max_mm": sh["max_mm"], "normal_rms_deg": sh["normal_rms_deg"],
+            "fold_rms_deg": metrics["fold"]["rms_deg"],
+            "timing_rms_s": tm["rms_s"], "timing_bias_s": tm["bias_s"],
+            "timing_max_abs_s": tm["max_abs_s"], "n_never_due": tm["n_never_due"],
+            "n_completed": tm["n_completed"],
+            "longest_cell_s": float(np.nanmax(t_done)) if np.isfinite(t_done).any() else None,
+            "t_done": _finite_list(t_done),
+            "base_final": np.asarray(sh["aligned"], float).tolist()}
+
+
 # --------------------------------------------------------------------------------------------
 # report
 # --------------------------------------------------------------------------------------------
