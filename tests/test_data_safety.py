@@ -148,11 +148,11 @@ def test_other_outputs_are_claimed_too(room, capsys):
 def test_skipped_render_keeps_unchanged_stls_and_says_when_it_drops_them(tmp_path, capsys,
                                                                           monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert main(["--quiet", "build", SHAPE, "--no-sim", "--time", "50"]) == 0
+    assert main(["--quiet", "build", SHAPE, "--no-sim", "--time", "60"]) == 0
     out = tmp_path / "build" / SHAPE
     stls = {k: v for k, v in _tree(out).items() if k.startswith(("stl/", "scad/"))}
     assert "stl/top.stl" in stls and any(k.startswith("scad/") for k in stls)
-    assert main(["build", SHAPE, "--no-sim", "--no-render", "--time", "50"]) == 0
+    assert main(["build", SHAPE, "--no-sim", "--no-render", "--time", "60"]) == 0
     assert "render not run: kept the previous scad, stl" in capsys.readouterr().err
     assert {k: v for k, v in _tree(out).items() if k.startswith(("stl/", "scad/"))} == stls
     assert foreign_files(out) == []

@@ -12,6 +12,7 @@ it (``tests/test_architecture.py``).
 """
 from .model import (
     CROSS_REST_MODES,
+    MembraneMesh,
     ShellModel,
     build_model,
     load_model,
@@ -22,6 +23,7 @@ from .rim import rim_margin
 
 __all__ = [
     "CROSS_REST_MODES",
+    "MembraneMesh",
     "ShellModel",
     "build_model",
     "load_model",

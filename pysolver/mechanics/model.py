@@ -195,42 +195,131 @@ class ShellModel:
 
 
 # ------------------------------------------------------------------------------------------------
-# membrane mesh (simulator.md §6.6)
+# membrane mesh (simulator.md §6.6): the one mesh of the simulator and temporal programming
 
 
-def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.membrane_max_area,
-                  min_angle=SIM.membrane_min_angle):
-    """Triangulate the flat membrane between the base outlines.
+@dataclass(frozen=True)
+class MembraneMesh:
+    """The flat membrane of a layout: the simulator's mesh, and temporal programming's.
 
-    The PSLG is built from the flat corner nodes ``corner_xy[f, j, k]`` of every interior
-    side: per cell and per side (f, j) the base side segment (f,j,0)-(f,j,1); then at the
-    corner by vertex ``F[f,(j+2)%3]`` either the base's corner edge (f,j,1)-(f,(j+1)%3,0)
-    (interior vertex) or, at a boundary vertex, an open segment across the cell to the
-    partner's facing node (free membrane edge).  Holes at the base centres remove the bases.
+    Attributes
+    ----------
+    xy : (v, 2) float, mm -- flat vertices
+    tris : (t, 3) int -- triangles, counter-clockwise in the flat layout
+    body : (v,) int -- base a vertex is attached to (it lies on the base outline), -1 free
+    edge_segments : (e, 2) int -- vertex pairs along the cells' cuts (mesh edges): the
+        stencil edge between its interior vertices; an end at a boundary vertex is moved to
+        the facing base corner next to it (base a at ``cell_verts[:, 0]``, b at ``[:, 1]``;
+        the other way round, or the stencil edge's crossing with the free edge, where that
+        cut would cross a base)
+    edge_cell : (e,) int -- unit cell of each edge segment
+    """
+
+    xy: np.ndarray
+    tris: np.ndarray
+    body: np.ndarray
+    edge_segments: np.ndarray
+    edge_cell: np.ndarray
+
+
+def _cross2(a, b):
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _crossing_cells(P, S, seg_face, E, cell_of):
+    """Cells whose cut crosses an outline segment of one of its two bases, (c,) bool.
+
+    ``P`` (k, 2) mm PSLG vertices, ``S`` (s, 2) outline segments of base ``seg_face`` (s,),
+    ``E`` (c, 2) the cells' cuts, ``cell_of`` (m, 3) the cell of each base slot (-1 none).
+    """
+    sf = np.repeat(np.arange(len(S)), 3)
+    cc = cell_of[seg_face].ravel()
+    sf, cc = sf[cc >= 0], cc[cc >= 0]
+    p, q = P[S[sf, 0]], P[S[sf, 1]]
+    r, s = P[E[cc, 0]], P[E[cc, 1]]
+    o1, o2 = _cross2(q - p, r - p), _cross2(q - p, s - p)
+    o3, o4 = _cross2(s - r, p - r), _cross2(s - r, q - r)
+    bad = (o1 * o2 < 0) & (o3 * o4 < 0)
+    return np.bincount(cc[bad], minlength=len(E)) > 0
+
+
+def _bases_reach_across(UV, F, cells, ci):
+    """The error for a cell whose bases reach across its stencil edge."""
+    fa, fb = (int(x) for x in cells.faces[ci])
+    C = UV[F].mean(axis=1)
+    d = []
+    for f in (fa, fb):
+        A, B = UV[F[f]], UV[F[f, [1, 2, 0]]]
+        d.append(float(np.min(np.abs(_cross2(B - A, C[f] - A)) / np.linalg.norm(B - A, axis=1))))
+    return InputError(f"the stencil's bases reach across its edges at cell {ci} (bases {fa}, "
+                      f"{fb}: their centres are {d[0]:.2f} and {d[1]:.2f} mm from their "
+                      "triangles' edges): a flat triangle is too thin or too obtuse for a "
+                      "4 mm base at its centroid",
+                      fix="let morphshell remesh the surface (its stencils keep every base "
+                          "centre >= 2.3 mm from its triangle's edges), or improve that region "
+                          "of your stencil")
+
+
+def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
+                  min_angle=SIM.membrane_min_angle) -> MembraneMesh:
+    """Triangulate the flat membrane between the base outlines of a layout.
+
+    The one membrane mesh of the project: the simulator (:func:`build_model`), the ``F_mem``
+    sampler and fit and the per-cell ``F_mem`` correction
+    (:mod:`pysolver.temporal.membrane_model`) all mesh a layout with this function, so the
+    per-cell tractions of temporal programming are read on the simulator's own membrane.
+
+    The PSLG is built from the flat corner nodes (top-layer bracket nodes, ``nodes_flat``) of
+    every interior side: per cell and per side (f, j) the base side segment (f,j,0)-(f,j,1);
+    then at the corner by vertex ``F[f,(j+2)%3]`` either the base's corner edge
+    (f,j,1)-(f,(j+1)%3,0) (interior vertex) or, at a boundary vertex, an open segment across
+    the cell to the partner's facing node (free membrane edge).  Holes at the base centres
+    remove the bases.  The stencil edge of every cell is a segment too (a constraint inside
+    the membrane, it changes nothing of the physics): it runs between its interior stencil
+    vertices; at a boundary vertex it ends at the facing corner of base a (first vertex)
+    or b (second vertex), so no vertex is added on the free edge (on skewed faces whose
+    bases would be crossed: the other corners, else the crossing with the free edge).  The
+    force the membrane carries across each cell is then a sum over mesh edges
+    (:func:`pysolver.temporal.membrane_model.cell_tractions`).  Triangle (``pzq<min_angle>
+    a<max_area>Q``) adds points on segments where quality or size need them: on a base
+    outline they are attached to that base, elsewhere free.
 
     Parameters
     ----------
-    corner_xy : (m, 3, 2, 2) float, mm
-        Flat xy of the bracket nodes ``[base, slot, k, xy]``.
+    UV : (n, 2) float, mm
+        Flat stencil vertices.
     F : (m, 3) int
-    ff : (m, 3) int
-        Face adjacency (``pysolver.geometry.face_adjacency``).
-    cells : pysolver.geometry.Cells
-    vertex_boundary : (n,) bool
-        Stencil vertex lies on the boundary.
+        Stencil faces.
+    geometry : dict
+        The design's ``model.npz`` arrays (``pysolver.design.cellnodes.model_arrays``):
+        ``face_adjacency``, ``cell_bases``, ``cell_slots``, ``cell_verts``, ``cell_of``,
+        ``boundary_vertex`` and ``nodes_flat`` (m, 3, 2, 2, 3) mm.
     max_area : float, mm^2
+        Largest triangle (flat).  The simulator uses ``SIM.membrane_max_area``; the ``F_mem``
+        fit and correction finer meshes of the same construction.
     min_angle : float, deg
 
     Returns
     -------
-    xy : (v, 2) float, mm
-    tris : (t, 3) int, CCW
-    body : (v,) int
-        Base a vertex lies on (outline), -1 for free vertices.
+    MembraneMesh
+
+    Raises
+    ------
+    InputError
+        A base outline crosses a stencil edge (too thin or obtuse a flat triangle), or the
+        meshing produced no or a degenerate triangle.
     """
     import triangle  # heavy: Triangle only where a mesh is made
 
-    F = np.asarray(F)
+    UV = np.asarray(UV, float)[:, :2]
+    F = np.asarray(F, dtype=np.int64)
+    g = {k: np.asarray(geometry[k]) for k in ("cell_bases", "cell_slots", "cell_verts",
+                                                "cell_of", "cell_boundary")}
+    cells = Cells(faces=g["cell_bases"], slots=g["cell_slots"], verts=g["cell_verts"],
+                  cell_of=g["cell_of"], boundary=g["cell_boundary"])
+    vertex_boundary = np.asarray(geometry["boundary_vertex"], bool)
+    corner_xy = np.asarray(geometry["nodes_flat"], float)[:, :, :, 0, :2]
+    m, c = len(F), len(cells.faces)
     a, b = cells.faces[:, 0], cells.faces[:, 1]
     ja, jb = cells.slots[:, 0], cells.slots[:, 1]
     f = np.r_[a, b]
@@ -242,23 +331,67 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
     corner_vertex = F[f, (j + 2) % 3]
     open_ = vertex_boundary[corner_vertex]
     corner = np.c_[cid(f, j, 1), np.where(open_, cid(fo, jo, 0), cid(f, (j + 1) % 3, 0))]
-    seg = np.r_[side, corner]
-    mark = np.r_[f + 2, np.where(open_, 1, f + 2)]
-    used = np.unique(seg)
-    xy_all = np.asarray(corner_xy, float).reshape(-1, 2)
-    renum = -np.ones(6 * len(F), dtype=np.int64)
+    outline = np.r_[side, corner[~open_]]
+    outline_face = np.r_[f, f[~open_]]
+    used = np.unique(np.r_[outline.ravel(), corner[open_].ravel()])
+    xy_all = corner_xy.reshape(-1, 2)
+    renum = -np.ones(6 * m, dtype=np.int64)
     renum[used] = np.arange(len(used))
-    pslg = {"vertices": xy_all[used], "segments": renum[seg],
-            "segment_markers": mark[:, None].astype(np.int32),
-            "vertex_markers": (used // 6 + 2)[:, None].astype(np.int32)}
-    C2 = xy_all.reshape(len(F), 6, 2).mean(axis=1)
-    pslg["holes"] = C2
-    opts = f"pzq{min_angle:g}a{max_area:g}Q"
-    out = triangle.triangulate(pslg, opts)
+    # stencil-edge ends: an interior vertex is a (free) mesh vertex; at a boundary vertex the
+    # cut ends at a base corner next to it, of base a at the edge's first vertex and of base b
+    # at its second (no new vertex on the free edge: any cut from one end to the free
+    # boundary between the two bases separates the same two membrane pieces).  Where that cut
+    # would cross a base outline (skewed faces) the other bases' corners are tried, then the
+    # points where the stencil edge line meets the free edge (free vertices splitting it).
+    inner_v = np.unique(cells.verts[~vertex_boundary[cells.verts]])
+    vnode = -np.ones(len(UV), dtype=np.int64)
+    vnode[inner_v] = len(used) + np.arange(len(inner_v))
+    bnd_end = vnode[cells.verts] < 0
+    corner_at = np.empty((c, 2, 2), dtype=np.int64)    # [cell, end, base a/b] PSLG vertex
+    for e in (0, 1):
+        w = cells.verts[:, e]
+        for q, (ff_, jj) in enumerate(((a, ja), (b, jb))):
+            corner_at[:, e, q] = renum[cid(ff_, jj, np.where(F[ff_, (jj + 1) % 3] == w, 0, 1))]
+    ends = np.where(bnd_end, corner_at[:, [0, 1], [0, 1]], vnode[cells.verts])
+    P = np.r_[xy_all[used], UV[inner_v]]
+    S_out = renum[outline]
+    split = {}
+    # hand-written: a loop over the few cells of skewed faces, none in a regular stencil
+    for ci in np.flatnonzero(_crossing_cells(P, S_out, outline_face, ends, cells.cell_of)):
+        be = np.flatnonzero(bnd_end[ci])
+        ends[ci, be] = corner_at[ci, be, 1 - be]                  # the other bases' corners
+        if not _crossing_cells(P, S_out, outline_face, ends, cells.cell_of)[ci]:
+            continue
+        A, B = UV[cells.verts[ci, 0]], UV[cells.verts[ci, 1]]
+        for e in be:                                              # the free-edge crossings
+            p0, p1 = P[corner_at[ci, e, 0]], P[corner_at[ci, e, 1]]
+            den = _cross2(B - A, p0 - p1)
+            u = _cross2(B - A, p0 - A) / den if abs(den) > TOL.degenerate else 0.5
+            P = np.r_[P, [p0 + min(max(u, 0.1), 0.9) * (p1 - p0)]]
+            ends[ci, e] = len(P) - 1
+            split[frozenset((int(corner_at[ci, e, 0]), int(corner_at[ci, e, 1])))] = len(P) - 1
+    bad = _crossing_cells(P, S_out, outline_face, ends, cells.cell_of)
+    if bad.any():
+        raise _bases_reach_across(UV, F, cells, int(np.argmax(bad)))
+    free_seg = []
+    for i0, i1 in renum[corner[open_]]:
+        x = split.get(frozenset((int(i0), int(i1))))
+        free_seg += [(i0, i1)] if x is None else [(i0, x), (x, i1)]
+    free_seg = np.array(free_seg, dtype=np.int64).reshape(-1, 2)
+    seg = np.r_[S_out, free_seg, ends]
+    mark = np.r_[outline_face + 2, np.ones(len(free_seg), np.int64), -(np.arange(c) + 1)]
+    vmark = np.r_[used // 6 + 2, np.zeros(len(P) - len(used), np.int64)]
+    pslg = {"vertices": P, "segments": seg, "segment_markers": mark[:, None].astype(np.int32),
+            "vertex_markers": vmark[:, None].astype(np.int32),
+            "holes": xy_all.reshape(m, 6, 2).mean(axis=1)}
+    out = triangle.triangulate(pslg, f"pzq{min_angle:g}a{max_area:g}Q")
     xy = np.asarray(out["vertices"], float)
     tris = np.asarray(out["triangles"], dtype=np.int64)
     vm = np.asarray(out["vertex_markers"]).ravel()
     body = np.where(vm >= 2, vm - 2, -1).astype(np.int64)
+    osm = np.asarray(out["segment_markers"]).ravel()
+    eseg = np.asarray(out["segments"], dtype=np.int64)[osm < 0]
+    ecell = -osm[osm < 0] - 1
     if len(tris) == 0:
         raise InputError("membrane meshing produced no triangle", fix="check the flat layout")
     # keep only vertices used by triangles (Triangle keeps eaten input vertices)
@@ -266,16 +399,18 @@ def membrane_mesh(corner_xy, F, ff, cells, vertex_boundary, *, max_area=SIM.memb
     if len(used_v) != len(xy):
         keep = -np.ones(len(xy), dtype=np.int64)
         keep[used_v] = np.arange(len(used_v))
-        xy, body, tris = xy[used_v], body[used_v], keep[tris]
+        xy, body, tris, eseg = xy[used_v], body[used_v], keep[tris], keep[eseg]
     e1 = xy[tris[:, 1]] - xy[tris[:, 0]]
     e2 = xy[tris[:, 2]] - xy[tris[:, 0]]
-    area = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    area = 0.5 * _cross2(e1, e2)
     flip = area < 0
     tris[flip] = tris[flip][:, [0, 2, 1]]
     if np.any(np.abs(area) < TOL.degenerate):
         raise InputError("membrane meshing produced a degenerate triangle",
                          fix="check the flat layout for overlapping bases")
-    return xy, tris, body
+    order = np.lexsort((eseg.min(axis=1), ecell))
+    return MembraneMesh(xy=xy, tris=tris, body=body, edge_segments=eseg[order],
+                        edge_cell=ecell[order])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -409,10 +544,9 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
                          fix="check cells.csv bracket_length_mm")
 
     # --- membrane
-    vb = geometry["boundary_vertex"]
-    xy, tris, mbody = membrane_mesh(nodes_f[:, :, :, 0, :2], F, ff, cells, vb,
-                                    max_area=consts.membrane_max_area,
-                                    min_angle=consts.membrane_min_angle)
+    mesh = membrane_mesh(UV, F, geometry, max_area=consts.membrane_max_area,
+                         min_angle=consts.membrane_min_angle)
+    xy, tris, mbody = mesh.xy, mesh.tris, mesh.body
     tau = np.full(len(tris), consts.tau)
     if physics.rim:
         xy, tris, mbody, margin = rim_margin(xy, tris, mbody, C2, unit.base_r,
@@ -533,5 +667,5 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
     return dataclasses.replace(model, **changes)
 
 
-__all__ = ["ShellModel", "build_model", "load_model", "vary_model", "membrane_mesh", "rim_margin",
-           "CROSS_REST_MODES"]
+__all__ = ["ShellModel", "MembraneMesh", "build_model", "load_model", "vary_model", "membrane_mesh",
+           "rim_margin", "CROSS_REST_MODES"]

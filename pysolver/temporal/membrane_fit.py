@@ -13,11 +13,15 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
 
 from ..atomic import atomic_write_text
+from ..mechanics import MembraneMesh
 from ..params import SIM, UNIT_CELL
 from ..params import tol as TOL
 from .membrane_model import (
@@ -26,14 +30,12 @@ from .membrane_model import (
     MODEL_PATH,
     MODEL_TERMS,
     SI_TERMS,
-    PatchMesh,
     PlaneMembrane,
     _design_matrix,
-    _move_bodies,
-    _relax,
     cell_tractions,
     form_string,
-    stencil_membrane_mesh,
+    layout_membrane,
+    relax_contracted,
 )
 
 DEFAULT_REPORT_DIR = Path("build") / "membrane"
@@ -96,11 +98,51 @@ def _add_faces(i, j, idx, F):
             F.append([idx[t] for t in tri])
 
 
-def patch_mesh(l0: float, rings: int = PATCH_RINGS, max_area: float = MESH_MAX_AREA,
-               uc=UNIT_CELL) -> PatchMesh:
-    """Membrane mesh of :func:`regular_patch` (see :func:`stencil_membrane_mesh`)."""
+@dataclass
+class PatchMesh:
+    """A regular sampling patch: its stencil, its membrane mesh and its cells' bookkeeping.
+
+    Attributes
+    ----------
+    l0 : float, mm -- flat central length of every cell
+    mesh : MembraneMesh -- the patch's membrane (:func:`pysolver.mechanics.membrane_mesh`)
+    centers : (nf, 2) float, mm -- flat base centres
+    cell_bases : (nc, 2) int -- bases (a, b) of each cell (design-folder order)
+    cell_boundary : (nc,) bool -- an end of the cell's stencil edge is a boundary vertex
+    cell_boundary_faces : (nc,) int -- fewest faces around a boundary end (0 = interior)
+    cell_depth : (nc,) int -- graph distance (edges) of the edge's ends from the boundary
+    """
+
+    l0: float
+    mesh: MembraneMesh
+    centers: np.ndarray
+    cell_bases: np.ndarray
+    cell_boundary: np.ndarray
+    cell_boundary_faces: np.ndarray
+    cell_depth: np.ndarray
+
+
+def _vertex_depth(F, bnd):
+    """Graph distance (edges) of every stencil vertex from the boundary, (nv,) int."""
+    nv = len(bnd)
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    A = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(nv, nv)).tocsr()
+    return csgraph.dijkstra(A, directed=False, unweighted=True,
+                            indices=np.flatnonzero(bnd)).min(axis=0).astype(int)
+
+
+def patch_mesh(l0: float, rings: int = PATCH_RINGS, max_area: float = MESH_MAX_AREA) -> PatchMesh:
+    """Membrane mesh of :func:`regular_patch`: the one membrane mesh of a flat layout
+    (:func:`pysolver.temporal.membrane_model.layout_membrane`), and the cells' depth."""
     V, F, _ = regular_patch(l0, rings)
-    return stencil_membrane_mesh(V, F, max_area, uc, l0=l0)
+    mesh, g, C = layout_membrane(V, F, max_area)
+    verts, bnd = g["cell_verts"], g["boundary_vertex"]
+    nfaces = np.bincount(F.ravel(), minlength=len(V))
+    at_bnd = np.where(bnd[verts], nfaces[verts], np.iinfo(np.int64).max).min(axis=1)
+    return PatchMesh(l0=l0, mesh=mesh, centers=C, cell_bases=g["cell_bases"],
+                     cell_boundary=g["cell_boundary"],
+                     cell_boundary_faces=np.where(g["cell_boundary"], at_bnd, 0),
+                     cell_depth=_vertex_depth(F, bnd)[verts].min(axis=1))
 
 
 def sample_patch(l0: float, d_values, rings: int = PATCH_RINGS,
@@ -113,6 +155,14 @@ def sample_patch(l0: float, d_values, rings: int = PATCH_RINGS,
         Flat central length of the cells.
     d_values : (k,) float, mm
         Bracket shortenings to sample, ascending from 0.
+    rings : int
+        Patch size (stencil rings).
+    max_area : float, mm^2
+        Membrane mesh size (flat).
+    return_energy : bool
+        Also return the relaxed membrane energy.
+    mesh : PatchMesh, optional
+        A mesh of the patch made before (default :func:`patch_mesh`).
 
     Returns
     -------
@@ -120,21 +170,16 @@ def sample_patch(l0: float, d_values, rings: int = PATCH_RINGS,
         ``T`` (k, nc) N per cell, ``mesh`` (:class:`PatchMesh`), ``d`` (k,) mm,
         and with ``return_energy`` the relaxed energy ``E`` (k,) N mm.
     """
-    mesh = patch_mesh(l0, rings, max_area) if mesh is None else mesh
-    mem = PlaneMembrane(mesh.X, mesh.tri)
-    free = np.flatnonzero(mesh.body < 0)
-    att = np.flatnonzero(mesh.body >= 0)
-    cb = mesh.centers[mesh.body[att]]
-    x = mesh.X.copy()
+    pm = patch_mesh(l0, rings, max_area) if mesh is None else mesh
+    mem = PlaneMembrane(pm.mesh.xy, pm.mesh.tris)
+    x = pm.mesh.xy.copy()
     T, E = [], []
     for d in d_values:
         s = (l0 - d) / l0         # uniform contraction: every cell shortens by d * l / l0
-        # bases translate with the lattice; free nodes follow by a tangent predictor
-        x = _move_bodies(mem, x, free, att, s * cb + (mesh.X[att] - cb))
-        x = _relax(mem, x, free)
-        T.append(cell_tractions(mesh, mem, x))
+        x = relax_contracted(pm.mesh, pm.centers, mem, s, x)
+        T.append(cell_tractions(pm.mesh, pm.centers, pm.cell_bases, mem, x))
         E.append(mem.energy(x))
-    out = {"T": np.array(T), "mesh": mesh, "d": np.asarray(d_values, dtype=float)}
+    out = {"T": np.array(T), "mesh": pm, "d": np.asarray(d_values, dtype=float)}
     if return_energy:
         out["E"] = np.array(E)
     return out
@@ -216,14 +261,16 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
             for nf in np.unique(mesh.cell_boundary_faces[mesh.cell_boundary]):
                 sel = mesh.cell_boundary_faces == nf
                 ratio_rows.append((b0, d, nf, res["T"][i, sel].mean() / Tin[i]))
-        per_l0.append({"l0_mm": float(l0), "b0_mm": float(b0), "n_nodes": int(len(mesh.X)),
-                       "n_triangles": int(len(mesh.tri)), "n_interior_cells": int(inner.sum()),
+        per_l0.append({"l0_mm": float(l0), "b0_mm": float(b0),
+                       "n_nodes": int(len(mesh.mesh.xy)), "n_triangles": int(len(mesh.mesh.tris)),
+                       "n_interior_cells": int(inner.sum()),
                        "n_boundary_cells": int(mesh.cell_boundary.sum()),
                        "interior_spread_N": float(spread)})
         if progress:
             el = time.perf_counter() - t0
             eta = el / (k + 1) * (len(l0_values) - k - 1)
-            print(f"[membrane] l0 = {l0:.2f} mm: {len(ds)} samples, {len(mesh.tri)} triangles, "
+            print(f"[membrane] l0 = {l0:.2f} mm: {len(ds)} samples, "
+                  f"{len(mesh.mesh.tris)} triangles, "
                   f"T(d=0) = {Tin[0]:.3f} N  ({el:.0f} s, ETA {eta:.0f} s)",
                   file=sys.stderr, flush=True)
     b_all, d_all, T_all = map(np.asarray, (b_all, d_all, T_all))
@@ -238,7 +285,7 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
         r = sample_patch(7.0, check_d, rings, area)
         ms = r["mesh"]
         inner = (ms.cell_depth >= 2) & ~ms.cell_boundary
-        mesh_check[key] = {"max_area_mm2": area, "n_triangles": int(len(ms.tri)),
+        mesh_check[key] = {"max_area_mm2": area, "n_triangles": int(len(ms.mesh.tris)),
                            "force_N": [float(v) for v in r["T"][:, inner].mean(axis=1)]}
     by_faces = {str(int(k)): {"mean": float(ratio[ratio[:, 2] == k, 3].mean()),
                               "min": float(ratio[ratio[:, 2] == k, 3].min()),
@@ -346,5 +393,5 @@ def plot_membrane_fit(model: dict, png) -> Path:
     return png
 
 
-__all__ = ["fit_membrane_model", "plot_membrane_fit", "regular_patch", "patch_mesh",
+__all__ = ["fit_membrane_model", "plot_membrane_fit", "regular_patch", "patch_mesh", "PatchMesh",
            "sample_patch", "SAMPLE_L0", "SAMPLE_D", "PATCH_RINGS"]

@@ -12,13 +12,13 @@ This module does that sampling itself (the reference's fit is not available):
 
 * **Patch.** A hexagonal patch of a regular (equilateral) stencil with flat
   central length ``l0`` between neighbouring base centres; bracket length
-  ``b0 = l0 - 4 cos 37 deg``.  Bases are rigid hexagons with their corners at
-  radius ``base_r`` and +-37 deg around each neighbour direction, the membrane
-  mesh follows the simulator's construction (``simulator.md`` §6.6: corners
-  attached to their base, free boundary segments between the corners of
-  neighbouring bases at boundary vertices).  The mesh also conforms to the
-  stencil edges (clipped at the free boundary) so the force across each cell
-  can be read exactly element by element.
+  ``b0 = l0 - 4 cos 37 deg``.  Bases are rigid, bounded by their bracket corner
+  nodes (radius ``base_r``, +-37 deg around each neighbour direction; the design
+  stage's ``model_arrays``).  The membrane mesh is the simulator's own
+  (:func:`pysolver.mechanics.membrane_mesh`, ``simulator.md`` §6.6: corners attached
+  to their base, free boundary segments between the corners of neighbouring bases
+  at boundary vertices), which conforms to the stencil edges (clipped at the free
+  boundary) so the force across each cell can be read exactly element by element.
 * **Loading.** The patch contracts uniformly: every base centre is moved to
   ``s * c`` with ``s = (l0 - d) / l0`` (bases translate, do not rotate, do not
   shrink), so every cell's bracket length goes from ``b0`` to ``b0 - d``.  The
@@ -52,8 +52,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..design.cellnodes import model_arrays
 from ..errors import InputError
-from ..geometry import boundary_vertex_mask, face_adjacency, unit_cells
 from ..material.validate import (
     MEMBRANE_FIX,
     MEMBRANE_KIND,
@@ -64,16 +64,16 @@ from ..material.validate import (
     _vector,
     validate_model_file,
 )
+from ..mechanics import MembraneMesh, membrane_mesh
 from ..mechanics.energies import membrane_terms
 from ..mechanics.rim import rim_margin
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
-from ..params import tol as TOL
 
 MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by
 :func:`pysolver.temporal.membrane_fit.fit_membrane_model`)."""
 
-MESH_MAX_AREA = 0.5          # mm^2, flat; converged to ~0.3 % (the simulator uses 5)
+MESH_MAX_AREA = 0.5          # mm^2, flat, of the fit; converged to ~0.3 % (the simulator uses 5)
 NEWTON_TOL = 1e-9            # N, infinity norm of the free-node gradient
 FACTOR_MESH_AREA = 1.0       # mm^2, mesh of a design's own stencil (per-cell factors)
 
@@ -266,226 +266,6 @@ def load_membrane_model(path=None) -> MembraneModel:
 
 
 # ----------------------------------------------------------------------------------------------
-# regular patch and its membrane mesh
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class PatchMesh:
-    """Membrane mesh of a regular patch (flat, mm) and its bookkeeping."""
-
-    l0: float
-    X: np.ndarray                 # (n, 2) flat node positions
-    tri: np.ndarray               # (m, 3) membrane triangles
-    body: np.ndarray              # (n,) base of an attached node, -1 = free
-    centers: np.ndarray           # (nf, 2) flat base centres
-    cells: np.ndarray             # (nc, 6) base_a, base_b, slot_a, slot_b, vertex_a, vertex_b
-    cell_boundary: np.ndarray     # (nc,) bool, an end of the shared edge is a boundary vertex
-    cell_boundary_faces: np.ndarray  # (nc,) int, fewest faces at a boundary end (0 = interior)
-    cell_depth: np.ndarray        # (nc,) int, min graph distance of the edge ends from the boundary
-    edge_segments: list           # per cell: (k, 2) node pairs along its (clipped) stencil edge
-    tri_face: np.ndarray          # (m,) stencil face containing each triangle
-
-
-def _subdivide(p, q, h):
-    n = max(1, int(math.ceil(np.linalg.norm(q - p) / h)))
-    return [p + (q - p) * (i / n) for i in range(1, n)]
-
-
-def _vertex_depth(F, bnd):
-    """Graph distance (edges) of every stencil vertex from the boundary."""
-    nv = len(bnd)
-    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    A = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(nv, nv)).tocsr()
-    A = ((A + A.T) > 0).astype(float)
-    depth = np.where(bnd, 0, -1)
-    frontier = bnd.astype(float)
-    k = 0
-    while (depth < 0).any() and frontier.any():
-        k += 1
-        nxt = (A @ frontier > 0) & (depth < 0)
-        depth[nxt] = k
-        frontier = nxt.astype(float)
-    return depth
-
-
-def _check_segments_kept(tri, S, cells, edge_nodes, C, V, F) -> None:
-    """Every input segment must be an edge of the triangulation.  Triangle splits crossing
-    segments; they cross when a base's disc (r = base_r around its flat centroid) reaches
-    over its triangle's edges, which a stencil with a triangle too thin or too obtuse does."""
-    e = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-    have = set(map(tuple, e))
-    missing = [k for k, (i, j) in enumerate(np.sort(S, axis=1)) if (i, j) not in have]
-    if not missing:
-        return
-    i, j = (int(x) for x in np.sort(S[missing[0]]))
-    ci = next((c for c, n in enumerate(edge_nodes)
-               if any({int(a), int(b)} == {i, j} for a, b in zip(n[:-1], n[1:], strict=True))),
-              None)
-    where = ""
-    if ci is not None:
-        fa, fb = int(cells[ci][0]), int(cells[ci][1])
-        d = [float(np.min([abs(np.cross(V[F[f, (k + 1) % 3]] - V[F[f, k]], C[f] - V[F[f, k]]))
-                           / np.linalg.norm(V[F[f, (k + 1) % 3]] - V[F[f, k]])
-                           for k in range(3)])) for f in (fa, fb)]
-        where = (f" at cell {ci} (bases {fa}, {fb}: their centres are {d[0]:.2f} and "
-                 f"{d[1]:.2f} mm from their triangles' edges)")
-    raise InputError(f"the stencil's bases reach across its edges{where}: a flat triangle is "
-                     "too thin or too obtuse for a 4 mm base at its centroid",
-                     fix="let morphshell remesh the surface (its stencils keep every base centre "
-                         ">= 2.3 mm from its triangle's edges), or improve that region of your "
-                         "stencil")
-
-
-def stencil_membrane_mesh(V, F, max_area: float = MESH_MAX_AREA, uc=UNIT_CELL,
-                          l0: float = float("nan")) -> PatchMesh:
-    """Membrane mesh of a flat stencil following the simulator's construction.
-
-    Each base is a rigid polygon through its bracket corner points (radius
-    ``base_r``, +-alpha around each neighbour direction).  Around an interior
-    stencil vertex the membrane is bounded by the bases' corner edges; at a
-    boundary vertex a free boundary segment joins the two facing corners of
-    the cell.  The mesh conforms to the stencil edges (cells), clipped at the
-    free boundary, so cell tractions can be integrated exactly.
-
-    Parameters
-    ----------
-    V : (nv, 2) float, mm -- flat stencil vertices
-    F : (nf, 3) int -- faces (counter-clockwise)
-    max_area : float, mm^2 -- Triangle's maximum element area (flat)
-    """
-    import triangle  # heavy: Triangle only where a mesh is made
-
-    V = np.asarray(V, float)[:, :2]
-    F = np.asarray(F, int)
-    ff = face_adjacency(F)
-    uc_cells = unit_cells(F, ff)  # design-folder order: face-major, neighbour > face
-    cells = np.c_[uc_cells.faces, uc_cells.slots, uc_cells.verts]
-    bnd = boundary_vertex_mask(F, ff)
-    vdepth = _vertex_depth(F, bnd)
-    C = V[F].mean(axis=1)
-    r, al = uc.base_r, uc.alpha_rad
-    seg_h = math.sqrt(4.0 * max_area / math.sqrt(3.0))
-
-    pts: list = []
-    mark: list = []           # attached body (face) or -1
-
-    def add(p, m):
-        pts.append(np.asarray(p, dtype=float))
-        mark.append(m)
-        return len(pts) - 1
-
-    # corners per (face, slot, k): k = 0 next to F[f, slot+1], k = 1 next to F[f, slot+2]
-    corner = {}
-    nb = {}
-    for c in cells:
-        nb[(c[0], c[2])] = c[1]
-        nb[(c[1], c[3])] = c[0]
-    for (f, j), g in sorted(nb.items()):
-        dvec = C[g] - C[f]
-        dvec /= np.linalg.norm(dvec)
-        pvec = np.array([dvec[1], -dvec[0]])
-        if pvec @ (V[F[f, (j + 1) % 3]] - C[f]) < 0:
-            pvec = -pvec
-        for k, sgn in ((0, 1.0), (1, -1.0)):
-            corner[(f, j, k)] = add(C[f] + r * (math.cos(al) * dvec + sgn * math.sin(al) * pvec), f)
-    vnode = {}
-    for v in range(len(V)):
-        if not bnd[v]:
-            vnode[v] = add(V[v], -1)
-
-    segs: list = []
-
-    def chain(i0, i1, h=None):
-        """Segments from node i0 to i1, subdivided to length h (free nodes in between)."""
-        ids = [i0] + ([add(p, -1) for p in _subdivide(pts[i0], pts[i1], h)] if h else []) + [i1]
-        segs.extend(zip(ids[:-1], ids[1:], strict=True))
-        return ids
-
-    edge_nodes = []
-    for fa, fb, ja, jb, va, vb in cells:
-        for f, j in ((fa, ja), (fb, jb)):
-            chain(corner[(f, j, 0)], corner[(f, j, 1)])          # base side edge (attached)
-            w = F[f, (j + 2) % 3]                                 # vertex next to corner k=1
-            if not bnd[w]:
-                chain(corner[(f, j, 1)], corner[(f, (j + 1) % 3, 0)])   # base corner edge
-        # stencil edge va -> vb, clipped by the free segments at boundary ends
-        ends = []
-        for v in (va, vb):
-            if not bnd[v]:
-                ends.append((vnode[v], None))
-                continue
-            # free segment at v: corner of fa next to v -> corner of fb next to v
-            ka = 0 if F[fa, (ja + 1) % 3] == v else 1
-            kb = 0 if F[fb, (jb + 1) % 3] == v else 1
-            p0, p1 = pts[corner[(fa, ja, ka)]], pts[corner[(fb, jb, kb)]]
-            # the cut ends where the stencil edge line crosses the free segment; on very
-            # skewed boundary faces it may miss it: then end at the nearest point of the
-            # free segment (any cut from the inner vertex to the free boundary between the
-            # two bases separates the same two membrane pieces)
-            A = np.column_stack([V[vb] - V[va], p0 - p1])
-            try:
-                _, u_ = np.linalg.solve(A, p0 - V[va])
-            except np.linalg.LinAlgError:
-                u_ = 0.5
-            u_ = min(max(u_, 0.1), 0.9)
-            cross = add(p0 + u_ * (p1 - p0), -1)
-            ends.append((cross, (corner[(fa, ja, ka)], corner[(fb, jb, kb)])))
-        for node, free in ends:
-            if free is not None:
-                chain(free[0], node, seg_h)
-                chain(node, free[1], seg_h)
-        edge_nodes.append(chain(ends[0][0], ends[1][0], seg_h))
-
-    P = np.array(pts)
-    S = np.array(segs, dtype=int)
-    out = triangle.triangulate({"vertices": P, "segments": S, "holes": C},
-                               f"pq{SIM.membrane_min_angle:g}a{max_area:.6g}YYQ")
-    X = np.asarray(out["vertices"], dtype=float)
-    tri = np.asarray(out["triangles"], dtype=int)
-    if not np.allclose(X[:len(P)], P):
-        raise RuntimeError("Triangle reordered the input vertices")  # pragma: no cover
-    _check_segments_kept(tri, S, cells, edge_nodes, C, V, F)
-    body = np.full(len(X), -1, dtype=int)
-    body[:len(P)] = mark
-    # orient counter-clockwise
-    d1, d2 = X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]]
-    neg = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0] < 0
-    tri[neg] = tri[neg][:, [0, 2, 1]]
-    # stencil face of each triangle (its centroid lies inside exactly one face)
-    g = X[tri].mean(axis=1)
-    tri_face = _locate(g, V, F)
-    depth = np.minimum(vdepth[cells[:, 4]], vdepth[cells[:, 5]])
-    seg_pairs = [np.column_stack([n[:-1], n[1:]]) for n in edge_nodes]
-    return PatchMesh(l0=l0, X=X, tri=tri, body=body, centers=C, cells=cells,
-                     cell_boundary=bnd[cells[:, 4]] | bnd[cells[:, 5]],
-                     cell_boundary_faces=_boundary_faces(F, bnd, cells), cell_depth=depth,
-                     edge_segments=seg_pairs, tri_face=tri_face)
-
-
-def _boundary_faces(F, bnd, cells):
-    """Per cell, the fewest stencil faces around a boundary end of its edge (0 = interior cell)."""
-    nfaces = np.bincount(F.ravel(), minlength=len(bnd))
-    big = np.iinfo(np.int64).max
-    fa = np.where(bnd[cells[:, 4]], nfaces[cells[:, 4]], big)
-    fb = np.where(bnd[cells[:, 5]], nfaces[cells[:, 5]], big)
-    out = np.minimum(fa, fb)
-    return np.where(out == big, 0, out)
-
-
-def _locate(p, V, F):
-    """Index of the stencil face containing each point (barycentric test), -1 if none."""
-    A, B, Cc = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    v0, v1 = B - A, Cc - A
-    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
-    w = p[:, None, :] - A[None]
-    l1 = (w[..., 0] * v1[None, :, 1] - w[..., 1] * v1[None, :, 0]) / det
-    l2 = (v0[None, :, 0] * w[..., 1] - v0[None, :, 1] * w[..., 0]) / det
-    inside = (l1 >= -TOL.rel) & (l2 >= -TOL.rel) & (l1 + l2 <= 1 + TOL.rel)
-    return np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
-
-
-# ----------------------------------------------------------------------------------------------
 # The simulator's membrane energy (pysolver.mechanics.energies.membrane_terms) in the plane
 # ----------------------------------------------------------------------------------------------
 
@@ -618,43 +398,117 @@ def _move_bodies(mem: PlaneMembrane, x, free, att, x_att_new):
     raise RuntimeError("membrane load step failed")  # pragma: no cover
 
 
-def cell_tractions(mesh: PatchMesh, mem: PlaneMembrane, x) -> np.ndarray:
+def cell_tractions(mesh: MembraneMesh, centers, cell_bases, mem: PlaneMembrane, x,
+                   tau=SIM.tau) -> np.ndarray:
     """Force the membrane transmits across each cell's stencil edge, along the cell axis (N).
 
-    Positive = tension = the membrane pulls the cell's two bases together.
+    ``T_c = u . sum_seg h P N dS`` over the mesh edges of the cell's stencil edge
+    (``mesh.edge_segments``), with the first Piola-Kirchhoff stress ``P`` averaged over the
+    (one or two) triangles at each edge, ``N dS`` the rest normal times rest length
+    (flat / ``tau``) pointing from base b towards base a, and ``u`` the unit flat axis from
+    base b to base a.  Positive = tension = the membrane pulls the cell's two bases together.
+
+    Parameters
+    ----------
+    mesh : MembraneMesh
+        The layout's membrane (:func:`pysolver.mechanics.membrane_mesh`); ``mem`` was built
+        on its vertices and triangles (the triangles may be followed by rim triangles).
+    centers : (m, 2) float, mm -- flat base centres
+    cell_bases : (c, 2) int -- bases (a, b) of each cell
+    mem : PlaneMembrane
+    x : (v, 2) float, mm -- current membrane vertices
+    tau : float -- pre-stretch of the triangles along the stencil edges
+
+    Returns
+    -------
+    T : (c,) float, N
     """
-    P = mem.stress(x) * mem.h
-    Xr = mesh.X / SIM.tau
-    # edge -> the (up to two) triangles containing it
-    m = len(mesh.tri)
-    e = np.concatenate([mesh.tri[:, [0, 1]], mesh.tri[:, [1, 2]], mesh.tri[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    tid = np.tile(np.arange(m), 3)
-    lookup: dict = {}
-    for (i, j), t in zip(map(tuple, key), tid, strict=True):
-        lookup.setdefault((i, j), []).append(t)
-    T = np.zeros(len(mesh.cells))
-    for ci, (fa, fb, *_rest) in enumerate(mesh.cells):
-        u = mesh.centers[fa] - mesh.centers[fb]
-        u /= np.linalg.norm(u)                 # from b towards a (same direction after scaling)
-        total = np.zeros(2)
-        for i, j in mesh.edge_segments[ci]:
-            ts = lookup[(min(i, j), max(i, j))]
-            E_rest = Xr[j] - Xr[i]
-            N = np.array([E_rest[1], -E_rest[0]])          # rest normal * rest length
-            if N @ u < 0:
-                N = -N                                     # outward from face b, towards a
-            total += np.mean([P[t] @ N for t in ts], axis=0)
-        T[ci] = total @ u
-    return T
+    P = mem.stress(x) * mem.h                                   # (t, 2, 2), N/mm
+    tri = mesh.tris
+    nv = len(mesh.xy)
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    key = np.minimum(e[:, 0], e[:, 1]) * nv + np.maximum(e[:, 0], e[:, 1])
+    tid = np.tile(np.arange(len(tri)), 3)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    S = mesh.edge_segments
+    sk = S.min(axis=1) * nv + S.max(axis=1)
+    lo, hi = np.searchsorted(ks, sk, "left"), np.searchsorted(ks, sk, "right")
+    if np.any(hi == lo):
+        raise RuntimeError("a stencil edge segment is not a mesh edge")  # pragma: no cover
+    Pm = 0.5 * (P[tid[order[lo]]] + P[tid[order[hi - 1]]])      # one or two triangles
+    C = np.asarray(centers, float)[:, :2]
+    cb = np.asarray(cell_bases)
+    u = C[cb[:, 0]] - C[cb[:, 1]]
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    ue = u[mesh.edge_cell]
+    E = (mesh.xy[S[:, 1]] - mesh.xy[S[:, 0]]) / tau
+    N = np.c_[E[:, 1], -E[:, 0]]                                 # rest normal * rest length
+    N *= np.where(np.einsum("ij,ij->i", N, ue) < 0, -1.0, 1.0)[:, None]
+    t = np.einsum("ij,ij->i", np.einsum("eij,ej->ei", Pm, N), ue)
+    return np.bincount(mesh.edge_cell, weights=t, minlength=len(cb))
+
+
+def relax_contracted(mesh: MembraneMesh, centers, mem: PlaneMembrane, s: float, x=None):
+    """Relaxed membrane of a layout whose base centres are moved to ``s * c`` (mm).
+
+    Bases translate with the contraction (rigid, not rotating); the free vertices follow by a
+    tangent predictor and Newton (:func:`_move_bodies`, :func:`_relax`).
+
+    Parameters
+    ----------
+    mesh : MembraneMesh -- vertices ``xy`` (v, 2) mm and ``body`` (v,)
+    centers : (m, 2) float, mm -- flat base centres
+    mem : PlaneMembrane -- built on ``mesh`` (and its rim, if any)
+    s : float -- contraction factor (1 = flat layout)
+    x : (v, 2) float, mm, optional -- start state (default the flat layout)
+
+    Returns
+    -------
+    x : (v, 2) float, mm
+    """
+    free = np.flatnonzero(mesh.body < 0)
+    att = np.flatnonzero(mesh.body >= 0)
+    cb = np.asarray(centers, float)[mesh.body[att], :2]
+    x = mesh.xy.copy() if x is None else x
+    x = _move_bodies(mem, x, free, att, s * cb + (mesh.xy[att] - cb))
+    return _relax(mem, x, free)
+
+
+def layout_membrane(UV, F, max_area: float, geometry: dict | None = None):
+    """The membrane mesh of a flat layout (:func:`pysolver.mechanics.membrane_mesh`).
+
+    Parameters
+    ----------
+    UV : (n, 2) float, mm -- flat stencil vertices
+    F : (m, 3) int
+    max_area : float, mm^2
+    geometry : dict, optional
+        The design's ``model.npz`` arrays; default the design stage's own arrays of the flat
+        stencil (:func:`pysolver.design.cellnodes.model_arrays`, target = flat layout).
+
+    Returns
+    -------
+    mesh : MembraneMesh
+    geometry : dict
+    centers : (m, 2) float, mm -- flat base centres
+    """
+    UV = np.asarray(UV, float)[:, :2]
+    F = np.asarray(F, np.int64)
+    if geometry is None:
+        geometry = model_arrays(np.c_[UV, np.zeros(len(UV))], UV, F)
+    mesh = membrane_mesh(UV, F, geometry, max_area=max_area)
+    return mesh, geometry, UV[F].mean(axis=1)
 
 
 def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = None,
-                          max_area: float = FACTOR_MESH_AREA, rim=None) -> dict:
+                          max_area: float = FACTOR_MESH_AREA, rim=None,
+                          geometry: dict | None = None) -> dict:
     """Per-cell correction of ``F_mem`` from an FEM membrane on the design's own flat stencil.
 
     The linear model describes an interior cell of a regular lattice.  Here the
-    design's flat stencil is meshed like the sampling patches and contracted
+    design's flat layout is meshed like the sampling patches and the simulator
+    (:func:`pysolver.mechanics.membrane_mesh`) and contracted
     uniformly by the factor ``s`` that gives its cells their median target
     shortening; each cell's FEM traction divided by ``F_mem(b0, (1 - s) l)`` is its
     factor: about 1 inside, about 0.6 at a straight boundary, much less for a cell
@@ -669,9 +523,13 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
         ``vertex_b``, ``central_length_mm``)
     b0, d1 : (n_cells,) float, mm -- flat bracket length, target shortening
     model : MembraneModel, optional (default: the committed model)
+    max_area : float, mm^2 -- membrane mesh size (flat)
     rim : (float, float), optional
         ``(margin_mm, stretch)``: the membrane as fabricated at the rim
         (:func:`pysolver.mechanics.rim.rim_margin`, ``PhysicsOptions.rim``), as in the simulator.
+    geometry : dict, optional
+        The design's ``model.npz`` arrays (its bracket nodes, as the simulator reads them);
+        default computed from the flat stencil.
 
     Returns
     -------
@@ -680,43 +538,30 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
         (n_cells,) FEM tractions, ``n_triangles``.
     """
     model = load_membrane_model() if model is None else model
-    UV = np.asarray(UV, float)[:, :2]
-    F = np.asarray(F, int)
-    # Triangle and the corner construction want counter-clockwise faces
-    e1, e2 = UV[F[:, 1]] - UV[F[:, 0]], UV[F[:, 2]] - UV[F[:, 0]]
-    if np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0:
-        UV = UV * np.array([1.0, -1.0])
-    mesh = stencil_membrane_mesh(UV, F, max_area)
-    mine = mesh.cells
+    mesh, geometry, C = layout_membrane(UV, F, max_area, geometry)
+    mine = np.c_[geometry["cell_bases"], geometry["cell_verts"]]
     theirs = np.column_stack([cells["base_a"], cells["base_b"], cells["vertex_a"],
                               cells["vertex_b"]])
-    if mine.shape[0] != len(theirs) or not np.array_equal(mine[:, [0, 1, 4, 5]], theirs):
+    if mine.shape[0] != len(theirs) or not np.array_equal(mine, theirs):
         raise InputError("cells.csv does not list the stencil's interior edges in the "
                          "design-folder order.", fix="re-run the design stage.")
     lc = np.asarray(cells["central_length_mm"], float)
     s = 1.0 - float(np.median(np.asarray(d1, float) / lc))
     s = min(max(s, 0.5), 1.0)
     if rim is None:
-        mem = PlaneMembrane(mesh.X, mesh.tri)
+        mem = PlaneMembrane(mesh.xy, mesh.tris)
+        run = mesh
     else:
-
-
-        X, tri, body, margin = rim_margin(mesh.X, mesh.tri, mesh.body, mesh.centers,
+        X, tri, body, margin = rim_margin(mesh.xy, mesh.tris, mesh.body, C,
                                           UNIT_CELL.base_r, float(rim[0]))
-        mesh = dataclasses.replace(mesh, X=X, tri=tri, body=body,
-                                   tri_face=np.r_[mesh.tri_face, -np.ones(int(margin.sum()),
-                                                                          int)])
+        run = dataclasses.replace(mesh, xy=X, tris=tri, body=body)
         mem = PlaneMembrane(X, tri, tau=np.where(margin, float(rim[1]), SIM.tau))
-    free = np.flatnonzero(mesh.body < 0)
-    att = np.flatnonzero(mesh.body >= 0)
-    cb = mesh.centers[mesh.body[att]]
-    x = _move_bodies(mem, mesh.X.copy(), free, att, s * cb + (mesh.X[att] - cb))
-    x = _relax(mem, x, free)
-    T = cell_tractions(mesh, mem, x)
+    x = relax_contracted(run, C, mem, s)
+    T = cell_tractions(run, C, geometry["cell_bases"], mem, x)
     d = (1.0 - s) * lc
     ref = model.force(np.asarray(b0, float), d)
     return {"factor": T / ref, "s": s, "d_mm": d, "force_N": T,
-            "n_triangles": int(len(mesh.tri))}
+            "n_triangles": int(len(mesh.tris))}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -731,5 +576,5 @@ def _design_matrix(b, d, terms=MODEL_TERMS):
 
 __all__ = ["check_membrane_model", "validate_membrane_model_file",
            "TERMS", "MODEL_TERMS", "SI_TERMS", "FORM", "MODEL_PATH", "MembraneModel",
-           "load_membrane_model", "stencil_membrane_mesh", "PlaneMembrane", "cell_tractions",
-           "cell_membrane_factors"]
+           "load_membrane_model", "layout_membrane", "PlaneMembrane", "cell_tractions",
+           "relax_contracted", "cell_membrane_factors"]

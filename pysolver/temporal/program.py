@@ -408,12 +408,20 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
         info["boundary_factor"] = float(membrane.boundary_factor)
         return f, info
 
-    _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")
+    folder = Path(design_dir)
+    V, UV, F = read_stencil(folder / "stencil.obj")
     b0 = np.asarray(cells["bracket_length_mm"], float)
     _, d1 = target_compressions(b0, cells["collision_length_top_mm"],
                                 cells["collision_length_bottom_mm"])
     try:
-        r = cell_membrane_factors(UV, F, cells, b0, d1, membrane, rim=rim)
+        # the simulator's bracket nodes (model.npz) when the design wrote them, so that the
+        # correction meshes the very membrane the simulator will step
+        geometry = None
+        if (folder / tables.MODEL_FILE).is_file():
+            d = tables.read_design(folder)
+            geometry = tables.read_model(folder, n_vertices=len(V), n_faces=len(F),
+                                         n_cells=len(b0), params=d.params)
+        r = cell_membrane_factors(UV, F, cells, b0, d1, membrane, rim=rim, geometry=geometry)
     except (InputError, RuntimeError, ValueError) as e:
         # the FEM on this stencil failed (degenerate boundary geometry): the paper's rule
         info.update({"fallback": "boundary", "reason": f"{type(e).__name__}: {e}",
