@@ -92,14 +92,21 @@ def fingerprint(*parts) -> str:
     return h.hexdigest()
 
 
+def code_files() -> list:
+    """The files whose content :func:`code_fingerprint` hashes: every module of both
+    packages, stage subpackages included (``pysolver/**/*.py``, ``sim/**/*.py``), the SCAD
+    library (``scad/*.scad``) and the committed model files (``pysolver/data/*.json``)."""
+    root = Path(__file__).resolve().parents[1]
+    return sorted([*root.glob("pysolver/**/*.py"), *root.glob("sim/**/*.py"),
+                   *root.glob("scad/*.scad"), *root.glob("pysolver/data/*.json")])
+
+
 def code_fingerprint() -> str:
-    """SHA-256 of the project's code (``pysolver/**/*.py``, ``sim/*.py``, ``scad/*.scad``,
-    the committed model files): a stored result is reused only by the same code."""
+    """SHA-256 of the project's code (:func:`code_files`): a stored result is reused only by
+    the same code."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
-    files = sorted([*root.glob("pysolver/**/*.py"), *root.glob("sim/*.py"),
-                    *root.glob("scad/*.scad"), *root.glob("pysolver/data/*.json")])
-    for f in files:
+    for f in code_files():
         h.update(f.relative_to(root).as_posix().encode() + b"\0")
         h.update(hashlib.sha256(f.read_bytes()).digest())
     return h.hexdigest()
@@ -387,5 +394,5 @@ def _compute(client, todo, store, results, stats, progress, label, on_result, t_
 
 
 __all__ = ["Task", "ResultStore", "RunStats", "run_tasks", "dask_client", "fingerprint",
-           "code_fingerprint",
+           "code_files", "code_fingerprint",
            "check_scheduler", "check_workers"]

@@ -5,8 +5,9 @@ All lengths mm, forces N, times s, moduli MPa, angles deg unless a name says
 reference implementation's (``shared/design/pipeline.md`` §1.1, ``simulator.md``
 §1); where they disagree the choice is written next to the field.
 
-The same numbers are the defaults of the OpenSCAD modules in ``scad/``; a test
-(``tests/test_scad_modules.py``) checks that the two stay equal.
+The OpenSCAD modules in ``scad/`` take the same numbers from ``scad/params.scad``, which is
+generated from :class:`UnitCell`, :class:`SupportFrame` and :class:`Tolerances`
+(``make scad-params``, :mod:`pysolver.render.scad_params`); a test checks it is up to date.
 """
 
 from __future__ import annotations
@@ -241,6 +242,12 @@ class Tolerances:
     cetm_ridge, cetm_grad : float
         Diagonal ridge added to the Hessian of the CETM flattening, and the gradient norm
         (rad) above which the flattening reports it did not converge.
+    cetm_stop : float, rad
+        Gradient norm under which the CETM flattening's Newton iteration stops.
+    membrane_grad : float, N
+        Convergence of the plane membrane relaxation of temporal programming (F_mem fit and
+        per-cell factors): infinity norm of the free-node gradient.  The relaxation is refused
+        as not converged above ``newton_grad``.
     input_degenerate : float
         Relative doubled area (of the bounding-box diagonal squared) under which a triangle of
         an input mesh is degenerate.
@@ -302,6 +309,8 @@ class Tolerances:
     newton_shift_floor: float = 1e-6
     cetm_ridge: float = 1e-8
     cetm_grad: float = 1e-6
+    cetm_stop: float = 1e-10
+    membrane_grad: float = 1e-9
     input_degenerate: float = 1e-10
     membrane_collapse: float = 1e-3
     orientation_rel: float = 1e-3
@@ -356,6 +365,9 @@ class Limits:
         clamped model is used today (cells beyond 9.0 mm are warned about).  The lower
         bound is the shortest cell the scaling rules allow, ``2 (base_r + min_bumper) +
         min_gap`` (:meth:`UnitCell.shortest_cell`).
+    model_max_central_length_mm : float, mm
+        The bracket model's last measured central length (its grid ends at b = 5.8055 mm);
+        longer cells (up to ``max_cell_length_mm``) are warned about.
     """
 
     max_vertices: int = 5000
@@ -369,6 +381,7 @@ class Limits:
     min_bumper_mm: tuple = (0.0, 2.0)
     min_gap_mm: tuple = (0.0, 2.0)
     max_cell_length_mm: float = 9.5
+    model_max_central_length_mm: float = 9.0
     max_time_file_bytes: int = 64 * 1024 * 1024
 
 
@@ -570,6 +583,12 @@ class Uncertainty:
     relaxation: bool = False
     relaxation_window_s: tuple = (600.0, 86400.0)
 
+    MAX_MODULUS_REL_SD = 0.3
+    """Largest accepted ``modulus_rel_sd`` (30 %: a wider normal draws non-positive moduli)."""
+    MAX_STRETCH_SD_FRACTION = 0.25
+    """Largest accepted ``stretch_sd``, as a fraction of ``stretch_mean - 1`` (the drawn
+    stretch stays well above 1)."""
+
 
 @dataclass(frozen=True)
 class ToleranceRun:
@@ -752,6 +771,11 @@ class PhysicsOptions:
     bracket_bending: bool = False
 
     SWITCHES = ("relaxation", "gravity", "dry_rest", "rim", "contact", "bracket_bending")
+    RANGES = {"stretch_to_glue_min": (0.0, 1e5), "glue_to_water_min": (0.0, 1e5),
+              "rim_stretch": (1.0, 10.0), "ground_points": (3, 64), "contact_sides": (3, 64)}
+    """Accepted ranges (inclusive) of the options that are not simply positive; the
+    barrier distance ``contact_dhat_mm`` must also stay below the gap that the bumpers keep
+    between neighbouring bases, ``2 UnitCell.min_bumper`` (0.6 mm)."""
 
     @property
     def any(self) -> bool:
@@ -832,7 +856,7 @@ def check_unit_cell(params: UnitCell) -> None:
         raise InputError(
             f"--max-cell-length {v!r} mm is outside {lo:g}-{hi:g} mm: no cell is shorter than "
             f"2 (base radius + min bumper) + min gap = {lo:g} mm, and the bracket model is "
-            f"measured up to 9 mm (used up to {hi:g} mm)",
+            f"measured up to {LIMITS.model_max_central_length_mm:g} mm (used up to {hi:g} mm)",
             fix=f"give a length above {lo:g} and up to {hi:g} mm (default "
                 f"{UNIT_CELL.max_cell_length:g} mm)")
 

@@ -46,6 +46,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .atomic import atomic_file, atomic_write_text, claim_result_folder, write_stamp
 from .build import build
 from .distributed import (
@@ -303,7 +305,6 @@ def _plot(path: Path, rows: list) -> None:
     matplotlib.use("Agg")
     # optional heavy dependency: matplotlib loads only when a picture is drawn
     import matplotlib.pyplot as plt
-    import numpy as np  # numpy submodule only where it is used
 
 
     names = [r["variant"] for r in rows]

@@ -121,21 +121,24 @@ def test_compliant_bracket_is_the_stretched_force_curve():
 
 
 def test_relaxation_factor_from_the_measured_curve():
-    from pysolver.tolerance import relaxation_curve, relaxation_factor
+    """The tolerance analysis draws its relaxation factor from the project's one relaxation
+    model (the Prony fit of the measured curve, also the simulator's), not a second one."""
+    import pysolver.tolerance.analysis as ta
+    from pysolver.material.relaxation import relaxation_factor
 
-    curve = relaxation_curve()
-    r = relaxation_factor(np.array([0.0, 600.0, 5400.0, 86000.0]), curve)
-    assert r[0] == pytest.approx(1.0, abs=1e-12)
+    assert ta.relaxation_factor is relaxation_factor
+    r = relaxation_factor(np.array([0.0, 600.0, 5400.0, 86000.0]))
+    assert r[0] == pytest.approx(1.0, abs=1e-8)
     assert np.all(np.diff(r) < 0)                                 # the force relaxes
     assert 0.8 < r[-1] < 0.9                                      # SI Fig. 10: ~15 % in 24 h
     from pysolver.tolerance.analysis import _draw
 
     unc = dataclasses.replace(UNC, relaxation=True)
-    lo, hi = relaxation_factor(np.array(unc.relaxation_window_s[::-1]), curve)
-    f = [_draw(0, i, 3, unc, 0.2, curve)["relaxation"] for i in range(20)]
+    lo, hi = relaxation_factor(np.array(unc.relaxation_window_s[::-1]))
+    f = [_draw(0, i, 3, unc, 0.2)["relaxation"] for i in range(20)]
     assert all(lo <= x <= hi for x in f) and len(set(f)) == 20
-    off = [_draw(0, i, 3, UNC, 0.2, None) for i in range(3)]
-    on = [_draw(0, i, 3, unc, 0.2, curve) for i in range(3)]
+    off = [_draw(0, i, 3, UNC, 0.2) for i in range(3)]
+    on = [_draw(0, i, 3, unc, 0.2) for i in range(3)]
     for a, b in zip(off, on, strict=True):           # switching relaxation on changes nothing
         assert a["relaxation"] == 1.0 and a["stretch"] == b["stretch"]    # else
         assert np.array_equal(a["thickness"], b["thickness"])
@@ -412,3 +415,19 @@ def test_the_documented_sweep_example_parses():
     assert spec["name"] == "dome-stencils" and len(spec["variants"]) == 7
     assert spec["variants"][0] == {"shape": "dome", "refine": 0, "vertices": 58, "seed": 1,
                                    "name": "dome_vertices-58_seed-1"}
+
+
+def test_code_fingerprint_covers_every_module():
+    """A stored sample is reused only by the same code: the fingerprint hashes every module of
+    both packages, the stage subpackages (``sim/model``, ``sim/report``, ...) included."""
+    from pathlib import Path
+
+    from pysolver.distributed import code_files
+
+    root = Path(__file__).resolve().parents[1]
+    files = set(code_files())
+    for pkg in ("pysolver", "sim"):
+        mods = set((root / pkg).rglob("*.py"))
+        assert mods and mods <= files, sorted(str(p) for p in mods - files)
+    assert root / "sim" / "model" / "simulate.py" in files
+    assert set((root / "pysolver" / "data").glob("*.json")) <= files

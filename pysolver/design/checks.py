@@ -13,14 +13,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import signed_areas_2d
-from ..params import UNIT_CELL, UnitCell
+from ..params import LIMITS, UNIT_CELL, UnitCell
 from ..params import tol as TOL
 from .layout import Layout
 
 # cells longer than this fraction of max_cell_length are reported as "near the limit"
 NEAR_LIMIT = 0.95
-# bracket model grid: flat central length 4..9 mm (bracket length 0.8055..5.805)
-MODEL_MAX_CENTRAL_LENGTH = 9.0
 
 
 @dataclass
@@ -176,11 +174,12 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
             "vertices=N, seed=k)"))
     near = np.flatnonzero((l > NEAR_LIMIT * params.max_cell_length) & (l <= params.max_cell_length))
     if len(near):
-        rep.warnings.append(f"{len(near)} cell(s) within 5% of the {params.max_cell_length} mm "
-                            f"length limit: cells {_ids(near)}")
-    beyond = np.flatnonzero((l > MODEL_MAX_CENTRAL_LENGTH) & (l <= params.max_cell_length))
+        rep.warnings.append(f"{len(near)} cell(s) within {100 * (1 - NEAR_LIMIT):.0f}% of the "
+                            f"{params.max_cell_length} mm length limit: cells {_ids(near)}")
+    l_model = LIMITS.model_max_central_length_mm
+    beyond = np.flatnonzero((l > l_model) & (l <= params.max_cell_length))
     if len(beyond):
-        rep.warnings.append(f"{len(beyond)} cell(s) longer than {MODEL_MAX_CENTRAL_LENGTH} mm "
+        rep.warnings.append(f"{len(beyond)} cell(s) longer than {l_model} mm "
                             "(beyond the measured bracket grid; the model extrapolates): "
                             f"cells {_ids(beyond)}")
 

@@ -117,7 +117,7 @@ def _cetm_energy(lam0, F, u, theta, interior):
     return e + np.sum(theta[interior] * u[interior])
 
 
-def cetm(V, F, *, max_iter: int = 60, tol: float = 1e-10):
+def cetm(V, F, *, max_iter: int = 60, tol: float = TOL.cetm_stop):
     """CETM flattening with u = 0 on the boundary.
 
     Parameters

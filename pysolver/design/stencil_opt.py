@@ -96,7 +96,7 @@ def flat_corner_angles(Q, F):
         a = Q[F[:, (k + 1) % 3]] - Q[F[:, k]]
         b = Q[F[:, (k + 2) % 3]] - Q[F[:, k]]
         c = anp.sum(a * b, axis=1) / anp.sqrt(anp.sum(a * a, axis=1) * anp.sum(b * b, axis=1))
-        out.append(anp.arccos(anp.clip(c, -1.0 + 1e-12, 1.0 - 1e-12)))
+        out.append(anp.arccos(anp.clip(c, -1.0 + TOL.exact, 1.0 - TOL.exact)))
     return anp.stack(out, axis=1)
 
 

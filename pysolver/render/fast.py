@@ -50,6 +50,8 @@ from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _v
 from pathlib import Path
 
+import numpy as np
+
 from .scad_io import Part, part_text
 
 DIST = "openscad-evaluator"
@@ -78,9 +80,9 @@ _FATAL_MARKERS = ("ERROR:", "unknown variable", "unknown module", "unknown funct
 
 def available() -> bool:
     """True when ``openscad_evaluator`` (and its parser) can be imported."""
-    try:
-        import openscad_evaluator  # noqa: F401
-        import openscad_lalr_parser  # noqa: F401
+    try:  # optional: probing whether the fast renderer's evaluator and parser are installed
+        import openscad_evaluator  # noqa: F401  (optional, probed)
+        import openscad_lalr_parser  # noqa: F401  (optional, probed)
     except Exception:   # ImportError, or a broken install raising anything at import
         return False
     return True
@@ -209,7 +211,6 @@ def evaluate_file(scad) -> tuple:
 
 def write_stl(solid, path) -> None:
     """Binary STL of a manifold3d solid (float32 coordinates, as OpenSCAD writes)."""
-    import numpy as np  # numpy submodule only where it is used
     import trimesh  # heavy: trimesh loads only for STL work
 
     mesh = solid.to_mesh64()
@@ -245,7 +246,7 @@ def main() -> None:
     os.dup2(2, 1)
     sys.stdout = sys.stderr
     import openscad_evaluator  # noqa: F401  (imported before the first part: cleaner timings)
-    import trimesh  # noqa: F401
+    import trimesh  # noqa: F401  (the same: heavy, loaded once before the first part)
 
     proto_out.write(json.dumps({"ready": True}) + "\n")
     proto_out.flush()

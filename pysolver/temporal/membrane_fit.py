@@ -9,8 +9,10 @@ least squares and writes ``pysolver/data/membrane_model.json`` with its picture.
 from __future__ import annotations
 
 import hashlib
+import importlib.metadata
 import json
 import math
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -201,14 +203,10 @@ def _code_version() -> dict:
     src = Path(__file__).read_bytes()
     v = {"module_sha256": hashlib.sha256(src).hexdigest()[:16]}
     try:
-        import importlib.metadata  # loaded only where it is used
-
         v["morphshell"] = importlib.metadata.version("morphshell")
     except Exception:  # noqa: BLE001 - provenance only
         v["morphshell"] = "unknown"
     try:
-        import subprocess  # loaded only where it is used
-
         r = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                            text=True, cwd=Path(__file__).resolve().parent, timeout=10)
         v["git_head"] = r.stdout.strip() or "unknown"

@@ -68,13 +68,14 @@ from ..mechanics import MembraneMesh, membrane_mesh
 from ..mechanics.energies import membrane_terms
 from ..mechanics.rim import rim_margin
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
+from ..params import tol as TOL
 
 MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by
 :func:`pysolver.temporal.membrane_fit.fit_membrane_model`)."""
 
 MESH_MAX_AREA = 0.5          # mm^2, flat, of the fit; converged to ~0.3 % (the simulator uses 5)
-NEWTON_TOL = 1e-9            # N, infinity norm of the free-node gradient
+NEWTON_TOL = TOL.membrane_grad  # N, infinity norm of the free-node gradient
 FACTOR_MESH_AREA = 1.0       # mm^2, mesh of a design's own stencil (per-cell factors)
 
 TERMS = {
@@ -369,7 +370,7 @@ def _relax(mem: PlaneMembrane, x, free, tol=NEWTON_TOL, max_iter=60):
             break
         x, E = xt, Et
     g = mem.gradient(x).ravel()[fdof]
-    if np.max(np.abs(g)) > 1e3 * tol:
+    if np.max(np.abs(g)) > TOL.newton_grad:
         raise RuntimeError(f"membrane relaxation did not converge (|g| = {np.abs(g).max():.2e} N)")
     return x
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..design.time_landscape import cell_target_times
+from ..params import UNIT_CELL
 from ..tables import read_stencil
 
 
@@ -30,15 +32,12 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     -------
     Path of the PNG.
     """
-    import matplotlib  # optional heavy dependency: matplotlib loads only when a picture is drawn
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
+    import matplotlib
 
     matplotlib.use("Agg")
-    # optional heavy dependency: matplotlib loads only when a picture is drawn
-    import matplotlib.pyplot as plt
-
-    # optional heavy dependency: matplotlib loads only when a picture is drawn
-    from matplotlib.tri import Triangulation
-
+    import matplotlib.pyplot as plt  # (matplotlib, as above)
+    from matplotlib.tri import Triangulation  # (matplotlib, as above)
 
     png = Path(png)
     _, UV, F = read_stencil(Path(design_dir) / "stencil.obj")
@@ -46,7 +45,7 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     va, vb = np.asarray(cells["vertex_a"]), np.asarray(cells["vertex_b"])
     mid = 0.5 * (UV[va] + UV[vb])
     side = np.asarray(res["side"])
-    t_star = 0.5 * (t_vertex[va] + t_vertex[vb])
+    t_star = cell_target_times(t_vertex, va, vb)
     n = len(side)
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5.6),
@@ -76,7 +75,8 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     lo, hi = np.asarray(res["t_min"])[order], np.asarray(res["t_max"])[order]
     lo_f = np.where(np.isfinite(lo), lo, np.nan)
     ax2.vlines(k, lo_f, hi, color="0.75", lw=max(0.3, min(2.0, 300 / max(n, 1))),
-               label="achievable range: 0.30 mm bracket (earliest) to 0.65 mm (latest)")
+               label=f"achievable range: {UNIT_CELL.thickness_min:.2f} mm bracket (earliest) to "
+                     f"{UNIT_CELL.thickness_max:.2f} mm (latest)")
     so = side[order]
     ax2.plot(k[so == 0], t_star[order][so == 0], ".", ms=2.5, color="k", label="t* (achievable)")
     ax2.plot(k[so < 0], t_star[order][so < 0], "v", ms=4, color="tab:red", label="t* too early")

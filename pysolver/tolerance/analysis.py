@@ -30,8 +30,10 @@ bracket model) with these factors drawn independently (defaults in
     Membrane stress relaxation (SI Fig. 10, ``rubber_stress_relaxation.csv``): a
     dog-bone at stretch 3 loses force over hours.  A sample draws the waiting time between
     stretching and the bath log-uniformly in ``relaxation_window_s`` (10 min .. 24 h) and
-    scales the membrane modulus by the measured ``F(t_peak + wait) / F(t_peak)``
-    (:func:`relaxation_factor`): a scalar pre-stress factor, independent of the simulator.
+    scales the membrane modulus by ``g(wait)``, the project's one relaxation model
+    (:func:`pysolver.material.relaxation.relaxation_factor`, the Prony fit of the measured
+    curve that the simulator's ``--physics relaxation`` also uses): here a scalar pre-stress
+    factor per sample, independent of the simulator's option.
 
 Everything a simulation needs travels with its task (:class:`DesignPayload`: the design
 folder's files as bytes, the material file as bytes, a :class:`Perturbation`), so any Dask
@@ -78,8 +80,9 @@ from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
 from pysolver.build import check_sim_span, simulate_and_check
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.fit import SPECIMEN_BRACKETS, wet_eval_rows
-from pysolver.material.measurements import REPO_ROOT, load_measurements
+from pysolver.material.measurements import load_measurements
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
+from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
 from pysolver.params import SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
 from pysolver.tables import MODEL_FILE, read_design, read_table
@@ -167,41 +170,6 @@ def material_scatter(material=None, data_dir=None) -> dict:
                       "compression; 1.4826 x MAD"}
 
 
-def relaxation_curve(path=None):
-    """The measured membrane force after the stretch is reached (SI Fig. 10).
-
-    Parameters
-    ----------
-    path : path-like, optional
-        Default ``data/material-measurements/rubber_stress_relaxation.csv``.
-
-    Returns
-    -------
-    t : (k,) float, s -- time since the peak force
-    ratio : (k,) float -- force / peak force (smoothed over 1 min)
-    """
-    p = Path(path) if path is not None else (REPO_ROOT / "data" / "material-measurements"
-                                             / "rubber_stress_relaxation.csv")
-    try:
-        d = np.genfromtxt(p, delimiter=",", skip_header=1, usecols=(0, 7))
-    except (OSError, ValueError) as e:
-        raise InputError(f"{p}: cannot read the stress-relaxation curve ({e})",
-                         fix="give the CSV shipped in data/material-measurements") from None
-    if d.ndim != 2 or len(d) < 100 or not np.all(np.isfinite(d)):
-        raise InputError(f"{p}: expected >= 100 numeric rows of time (s) and load (N)")
-    t, F = d[:, 0], d[:, 1]
-    k = 15  # 1 min of 4 s samples: the load cell noise is ~0.01 N
-    Fs = np.convolve(F, np.ones(k) / k, mode="same")
-    i0 = int(np.argmax(Fs[k:-k])) + k
-    return t[i0:] - t[i0], Fs[i0:] / Fs[i0]
-
-
-def relaxation_factor(wait_s, curve=None):
-    """Membrane force ratio after waiting ``wait_s`` seconds at the stretch (<= 1)."""
-    t, r = curve if curve is not None else relaxation_curve()
-    return np.interp(wait_s, t, r)
-
-
 # ------------------------------------------------------------------------------------------
 # data that travel with a task
 
@@ -279,7 +247,7 @@ class Perturbation:
         return dataclasses.asdict(self)
 
 
-def _draw(seed: int, i: int, n_cells: int, unc: Uncertainty, sd_mat: float, curve):
+def _draw(seed: int, i: int, n_cells: int, unc: Uncertainty, sd_mat: float):
     """All factor draws of sample ``i`` (the same stream whatever is switched off)."""
     rng = np.random.default_rng([int(seed), int(i)])
     z_th = rng.standard_normal((n_cells, 2))
@@ -287,8 +255,7 @@ def _draw(seed: int, i: int, n_cells: int, unc: Uncertainty, sd_mat: float, curv
     u = rng.random()
     lo, hi = unc.relaxation_window_s
     wait = math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo)))
-    relax = (float(relaxation_factor(wait, curve))
-             if unc.relaxation and curve is not None else 1.0)
+    relax = float(relaxation_factor(wait)) if unc.relaxation else 1.0
     return {"thickness": unc.thickness_sd * z_th,
             "stretch": unc.stretch_mean + unc.stretch_sd * z_tau,
             "modulus": max(1.0 + unc.modulus_rel_sd * z_mu, 0.05),
@@ -430,13 +397,15 @@ def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
         raise InputError(f"material_sd = {unc.material_sd!r}", fix="use a number >= 0")
     if not (math.isfinite(unc.stretch_mean) and unc.stretch_mean > 1.0):
         raise InputError(f"pre-stretch mean {unc.stretch_mean!r}", fix="use a number > 1")
-    if unc.stretch_sd > 0.25 * (unc.stretch_mean - 1.0):
+    sd_max = Uncertainty.MAX_STRETCH_SD_FRACTION * (unc.stretch_mean - 1.0)
+    if unc.stretch_sd > sd_max:
         raise InputError(f"pre-stretch sd {unc.stretch_sd} is too large for a mean of "
                          f"{unc.stretch_mean}", fix="the stretch must stay well above 1: "
-                         f"use sd <= {0.25 * (unc.stretch_mean - 1.0):g}")
-    if unc.modulus_rel_sd > 0.3:
+                         f"use sd <= {sd_max:g}")
+    m = Uncertainty.MAX_MODULUS_REL_SD
+    if unc.modulus_rel_sd > m:
         raise InputError(f"modulus sd {unc.modulus_rel_sd:g} (relative)",
-                         fix="use at most 0.3 (30 %); e.g. 0.1 for +-10 %")
+                         fix=f"use at most {m:g} ({100 * m:g} %); e.g. 0.1 for +-10 %")
     lo, hi = unc.relaxation_window_s
     if not (0 <= lo < hi):
         raise InputError(f"relaxation window {unc.relaxation_window_s}",
@@ -716,8 +685,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         mat_info = material_scatter(material)
         sd_mat = mat_info["sd_log"]
     unc = dataclasses.replace(unc, material_sd=float(sd_mat))
-    curve = relaxation_curve() if unc.relaxation else None
-    draws = [_draw(seed, i, n_cells, unc, sd_mat, curve) for i in range(samples)]
+    draws = [_draw(seed, i, n_cells, unc, sd_mat) for i in range(samples)]
     settings = {"t_end": float(t_end), "dt": float(dt), "thresholds": None}
     active = [f for f, on in (("thickness", unc.thickness_sd > 0),
                               ("stretch", unc.stretch_sd > 0),
@@ -798,6 +766,6 @@ def _clean(o):
 
 __all__ = ["tolerance_analysis", "run_sample", "Perturbation",
            "DesignPayload", "read_payload", "CompliantBracketModel", "material_scatter",
-           "relaxation_curve", "relaxation_factor", "aggregate", "sensitivity_table",
+           "relaxation_factor", "aggregate", "sensitivity_table",
            "regression_sensitivity",
            "make_perturbation", "nominal_perturbation", "wilson", "FACTORS"]

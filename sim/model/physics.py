@@ -28,7 +28,7 @@ import numpy as np
 
 from pysolver.errors import InputError
 from pysolver.mechanics.energies import jtkj, skew
-from pysolver.params import PHYSICS_OFF, PhysicsOptions
+from pysolver.params import PHYSICS_OFF, UNIT_CELL, PhysicsOptions
 
 DENSITY_TO_T_MM3 = 1e-9  # g/cm^3 -> t/mm^3 (mm-N-s-t units: 1 t mm/s^2 = 1 N)
 FACE_DOWN = ("bottom", "top")
@@ -45,25 +45,30 @@ def check_physics(opts: PhysicsOptions) -> PhysicsOptions:
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
             raise InputError(f"physics option {k} = {v!r} must be a positive number",
                              fix=f"pass --{k.replace('_', '-')} with a value > 0")
+    R = PhysicsOptions.RANGES
     for k in ("stretch_to_glue_min", "glue_to_water_min"):
-        v = getattr(opts, k)
-        if not (isinstance(v, int | float) and math.isfinite(v) and 0 <= v <= 1e5):
-            raise InputError(f"physics option {k} = {v!r} must be in 0..1e5 minutes",
+        v, (lo, hi) = getattr(opts, k), R[k]
+        if not (isinstance(v, int | float) and math.isfinite(v) and lo <= v <= hi):
+            raise InputError(f"physics option {k} = {v!r} must be in {lo:g}..{hi:g} minutes",
                              fix=f"pass --{k.replace('_', '-')} in minutes")
-    if not (isinstance(opts.rim_stretch, int | float) and 1.0 <= opts.rim_stretch <= 10.0):
-        raise InputError(f"rim_stretch = {opts.rim_stretch!r} must be in [1, 10]",
-                         fix="pass --rim-stretch near 2 (the released sheet)")
+    lo, hi = R["rim_stretch"]
+    if not (isinstance(opts.rim_stretch, int | float) and lo <= opts.rim_stretch <= hi):
+        raise InputError(f"rim_stretch = {opts.rim_stretch!r} must be in [{lo:g}, {hi:g}]",
+                         fix=f"pass --rim-stretch near {PHYSICS_OFF.rim_stretch:g} (the "
+                             "released sheet)")
     if opts.face_down not in FACE_DOWN:
         raise InputError(f"face_down = {opts.face_down!r} must be one of {FACE_DOWN}",
                          fix="pass --face-down bottom or --face-down top")
-    if not (isinstance(opts.ground_points, int) and 3 <= opts.ground_points <= 64):
-        raise InputError(f"ground_points = {opts.ground_points!r} must be an int in 3..64")
-    if not (isinstance(opts.contact_sides, int) and 3 <= opts.contact_sides <= 64):
-        raise InputError(f"contact_sides = {opts.contact_sides!r} must be an int in 3..64")
-    if opts.contact_dhat_mm >= 0.6:
+    for k in ("ground_points", "contact_sides"):
+        v, (lo, hi) = getattr(opts, k), R[k]
+        if not (isinstance(v, int) and lo <= v <= hi):
+            raise InputError(f"{k} = {v!r} must be an int in {lo}..{hi}")
+    gap = 2 * UNIT_CELL.min_bumper
+    if opts.contact_dhat_mm >= gap:
         raise InputError(f"contact_dhat_mm = {opts.contact_dhat_mm} mm reaches neighbouring "
-                         "bases (bumpers keep them >= 0.6 mm apart)",
-                         fix="pass --contact-dhat-mm below 0.6 (default 0.1)")
+                         f"bases (bumpers keep them >= {gap:g} mm apart)",
+                         fix=f"pass --contact-dhat-mm below {gap:g} (default "
+                             f"{PHYSICS_OFF.contact_dhat_mm:g})")
     return opts
 
 

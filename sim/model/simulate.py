@@ -538,8 +538,8 @@ def _atomic_savez(path: Path, arrays: dict) -> None:
 
 def _material_id(material) -> str:
     """A fingerprint of the bracket model (class, file, and coefficients at probe points)."""
-    probe = np.asarray(material.coefficients(np.array([0.3, 0.45, 0.65]),
-                                             np.array([1.0, 2.5, 5.0]),
+    h = np.linspace(UNIT_CELL.thickness_min, UNIT_CELL.thickness_max, 3)
+    probe = np.asarray(material.coefficients(h, np.array([1.0, 2.5, 5.0]),
                                              np.array([0.0, 30.0, 90.0])), float)
     return f"{type(material).__name__}|{getattr(material, 'path', '')}|{probe.tobytes().hex()}"
 

@@ -71,7 +71,7 @@ def start_pyvista_probe() -> threading.Thread:
 @functools.lru_cache(maxsize=1)
 def _pyvista_status() -> tuple[bool, str]:
     try:
-        import pyvista  # noqa: F401
+        import pyvista  # noqa: F401  (optional heavy dependency: probed, VTK rendering)
     except Exception as e:  # soft dependency
         return False, f"pyvista not importable ({type(e).__name__}: {e}); pip install pyvista"
     env = dict(os.environ)
