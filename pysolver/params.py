@@ -368,6 +368,11 @@ class Limits:
     model_max_central_length_mm : float, mm
         The bracket model's last measured central length (its grid ends at b = 5.8055 mm);
         longer cells (up to ``max_cell_length_mm``) are warned about.
+    measured_x_mm, measured_force_N, measured_h_mm : (float, float)
+        Plausible peak displacement (mm), peak force (N) and thickness (mm) of a bracket test
+        file (:mod:`pysolver.material.measurements`); outside, the column is in another unit.
+    measured_duration_s : (float, float), s
+        Shortest plausible wet and dry test (they last about 2 min and 7 s).
     """
 
     max_vertices: int = 5000
@@ -382,6 +387,10 @@ class Limits:
     min_gap_mm: tuple = (0.0, 2.0)
     max_cell_length_mm: float = 9.5
     model_max_central_length_mm: float = 9.0
+    measured_x_mm: tuple = (0.05, 100.0)
+    measured_force_N: tuple = (0.05, 1000.0)
+    measured_h_mm: tuple = (0.05, 5.0)
+    measured_duration_s: tuple = (3.0, 1.0)
     max_time_file_bytes: int = 64 * 1024 * 1024
 
 

@@ -27,7 +27,7 @@ import igl
 import numpy as np
 
 from ..errors import InputError
-from ..params import LIMITS
+from ..params import LIMITS, SEQUENCING
 
 DEFAULT_TIME_S = 60.0
 
@@ -320,7 +320,7 @@ def read_time_file(path) -> tuple[np.ndarray, str]:
         raise InputError(f"--time-file {path}: {t[bad[0]]:g} s at vertex {bad[0]} is beyond "
                          f"the longest simulation ({LIMITS.max_t_end:g} s)",
                          fix="give completion times in seconds under water (the paper's are "
-                             "30-80 s)")
+                             f"{SEQUENCING.times_s[0]:g}-{SEQUENCING.times_s[1]:g} s)")
     return t, hashlib.sha256(data).hexdigest()
 
 

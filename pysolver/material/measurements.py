@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, refuse_first
-from ..params import UNIT_CELL
+from ..params import LIMITS, UNIT_CELL
 from ..params import tol as TOL
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -204,34 +204,37 @@ def _to_float(path: Path, cols: dict, name: str) -> np.ndarray:
 def _check_units(path: Path, t: TestTable, wet: bool) -> None:
     """Reject files whose columns are evidently in another unit (see module docstring)."""
     xmax = float(np.max(t.x))
-    if xmax < 0.05:
+    (x_lo, x_hi), (f_lo, f_hi) = LIMITS.measured_x_mm, LIMITS.measured_force_N
+    h_lo, h_hi = LIMITS.measured_h_mm
+    if xmax < x_lo:
         raise InputError(
             f"{path}: column displacement_mm peaks at {xmax:.3g}, but compression tests of these "
             "brackets reach 0.3-7 mm; the column looks like metres, not mm.",
             fix="convert displacement_mm to millimetres (multiply metres by 1000).")
-    if xmax > 100.0:
+    if xmax > x_hi:
         raise InputError(
             f"{path}: column displacement_mm peaks at {xmax:.3g}, far above any bracket length "
             "(< 10 mm); the column looks like micrometres, not mm.",
             fix="convert displacement_mm to millimetres.")
     fmax = float(np.max(np.abs(t.force)))
-    if fmax < 0.05:
+    if fmax < f_lo:
         raise InputError(
             f"{path}: column force_N peaks at {fmax:.3g}, but the tests load 1-10 N; the column "
             "looks like kN, not N.", fix="convert force_N to newtons.")
-    if fmax > 1000.0:
+    if fmax > f_hi:
         raise InputError(
             f"{path}: column force_N peaks at {fmax:.3g}; the tests load 1-10 N, so the column "
             "looks like mN, not N.", fix="convert force_N to newtons.")
     tmax = float(np.max(t.time))
-    if tmax < (3.0 if wet else 1.0):
+    if tmax < LIMITS.measured_duration_s[0 if wet else 1]:
         raise InputError(
             f"{path}: column time_s ends at {tmax:.3g}, but the tests last "
             f"{'about 2 minutes' if wet else 'about 7 s'}; the column looks like minutes or "
             "hours, not seconds.", fix="convert time_s to seconds.")
-    if np.any((t.h < 0.05) | (t.h > 5.0)):
+    if np.any((t.h < h_lo) | (t.h > h_hi)):
         raise InputError(
-            f"{path}: thickness_mm must lie in 0.05-5 mm (found {t.h.min():.3g}-{t.h.max():.3g}).",
+            f"{path}: thickness_mm must lie in {h_lo:g}-{h_hi:g} mm (found "
+            f"{t.h.min():.3g}-{t.h.max():.3g}).",
             fix="give the bracket thickness in millimetres.")
     if np.any(t.b <= 0.0):
         raise InputError(
@@ -292,8 +295,10 @@ def read_test_table(path, wet: bool) -> TestTable:
             i = int(order[bad[0]])
             raise InputError(
                 f"{path}, data row {i + 1}: bracket_length_mm = {bl[bad[0]]:.6g} but "
-                f"central_length_mm - 4 cos 37deg = {b[bad[0]]:.6g}.",
-                fix="bracket_length_mm must be central_length_mm - 3.19454 mm "
+                f"central_length_mm - {2 * UNIT_CELL.base_r:g} cos {UNIT_CELL.alpha_deg:g}deg = "
+                f"{b[bad[0]]:.6g}.",
+                fix=f"bracket_length_mm must be central_length_mm - "
+                    f"{UNIT_CELL.bracket_offset:.5f} mm "
                     "(or drop the column).")
     t = TestTable(path=path, sha256=digest, specimen=spec[order], series=series[order], h=h, l=l,
                   b=b, time=num["time_s"][order], x=num["displacement_mm"][order],

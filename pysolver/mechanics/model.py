@@ -254,7 +254,7 @@ def _bases_reach_across(UV, F, cells, ci):
     return InputError(f"the stencil's bases reach across its edges at cell {ci} (bases {fa}, "
                       f"{fb}: their centres are {d[0]:.2f} and {d[1]:.2f} mm from their "
                       "triangles' edges): a flat triangle is too thin or too obtuse for a "
-                      "4 mm base at its centroid",
+                      f"{2 * UNIT_CELL.base_r:g} mm base at its centroid",
                       fix="let morphshell remesh the surface (its stencils keep every base "
                           "centre >= 2.3 mm from its triangle's edges), or improve that region "
                           "of your stencil")
