@@ -926,6 +926,12 @@ class Sequencing:
         wider necks merge them into one part.
     times_s : (2,) float, s
         Completion times of the first and of the last part (the paper's cover: 30-80 s).
+    min_separation_s : float, s
+        When the build maps a sequenced landscape onto the times the cells can reach
+        (``program_design(fit_landscape=True)``), successive parts stay at least this far
+        apart.  The map that clamps fewest cells alone squeezed the cover's 30-80 s into
+        58-59 s; the simulated completion times scatter by an RMS 9-11 s around ``t*``
+        (:mod:`pysolver.temporal.program`), so parts closer than that may close together.
     """
 
     reach_mm: float = 12.0
@@ -933,6 +939,7 @@ class Sequencing:
     min_pairs: int = 20
     saddle_ratio: float = 0.75
     times_s: tuple = (30.0, 80.0)
+    min_separation_s: float = 10.0
 
 
 SEQUENCING = Sequencing()

@@ -120,3 +120,49 @@ def test_a_cycle_loses_its_weakest_edge_only():
     level, dropped = _levels(5, [(0, 1, 50), (1, 2, 40), (2, 0, 10), (2, 3, 5)])
     assert dropped == [(2, 0, 10)]
     assert level.tolist() == [0, 1, 2, 3, -1]
+
+
+def _three_parts(n: int = 90):
+    """Cells of three sequenced parts (30 / 55 / 80 s) whose achievable ranges overlap
+    around 55-60 s: the map that clamps fewest squeezes the parts within 14 s."""
+    t_star = np.repeat([30.0, 55.0, 80.0], n // 3)
+    t_lo = np.repeat([50.0, 52.0, 54.0], n // 3)
+    t_hi = np.repeat([60.0, 62.0, 64.0], n // 3)
+    return t_star, t_lo, t_hi
+
+
+def test_fitted_sequenced_landscape_keeps_its_parts_apart():
+    from pysolver.temporal.program import _achievable_summary
+
+    t_star, t_lo, t_hi = _three_parts()
+    free = _achievable_summary(t_star, t_lo, t_hi, 120.0)["suggested_map"]
+    assert free["fraction_clamped"] == 0.0
+    assert (free["a"], free["b"]) == (50.0, 64.0)   # the widest map that clamps none
+    span = 2 * SEQUENCING.min_separation_s
+    kept = _achievable_summary(t_star, t_lo, t_hi, 120.0, min_span=span)["suggested_map"]
+    assert kept["min_span_s"] == span
+    assert kept["b"] - kept["a"] >= span - 1e-9
+    # the fewest clamped among maps that wide: one part, 30 of 90 cells, is out of range
+    # (both ends of a 20 s map cannot sit in [50, 60] and [54, 64] at once)
+    assert kept["fraction_clamped"] == pytest.approx(1 / 3)
+    # a span no map can have within the model's range falls back to the free map
+    wide = _achievable_summary(t_star, t_lo, t_hi, 120.0, min_span=500.0)["suggested_map"]
+    assert wide["min_span_s"] == 0.0 and (wide["a"], wide["b"]) == (50.0, 64.0)
+
+
+def test_sequenced_span_reads_the_design_levels(tmp_path):
+    import json
+
+    from pysolver.errors import InputError
+    from pysolver.temporal.program import sequenced_span
+
+    assert sequenced_span(tmp_path) == 0.0                      # no design.json
+    (tmp_path / "design.json").write_text(json.dumps({"options": {"sequencing": None}}))
+    assert sequenced_span(tmp_path) == 0.0                      # not sequenced
+    (tmp_path / "design.json").write_text(
+        json.dumps({"options": {"sequencing": {"levels": [0, 2, 1, 1]}}}))
+    assert sequenced_span(tmp_path) == pytest.approx(2 * SEQUENCING.min_separation_s)
+    (tmp_path / "design.json").write_text(
+        json.dumps({"options": {"sequencing": {"levels": ["x", 1]}}}))
+    with pytest.raises(InputError, match="levels"):
+        sequenced_span(tmp_path)

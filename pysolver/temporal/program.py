@@ -67,7 +67,7 @@ from ..design.time_landscape import cell_target_times
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
-from ..params import SIM, UNIT_CELL
+from ..params import SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
@@ -321,17 +321,31 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
             "f_bracket": f_br}
 
 
-def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0) -> dict:
+def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
+                        min_span: float = 0.0) -> dict:
     """Where the achievable times lie, and the order-preserving rescaling that clamps least.
+
+    Parameters
+    ----------
+    t_star, t_lo, t_hi : (n,) float, s
+        Requested times and the achievable range of each cell.
+    t_limit : float, s
+        End of the material model's time range.
+    step : float, s
+        Grid of the candidate ends a, b.
+    min_span : float, s
+        Smallest width b - a of a suggested map (:func:`sequenced_span`); when no map of
+        that width fits in [0, t_limit], the widest of the fewest-clamping maps is taken.
 
     Returns
     -------
     dict
         ``common`` [a, b] s reachable by every cell (None if empty); ``earliest``,
         ``latest`` s; ``best_constant`` (time s, fraction of cells that can reach it);
-        ``suggested_map`` {``t0``, ``t1``, ``a``, ``b``, ``fraction_clamped``}: mapping
-        the landscape's [t0, t1] linearly onto [a, b] s (a <= b, order kept) gives
-        the fewest clamped cells (ties: the widest [a, b]).
+        ``suggested_map`` {``t0``, ``t1``, ``a``, ``b``, ``fraction_clamped``,
+        ``min_span_s``}: mapping the landscape's [t0, t1] linearly onto [a, b] s
+        (a + min_span <= b, order kept) gives the fewest clamped cells (ties: the
+        widest [a, b]).
     """
     fin = np.isfinite(t_lo)
     out: dict = {"common": None, "earliest": None, "latest": None, "best_constant": None,
@@ -350,9 +364,12 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0) -> dict:
     out["best_constant"] = [float(grid[k]), float(frac[k])]
     t0, t1 = float(np.min(t_star)), float(np.max(t_star))
     u = (t_star - t0) / (t1 - t0) if t1 > t0 else np.zeros_like(t_star)
+    span = float(min_span) if t1 > t0 and grid[-1] >= min_span else 0.0
     best = None
     for a in grid:
-        bs = grid[grid >= a]
+        bs = grid[grid >= a + span - TOL.time]
+        if not len(bs):
+            break
         tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
         bad = ((tt < lo_all - TIME_TOL_S) | (tt > t_hi + TIME_TOL_S)).mean(axis=1)
         j = np.lexsort((-(bs - a), bad))[0]
@@ -360,8 +377,37 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0) -> dict:
         if best is None or key < best[0]:
             best = (key, float(a), float(bs[j]))
     out["suggested_map"] = {"t0": t0, "t1": t1, "a": best[1], "b": best[2],
-                            "fraction_clamped": best[0][0]}
+                            "fraction_clamped": best[0][0], "min_span_s": span}
     return out
+
+
+def sequenced_span(design_dir) -> float:
+    """Smallest width (s) of a fitted landscape, so that sequenced parts stay apart.
+
+    A design whose landscape is the automatic sequencing one (``design.json`` →
+    ``options.sequencing.levels``, :mod:`pysolver.design.sequencing`) closes its parts in
+    ``L`` steps; the fit keeps ``Sequencing.min_separation_s`` between them, i.e. a span of
+    ``(L - 1) min_separation_s``.  Any other design: 0 s.
+
+    Raises
+    ------
+    InputError
+        ``options.sequencing.levels`` is there but not a list of whole numbers >= 0.
+    """
+    meta = tables.read_record(Path(design_dir) / "design.json") or {}
+    seq = (meta.get("options") or {}).get("sequencing") if isinstance(meta, dict) else None
+    levels = seq.get("levels") if isinstance(seq, dict) else None
+    if not levels:
+        return 0.0
+    try:
+        lv = np.asarray(levels, float)
+    except (TypeError, ValueError):
+        lv = np.array([np.nan])
+    if lv.ndim != 1 or not np.all(np.isfinite(lv) & (lv >= 0) & (lv == np.round(lv))):
+        raise InputError(f"{Path(design_dir) / 'design.json'}: options.sequencing.levels "
+                         f"= {levels!r} is not a list of whole numbers >= 0",
+                         fix="re-run the design stage")
+    return float(SEQUENCING.min_separation_s * lv.max())
 
 
 def _fix_message(ach) -> str:
@@ -474,7 +520,8 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         the fewest cells before programming, and rewrite ``time_landscape.csv``.  The
         build does this for a shape's *default* landscape only (the built-in landscapes
         give the order in which regions finish; the achievable seconds depend on the
-        material model); a landscape the user gave is never changed, only checked.
+        material model); a landscape the user gave is never changed, only checked.  An
+        automatic sequencing landscape keeps its parts apart (:func:`sequenced_span`).
 
     Returns
     -------
@@ -507,7 +554,9 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     n = len(t_star)
     clamped = np.flatnonzero(res["clamped"])
     frac = float(len(clamped) / n) if n else 0.0
-    ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat))
+    min_span = sequenced_span(design_dir) if fit_landscape else 0.0
+    ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat),
+                              min_span=min_span)
     rescaled = None
     m = ach.get("suggested_map")
     if (fit_landscape and t_request is None and m is not None and len(clamped)
@@ -524,12 +573,16 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
                             material=mat, membrane=mem, factor=factor)
         clamped = np.flatnonzero(res["clamped"])
         frac = float(len(clamped) / n) if n else 0.0
-        ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat))
-        rescaled = {"from_s": list(t_old), "to_s": [float(land.min()), float(land.max())]}
+        ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat),
+                                  min_span=min_span)
+        rescaled = {"from_s": list(t_old), "to_s": [float(land.min()), float(land.max())],
+                    "min_span_s": m["min_span_s"]}
         if progress:
             print(f"[program] default time landscape {t_old[0]:.0f}-{t_old[1]:.0f} s mapped onto "
                   f"the achievable {rescaled['to_s'][0]:.0f}-{rescaled['to_s'][1]:.0f} s "
-                  f"({100 * frac:.0f} % of cells clamped)", file=sys.stderr)
+                  + (f"(at least {min_span:.0f} s wide: sequenced parts "
+                     f"{SEQUENCING.min_separation_s:g} s apart) " if min_span else "")
+                  + f"({100 * frac:.0f} % of cells clamped)", file=sys.stderr)
     miss = np.where(res["side"] < 0, res["t_min"] - t_star,
                     np.where(res["side"] > 0, t_star - res["t_max"], 0.0))
     miss = np.where(np.isfinite(miss), miss, time_limit(mat))
@@ -641,7 +694,7 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
     return out
 
 
-__all__ = ["load_material", "CORRECTIONS", "membrane_factors",
+__all__ = ["sequenced_span", "load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
            "program_cells", "program_design", "timing_errors", "time_limit",
