@@ -499,6 +499,22 @@ class StencilSearch:
         so the inset stays.  Above the threshold: petal 77 %, saddle 81 %, dome 82 %, the
         stand (``--size 171``) 85 %, the cover (``--size 106 --min-bumper 0.1``) 88 %; the
         reference's stencils cover 80-88 %.
+    trade_counts : tuple of float
+        With a time landscape the user gave (``--time``, ``--time-file``), relative vertex
+        counts below the chosen one also tried: larger cells are faster, and a landscape
+        that asks for early times may clamp fewer cells on them
+        (:func:`pysolver.design.stencil_opt.estimated_clamping`).  The trade shrinks the
+        shell (its 3D scaling falls below 1), so it is taken only as below and reported.
+        Measured on cover with the reference's landscape (``--size 106 --min-bumper 0.1
+        --time-file``): the search's 359 vertices (scaling 0.997) clamp 16.1 % of the cells
+        when programmed; the trade takes 309 (seed 1, scaling 0.935: the shell 6.5 %
+        smaller), 12.5 %.  The estimate ranks stencils but scatters by seed (309 with seed
+        0: scaling 1.06, ~37 %), hence both seeds.
+    trade_min_scale3d : float
+        Smallest 3D scaling a traded stencil may have (the shell at least this fraction of
+        the requested size).
+    trade_gain : float
+        Smallest drop of the estimated clamped fraction that pays for the smaller shell.
     """
 
     dense_faces: int = 6000
@@ -536,6 +552,9 @@ class StencilSearch:
     margin: float = 0.3
     opt_pin_weight: float = 100.0
     min_area_covered: float = 0.75
+    trade_counts: tuple = (0.93, 0.86)
+    trade_min_scale3d: float = 0.92
+    trade_gain: float = 0.03
 
 
 STENCIL = StencilSearch()

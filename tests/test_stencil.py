@@ -317,6 +317,49 @@ def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome
     assert np.all(stencil_opt._signed_areas(Q, F) > 0)
 
 
+def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
+    # three cells with b0 = 4 mm and x = 1 mm: fastest / slowest from the fitted laws
+    central = np.full(3, 4.0 + UNIT_CELL.bracket_offset)
+    contact = central - 1.0
+    bnd = np.zeros(3)
+    lo, hi = stencil_opt.log_time_range(central, contact, bnd, UNIT_CELL, STENCIL)
+    c, a = STENCIL.timing_fastest[:2]
+    assert lo[0] == pytest.approx(c + a * np.log(4.0))         # log x = 0
+    t_in, t_early, t_late = np.exp(0.5 * (lo[0] + hi[0])), np.exp(lo[0]) / 2, np.exp(hi[0]) * 2
+    f = stencil_opt.estimated_clamping(central, contact, bnd, [t_in, t_early, t_late])
+    assert f == pytest.approx(2 / 3)
+
+
+def test_trade_takes_fewer_vertices_only_for_a_real_gain_at_a_kept_size():
+    S = replace(STENCIL, trade_counts=(0.9, 0.8), trade_min_scale3d=0.93, trade_gain=0.03)
+    chosen = {"scale3d": 1.0, "max_cell_length_mm": 8.4, "clamped_estimate": 0.14}
+    candidates = {90: {"scale3d": 0.95, "max_cell_length_mm": 8.9, "clamped_estimate": 0.07},
+                  80: {"scale3d": 0.90, "max_cell_length_mm": 9.1, "clamped_estimate": 0.03}}
+
+    def run(cands, chosen=chosen):
+        tried = {(100, 0, 1.0): chosen}
+        meshes = {(100, 0, 1.0): ("V100", "F100", None)}
+
+        def trial(n, sd, inset):
+            tried[(n, sd, inset)] = cands[n]
+            meshes[(n, sd, inset)] = (f"V{n}", f"F{n}", None)
+        info = {}
+        best, V2, F2, ch = remesh._trade((100, 0, 1.0), "V100", "F100", chosen, trial, tried,
+                                         meshes, UNIT_CELL, S, info, None)
+        return best, V2, ch, info["trade"]
+
+    # 80 clamps least but shrinks the shell below 0.93: 90 is taken
+    best, V2, ch, rec = run(candidates)
+    assert best == (90, 0, 1.0) and V2 == "V90" and rec["taken"] and rec["to_vertices"] == 90
+    # a gain under trade_gain keeps the chosen stencil
+    small = {**candidates, 90: dict(candidates[90], clamped_estimate=0.12)}
+    best, V2, ch, rec = run(small)
+    assert best == (100, 0, 1.0) and V2 == "V100" and not rec["taken"]
+    # an unprintable (beyond limit - margin) candidate is never taken
+    long_ = {**candidates, 90: dict(candidates[90], max_cell_length_mm=9.3)}
+    assert run(long_)[0] == (100, 0, 1.0)
+
+
 # --------------------------------------------------------------------------------------
 # the rim inset and its fallback (a stencil reaching the rim, taken on measured merit)
 

@@ -58,8 +58,8 @@ from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ..params import tol as TOL
 from .flatten import cetm
 from .layout import build_layout
-from .stencil_opt import optimize_stencil
-from .time_landscape import interpolate_to_stencil
+from .stencil_opt import estimated_clamping, optimize_stencil
+from .time_landscape import cell_target_times, interpolate_to_stencil
 
 PAPER_CELL_LENGTH = 7.0  # mm, l_avg of the vertex-count estimate (Supplementary Note 1)
 
@@ -366,8 +366,18 @@ def edge_for_count(area: float, perimeter: float, n: int) -> float:
 # measuring and choosing stencils
 
 
-def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
+def stencil_figures(V, F, params: UnitCell = UNIT_CELL, time=None,
+                    settings: StencilSearch = STENCIL) -> dict:
     """Layout margins and regularity of a stencil (its CETM layout after both scaling rules).
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    params : UnitCell
+    time : (n,) float, s, optional
+        The time landscape at the stencil's vertices: adds ``clamped_estimate``.
+    settings : StencilSearch
 
     Returns
     -------
@@ -375,7 +385,9 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
         ``scale3d``; ``max_cell_length_mm``; (both None, and ``error``, when the layout fails);
         ``bumper_mm`` [min, max] target bumper length beyond the rim; ``edge_spread``
         (95th / 5th percentile of the 3D edge length, after scaling), ``min_angle_deg``
-        (smallest 3D triangle angle).
+        (smallest 3D triangle angle); with ``time``, ``clamped_estimate``: the fraction of
+        cells whose time the estimate of :func:`~pysolver.design.stencil_opt.estimated_clamping`
+        puts out of reach.
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -394,6 +406,11 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
     out.update(scale3d=round(float(lay.scale3d), 6),
                max_cell_length_mm=round(float(lay.central_length.max()), 4),
                bumper_mm=[round(float(bump.min()), 4), round(float(bump.max()), 4)])
+    if time is not None:
+        c = lay.cells
+        t_star = cell_target_times(np.asarray(time, float), c.verts[:, 0], c.verts[:, 1])
+        out["clamped_estimate"] = round(estimated_clamping(
+            lay.central_length, lay.target_length, c.boundary, t_star, params, settings), 4)
     return out
 
 
@@ -499,10 +516,49 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
     return best, rim
 
 
+def _trade(best, V2, F2, chosen, trial, tried, meshes, params, settings, info, progress,
+           seeds=None):
+    """Fewer, larger (faster) cells for a landscape that asks for early times.
+
+    Tries ``settings.trade_counts`` x the chosen count (each of ``seeds``, default the
+    chosen one; same inset) and takes, among every stencil tried with fewer vertices, the
+    one with the lowest estimated clamped fraction among those that are printable with
+    the margin, keep a 3D scaling of at least ``trade_min_scale3d`` and clamp at least
+    ``trade_gain`` fewer cells than the chosen stencil.  Records ``info["trade"]``.
+    """
+    n0, sd, inset = best
+    limit = params.max_cell_length - settings.margin
+    for f in settings.trade_counts:
+        for s in (seeds or [sd]):
+            trial(round(n0 * f), s, inset)
+    est0 = chosen["clamped_estimate"]
+    ok = [k for k, c in tried.items()
+          if k[2] == inset and k[0] < n0 and _laid_out(c)
+          and c["max_cell_length_mm"] <= limit and c["scale3d"] >= settings.trade_min_scale3d
+          and c["clamped_estimate"] <= est0 - settings.trade_gain]
+    record = {"vertices": int(n0), "scale3d": chosen["scale3d"], "clamped_estimate": est0,
+              "tried": [[k[0], k[1], tried[k]["scale3d"], tried[k].get("clamped_estimate")]
+                        for k in sorted(tried) if k[2] == inset and k[0] < n0],
+              "taken": False}
+    if ok:
+        k = min(ok, key=lambda k: (tried[k]["clamped_estimate"], -k[0]))
+        V2, F2, _ = meshes[k]
+        record.update(taken=True, to_vertices=int(k[0]), to_scale3d=tried[k]["scale3d"],
+                      to_clamped_estimate=tried[k]["clamped_estimate"])
+        best, chosen = k, tried[k]
+    info["trade"] = record
+    if progress is not None:
+        progress(("fewer, larger cells for the landscape: " if ok else "kept the count: ")
+                 + f"N={n0} clamps ~{100 * est0:.0f} % of cells at scale3d "
+                 f"{record['scale3d']:.3f}" + (f", N={best[0]} ~{100 * chosen['clamped_estimate']:.0f}"
+                                                f" % at {chosen['scale3d']:.3f}" if ok else ""))
+    return best, V2, F2, chosen
+
+
 def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                    params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL,
                    method: str = "cvt", dense: bool | None = None, optimize: bool = True,
-                   time=None, progress=None):
+                   time=None, trade: bool = False, progress=None):
     """Remesh a target surface into a stencil, searching the vertex count.
 
     Parameters
@@ -526,6 +582,12 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     time : (n,) float, s, optional
         The time landscape at the vertices of V; the optimisation then also evens the
         cells' speeds against it (``StencilSearch.opt_timing_weight``).
+    trade : bool
+        The landscape's seconds are the user's (not mapped later onto what the cells can
+        reach): with the vertex count searched, fewer vertices are also tried
+        (``StencilSearch.trade_counts``) and taken when they clamp markedly fewer cells
+        by the estimate, at a 3D scaling of at least ``trade_min_scale3d``; recorded in
+        ``info["trade"]``.
     progress : callable, optional
         Called with one line per tried candidate.
 
@@ -593,6 +655,10 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             V2, F2 = remove_ears(*isotropic_remesh(V, F, L))
             return V2, F2, (V2, F2)
         insets = (0.0,)
+    def figures(V2, F2):
+        t2 = None if time is None else interpolate_to_stencil(time, V, F, V2)
+        return stencil_figures(V2, F2, params, time=t2, settings=settings)
+
     tried: dict = {}
     meshes: dict = {}
     flat: dict = {}  # (N, seed, inset) -> optimised flat points, time at them
@@ -602,13 +668,15 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         key = (n, int(sd), float(inset))
         if key not in tried:
             V2, F2, before = make(n, int(sd), inset)
-            tried[key] = stencil_figures(V2, F2, params)
+            tried[key] = figures(V2, F2)
             meshes[key] = (V2, F2, before)
             if progress is not None:
                 c = tried[key]
                 what = (f"scale3d {c['scale3d']:.3f}, longest flat cell "
                         f"{c['max_cell_length_mm']:.2f} mm" if _laid_out(c)
                         else f"no layout ({c['error']})")
+                if c.get("clamped_estimate") is not None:
+                    what += f", ~{100 * c['clamped_estimate']:.0f} % of cells clamped"
                 progress(f"N={n} seed={sd} rim inset {inset:g} mm: {what}")
         return n
 
@@ -675,7 +743,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     chosen = tried[best]
     if best in flat and settings.opt_pin_weight > 0:
         Vp = polish(best, F2)
-        fig = stencil_figures(Vp, F2, params)
+        fig = figures(Vp, F2)
         L0 = chosen["max_cell_length_mm"]
         # kept when it is nearer the target's size and no longer (or still printable, with
         # no longer cell per unit of scaling)
@@ -691,12 +759,15 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                      + (f"scale3d {fig['scale3d']:.3f}, longest flat cell "
                         f"{fig['max_cell_length_mm']:.2f} mm" if _laid_out(fig)
                         else "no layout") + (" (kept)" if chosen is fig else " (dropped)"))
+    if trade and time is not None and vertices is None and _laid_out(chosen):
+        best, V2, F2, chosen = _trade(best, V2, F2, chosen, trial, tried, meshes, params,
+                                      settings, info, progress, seeds=seed_list)
     if rim is None:
         rim = {"inset_mm": float(best[2]), "area_covered": _covered(V2, F2, A),
                "fallback": None, "why": ("the stencil reaches the target's rim" if best[2] <= 0
                                          else "the inset stencil covers enough of the target")}
     else:
-        rim["area_covered"] = _covered(V2, F2, A)  # of the final (possibly polished) stencil
+        rim["area_covered"] = _covered(V2, F2, A)  # of the final stencil (polished, traded)
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
                 rim_inset_mm=float(best[2]), rim=rim, scale3d=chosen["scale3d"],
                 max_cell_length_mm=chosen["max_cell_length_mm"],
