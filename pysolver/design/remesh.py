@@ -34,10 +34,13 @@ Vertex count: ``vertices=N`` or searched: secant steps on the 3D scaling (about
 ``sqrt(N)``) toward 1, so that the shell keeps the size of its target, then another seed when
 the first leaves no margin, then the next rim inset when nothing is printable; among the
 candidates whose longest flat cell is within the limit the one with the scaling closest to 1
-wins (:func:`remesh_surface`).  The winner is optimised once more with its 3D scaling held at
-1 (``StencilSearch.opt_pin_weight``), and kept when that is nearer the target's size at no
-longer cell (or still printable and no longer per unit of scaling).  Nothing is tuned per
-shape.
+wins (:func:`remesh_surface`).  When the chosen inset stencil covers too little of the target
+(``StencilSearch.min_area_covered``, a narrow strip), the stencil without an inset is searched
+as well and replaces it if it prints at least as well (:func:`_rim_fallback`); the choice and
+its reason are recorded (``info["rim"]``).  The winner is optimised once more with its 3D
+scaling held at 1 (``StencilSearch.opt_pin_weight``), and kept when that is nearer the target's
+size at no longer cell (or still printable and no longer per unit of scaling).  Nothing is
+tuned per shape.
 """
 
 from __future__ import annotations
@@ -430,6 +433,89 @@ def _pick(tried: dict, params: UnitCell, margin: float):
     return min(tried, key=lambda k: (tried[k]["max_cell_length_mm"], k))
 
 
+def _covered(V, F, area: float) -> float:
+    """Fraction of the target's area ``area`` (mm^2) the stencil ``V, F`` covers (its own 3D
+    area over the target's; the stencil's flat triangles are chords of the target)."""
+    return round(surface_area(V, F) / area, 4)
+
+
+def _tier(c: dict, params: UnitCell, margin: float) -> int:
+    """0 when the longest flat cell keeps ``margin`` (mm) below the limit, 1 when it is within
+    the limit, 2 otherwise (or when the layout failed)."""
+    if not _laid_out(c):
+        return 2
+    L = c["max_cell_length_mm"]
+    return 0 if L <= params.max_cell_length - margin else 1 if L <= params.max_cell_length else 2
+
+
+def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell,
+                  settings: StencilSearch, search_rim):
+    """The stencil without a rim inset as a measured alternative to an inset stencil.
+
+    When the chosen inset stencil ``best`` covers less than ``settings.min_area_covered`` of
+    the target, ``search_rim()`` searches the counts without an inset; its best candidate
+    replaces ``best`` only if it prints at least as well (:func:`_tier`, never worse than the
+    inset stencil and never beyond the limit).
+
+    Parameters
+    ----------
+    best : (int, int, float)
+        Key (N, seed, inset mm) of the chosen inset stencil in ``tried`` and ``meshes``.
+    tried, meshes : dict
+        Figures (:func:`stencil_figures`) and meshes of every candidate, by key; filled by
+        ``search_rim``.
+    area : float, mm^2
+        The target's area.
+    params : UnitCell
+    settings : StencilSearch
+    search_rim : callable
+        Searches the vertex count with inset 0 (adds its candidates to ``tried``).
+
+    Returns
+    -------
+    best : (int, int, float)
+        The key chosen.
+    rim : dict
+        ``inset_mm``, ``min_area_covered``, ``inset_area_covered`` (of the inset stencil),
+        ``fallback`` (None when not searched, else ``requested``, ``seed``, ``scale3d``,
+        ``max_cell_length_mm``, ``area_covered``, ``taken``) and ``why``.
+    """
+    cov = _covered(*meshes[best][:2], area)
+    rim = {"inset_mm": float(best[2]), "min_area_covered": settings.min_area_covered,
+           "inset_area_covered": cov, "fallback": None}
+    if cov >= settings.min_area_covered:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (at least "
+                      f"{100 * settings.min_area_covered:.0f} %)")
+        return best, rim
+    try:
+        search_rim()
+    except RimInsetError:  # (inset 0 never splits the target; kept for symmetry)
+        pass
+    alt = _pick({k: c for k, c in tried.items() if k[2] == 0.0}, params, settings.margin)
+    if alt is None:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target; no stencil "
+                      "without the inset could be laid out")
+        return best, rim
+    c, c0 = tried[alt], tried[best]
+    taken = _tier(c, params, settings.margin) <= min(_tier(c0, params, settings.margin), 1)
+    rim["fallback"] = {"requested": int(alt[0]), "seed": int(alt[1]),
+                       "scale3d": c["scale3d"], "max_cell_length_mm": c["max_cell_length_mm"],
+                       "area_covered": _covered(*meshes[alt][:2], area), "taken": bool(taken)}
+    if taken:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+                      f"{100 * settings.min_area_covered:.0f} %); the stencil reaching the rim "
+                      f"prints (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
+                      f"{c0['max_cell_length_mm']:.2f} mm with the inset)")
+        rim["inset_mm"] = 0.0
+        return alt, rim
+    rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+                  f"{100 * settings.min_area_covered:.0f} %), but the stencil reaching the rim "
+                  f"prints worse (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
+                  f"{c0['max_cell_length_mm']:.2f} mm with the inset; limit "
+                  f"{params.max_cell_length:.2f} mm, margin {settings.margin:.2f} mm)")
+    return best, rim
+
+
 def _trade(best, V2, F2, chosen, trial, tried, meshes, params, settings, info, progress,
            seeds=None):
     """Fewer, larger (faster) cells for a landscape that asks for early times.
@@ -513,8 +599,10 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         ``vertices``, ``requested``, ``seed``, ``rim_inset_mm``, ``estimate_paper``,
         ``scale3d``, ``max_cell_length_mm``, ``before_optimisation`` / ``after_optimisation``
         (:func:`stencil_figures` of the chosen stencil), ``candidates``
-        [[N, seed, inset, scale3d, longest flat cell], ...] and ``polish`` (the last pass at
-        scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``).
+        [[N, seed, inset, scale3d, longest flat cell], ...], ``polish`` (the last pass at
+        scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``) and ``rim`` (the rim inset
+        chosen and why: ``inset_mm``, ``area_covered`` of the returned stencil, ``fallback``
+        and ``why``, see :func:`_rim_fallback`).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -638,6 +726,13 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                for c in tried.values()):
             break
     best = _pick(tried, params, settings.margin)
+    rim = None
+    if best is not None and best[2] > 0:
+        best, rim = _rim_fallback(
+            best, tried, meshes, A, params, settings,
+            lambda: None if any(k[2] == 0.0 for k in tried) else search_counts(0.0))
+        if progress is not None:
+            progress(f"rim: {rim['why']}")
     if best is None:
         why = "; ".join(sorted({c["error"] for c in tried.values() if "error" in c}))
         why = why or "every rim inset splits the target"
@@ -667,8 +762,14 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     if trade and time is not None and vertices is None and _laid_out(chosen):
         best, V2, F2, chosen = _trade(best, V2, F2, chosen, trial, tried, meshes, params,
                                       settings, info, progress, seeds=seed_list)
+    if rim is None:
+        rim = {"inset_mm": float(best[2]), "area_covered": _covered(V2, F2, A),
+               "fallback": None, "why": ("the stencil reaches the target's rim" if best[2] <= 0
+                                         else "the inset stencil covers enough of the target")}
+    else:
+        rim["area_covered"] = _covered(V2, F2, A)  # of the final stencil (polished, traded)
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
-                rim_inset_mm=float(best[2]), scale3d=chosen["scale3d"],
+                rim_inset_mm=float(best[2]), rim=rim, scale3d=chosen["scale3d"],
                 max_cell_length_mm=chosen["max_cell_length_mm"],
                 before_optimisation=stencil_figures(*before, params) if optimize else None,
                 after_optimisation=chosen,
