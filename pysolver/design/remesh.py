@@ -548,10 +548,11 @@ def _trade(best, V2, F2, chosen, trial, tried, meshes, params, settings, info, p
         best, chosen = k, tried[k]
     info["trade"] = record
     if progress is not None:
+        after = (f", N={best[0]} ~{100 * chosen['clamped_estimate']:.0f} % at "
+                 f"{chosen['scale3d']:.3f}" if ok else "")
         progress(("fewer, larger cells for the landscape: " if ok else "kept the count: ")
                  + f"N={n0} clamps ~{100 * est0:.0f} % of cells at scale3d "
-                 f"{record['scale3d']:.3f}" + (f", N={best[0]} ~{100 * chosen['clamped_estimate']:.0f}"
-                                                f" % at {chosen['scale3d']:.3f}" if ok else ""))
+                 f"{record['scale3d']:.3f}" + after)
     return best, V2, F2, chosen
 
 

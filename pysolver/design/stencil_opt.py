@@ -414,5 +414,5 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     return P, {"rounds": rounds}
 
 
-__all__ = ["opposite_vertices", "log_time_range", "estimated_clamping", "flat_corner_angles", "centroid_edge_distances", "layout_logs",
-           "timing_misfit", "optimize_stencil"]
+__all__ = ["opposite_vertices", "log_time_range", "estimated_clamping", "flat_corner_angles",
+           "centroid_edge_distances", "layout_logs", "timing_misfit", "optimize_stencil"]
