@@ -507,6 +507,36 @@ class StencilSearch:
         (:func:`pysolver.design.remesh.remesh_surface`; 0 = no second pass): the count
         search's scaling lands within a few per cent of 1 (its tolerance, and the seeds'
         noise), this pass brings it within 0.5 % (30 left 1-4 %).
+    min_area_covered : float
+        When the stencil the first rim inset gives covers less than this fraction of the
+        target's area (3D area of the stencil over the target's), the search also tries the
+        stencil without an inset and takes it only if it prints at least as well (its longest
+        flat cell within ``max_cell_length - margin``, or within the limit when the inset
+        stencil is not within the margin either); otherwise the inset stencil stays.  On a
+        narrow target the inset removes whole rows of cells and leaves short rim cells that
+        never finish.  Measured (inset stencils of the default search): the spiral (32 mm
+        wide) 72 %, and with the inset 2.7 % RMS and 13 rim cells that never finish in the
+        simulation; without it (8.81 mm longest cell before the last pass) 0.63 % and 3.
+        ``petal:size=0.7`` 65 %, but without the inset its longest cell is 9.71 mm (> 9.5),
+        so the inset stays.  Above the threshold: petal 77 %, saddle 81 %, dome 82 %, the
+        stand (``--size 171``) 85 %, the cover (``--size 106 --min-bumper 0.1``) 88 %; the
+        reference's stencils cover 80-88 %.
+    trade_counts : tuple of float
+        With a time landscape the user gave (``--time``, ``--time-file``), relative vertex
+        counts below the chosen one also tried: larger cells are faster, and a landscape
+        that asks for early times may clamp fewer cells on them
+        (:func:`pysolver.design.stencil_opt.estimated_clamping`).  The trade shrinks the
+        shell (its 3D scaling falls below 1), so it is taken only as below and reported.
+        Measured on cover with the reference's landscape (``--size 106 --min-bumper 0.1
+        --time-file``): the search's 359 vertices (scaling 0.997) clamp 16.1 % of the cells
+        when programmed; the trade takes 309 (seed 1, scaling 0.935: the shell 6.5 %
+        smaller), 12.5 %.  The estimate ranks stencils but scatters by seed (309 with seed
+        0: scaling 1.06, ~37 %), hence both seeds.
+    trade_min_scale3d : float
+        Smallest 3D scaling a traded stencil may have (the shell at least this fraction of
+        the requested size).
+    trade_gain : float
+        Smallest drop of the estimated clamped fraction that pays for the smaller shell.
     """
 
     dense_faces: int = 6000
@@ -543,6 +573,10 @@ class StencilSearch:
     candidates: tuple = ()
     margin: float = 0.3
     opt_pin_weight: float = 100.0
+    min_area_covered: float = 0.75
+    trade_counts: tuple = (0.93, 0.86)
+    trade_min_scale3d: float = 0.92
+    trade_gain: float = 0.03
 
 
 STENCIL = StencilSearch()

@@ -315,3 +315,108 @@ def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome
     assert (after["max_cell_length_mm"] / after["scale3d"]
             < before["max_cell_length_mm"] / before["scale3d"] - 0.2)
     assert np.all(stencil_opt._signed_areas(Q, F) > 0)
+
+
+def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
+    # three cells with b0 = 4 mm and x = 1 mm: fastest / slowest from the fitted laws
+    central = np.full(3, 4.0 + UNIT_CELL.bracket_offset)
+    contact = central - 1.0
+    bnd = np.zeros(3)
+    lo, hi = stencil_opt.log_time_range(central, contact, bnd, UNIT_CELL, STENCIL)
+    c, a = STENCIL.timing_fastest[:2]
+    assert lo[0] == pytest.approx(c + a * np.log(4.0))         # log x = 0
+    t_in, t_early, t_late = np.exp(0.5 * (lo[0] + hi[0])), np.exp(lo[0]) / 2, np.exp(hi[0]) * 2
+    f = stencil_opt.estimated_clamping(central, contact, bnd, [t_in, t_early, t_late])
+    assert f == pytest.approx(2 / 3)
+
+
+def test_trade_takes_fewer_vertices_only_for_a_real_gain_at_a_kept_size():
+    S = replace(STENCIL, trade_counts=(0.9, 0.8), trade_min_scale3d=0.93, trade_gain=0.03)
+    chosen = {"scale3d": 1.0, "max_cell_length_mm": 8.4, "clamped_estimate": 0.14}
+    candidates = {90: {"scale3d": 0.95, "max_cell_length_mm": 8.9, "clamped_estimate": 0.07},
+                  80: {"scale3d": 0.90, "max_cell_length_mm": 9.1, "clamped_estimate": 0.03}}
+
+    def run(cands, chosen=chosen):
+        tried = {(100, 0, 1.0): chosen}
+        meshes = {(100, 0, 1.0): ("V100", "F100", None)}
+
+        def trial(n, sd, inset):
+            tried[(n, sd, inset)] = cands[n]
+            meshes[(n, sd, inset)] = (f"V{n}", f"F{n}", None)
+        info = {}
+        best, V2, F2, ch = remesh._trade((100, 0, 1.0), "V100", "F100", chosen, trial, tried,
+                                         meshes, UNIT_CELL, S, info, None)
+        return best, V2, ch, info["trade"]
+
+    # 80 clamps least but shrinks the shell below 0.93: 90 is taken
+    best, V2, ch, rec = run(candidates)
+    assert best == (90, 0, 1.0) and V2 == "V90" and rec["taken"] and rec["to_vertices"] == 90
+    # a gain under trade_gain keeps the chosen stencil
+    small = {**candidates, 90: dict(candidates[90], clamped_estimate=0.12)}
+    best, V2, ch, rec = run(small)
+    assert best == (100, 0, 1.0) and V2 == "V100" and not rec["taken"]
+    # an unprintable (beyond limit - margin) candidate is never taken
+    long_ = {**candidates, 90: dict(candidates[90], max_cell_length_mm=9.3)}
+    assert run(long_)[0] == (100, 0, 1.0)
+
+
+# --------------------------------------------------------------------------------------
+# the rim inset and its fallback (a stencil reaching the rim, taken on measured merit)
+
+
+def _bent_strip(width, length=110.0, radius=70.0):
+    """A strip ``length`` x ``width`` mm bent around a cylinder of radius ``radius`` mm."""
+    P, F = surfaces._dense(np.array([[0, -width / 2], [length, -width / 2],
+                                     [length, width / 2], [0, width / 2]]))
+    a = (P[:, 0] - length / 2) / radius
+    return np.c_[radius * np.sin(a), P[:, 1], radius * (np.cos(a) - 1)], F
+
+
+def test_narrow_strip_falls_back_to_the_rim_and_a_wide_one_keeps_the_inset():
+    # 25 mm wide: a 4 mm inset leaves about 60 % of the area, so the stencil that reaches the
+    # rim is searched too and, printable, taken
+    V, F = _bent_strip(25.0)
+    V2, F2, info = remesh.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    rim = info["rim"]
+    assert rim["inset_area_covered"] < STENCIL.min_area_covered
+    assert rim["fallback"]["taken"] and info["rim_inset_mm"] == 0.0 == rim["inset_mm"]
+    assert info["max_cell_length_mm"] <= UNIT_CELL.max_cell_length
+    assert rim["area_covered"] > STENCIL.min_area_covered
+    assert "prints" in rim["why"]
+    # deterministic: the same input gives the same stencil
+    V3, F3, again = remesh.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    assert np.array_equal(F2, F3) and np.array_equal(V2, V3) and again["rim"] == rim
+    # 60 mm wide: the inset stencil covers enough; no fallback is searched
+    V, F = _bent_strip(60.0)
+    _, _, info = remesh.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    assert info["rim_inset_mm"] > 0 and info["rim"]["fallback"] is None
+    assert info["rim"]["inset_area_covered"] >= STENCIL.min_area_covered
+    assert all(c[2] > 0 for c in info["candidates"])
+
+
+def test_rim_fallback_never_trades_printability():
+    """The stencil reaching the rim replaces a poorly covering inset stencil only when its
+    longest flat cell prints at least as well (within limit - margin, or within the limit when
+    the inset stencil is not within the margin either)."""
+    lim, margin = UNIT_CELL.max_cell_length, STENCIL.margin
+    square = (np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float),
+              np.array([[0, 1, 2], [0, 2, 3]]))
+    half = (square[0] * np.sqrt(0.5), square[1])  # covers half the target's area (1 mm^2)
+    inset, rim = (100, 0, 4.0), (120, 0, 0.0)
+
+    def choose(L_inset, L_rim):
+        tried = {inset: {"scale3d": 1.0, "max_cell_length_mm": L_inset},
+                 rim: {"scale3d": 1.0, "max_cell_length_mm": L_rim}}
+        meshes = {inset: half, rim: square}
+        return remesh._rim_fallback(inset, tried, meshes, 1.0, UNIT_CELL, STENCIL, lambda: None)
+
+    best, info = choose(8.7, 9.0)
+    assert best == rim and info["fallback"]["taken"] and info["fallback"]["area_covered"] == 1.0
+    best, info = choose(8.7, lim - margin + 0.01)  # only within the limit: the inset stays
+    assert best == inset and not info["fallback"]["taken"] and info["inset_mm"] == 4.0
+    best, info = choose(lim - 0.1, lim - 0.05)  # neither keeps the margin: both print
+    assert best == rim
+    best, info = choose(lim - 0.1, lim + 0.2)  # unprintable: never
+    assert best == inset and not info["fallback"]["taken"]
+    best, info = choose(lim + 0.3, lim + 0.2)  # nothing prints: the inset search decides
+    assert best == inset

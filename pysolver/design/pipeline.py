@@ -363,6 +363,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
             V0, F0, remesh_info = remesh_surface(
                 surf.V, surf.F, vertices=vertices, seed=seed, target_bases=surf.target_bases,
                 params=params, time=_target_times(time, surf, mesh),
+                trade=time_opt is not None or time_file is not None,
                 progress=(lambda line: print(f"[design {surf.name}] remesh {line}",
                                              file=sys.stderr, flush=True)) if progress else None)
         clock.step("remesh")
@@ -415,7 +416,9 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         report.warnings.append(
             f"the stencil stops {remesh_info['rim_inset_mm'] * lay.scale3d:.1f} mm inside the "
             f"target's rim and covers {100 * cover:.0f} % of its area (a CVT's outer sites lie "
-            "inside its domain; the reference's stencils cover 80-88 %)")
+            "inside its domain; the reference's stencils cover 80-88 %)"
+            + (f"; {remesh_info['rim']['why']}"
+               if (remesh_info.get("rim") or {}).get("fallback") else ""))
     if (remesh_info.get("remeshed")
             and lay.central_length.max() > params.max_cell_length):
         report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params)))

@@ -34,10 +34,13 @@ Vertex count: ``vertices=N`` or searched: secant steps on the 3D scaling (about
 ``sqrt(N)``) toward 1, so that the shell keeps the size of its target, then another seed when
 the first leaves no margin, then the next rim inset when nothing is printable; among the
 candidates whose longest flat cell is within the limit the one with the scaling closest to 1
-wins (:func:`remesh_surface`).  The winner is optimised once more with its 3D scaling held at
-1 (``StencilSearch.opt_pin_weight``), and kept when that is nearer the target's size at no
-longer cell (or still printable and no longer per unit of scaling).  Nothing is tuned per
-shape.
+wins (:func:`remesh_surface`).  When the chosen inset stencil covers too little of the target
+(``StencilSearch.min_area_covered``, a narrow strip), the stencil without an inset is searched
+as well and replaces it if it prints at least as well (:func:`_rim_fallback`); the choice and
+its reason are recorded (``info["rim"]``).  The winner is optimised once more with its 3D
+scaling held at 1 (``StencilSearch.opt_pin_weight``), and kept when that is nearer the target's
+size at no longer cell (or still printable and no longer per unit of scaling).  Nothing is
+tuned per shape.
 """
 
 from __future__ import annotations
@@ -55,8 +58,8 @@ from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ..params import tol as TOL
 from .flatten import cetm
 from .layout import build_layout
-from .stencil_opt import optimize_stencil
-from .time_landscape import interpolate_to_stencil
+from .stencil_opt import estimated_clamping, optimize_stencil
+from .time_landscape import cell_target_times, interpolate_to_stencil
 
 PAPER_CELL_LENGTH = 7.0  # mm, l_avg of the vertex-count estimate (Supplementary Note 1)
 
@@ -363,8 +366,18 @@ def edge_for_count(area: float, perimeter: float, n: int) -> float:
 # measuring and choosing stencils
 
 
-def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
+def stencil_figures(V, F, params: UnitCell = UNIT_CELL, time=None,
+                    settings: StencilSearch = STENCIL) -> dict:
     """Layout margins and regularity of a stencil (its CETM layout after both scaling rules).
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    params : UnitCell
+    time : (n,) float, s, optional
+        The time landscape at the stencil's vertices: adds ``clamped_estimate``.
+    settings : StencilSearch
 
     Returns
     -------
@@ -372,7 +385,9 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
         ``scale3d``; ``max_cell_length_mm``; (both None, and ``error``, when the layout fails);
         ``bumper_mm`` [min, max] target bumper length beyond the rim; ``edge_spread``
         (95th / 5th percentile of the 3D edge length, after scaling), ``min_angle_deg``
-        (smallest 3D triangle angle).
+        (smallest 3D triangle angle); with ``time``, ``clamped_estimate``: the fraction of
+        cells whose time the estimate of :func:`~pysolver.design.stencil_opt.estimated_clamping`
+        puts out of reach.
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -391,6 +406,11 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL) -> dict:
     out.update(scale3d=round(float(lay.scale3d), 6),
                max_cell_length_mm=round(float(lay.central_length.max()), 4),
                bumper_mm=[round(float(bump.min()), 4), round(float(bump.max()), 4)])
+    if time is not None:
+        c = lay.cells
+        t_star = cell_target_times(np.asarray(time, float), c.verts[:, 0], c.verts[:, 1])
+        out["clamped_estimate"] = round(estimated_clamping(
+            lay.central_length, lay.target_length, c.boundary, t_star, params, settings), 4)
     return out
 
 
@@ -413,10 +433,133 @@ def _pick(tried: dict, params: UnitCell, margin: float):
     return min(tried, key=lambda k: (tried[k]["max_cell_length_mm"], k))
 
 
+def _covered(V, F, area: float) -> float:
+    """Fraction of the target's area ``area`` (mm^2) the stencil ``V, F`` covers (its own 3D
+    area over the target's; the stencil's flat triangles are chords of the target)."""
+    return round(surface_area(V, F) / area, 4)
+
+
+def _tier(c: dict, params: UnitCell, margin: float) -> int:
+    """0 when the longest flat cell keeps ``margin`` (mm) below the limit, 1 when it is within
+    the limit, 2 otherwise (or when the layout failed)."""
+    if not _laid_out(c):
+        return 2
+    L = c["max_cell_length_mm"]
+    return 0 if L <= params.max_cell_length - margin else 1 if L <= params.max_cell_length else 2
+
+
+def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell,
+                  settings: StencilSearch, search_rim):
+    """The stencil without a rim inset as a measured alternative to an inset stencil.
+
+    When the chosen inset stencil ``best`` covers less than ``settings.min_area_covered`` of
+    the target, ``search_rim()`` searches the counts without an inset; its best candidate
+    replaces ``best`` only if it prints at least as well (:func:`_tier`, never worse than the
+    inset stencil and never beyond the limit).
+
+    Parameters
+    ----------
+    best : (int, int, float)
+        Key (N, seed, inset mm) of the chosen inset stencil in ``tried`` and ``meshes``.
+    tried, meshes : dict
+        Figures (:func:`stencil_figures`) and meshes of every candidate, by key; filled by
+        ``search_rim``.
+    area : float, mm^2
+        The target's area.
+    params : UnitCell
+    settings : StencilSearch
+    search_rim : callable
+        Searches the vertex count with inset 0 (adds its candidates to ``tried``).
+
+    Returns
+    -------
+    best : (int, int, float)
+        The key chosen.
+    rim : dict
+        ``inset_mm``, ``min_area_covered``, ``inset_area_covered`` (of the inset stencil),
+        ``fallback`` (None when not searched, else ``requested``, ``seed``, ``scale3d``,
+        ``max_cell_length_mm``, ``area_covered``, ``taken``) and ``why``.
+    """
+    cov = _covered(*meshes[best][:2], area)
+    rim = {"inset_mm": float(best[2]), "min_area_covered": settings.min_area_covered,
+           "inset_area_covered": cov, "fallback": None}
+    if cov >= settings.min_area_covered:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (at least "
+                      f"{100 * settings.min_area_covered:.0f} %)")
+        return best, rim
+    try:
+        search_rim()
+    except RimInsetError:  # (inset 0 never splits the target; kept for symmetry)
+        pass
+    alt = _pick({k: c for k, c in tried.items() if k[2] == 0.0}, params, settings.margin)
+    if alt is None:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target; no stencil "
+                      "without the inset could be laid out")
+        return best, rim
+    c, c0 = tried[alt], tried[best]
+    taken = _tier(c, params, settings.margin) <= min(_tier(c0, params, settings.margin), 1)
+    rim["fallback"] = {"requested": int(alt[0]), "seed": int(alt[1]),
+                       "scale3d": c["scale3d"], "max_cell_length_mm": c["max_cell_length_mm"],
+                       "area_covered": _covered(*meshes[alt][:2], area), "taken": bool(taken)}
+    if taken:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+                      f"{100 * settings.min_area_covered:.0f} %); the stencil reaching the rim "
+                      f"prints (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
+                      f"{c0['max_cell_length_mm']:.2f} mm with the inset)")
+        rim["inset_mm"] = 0.0
+        return alt, rim
+    rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+                  f"{100 * settings.min_area_covered:.0f} %), but the stencil reaching the rim "
+                  f"prints worse (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
+                  f"{c0['max_cell_length_mm']:.2f} mm with the inset; limit "
+                  f"{params.max_cell_length:.2f} mm, margin {settings.margin:.2f} mm)")
+    return best, rim
+
+
+def _trade(best, V2, F2, chosen, trial, tried, meshes, params, settings, info, progress,
+           seeds=None):
+    """Fewer, larger (faster) cells for a landscape that asks for early times.
+
+    Tries ``settings.trade_counts`` x the chosen count (each of ``seeds``, default the
+    chosen one; same inset) and takes, among every stencil tried with fewer vertices, the
+    one with the lowest estimated clamped fraction among those that are printable with
+    the margin, keep a 3D scaling of at least ``trade_min_scale3d`` and clamp at least
+    ``trade_gain`` fewer cells than the chosen stencil.  Records ``info["trade"]``.
+    """
+    n0, sd, inset = best
+    limit = params.max_cell_length - settings.margin
+    for f in settings.trade_counts:
+        for s in (seeds or [sd]):
+            trial(round(n0 * f), s, inset)
+    est0 = chosen["clamped_estimate"]
+    ok = [k for k, c in tried.items()
+          if k[2] == inset and k[0] < n0 and _laid_out(c)
+          and c["max_cell_length_mm"] <= limit and c["scale3d"] >= settings.trade_min_scale3d
+          and c["clamped_estimate"] <= est0 - settings.trade_gain]
+    record = {"vertices": int(n0), "scale3d": chosen["scale3d"], "clamped_estimate": est0,
+              "tried": [[k[0], k[1], tried[k]["scale3d"], tried[k].get("clamped_estimate")]
+                        for k in sorted(tried) if k[2] == inset and k[0] < n0],
+              "taken": False}
+    if ok:
+        k = min(ok, key=lambda k: (tried[k]["clamped_estimate"], -k[0]))
+        V2, F2, _ = meshes[k]
+        record.update(taken=True, to_vertices=int(k[0]), to_scale3d=tried[k]["scale3d"],
+                      to_clamped_estimate=tried[k]["clamped_estimate"])
+        best, chosen = k, tried[k]
+    info["trade"] = record
+    if progress is not None:
+        after = (f", N={best[0]} ~{100 * chosen['clamped_estimate']:.0f} % at "
+                 f"{chosen['scale3d']:.3f}" if ok else "")
+        progress(("fewer, larger cells for the landscape: " if ok else "kept the count: ")
+                 + f"N={n0} clamps ~{100 * est0:.0f} % of cells at scale3d "
+                 f"{record['scale3d']:.3f}" + after)
+    return best, V2, F2, chosen
+
+
 def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                    params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL,
                    method: str = "cvt", dense: bool | None = None, optimize: bool = True,
-                   time=None, progress=None):
+                   time=None, trade: bool = False, progress=None):
     """Remesh a target surface into a stencil, searching the vertex count.
 
     Parameters
@@ -440,6 +583,12 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     time : (n,) float, s, optional
         The time landscape at the vertices of V; the optimisation then also evens the
         cells' speeds against it (``StencilSearch.opt_timing_weight``).
+    trade : bool
+        The landscape's seconds are the user's (not mapped later onto what the cells can
+        reach): with the vertex count searched, fewer vertices are also tried
+        (``StencilSearch.trade_counts``) and taken when they clamp markedly fewer cells
+        by the estimate, at a 3D scaling of at least ``trade_min_scale3d``; recorded in
+        ``info["trade"]``.
     progress : callable, optional
         Called with one line per tried candidate.
 
@@ -451,8 +600,10 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         ``vertices``, ``requested``, ``seed``, ``rim_inset_mm``, ``estimate_paper``,
         ``scale3d``, ``max_cell_length_mm``, ``before_optimisation`` / ``after_optimisation``
         (:func:`stencil_figures` of the chosen stencil), ``candidates``
-        [[N, seed, inset, scale3d, longest flat cell], ...] and ``polish`` (the last pass at
-        scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``).
+        [[N, seed, inset, scale3d, longest flat cell], ...], ``polish`` (the last pass at
+        scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``) and ``rim`` (the rim inset
+        chosen and why: ``inset_mm``, ``area_covered`` of the returned stencil, ``fallback``
+        and ``why``, see :func:`_rim_fallback`).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -505,6 +656,10 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             V2, F2 = remove_ears(*isotropic_remesh(V, F, L))
             return V2, F2, (V2, F2)
         insets = (0.0,)
+    def figures(V2, F2):
+        t2 = None if time is None else interpolate_to_stencil(time, V, F, V2)
+        return stencil_figures(V2, F2, params, time=t2, settings=settings)
+
     tried: dict = {}
     meshes: dict = {}
     flat: dict = {}  # (N, seed, inset) -> optimised flat points, time at them
@@ -514,13 +669,15 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         key = (n, int(sd), float(inset))
         if key not in tried:
             V2, F2, before = make(n, int(sd), inset)
-            tried[key] = stencil_figures(V2, F2, params)
+            tried[key] = figures(V2, F2)
             meshes[key] = (V2, F2, before)
             if progress is not None:
                 c = tried[key]
                 what = (f"scale3d {c['scale3d']:.3f}, longest flat cell "
                         f"{c['max_cell_length_mm']:.2f} mm" if _laid_out(c)
                         else f"no layout ({c['error']})")
+                if c.get("clamped_estimate") is not None:
+                    what += f", ~{100 * c['clamped_estimate']:.0f} % of cells clamped"
                 progress(f"N={n} seed={sd} rim inset {inset:g} mm: {what}")
         return n
 
@@ -570,6 +727,13 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                for c in tried.values()):
             break
     best = _pick(tried, params, settings.margin)
+    rim = None
+    if best is not None and best[2] > 0:
+        best, rim = _rim_fallback(
+            best, tried, meshes, A, params, settings,
+            lambda: None if any(k[2] == 0.0 for k in tried) else search_counts(0.0))
+        if progress is not None:
+            progress(f"rim: {rim['why']}")
     if best is None:
         why = "; ".join(sorted({c["error"] for c in tried.values() if "error" in c}))
         why = why or "every rim inset splits the target"
@@ -580,7 +744,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     chosen = tried[best]
     if best in flat and settings.opt_pin_weight > 0:
         Vp = polish(best, F2)
-        fig = stencil_figures(Vp, F2, params)
+        fig = figures(Vp, F2)
         L0 = chosen["max_cell_length_mm"]
         # kept when it is nearer the target's size and no longer (or still printable, with
         # no longer cell per unit of scaling)
@@ -596,8 +760,17 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                      + (f"scale3d {fig['scale3d']:.3f}, longest flat cell "
                         f"{fig['max_cell_length_mm']:.2f} mm" if _laid_out(fig)
                         else "no layout") + (" (kept)" if chosen is fig else " (dropped)"))
+    if trade and time is not None and vertices is None and _laid_out(chosen):
+        best, V2, F2, chosen = _trade(best, V2, F2, chosen, trial, tried, meshes, params,
+                                      settings, info, progress, seeds=seed_list)
+    if rim is None:
+        rim = {"inset_mm": float(best[2]), "area_covered": _covered(V2, F2, A),
+               "fallback": None, "why": ("the stencil reaches the target's rim" if best[2] <= 0
+                                         else "the inset stencil covers enough of the target")}
+    else:
+        rim["area_covered"] = _covered(V2, F2, A)  # of the final stencil (polished, traded)
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
-                rim_inset_mm=float(best[2]), scale3d=chosen["scale3d"],
+                rim_inset_mm=float(best[2]), rim=rim, scale3d=chosen["scale3d"],
                 max_cell_length_mm=chosen["max_cell_length_mm"],
                 before_optimisation=stencil_figures(*before, params) if optimize else None,
                 after_optimisation=chosen,

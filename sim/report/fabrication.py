@@ -103,7 +103,22 @@ def provenance(folder, build_info=None) -> dict:
         r = temporal["landscape_rescaled"]
         land += (f"; mapped from {r['from_s'][0]:.0f}-{r['from_s'][1]:.0f} s onto the "
                  f"achievable {r['to_s'][0]:.0f}-{r['to_s'][1]:.0f} s")
+        if r.get("min_span_s"):
+            land += f" (kept at least {r['min_span_s']:.0f} s wide: sequenced parts apart)"
     models = {}
+    rem = (design.get("summary") or {}).get("remesh") or {}
+    stencil = None
+    if rem.get("remeshed"):
+        stencil = (f"{rem.get('vertices')} vertices, 3D scaling {rem.get('scale3d')}, longest "
+                   f"flat cell {rem.get('max_cell_length_mm')} mm")
+        tr = rem.get("trade") or {}
+        if tr.get("taken"):
+            stencil += (f"; traded for the landscape's times: {tr['vertices']} vertices at "
+                        f"scaling {tr['scale3d']:.3f} would clamp ~"
+                        f"{100 * tr['clamped_estimate']:.0f} % of the cells (estimate), "
+                        f"{tr['to_vertices']} larger cells at {tr['to_scale3d']:.3f} ~"
+                        f"{100 * tr['to_clamped_estimate']:.0f} %: the shell is "
+                        f"{100 * (1 - tr['to_scale3d'] / tr['scale3d']):.1f} % smaller")
     mat = temporal.get("material_model")
     if mat and Path(mat).is_file():
         models["material (bracket) model"] = {"path": mat, "sha256": sha256_file(mat)}
@@ -124,6 +139,7 @@ def provenance(folder, build_info=None) -> dict:
         "unit_cell_params": dopt.get("params"),
         "build_inputs_sha256": info.get("inputs_sha256"),
         "landscape": land,
+        "stencil": stencil,
         "refine_rounds": refine.get("iterations", opts.get("refine")),
         "models": models,
         "simulation": {k: sim_sum.get(k) for k in ("steps", "t_final_s", "stopped_early",

@@ -1306,6 +1306,7 @@ def _provenance_html(r) -> str:
             ("input sha256", inp.get("sha256")),
             ("build inputs sha256", p.get("build_inputs_sha256")),
             ("time landscape", p.get("landscape")),
+            ("stencil", p.get("stencil")),
             ("refinement rounds", p.get("refine_rounds"))]
     for k, v in (p.get("models") or {}).items():
         rows.append((k, f"{v.get('path')} (sha256 {v.get('sha256')})"
