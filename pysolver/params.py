@@ -12,6 +12,7 @@ generated from :class:`UnitCell`, :class:`SupportFrame` and :class:`Tolerances`
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -279,6 +280,28 @@ class Tolerances:
     length_match : float, mm
         Largest difference between a measured bracket length and the one derived from its
         central length.
+    newton_shift_max : float
+        Largest adaptive regularisation shift of a Newton solve (relative, as
+        ``newton_shift_min``) before the convexified Hessian is tried.
+    newton_psd_shifts : tuple of float
+        Shifts tried, after ``newton_shift_min``, with the convexified (positive
+        semi-definite) Hessian of a Newton solve.
+    newton_max_rot_rad : float, rad
+        Largest rotation of a base per Newton iteration.
+    qp_violation : float
+        Constraint violation accepted by the cutting-plane quadratic programme of the
+        constrained least squares (:func:`pysolver.material.polyfit.constrained_lstsq`).
+    settle_mm : float, mm
+        Early stop of a simulation: largest base-centre or vertex move in a step of a
+        settled shell (``SimSettings.settle_mm``).
+    irls_eps_mm : float, mm
+        Floor of the distances in the IRLS weights (1/max(d, eps)) of the robust scan fit.
+    self_check_volume_rtol : float
+        Largest relative volume difference fast vs OpenSCAD on a reference part (render
+        self-check, auto mode).
+    self_check_symdiff_rtol : float
+        Largest symmetric-difference volume fast vs OpenSCAD, relative to the part volume
+        (render self-check).
     """
 
     merge: float = 1e-6
@@ -324,6 +347,14 @@ class Tolerances:
     monotone_atol: float = 1e-4
     monotone_step: float = 1e-3
     length_match: float = 1e-3
+    newton_shift_max: float = 1.0
+    newton_psd_shifts: tuple = (1e-4, 1e-2, 1.0)
+    newton_max_rot_rad: float = 0.3
+    qp_violation: float = 1e-10
+    settle_mm: float = 1e-4
+    irls_eps_mm: float = 1e-4
+    self_check_volume_rtol: float = 1e-4
+    self_check_symdiff_rtol: float = 1e-3
 
 
 @dataclass(frozen=True)
@@ -395,6 +426,164 @@ class Limits:
 
 
 LIMITS = Limits()
+
+
+@dataclass(frozen=True)
+class ReportThresholds:
+    """Limits of the report's verdict (justified in ``docs/report.md``); imported by
+    :mod:`sim.report.report` as ``Thresholds``.
+
+    Attributes
+    ----------
+    shape_rms_warn_pct, shape_rms_fail_pct : float, %
+        RMS distance of the aligned final base centres to the target centres,
+        in % of the target size (bounding-box diagonal of the target centres).
+    shape_max_warn_pct : float, %
+        Largest single base distance, % of the target size (a local defect).
+    normal_warn_deg, normal_fail_deg : float, deg
+        RMS angle between the aligned final base normals (flat +z of each base)
+        and the target face normals (global orientation of the layers).
+    fold_rms_warn_deg : float, deg
+        RMS error of the signed fold angle per unit cell (angle between the two
+        base normals, + when folding toward the top layer; ``cells.csv``
+        ``fold_angle_deg``).  Alignment-free: measures the local bending.
+    fold_flip_fail_fraction : float
+        Fraction of the folded cells (target ``|fold| >= fold_min_deg``) whose
+        simulated fold has the opposite sign, above which the shell is bent
+        the wrong way: FAIL.  Any flipped folded cell is a WARN.
+    fold_min_deg : float, deg
+    timing_rms_warn_s : float, s
+        RMS of (simulated completion - t*) over the cells that complete.
+    spearman_warn : float
+        Rank correlation of simulated completion vs t* below this: the order of
+        morphing is not the programmed one.  Only checked when the programmed
+        t* spread (std) is at least ``timing_spread_min_s``.
+    timing_spread_min_s : float, s
+    incomplete_fail_fraction : float
+        Fraction of unit cells (with t* <= the simulated end time) that never
+        complete above which the morph has not happened: FAIL.  Any such cell
+        is a WARN.
+    collision_depth_mm : float, mm
+        Penetration deeper than this counts as a collision (base/base and
+        membrane/base).
+    membrane_collision_fail : bool
+        Membrane-through-base collisions are FAIL (True) or WARN (False).
+    residual_fail_N : float, N
+        A non-converged step whose final residual is above this is FAIL; below
+        it, WARN.
+    """
+
+    shape_rms_warn_pct: float = 2.0
+    shape_rms_fail_pct: float = 5.0
+    shape_max_warn_pct: float = 10.0
+    normal_warn_deg: float = 15.0
+    normal_fail_deg: float = 45.0
+    fold_rms_warn_deg: float = 5.0
+    fold_flip_fail_fraction: float = 0.25
+    fold_min_deg: float = 1.0
+    timing_rms_warn_s: float = 10.0
+    spearman_warn: float = 0.5
+    timing_spread_min_s: float = 2.0
+    incomplete_fail_fraction: float = 0.5
+    collision_depth_mm: float = 0.1
+    membrane_collision_fail: bool = False
+    residual_fail_N: float = 1e-3
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.type in ("float", float) and not (isinstance(v, (int, float))
+                                                    and math.isfinite(v) and v >= 0):
+                raise InputError(f"Thresholds.{f.name} = {v!r}: must be a finite number >= 0",
+                                 fix="pass a non-negative number")
+        if self.shape_rms_warn_pct > self.shape_rms_fail_pct:
+            raise InputError("Thresholds: shape_rms_warn_pct > shape_rms_fail_pct",
+                             fix="the WARN limit must not exceed the FAIL limit")
+        if self.normal_warn_deg > self.normal_fail_deg:
+            raise InputError("Thresholds: normal_warn_deg > normal_fail_deg",
+                             fix="the WARN limit must not exceed the FAIL limit")
+
+    @classmethod
+    def coerce(cls, value) -> ReportThresholds:
+        """``None`` -> defaults; a mapping -> defaults updated by it; a Thresholds as is."""
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, dict):
+            names = {f.name for f in dataclasses.fields(cls)}
+            bad = sorted(set(value) - names)
+            if bad:
+                raise InputError(f"unknown threshold(s) {bad}",
+                                 fix=f"use some of {sorted(names)}")
+            return cls(**value)
+        raise InputError(f"thresholds must be a Thresholds or a dict, got {type(value).__name__}")
+
+
+REPORT = ReportThresholds()
+
+
+@dataclass(frozen=True)
+class ModelLimits:
+    """Ranges, floors, fixed fractions and mesh sizes of the design checks, the material and
+    membrane models, the temporal programming and the tolerance analysis.
+
+    Attributes
+    ----------
+    membrane_b0_mm : (float, float), mm
+        Range of the flat bracket length b0 of :func:`pysolver.temporal.cell_membrane.
+        membrane_traction` (its unit-cell membrane patch).
+    membrane_d_max_fraction : float
+        Largest contraction d of that patch, as a fraction of b0 (exclusive).
+    near_limit_fraction : float
+        A cell whose flat central length is above this fraction of ``max_cell_length`` (and
+        not above it) is warned about as near the limit (:mod:`pysolver.design.checks`).
+    max_clamped_fraction : float
+        Largest fraction of cells whose thickness is clamped to the printable range for a
+        temporal program to be feasible.
+    bisection_steps : int
+        Bisection steps of the thickness and completion-time solves of temporal programming.
+    refine_damping : float
+        Damping of the timing corrections of the refinement from the simulation.
+    relaxation_min_samples : int
+        Fewest samples of the hold step of a stress-relaxation test.
+    relaxation_weight_floor_s : float, s
+        Floor of the time in the 1/sqrt(t) weights of the Prony fit of stress relaxation
+        (the test records every 4 s).
+    tolerance_thickness_floor_mm : float, mm
+        Smallest bracket thickness drawn by the tolerance analysis (printed thickness).
+    tolerance_modulus_floor : float
+        Smallest membrane modulus factor drawn by the tolerance analysis.
+    membrane_fit_max_area : float, mm^2
+        Largest flat triangle of the membrane patches of the membrane-model fit (converged
+        to ~0.3 %; the simulator uses ``SimConstants.membrane_max_area``).
+    membrane_factor_max_area : float, mm^2
+        Largest flat triangle of the membrane mesh of a design's own stencil (per-cell
+        membrane factors).
+    membrane_halvings : int
+        Step halvings of the line search of the plane membrane relaxation.
+    membrane_contraction_min : float
+        Smallest uniform contraction (current / flat size) of the stencil estimated from the
+        cells' closing distances for the per-cell membrane factors.
+    """
+
+    membrane_b0_mm: tuple = (0.3, 7.0)
+    membrane_d_max_fraction: float = 0.95
+    near_limit_fraction: float = 0.95
+    max_clamped_fraction: float = 0.5
+    bisection_steps: int = 50
+    refine_damping: float = 0.8
+    relaxation_min_samples: int = 10
+    relaxation_weight_floor_s: float = 4.0
+    tolerance_thickness_floor_mm: float = 0.05
+    tolerance_modulus_floor: float = 0.05
+    membrane_fit_max_area: float = 0.5
+    membrane_factor_max_area: float = 1.0
+    membrane_halvings: int = 40
+    membrane_contraction_min: float = 0.5
+
+
+MODEL_LIMITS = ModelLimits()
 
 
 @dataclass(frozen=True)
@@ -496,6 +685,17 @@ class StencilSearch:
         Secant steps of the vertex count toward a 3D scaling of 1.
     count_tolerance : float
         |log scale3d| under which the secant search stops.
+    count_secant_min : float
+        Smallest difference of log vertex counts of the last two trials over which the
+        secant slope is taken (else the uniform-mesh slope 1/2).
+    dense_min_angle_deg : float, deg
+        An input mesh whose smallest triangle angle is below this is resampled (dense
+        remeshing) before flattening.
+    dense_min_faces : int
+        An input mesh with fewer faces than this is resampled before flattening.
+    remesh_surface_dist : float
+        Largest distance of the isotropic remeshing's surface from the input, relative to
+        the target edge length.
     candidates : tuple of float
         Relative vertex counts tried around the secant result (the other seeds are tried at
         the best count).
@@ -570,6 +770,10 @@ class StencilSearch:
     count_start: float = 1.5
     count_steps: int = 4
     count_tolerance: float = 0.05
+    count_secant_min: float = 1e-9
+    dense_min_angle_deg: float = 15.0
+    dense_min_faces: int = 2000
+    remesh_surface_dist: float = 0.05
     candidates: tuple = ()
     margin: float = 0.3
     opt_pin_weight: float = 100.0
@@ -905,8 +1109,8 @@ def check_unit_cell(params: UnitCell) -> None:
 
 
 __all__ = ["check_unit_cell", "PAPER_BRACKET_HEIGHT_MM", "DATA_DIR", "MEMBRANE_MODEL_FILE",
-           "DEFAULT_REFINE", "LIMITS",
-           "Limits", "UnitCell", "SimConstants",
+           "DEFAULT_REFINE", "LIMITS", "MODEL_LIMITS", "ModelLimits", "REPORT",
+           "ReportThresholds", "Limits", "UnitCell", "SimConstants",
            "Tolerances",
            "SupportFrame", "SUPPORT_FRAME",
            "PhysicsOptions", "PHYSICS_OFF", "RELAXATION_PRONY",

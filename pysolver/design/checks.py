@@ -13,12 +13,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import signed_areas_2d
-from ..params import LIMITS, UNIT_CELL, UnitCell
+from ..params import LIMITS, MODEL_LIMITS, UNIT_CELL, UnitCell
 from ..params import tol as TOL
 from .layout import Layout
 
 # cells longer than this fraction of max_cell_length are reported as "near the limit"
-NEAR_LIMIT = 0.95
+NEAR_LIMIT = MODEL_LIMITS.near_limit_fraction
 
 
 @dataclass

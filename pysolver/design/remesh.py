@@ -113,7 +113,8 @@ def isotropic_remesh(V, F, edge_length: float, iterations: int = 12):
     ms.meshing_isotropic_explicit_remeshing(
         iterations=iterations, targetlen=pymeshlab.PureValue(float(edge_length)),
         featuredeg=60.0, checksurfdist=True,
-        maxsurfdist=pymeshlab.PureValue(0.05 * edge_length), reprojectflag=True)
+        maxsurfdist=pymeshlab.PureValue(STENCIL.remesh_surface_dist * edge_length),
+        reprojectflag=True)
     m = ms.current_mesh()
     V2 = np.asarray(m.vertex_matrix(), float)
     F2 = np.asarray(m.face_matrix(), dtype=np.int64)
@@ -614,7 +615,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         raise InputError(f"remesh method {method!r}", fix="use 'cvt' or 'pymeshlab'")
     if dense is None:
         minang = np.degrees(igl.internal_angles(V, F).min())
-        dense = minang < 15.0 or len(F) < 2000
+        dense = minang < STENCIL.dense_min_angle_deg or len(F) < STENCIL.dense_min_faces
     if time is not None:
         time = np.asarray(time, float)
         if time.shape != (len(V),):
@@ -705,7 +706,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             pts.append((np.log(n), np.log(s3)))
             # scale3d ~ N^k: k = 1/2 for a uniform mesh, else the slope of the last two
             k = 0.5
-            if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > 1e-9:
+            if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > STENCIL.count_secant_min:
                 k = float(np.clip((pts[-1][1] - pts[-2][1]) / (pts[-1][0] - pts[-2][0]),
                                   0.25, 1.0))
             n = trial(round(n * s3 ** (-1.0 / k)), sd0, inset)

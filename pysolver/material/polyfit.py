@@ -94,7 +94,7 @@ def evaluate(E: np.ndarray, beta: np.ndarray, X: np.ndarray, wrt: int | None = N
     return mv(design_matrix(E, X, wrt), beta)
 
 
-def constrained_lstsq(X, y, A=None, w=None, ridge=0.0, viol_tol: float = 1e-10):
+def constrained_lstsq(X, y, A=None, w=None, ridge=0.0, viol_tol: float = TOL.qp_violation):
     """Weighted least squares ``X beta ~ y`` subject to ``A beta >= 0``.
 
     Parameters
@@ -126,7 +126,7 @@ def constrained_lstsq(X, y, A=None, w=None, ridge=0.0, viol_tol: float = 1e-10):
     return constrained_normal_lstsq(N, r, A, ridge, viol_tol)
 
 
-def constrained_normal_lstsq(N, r, A=None, ridge=0.0, viol_tol: float = 1e-10):
+def constrained_normal_lstsq(N, r, A=None, ridge=0.0, viol_tol: float = TOL.qp_violation):
     """:func:`constrained_lstsq` given the normal equations ``N = X'WX`` (m, m), ``r = X'Wy``.
 
     Lets callers with block-structured designs assemble ``N`` cheaply.

@@ -380,8 +380,8 @@ def _wolfe(problem, p, E0, g0, eps_E, alpha_max, c1, c2, max_evals):
 
 SHIFT_MIN = TOL.newton_shift_min
 """Base shift (relative to the mean scaled diagonal) for the exact translation null space."""
-SHIFT_MAX = 1.0
-PSD_SHIFTS = (TOL.newton_shift_min, 1e-4, 1e-2, 1.0)
+SHIFT_MAX = TOL.newton_shift_max
+PSD_SHIFTS = (TOL.newton_shift_min, *TOL.newton_psd_shifts)
 
 
 def _candidates(last_shift: float):
@@ -408,7 +408,7 @@ def _candidates(last_shift: float):
 def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_max_iter_wet,
            linear: LinearSolver | None = None, c1: float = TOL.armijo_c1, c2: float = 0.9,
            max_halvings: int = TOL.line_search_halvings, max_step_mm: float = 2.0,
-           max_rot_rad: float = 0.3, callback=None) -> NewtonResult:
+           max_rot_rad: float = TOL.newton_max_rot_rad, callback=None) -> NewtonResult:
     """Minimise the energy of ``problem`` by Newton's method with line search.
 
     Each iteration tries search directions from :func:`_candidates` -- the exact Hessian

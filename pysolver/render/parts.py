@@ -94,10 +94,10 @@ OpenSCAD too), and so were 72 of 72 stress layers (six shapes x their own and 5 
 thickness programs, fast renderer) against 10 of 72 before.  It renders ``petal``'s 767
 parts in ~10 s instead of ~140 s."""
 
-SELF_CHECK_VOLUME_RTOL = 1e-4
+SELF_CHECK_VOLUME_RTOL = TOL.self_check_volume_rtol
 """Largest relative volume difference fast vs OpenSCAD on a reference part (auto mode)."""
 
-SELF_CHECK_SYMDIFF_RTOL = 1e-3
+SELF_CHECK_SYMDIFF_RTOL = TOL.self_check_symdiff_rtol
 """Largest symmetric-difference volume fast vs OpenSCAD, relative to the part volume."""
 
 FAST_INSTALL_FIX = ("install it into the project's environment ('.venv/bin/pip install "

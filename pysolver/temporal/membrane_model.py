@@ -67,16 +67,16 @@ from ..material.validate import (
 from ..mechanics import MembraneMesh, membrane_mesh
 from ..mechanics.energies import membrane_terms
 from ..mechanics.rim import rim_margin
-from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, SIM, UNIT_CELL
+from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, MODEL_LIMITS, SIM, UNIT_CELL
 from ..params import tol as TOL
 
 MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by
 :func:`pysolver.temporal.membrane_fit.fit_membrane_model`)."""
 
-MESH_MAX_AREA = 0.5          # mm^2, flat, of the fit; converged to ~0.3 % (the simulator uses 5)
+MESH_MAX_AREA = MODEL_LIMITS.membrane_fit_max_area  # mm^2, flat, of the fit
 NEWTON_TOL = TOL.membrane_grad  # N, infinity norm of the free-node gradient
-FACTOR_MESH_AREA = 1.0       # mm^2, mesh of a design's own stencil (per-cell factors)
+FACTOR_MESH_AREA = MODEL_LIMITS.membrane_factor_max_area  # mm^2, a design's own stencil
 
 TERMS = {
     "1": lambda b, d: np.ones_like(b),
@@ -366,7 +366,7 @@ def _relax(mem: PlaneMembrane, x, free, tol=NEWTON_TOL, max_iter=60):
             H = mem.hessian(x, psd=True)[fdof][:, fdof].tocsc()
             dx = -spla.spsolve(H, g)
         step = 1.0
-        for _ in range(40):
+        for _ in range(MODEL_LIMITS.membrane_halvings):
             xt = x.copy()
             xt.reshape(-1)[fdof] += step * dx
             Et = mem.energy(xt)
@@ -555,7 +555,7 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
                          "design-folder order.", fix="re-run the design stage.")
     lc = np.asarray(cells["central_length_mm"], float)
     s = 1.0 - float(np.median(np.asarray(d1, float) / lc))
-    s = min(max(s, 0.5), 1.0)
+    s = min(max(s, MODEL_LIMITS.membrane_contraction_min), 1.0)
     if rim is None:
         mem = PlaneMembrane(mesh.xy, mesh.tris)
         run = mesh

@@ -67,7 +67,7 @@ from ..design.time_landscape import cell_target_times
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
-from ..params import SEQUENCING, SIM, UNIT_CELL
+from ..params import MODEL_LIMITS, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
@@ -88,9 +88,9 @@ factor (irregular stencils: 0.65-1.8), and boundary cells get ``min(0.6, FEM fac
 (cells whose edge has both ends on the boundary pull only ~0.1-0.2 and never close with
 0.6)."""
 DEFAULT_CORRECTION = "fem"
-MAX_CLAMPED_FRACTION = 0.5
-BISECTION_STEPS = 50
-REFINE_DAMPING = 0.8
+MAX_CLAMPED_FRACTION = MODEL_LIMITS.max_clamped_fraction
+BISECTION_STEPS = MODEL_LIMITS.bisection_steps
+REFINE_DAMPING = MODEL_LIMITS.refine_damping
 TIME_TOL_S = TOL.time
 FORCE_RTOL = TOL.force_rtol
 COMPLETION_TOL_MM = UNIT_CELL.clearance

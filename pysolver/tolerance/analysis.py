@@ -84,7 +84,7 @@ from pysolver.material.measurements import load_measurements
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
-from pysolver.params import SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
+from pysolver.params import MODEL_LIMITS, SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
 from pysolver.tables import MODEL_FILE, read_design, read_table
 
 from .report import write_report
@@ -93,7 +93,7 @@ FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
 DESIGN_FILES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
                 "support_frame.csv", "design.json", MODEL_FILE)
 SUMMARY_FORMAT = "morphshell.tolerance"
-THICKNESS_FLOOR_MM = 0.05
+THICKNESS_FLOOR_MM = MODEL_LIMITS.tolerance_thickness_floor_mm
 _POW = np.arange(1, 5)
 
 
@@ -258,7 +258,7 @@ def _draw(seed: int, i: int, n_cells: int, unc: Uncertainty, sd_mat: float):
     relax = float(relaxation_factor(wait)) if unc.relaxation else 1.0
     return {"thickness": unc.thickness_sd * z_th,
             "stretch": unc.stretch_mean + unc.stretch_sd * z_tau,
-            "modulus": max(1.0 + unc.modulus_rel_sd * z_mu, 0.05),
+            "modulus": max(1.0 + unc.modulus_rel_sd * z_mu, MODEL_LIMITS.tolerance_modulus_floor),
             "material": math.exp(sd_mat * z_mat),
             "relaxation": relax}
 

@@ -119,7 +119,7 @@ class SimSettings:
     tol: float = TOL.newton_grad
     max_iter_dry: int = TOL.newton_max_iter_dry
     max_iter_wet: int = TOL.newton_max_iter_wet
-    settle_mm: float = 1e-4
+    settle_mm: float = TOL.settle_mm
     blowup: float = 100.0
     checkpoint_every: int = 20
     predictor: bool | str = True

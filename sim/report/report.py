@@ -38,7 +38,7 @@ from scipy import stats
 from pysolver.atomic import atomic_dir
 from pysolver.errors import InputError
 from pysolver.geometry import fold_angles_deg, rigid_fit
-from pysolver.params import UNIT_CELL
+from pysolver.params import UNIT_CELL, ReportThresholds
 from pysolver.params import tol as TOL
 from pysolver.tables import Design, read_design, read_table
 
@@ -61,95 +61,8 @@ OPTIONAL_KEYS = ("membrane_vertices", "membrane_triangles", "newton_iterations",
 # thresholds
 # --------------------------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class Thresholds:
-    """Limits of the verdict (justified in ``docs/report.md``).
-
-    Attributes
-    ----------
-    shape_rms_warn_pct, shape_rms_fail_pct : float, %
-        RMS distance of the aligned final base centres to the target centres,
-        in % of the target size (bounding-box diagonal of the target centres).
-    shape_max_warn_pct : float, %
-        Largest single base distance, % of the target size (a local defect).
-    normal_warn_deg, normal_fail_deg : float, deg
-        RMS angle between the aligned final base normals (flat +z of each base)
-        and the target face normals (global orientation of the layers).
-    fold_rms_warn_deg : float, deg
-        RMS error of the signed fold angle per unit cell (angle between the two
-        base normals, + when folding toward the top layer; ``cells.csv``
-        ``fold_angle_deg``).  Alignment-free: measures the local bending.
-    fold_flip_fail_fraction : float
-        Fraction of the folded cells (target ``|fold| >= fold_min_deg``) whose
-        simulated fold has the opposite sign, above which the shell is bent
-        the wrong way: FAIL.  Any flipped folded cell is a WARN.
-    fold_min_deg : float, deg
-    timing_rms_warn_s : float, s
-        RMS of (simulated completion - t*) over the cells that complete.
-    spearman_warn : float
-        Rank correlation of simulated completion vs t* below this: the order of
-        morphing is not the programmed one.  Only checked when the programmed
-        t* spread (std) is at least ``timing_spread_min_s``.
-    timing_spread_min_s : float, s
-    incomplete_fail_fraction : float
-        Fraction of unit cells (with t* <= the simulated end time) that never
-        complete above which the morph has not happened: FAIL.  Any such cell
-        is a WARN.
-    collision_depth_mm : float, mm
-        Penetration deeper than this counts as a collision (base/base and
-        membrane/base).
-    membrane_collision_fail : bool
-        Membrane-through-base collisions are FAIL (True) or WARN (False).
-    residual_fail_N : float, N
-        A non-converged step whose final residual is above this is FAIL; below
-        it, WARN.
-    """
-
-    shape_rms_warn_pct: float = 2.0
-    shape_rms_fail_pct: float = 5.0
-    shape_max_warn_pct: float = 10.0
-    normal_warn_deg: float = 15.0
-    normal_fail_deg: float = 45.0
-    fold_rms_warn_deg: float = 5.0
-    fold_flip_fail_fraction: float = 0.25
-    fold_min_deg: float = 1.0
-    timing_rms_warn_s: float = 10.0
-    spearman_warn: float = 0.5
-    timing_spread_min_s: float = 2.0
-    incomplete_fail_fraction: float = 0.5
-    collision_depth_mm: float = 0.1
-    membrane_collision_fail: bool = False
-    residual_fail_N: float = 1e-3
-
-    def __post_init__(self):
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if f.type in ("float", float) and not (isinstance(v, (int, float))
-                                                    and math.isfinite(v) and v >= 0):
-                raise InputError(f"Thresholds.{f.name} = {v!r}: must be a finite number >= 0",
-                                 fix="pass a non-negative number")
-        if self.shape_rms_warn_pct > self.shape_rms_fail_pct:
-            raise InputError("Thresholds: shape_rms_warn_pct > shape_rms_fail_pct",
-                             fix="the WARN limit must not exceed the FAIL limit")
-        if self.normal_warn_deg > self.normal_fail_deg:
-            raise InputError("Thresholds: normal_warn_deg > normal_fail_deg",
-                             fix="the WARN limit must not exceed the FAIL limit")
-
-    @classmethod
-    def coerce(cls, value) -> Thresholds:
-        """``None`` -> defaults; a mapping -> defaults updated by it; a Thresholds as is."""
-        if value is None:
-            return cls()
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, dict):
-            names = {f.name for f in dataclasses.fields(cls)}
-            bad = sorted(set(value) - names)
-            if bad:
-                raise InputError(f"unknown threshold(s) {bad}",
-                                 fix=f"use some of {sorted(names)}")
-            return cls(**value)
-        raise InputError(f"thresholds must be a Thresholds or a dict, got {type(value).__name__}")
+Thresholds = ReportThresholds
+"""The verdict limits, :class:`pysolver.params.ReportThresholds` (kept under this name)."""
 
 
 # --------------------------------------------------------------------------------------------

@@ -49,7 +49,7 @@ TRIM_FRACTION = 0.8
 """Fraction of closest pairs kept by each trimmed-ICP iteration (allows 20 % missing/outliers)."""
 ICP_MAX_ITER = 60
 IRLS_MAX_ITER = 100
-IRLS_EPS_MM = 1e-4
+IRLS_EPS_MM = TOL.irls_eps_mm
 """Floor of the distances in the IRLS weights (1/max(d, eps)), mm."""
 
 
