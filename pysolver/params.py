@@ -404,6 +404,14 @@ class Limits:
         file (:mod:`pysolver.material.measurements`); outside, the column is in another unit.
     measured_duration_s : (float, float), s
         Shortest plausible wet and dry test (they last about 2 min and 7 s).
+    render_part_timeout_s : float, s
+        A fast-renderer worker stuck this long on one part is killed and the part reported
+        failed.
+    render_startup_timeout_s : float, s
+        Time a new fast-renderer worker may take to import the evaluator before it counts
+        as dead.
+    probe_timeout_s : float, s
+        Time the off-screen rendering probe of the report's pictures may take.
     """
 
     max_vertices: int = 5000
@@ -423,6 +431,9 @@ class Limits:
     measured_h_mm: tuple = (0.05, 5.0)
     measured_duration_s: tuple = (3.0, 1.0)
     max_time_file_bytes: int = 64 * 1024 * 1024
+    render_part_timeout_s: float = 300.0
+    render_startup_timeout_s: float = 120.0
+    probe_timeout_s: float = 120.0
 
 
 LIMITS = Limits()

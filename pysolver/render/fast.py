@@ -52,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..params import LIMITS
 from .scad_io import Part, part_text
 
 DIST = "openscad-evaluator"
@@ -60,10 +61,10 @@ DIST = "openscad-evaluator"
 SHIM_VERSION = "2"
 """Version of this module's compatibility shim (in the cache key of every fast part)."""
 
-PART_TIMEOUT_S = 300.0
+PART_TIMEOUT_S = LIMITS.render_part_timeout_s
 """Seconds after which a worker stuck on one part is killed and the part reported failed."""
 
-STARTUP_TIMEOUT_S = 120.0
+STARTUP_TIMEOUT_S = LIMITS.render_startup_timeout_s
 """Seconds a new worker may take to import the evaluator before it counts as dead."""
 
 AST_CACHE_DIRNAME = ".openscad-evaluator-ast"

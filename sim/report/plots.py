@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection, PatchCollection  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
 
-from pysolver.params import UNIT_CELL  # noqa: E402
+from pysolver.params import LIMITS, UNIT_CELL  # noqa: E402
 
 TOP_COLOR = "#e8a33d"
 BOTTOM_COLOR = "#3d7be8"
@@ -79,7 +79,7 @@ def _pyvista_status() -> tuple[bool, str]:
         env.setdefault(k, v)
     try:
         r = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
-                           text=True, timeout=120)
+                           text=True, timeout=LIMITS.probe_timeout_s)
     except (OSError, subprocess.TimeoutExpired) as e:
         return False, f"pyvista probe failed ({type(e).__name__})"
     if r.returncode != 0 or "ok" not in r.stdout:
