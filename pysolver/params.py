@@ -288,6 +288,10 @@ class Tolerances:
         semi-definite) Hessian of a Newton solve.
     newton_max_rot_rad : float, rad
         Largest rotation of a base per Newton iteration.
+    newton_max_step_mm : float, mm
+        Largest move of a base centre or membrane vertex per Newton iteration.
+    wolfe_c2 : float
+        Curvature constant of the strong Wolfe line search (Nocedal & Wright's ``c2``).
     qp_violation : float
         Constraint violation accepted by the cutting-plane quadratic programme of the
         constrained least squares (:func:`pysolver.material.polyfit.constrained_lstsq`).
@@ -350,6 +354,8 @@ class Tolerances:
     newton_shift_max: float = 1.0
     newton_psd_shifts: tuple = (1e-4, 1e-2, 1.0)
     newton_max_rot_rad: float = 0.3
+    newton_max_step_mm: float = 2.0
+    wolfe_c2: float = 0.9
     qp_violation: float = 1e-10
     settle_mm: float = 1e-4
     irls_eps_mm: float = 1e-4

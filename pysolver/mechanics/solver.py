@@ -406,8 +406,9 @@ def _candidates(last_shift: float):
 
 @_blas_scoped
 def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_max_iter_wet,
-           linear: LinearSolver | None = None, c1: float = TOL.armijo_c1, c2: float = 0.9,
-           max_halvings: int = TOL.line_search_halvings, max_step_mm: float = 2.0,
+           linear: LinearSolver | None = None, c1: float = TOL.armijo_c1,
+           c2: float = TOL.wolfe_c2, max_halvings: int = TOL.line_search_halvings,
+           max_step_mm: float = TOL.newton_max_step_mm,
            max_rot_rad: float = TOL.newton_max_rot_rad, callback=None) -> NewtonResult:
     """Minimise the energy of ``problem`` by Newton's method with line search.
 
