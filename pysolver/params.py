@@ -310,9 +310,13 @@ class Tolerances:
 
     merge: float = 1e-6
     stl_bbox: float = 0.05
+    self_check_volume_rtol: float = 1e-4
+    self_check_symdiff_rtol: float = 1e-3
     newton_grad: float = 1e-6
     newton_max_iter_dry: int = 200
     newton_max_iter_wet: int = 100
+    newton_max_rot_rad: float = 0.3
+    newton_max_step_mm: float = 2.0
     line_search_halvings: int = 30
     facet: float = 0.005
     scad_cut: float = 0.01
@@ -326,14 +330,18 @@ class Tolerances:
     same_setting: float = 1e-6
     contact_ccd_safety: float = 0.8
     contact_skin_mm: float = 1.0
+    settle_mm: float = 1e-4
     exact: float = 1e-12
     tiny: float = 1e-300
     energy_roundoff: float = 1e-13
     energy_floor: float = 1e-9
     armijo_c1: float = 1e-4
+    wolfe_c2: float = 0.9
     small_angle: float = 1e-8
     newton_shift_min: float = 1e-8
     newton_shift_floor: float = 1e-6
+    newton_shift_max: float = 1.0
+    newton_psd_shifts: tuple = (1e-4, 1e-2, 1.0)
     cetm_ridge: float = 1e-8
     cetm_grad: float = 1e-6
     cetm_stop: float = 1e-10
@@ -342,25 +350,17 @@ class Tolerances:
     membrane_collapse: float = 1e-3
     orientation_rel: float = 1e-3
     irls_rel: float = 1e-10
+    irls_eps_mm: float = 1e-4
     colour_floor_mm: float = 1e-3
     rate_floor: float = 1e-3
     rank_rtol: float = 1e-9
     active_set: float = 1e-9
     qp_relax: float = 1e-11
+    qp_violation: float = 1e-10
     monotone_rtol: float = 1e-3
     monotone_atol: float = 1e-4
     monotone_step: float = 1e-3
     length_match: float = 1e-3
-    newton_shift_max: float = 1.0
-    newton_psd_shifts: tuple = (1e-4, 1e-2, 1.0)
-    newton_max_rot_rad: float = 0.3
-    newton_max_step_mm: float = 2.0
-    wolfe_c2: float = 0.9
-    qp_violation: float = 1e-10
-    settle_mm: float = 1e-4
-    irls_eps_mm: float = 1e-4
-    self_check_volume_rtol: float = 1e-4
-    self_check_symdiff_rtol: float = 1e-3
 
 
 @dataclass(frozen=True)
@@ -598,9 +598,6 @@ class ModelLimits:
     membrane_factor_max_area: float = 1.0
     membrane_halvings: int = 40
     membrane_contraction_min: float = 0.5
-
-
-MODEL_LIMITS = ModelLimits()
 
 
 @dataclass(frozen=True)
@@ -1066,6 +1063,7 @@ half decades, samples weighted by ``1/sqrt(t)``); a test refits it from the CSV.
 
 
 UNIT_CELL = UnitCell()
+MODEL_LIMITS = ModelLimits()
 SUPPORT_FRAME = SupportFrame()
 SIM = SimConstants()
 PHYSICS_OFF = PhysicsOptions()
