@@ -420,3 +420,41 @@ def test_rim_fallback_never_trades_printability():
     assert best == inset and not info["fallback"]["taken"]
     best, info = choose(lim + 0.3, lim + 0.2)  # nothing prints: the inset search decides
     assert best == inset
+
+
+def test_time_graded_stencil_is_finer_where_the_landscape_is_late():
+    # a flat 80 x 40 mm plate (conformal scale 0): its left half asked for 30 s, its right
+    # half for 80 s; the spacing should follow (t / t_mean)^(-timing_grading)
+    x, y = np.meshgrid(np.linspace(0, 80, 41), np.linspace(0, 40, 21), indexing="ij")
+    V = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    q = (np.arange(40)[:, None] * 21 + np.arange(20)[None, :]).ravel()
+    F = np.r_[np.c_[q, q + 21, q + 1], np.c_[q + 1, q + 21, q + 22]]
+    t = np.where(V[:, 0] < 40, 30.0, 80.0)
+    S = replace(STENCIL, timing_grading=0.3)
+    dom = remesh.FlatDomain(V, F, S, time=t)
+    P, F2 = dom.stencil(120, seed=0)
+    E = igl.edges(F2)
+    mid = 0.5 * (P[E[:, 0]] + P[E[:, 1]])
+    L = np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)
+    early, late = L[mid[:, 0] < 30].mean(), L[mid[:, 0] > 50].mean()
+    want = (80 / 30) ** -0.3                         # 0.745
+    assert late / early == pytest.approx(want, rel=0.12)
+    # without a landscape the same plate is uniform
+    P0, F0 = remesh.FlatDomain(V, F, S).stencil(120, seed=0)
+    E0 = igl.edges(F0)
+    m0 = 0.5 * (P0[E0[:, 0]] + P0[E0[:, 1]])
+    L0 = np.linalg.norm(P0[E0[:, 0]] - P0[E0[:, 1]], axis=1)
+    assert L0[m0[:, 0] > 50].mean() / L0[m0[:, 0] < 30].mean() == pytest.approx(1.0, abs=0.08)
+
+
+def test_time_graded_search_falls_back_when_the_grading_is_unprintable():
+    s = surfaces.builtin("dome")
+    t = np.interp(s.V[:, 2], (s.V[:, 2].min(), s.V[:, 2].max()), (30.0, 80.0))
+    # a grading far too steep for 9.5 mm cells: redone without, and printable
+    _, _, info = remesh.remesh_surface(s.V, s.F, time=t, trade=True, seed=0,
+                                       settings=replace(STENCIL, timing_grading=3.0))
+    tg = info["timing_grading"]
+    assert tg["taken"] is False and tg["grading"] == 3.0
+    assert not (tg["max_cell_length_mm"] <= UNIT_CELL.max_cell_length
+                and tg["scale3d"] >= STENCIL.trade_min_scale3d)
+    assert info["max_cell_length_mm"] <= UNIT_CELL.max_cell_length

@@ -15,7 +15,9 @@ log-scale 0, :func:`pysolver.design.flatten.cetm`):
    cells than 1 (figures in :class:`StencilSearch`); 0 needs more bases (about 700 against
    640 at 1 for the 0.1 mm bumper) and clamped 21 % at the reference's vertex count, 0.5
    15.5 %.  Either way the triangles are isotropic on the target, because the map is
-   conformal.
+   conformal.  Given a landscape whose seconds are the user's, the spacing also follows
+   ``(t / t_mean)^(-timing_grading)`` (:func:`time_spacing_log`): smaller, slower cells
+   where the landscape asks for late times.
 3. **Relaxation**: Persson and Strang's spring relaxation (DistMesh): repulsive springs of
    rest length 1.2 x the RMS length, scaled by the desired spacing, Delaunay
    re-triangulation (Shewchuk's Triangle) every few steps.  It removes most of the valence
@@ -44,6 +46,8 @@ tuned per shape.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import igl
 import numpy as np
@@ -187,11 +191,15 @@ class FlatDomain:
     settings : StencilSearch
     """
 
-    def __init__(self, V, F, settings: StencilSearch = STENCIL):
+    def __init__(self, V, F, settings: StencilSearch = STENCIL, time=None):
         self.V = np.asarray(V, float)
         self.F = np.asarray(F, dtype=np.int64)
         self.settings = settings
         self.UV, self.u, _ = cetm(self.V, self.F)
+        # log of the relative 3D spacing the time landscape asks for (0 without one)
+        self.w = (np.zeros(len(self.V)) if time is None
+                  else time_spacing_log(time, settings.timing_grading))
+        self.face_w = self.w[self.F].mean(axis=1)
         self.UV3 = np.c_[self.UV, np.zeros(len(self.UV))]
         self.area3 = 0.5 * igl.doublearea(self.V, self.F)
         self.area2 = 0.5 * igl.doublearea(self.UV, self.F)
@@ -242,13 +250,22 @@ class FlatDomain:
         fi, B = self._barycentric(P)
         return np.einsum("ij,ij->i", B, self.u[self.F[fi]])
 
+    def log_spacing(self, P) -> np.ndarray:
+        """(k,) float: log of the desired flat spacing at flat points, up to a constant:
+        ``(1 - grading) u + w`` (``w``: :func:`time_spacing_log`, 0 without a landscape)."""
+        fi, B = self._barycentric(P)
+        out = (1 - self.settings.grading) * np.einsum("ij,ij->i", B, self.u[self.F[fi]])
+        if np.any(self.w):
+            out = out + np.einsum("ij,ij->i", B, self.w[self.F[fi]])
+        return out
+
     # -- stencil -----------------------------------------------------------------------
     def spacing(self, n: int, inside=None, rim_length=None) -> float:
         """3D edge length h (mm) at the rim (u = 0) of a mesh of ``n`` vertices graded as
         ``exp(u)^(-grading)`` (Euler's formula on the graded area) on this target, or on the
         part of it whose quadrature points are ``inside`` (mask) with rim length (mm)."""
         g = self.settings.grading
-        wq = np.tile(self.area3 * np.exp(2 * g * self.face_u), 4) / 4
+        wq = np.tile(self.area3 * np.exp(2 * g * self.face_u - 2 * self.face_w), 4) / 4
         area = float(wq.sum() if inside is None else wq[inside].sum())
         return edge_for_count(area, self.perimeter if rim_length is None else rim_length, n)
 
@@ -290,8 +307,9 @@ class FlatDomain:
         B = _polyline_by_length(C, X, nb)
         inside = PolygonPath(B).contains_points(self.quad)
         quad = self.quad[inside]
-        # CVT density exp(-4 (1 - grading) u) per flat area (module docstring)
-        w = (self.area2 * np.exp(-4 * (1 - st.grading) * self.face_u))[self.quad_face[inside]]
+        # CVT density exp(-4 (1 - grading) u - 4 w) per flat area (module docstring)
+        w = (self.area2 * np.exp(-4 * (1 - st.grading) * self.face_u
+                                 - 4 * self.face_w))[self.quad_face[inside]]
         ni = max(n - nb, 1)
         if len(quad) < ni:
             raise InputError(f"the target is too small for {n} stencil vertices",
@@ -312,7 +330,8 @@ class FlatDomain:
     def relax(self, P, n_boundary: int) -> np.ndarray:
         """Spring relaxation of the interior points (Persson and Strang, 2004): repulsive
         springs along the Delaunay edges with rest length ``fscale`` x the RMS length, scaled
-        by the desired spacing ``exp(u)^(1 - grading)``; boundary points fixed.
+        by the desired spacing ``exp(u)^(1 - grading)`` (times the time landscape's, if
+        any: :meth:`log_spacing`); boundary points fixed.
 
         Written here because DistMesh itself is a MATLAB script and no maintained Python
         package relaxes points in a given domain with a given size function.
@@ -327,7 +346,7 @@ class FlatDomain:
                 E = igl.edges(triangulate_flat(P, nb))
             d = P[E[:, 0]] - P[E[:, 1]]
             length = np.linalg.norm(d, axis=1)
-            want = np.exp((1 - st.grading) * self.log_scale(0.5 * (P[E[:, 0]] + P[E[:, 1]])))
+            want = np.exp(self.log_spacing(0.5 * (P[E[:, 0]] + P[E[:, 1]])))
             rest = want * st.relax_fscale * np.sqrt(np.sum(length**2) / np.sum(want**2))
             f = np.maximum(rest - length, 0.0) / length
             force = np.zeros_like(P)
@@ -353,6 +372,28 @@ class FlatDomain:
         F = triangulate_flat(P, nb)
         P, F = remove_ears(P, F)
         return P, F
+
+
+def time_spacing_log(time, grading: float) -> np.ndarray:
+    """Log of the relative 3D stencil spacing a time landscape asks for, per vertex.
+
+    Larger cells are faster (the fitted laws of ``StencilSearch.timing_fastest`` /
+    ``timing_slowest`` give ``t ~ size^-2.1`` and ``size^-0.9`` under a uniform scaling), so
+    cells asked to finish late are made smaller and those asked to finish early larger:
+    spacing ``~ (t / t_mean)^(-grading)``, ``t_mean`` the geometric mean.
+
+    Parameters
+    ----------
+    time : (n,) float, s
+    grading : float
+
+    Returns
+    -------
+    w : (n,) float
+        ``-grading (log t - mean log t)``.
+    """
+    log_t = np.log(np.maximum(np.asarray(time, float), STENCIL.opt_tiny))
+    return -float(grading) * (log_t - log_t.mean())
 
 
 def edge_for_count(area: float, perimeter: float, n: int) -> float:
@@ -604,10 +645,15 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         [[N, seed, inset, scale3d, longest flat cell], ...], ``polish`` (the last pass at
         scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``) and ``rim`` (the rim inset
         chosen and why: ``inset_mm``, ``area_covered`` of the returned stencil, ``fallback``
-        and ``why``, see :func:`_rim_fallback`).
+        and ``why``, see :func:`_rim_fallback`), ``timing_grading`` (``grading``, ``taken``:
+        whether the spacing followed the landscape, ``StencilSearch.timing_grading``) and,
+        with ``trade``, ``trade`` (:func:`_trade`).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
+    call = dict(V=V, F=F, vertices=vertices, seed=seed, target_bases=target_bases,
+                params=params, method=method, dense=dense, optimize=optimize, time=time,
+                trade=trade, progress=progress)
     A = surface_area(V, F)
     info = {"remeshed": True, "method": method, "area_mm2": round(A, 2),
             "estimate_paper": estimate_vertices(A)}
@@ -629,8 +675,9 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             time = interpolate_to_stencil(time, V, F, V2)
         V, F = V2, F2
         info["dense_resampled_faces"] = int(len(F))
+    graded = method == "cvt" and trade and time is not None and settings.timing_grading > 0
     if method == "cvt":
-        dom = FlatDomain(V, F, settings)
+        dom = FlatDomain(V, F, settings, time=time if graded else None)
 
         def make(n, sd, inset):
             P, F2 = dom.stencil(n, seed=sd, inset=inset)
@@ -764,6 +811,20 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     if trade and time is not None and vertices is None and _laid_out(chosen):
         best, V2, F2, chosen = _trade(best, V2, F2, chosen, trial, tried, meshes, params,
                                       settings, info, progress, seeds=seed_list)
+    if graded and not (chosen["max_cell_length_mm"] <= limit
+                       and chosen["scale3d"] >= settings.trade_min_scale3d):
+        # the graded spacing asked for cells the limit does not allow: the search again,
+        # spaced by the target alone
+        if progress is not None:
+            progress(f"time-graded stencil: longest flat cell {chosen['max_cell_length_mm']:.2f}"
+                     f" mm, scale3d {chosen['scale3d']:.3f}: searching again without")
+        V2, F2, again = remesh_surface(**call, settings=replace(settings, timing_grading=0.0))
+        again["timing_grading"] = {"grading": settings.timing_grading, "taken": False,
+                                   "max_cell_length_mm": chosen["max_cell_length_mm"],
+                                   "scale3d": chosen["scale3d"]}
+        return V2, F2, again
+    info["timing_grading"] = {"grading": settings.timing_grading if graded else 0.0,
+                              "taken": bool(graded)}
     if rim is None:
         rim = {"inset_mm": float(best[2]), "area_covered": _covered(V2, F2, A),
                "fallback": None, "why": ("the stencil reaches the target's rim" if best[2] <= 0
@@ -780,6 +841,6 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     return V2, F2, info
 
 
-__all__ = ["surface_area", "estimate_vertices", "remove_ears", "isotropic_remesh",
-           "resample_dense", "triangulate_flat", "FlatDomain", "edge_for_count",
+__all__ = ["surface_area", "time_spacing_log", "estimate_vertices", "remove_ears",
+           "isotropic_remesh", "resample_dense", "triangulate_flat", "FlatDomain", "edge_for_count",
            "stencil_figures", "remesh_surface"]
