@@ -757,8 +757,9 @@ class StencilSearch:
         time_spacing_log`): smaller, slower cells where the landscape asks for late times.
         Measured on cover with the reference's landscape (``--size 106 --min-bumper 0.1``):
         0 clamps 16.1 % of the cells (12.5 % with a 6.5 % smaller shell, the trade); 0.25
-        8.4 % (522 bases, scaling 0.951, longest flat cell 9.11 mm); 0.3 ends at a 3D scaling of 0.875 (the longest flat cell binds), 0.35 and
-        0.5 leave no printable stencil (the spacing jumps at the petals' borders).  A graded
+        8.4 % (522 bases, scaling 0.951, longest flat cell 9.11 mm); 0.3 ends at a 3D
+        scaling of 0.875 (the longest flat cell binds); 0.35 and 0.5 leave no printable
+        stencil (the spacing jumps at the petals' borders).  A graded
         search that is not printable or scales below ``trade_min_scale3d`` is redone
         without the grading (``remesh.timing_grading``).
     """
