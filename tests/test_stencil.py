@@ -451,7 +451,7 @@ def test_time_graded_search_falls_back_when_the_grading_is_unprintable():
     s = surfaces.builtin("dome")
     t = np.interp(s.V[:, 2], (s.V[:, 2].min(), s.V[:, 2].max()), (30.0, 80.0))
     # a grading far too steep for 9.5 mm cells: redone without, and printable
-    _, _, info = remesh.remesh_surface(s.V, s.F, time=t, trade=True, seed=0,
+    _, _, info = remesh.remesh_surface(s.V, s.F, time=t, user_times=True, seed=0,
                                        settings=replace(STENCIL, timing_grading=3.0))
     tg = info["timing_grading"]
     assert tg["taken"] is False and tg["grading"] == 3.0

@@ -363,7 +363,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
             V0, F0, remesh_info = remesh_surface(
                 surf.V, surf.F, vertices=vertices, seed=seed, target_bases=surf.target_bases,
                 params=params, time=_target_times(time, surf, mesh),
-                trade=time_opt is not None or time_file is not None,
+                user_times=time_opt is not None or time_file is not None,
                 progress=(lambda line: print(f"[design {surf.name}] remesh {line}",
                                              file=sys.stderr, flush=True)) if progress else None)
         clock.step("remesh")

@@ -601,7 +601,7 @@ def _trade(best, V2, F2, chosen, trial, tried, meshes, params, settings, info, p
 def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                    params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL,
                    method: str = "cvt", dense: bool | None = None, optimize: bool = True,
-                   time=None, trade: bool = False, progress=None):
+                   time=None, user_times: bool = False, progress=None):
     """Remesh a target surface into a stencil, searching the vertex count.
 
     Parameters
@@ -625,12 +625,13 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     time : (n,) float, s, optional
         The time landscape at the vertices of V; the optimisation then also evens the
         cells' speeds against it (``StencilSearch.opt_timing_weight``).
-    trade : bool
+    user_times : bool
         The landscape's seconds are the user's (not mapped later onto what the cells can
-        reach): with the vertex count searched, fewer vertices are also tried
-        (``StencilSearch.trade_counts``) and taken when they clamp markedly fewer cells
-        by the estimate, at a 3D scaling of at least ``trade_min_scale3d``; recorded in
-        ``info["trade"]``.
+        reach): the CVT spacing follows it (``StencilSearch.timing_grading``, redone
+        without when that is not printable), and with the vertex count searched, fewer
+        vertices are also tried (``StencilSearch.trade_counts``) and taken when they clamp
+        markedly fewer cells by the estimate, at a 3D scaling of at least
+        ``trade_min_scale3d``; recorded in ``info["timing_grading"]`` and ``info["trade"]``.
     progress : callable, optional
         Called with one line per tried candidate.
 
@@ -647,13 +648,13 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         chosen and why: ``inset_mm``, ``area_covered`` of the returned stencil, ``fallback``
         and ``why``, see :func:`_rim_fallback`), ``timing_grading`` (``grading``, ``taken``:
         whether the spacing followed the landscape, ``StencilSearch.timing_grading``) and,
-        with ``trade``, ``trade`` (:func:`_trade`).
+        with ``user_times``, ``trade`` (:func:`_trade`).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
     call = dict(V=V, F=F, vertices=vertices, seed=seed, target_bases=target_bases,
                 params=params, method=method, dense=dense, optimize=optimize, time=time,
-                trade=trade, progress=progress)
+                user_times=user_times, progress=progress)
     A = surface_area(V, F)
     info = {"remeshed": True, "method": method, "area_mm2": round(A, 2),
             "estimate_paper": estimate_vertices(A)}
@@ -661,7 +662,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         raise InputError(f"remesh method {method!r}", fix="use 'cvt' or 'pymeshlab'")
     if dense is None:
         minang = np.degrees(igl.internal_angles(V, F).min())
-        dense = minang < STENCIL.dense_min_angle_deg or len(F) < STENCIL.dense_min_faces
+        dense = minang < settings.dense_min_angle_deg or len(F) < settings.dense_min_faces
     if time is not None:
         time = np.asarray(time, float)
         if time.shape != (len(V),):
@@ -675,7 +676,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             time = interpolate_to_stencil(time, V, F, V2)
         V, F = V2, F2
         info["dense_resampled_faces"] = int(len(F))
-    graded = method == "cvt" and trade and time is not None and settings.timing_grading > 0
+    graded = method == "cvt" and user_times and time is not None and settings.timing_grading > 0
     if method == "cvt":
         dom = FlatDomain(V, F, settings, time=time if graded else None)
 
@@ -753,7 +754,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             pts.append((np.log(n), np.log(s3)))
             # scale3d ~ N^k: k = 1/2 for a uniform mesh, else the slope of the last two
             k = 0.5
-            if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > STENCIL.count_secant_min:
+            if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > settings.count_secant_min:
                 k = float(np.clip((pts[-1][1] - pts[-2][1]) / (pts[-1][0] - pts[-2][0]),
                                   0.25, 1.0))
             n = trial(round(n * s3 ** (-1.0 / k)), sd0, inset)
@@ -808,7 +809,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                      + (f"scale3d {fig['scale3d']:.3f}, longest flat cell "
                         f"{fig['max_cell_length_mm']:.2f} mm" if _laid_out(fig)
                         else "no layout") + (" (kept)" if chosen is fig else " (dropped)"))
-    if trade and time is not None and vertices is None and _laid_out(chosen):
+    if user_times and time is not None and vertices is None and _laid_out(chosen):
         best, V2, F2, chosen = _trade(best, V2, F2, chosen, trial, tried, meshes, params,
                                       settings, info, progress, seeds=seed_list)
     if graded and not (chosen["max_cell_length_mm"] <= limit

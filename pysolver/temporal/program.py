@@ -464,9 +464,8 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
         # correction meshes the very membrane the simulator will step
         geometry = None
         if (folder / tables.MODEL_FILE).is_file():
-            d = tables.read_design(folder)
             geometry = tables.read_model(folder, n_vertices=len(V), n_faces=len(F),
-                                         n_cells=len(b0), params=d.params)
+                                         n_cells=len(b0), params=tables.read_unit_cell(folder))
         r = cell_membrane_factors(UV, F, cells, b0, d1, membrane, rim=rim, geometry=geometry)
     except (InputError, RuntimeError, ValueError) as e:
         # the FEM on this stencil failed (degenerate boundary geometry): the paper's rule
