@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.model.collisions import open_layers
 from sim.model.physics import parse_physics
 from sim.model.simulate import SimSettings, simulate_design, simulate_model, simulated_completion
 from sim.report import (
@@ -63,7 +64,7 @@ from .design.surfaces import BUILTIN_SHAPES, check_spec
 from .design.time_landscape import read_time_file
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
 from .material.model import DEFAULT_MODEL_PATH, check_bracket_geometry, load_bracket_model
-from .params import DEFAULT_REFINE, LIMITS, SIM, UNIT_CELL
+from .params import DEFAULT_REFINE, LIMITS, MODEL_LIMITS, SIM, UNIT_CELL
 from .render import (
     DEFAULT_RENDERER,
     check_renderer,
@@ -411,6 +412,64 @@ def _log_refine(msg: str, progress: bool) -> None:
         print(f"[temporal] {msg}", file=sys.stderr, flush=True)
 
 
+def _thin_open_layers(cap, h_prev, t_sim, t_star, t_end, frames_path, tol_mm):
+    """Caps on the thickness of the layers that stayed open in a cell that never completed
+    although due.
+
+    The time correction cannot close such a cell when it already asks for the cell's
+    fastest time (a clamped cell, or a strongly folded one whose one layer must contract
+    several times more than the other): the force balance behind the thicknesses
+    (:func:`~pysolver.temporal.program.program_cells`) then over-estimates the membrane
+    pull the simulation finds.  Each layer the last frame shows open
+    (:func:`sim.model.collisions.open_layers`) is capped ``MODEL_LIMITS.refine_open_layer_mm``
+    below its thickness in the round that left it open (not below
+    ``UNIT_CELL.thickness_min``).  A capped layer never thickens again in later rounds
+    (the caller lowers the cap to the thickness used), so that a cell the cap closed is
+    not opened again by the next time correction.
+
+    Parameters
+    ----------
+    cap : (n, 2) float, mm -- caps so far (``inf`` = none), (top, bottom)
+    h_prev : (n, 2) float, mm -- thicknesses of the simulated round
+    t_sim, t_star : (n,) float, s -- simulated completion (NaN = never) and targets
+    t_end : float, s -- last simulated time
+    frames_path : path -- that round's ``frames.npz``
+    tol_mm : float, mm -- completion tolerance
+
+    Returns
+    -------
+    cap : (n, 2) float, mm
+    n_thinned : int -- layers newly capped below their previous thickness
+    """
+    h_prev = np.asarray(h_prev, float)
+    stuck = ~np.isfinite(t_sim) & (np.asarray(t_star, float) <= t_end)
+    thin = open_layers(frames_path, tol_mm) & stuck[:, None]
+    h_min = UNIT_CELL.thickness_min
+    lower = np.maximum(h_min, h_prev - MODEL_LIMITS.refine_open_layer_mm)
+    cap = np.where(thin, np.minimum(cap, lower), cap)
+    return cap, int((thin & (h_prev > h_min)).sum())
+
+
+def _best_iteration(hist) -> int:
+    """The refinement round to keep: fewest cells that never complete although due (the
+    simulation check's count; clamped cells included), then the lowest
+    ``rms_incl_never_s``."""
+    def key(h):
+        rms = h["rms_incl_never_s"]
+        return (h["n_never_due"], rms if np.isfinite(rms) else np.inf)
+    return min(range(len(hist)), key=lambda k: key(hist[k]))
+
+
+def _refine_again(hist, k: int, rounds: int) -> bool:
+    """Whether the refinement runs round ``k + 1``: the ``rounds`` asked for, then up to
+    ``MODEL_LIMITS.refine_extra_rounds`` more while the best round so far leaves cells that
+    never complete."""
+    if k < rounds:
+        return True
+    extra = 0 < rounds and k < rounds + MODEL_LIMITS.refine_extra_rounds
+    return extra and hist[_best_iteration(hist)]["n_never_due"] > 0
+
+
 def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
                   progress: bool = True, t_end=None, damping: float = REFINE_DAMPING,
                   tol_mm: float = COMPLETION_TOL_MM, simulate=None) -> dict:
@@ -420,16 +479,19 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     iteration moves the requested time of every cell by ``damping * (t* - t_sim)``
     (cells that never complete count as ``t_end``), clamps it to the cell's
     achievable range, re-solves the thicknesses (``t_star_s`` stays the user's
-    target), and re-simulates.  After ``iterations`` rounds the iteration with the
-    lowest RMS timing error (clamped cells excluded, cells that never complete counted
-    as finishing at the last frame) is kept: its thicknesses in ``cells.csv`` and its
-    frames in ``sim/frames.npz``.
+    target), and re-simulates.  A cell that never completes also has the layers it left
+    open thinned (:func:`_thin_open_layers`).  When the ``iterations`` rounds leave cells
+    that never complete, up to ``MODEL_LIMITS.refine_extra_rounds`` more rounds run while
+    they do.  The round with the fewest cells that never complete, then the lowest RMS
+    timing error (clamped cells excluded, cells that never complete counted as finishing
+    at the last frame) is kept: its thicknesses in ``cells.csv`` and its frames in
+    ``sim/frames.npz``.
 
     Parameters
     ----------
     design_dir : path-like
     iterations : int
-        Number of correct + re-simulate rounds K.
+        Number of correct + re-simulate rounds K (0 = none, and no extra rounds).
     material, membrane : optional
         As :func:`program_design`; ``material`` is also passed to the simulator.
     t_end : float, s, optional
@@ -446,7 +508,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     -------
     dict
         ``history`` (per iteration: RMS/max error, Spearman, thickness range), ``best``
-        (iteration index, 0 = before refinement; chosen by ``rms_incl_never_s``),
+        (iteration index, 0 = before refinement; the fewest cells that never complete
+        although due, then the lowest ``rms_incl_never_s``),
         ``before``/``after`` metrics.
     """
     design_dir = Path(design_dir)
@@ -487,35 +550,42 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     hist = [dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=0,
                  thickness_mm=[float(th0.min()), float(th0.max())])]
     thick = [th0]
+    cap = np.full(th0.shape, np.inf)
     _log_refine(f"{design_dir.name}: before refinement rms {hist[0]['rms_s']:.2f} s, spearman "
-         f"{hist[0]['spearman']:.3f}, {hist[0]['n_never']} never complete", progress)
+         f"{hist[0]['spearman']:.3f}, {hist[0]['n_never_due']} never complete", progress)
     lo_ok = np.where(np.isfinite(t_lo), t_lo, 0.0)
     hi_ok = np.where(np.isfinite(t_hi), t_hi, time_limit(mat))
     t_req = np.clip(t_star, lo_ok, np.maximum(lo_ok, hi_ok))
-    for k in range(1, int(iterations) + 1):
+    rounds, k = int(iterations), 0
+    while _refine_again(hist, k, rounds):
+        k += 1
         t0 = time.perf_counter()
         ts = np.where(np.isfinite(t_sim), t_sim, t_last)
         t_req = np.clip(t_req + damping * (t_star - ts), lo_ok, np.maximum(lo_ok, hi_ok))
         res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
                             cells["collision_length_bottom_mm"], cells["boundary"], t_star,
                             material=mat, membrane=mem, t_request=t_req, factor=factor)
+        cap, n_thinned = _thin_open_layers(cap, thick[-1], t_sim, t_star, t_last, frames_path,
+                                           tol_mm)
+        th = np.minimum(res["thickness"], cap)
+        cap = np.where(np.isfinite(cap), th, cap)  # a capped layer never thickens again
         out = dict(cells)
-        out["thickness_top_mm"] = res["thickness"][:, 0]
-        out["thickness_bottom_mm"] = res["thickness"][:, 1]
+        out["thickness_top_mm"] = th[:, 0]
+        out["thickness_bottom_mm"] = th[:, 1]
         tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
         simulate(design_dir, **sim_kw)
         t_sim, t_frames = simulated_completion(design_dir, tol_mm)
         shutil.copy2(frames_path, keep_dir / f"frames_{k}.npz")
-        th = res["thickness"]
         thick.append(th)
         hist.append(dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=k,
                          thickness_mm=[float(th.min()), float(th.max())],
+                         n_layers_thinned=n_thinned,
                          seconds=round(time.perf_counter() - t0, 1)))
-        _log_refine(f"{design_dir.name}: refine {k}/{iterations}: rms {hist[-1]['rms_s']:.2f} s, "
-             f"spearman {hist[-1]['spearman']:.3f}, {hist[-1]['n_never']} never complete "
+        _log_refine(f"{design_dir.name}: refine {k}/{max(k, rounds)}: rms "
+                    f"{hist[-1]['rms_s']:.2f} s, "
+             f"spearman {hist[-1]['spearman']:.3f}, {hist[-1]['n_never_due']} never complete "
              f"({hist[-1]['seconds']:.0f} s)", progress)
-    rms = np.array([h["rms_incl_never_s"] for h in hist])
-    best = int(np.nanargmin(np.where(np.isfinite(rms), rms, np.inf))) if len(rms) else 0
+    best = _best_iteration(hist)
     if best != len(hist) - 1:
         out = dict(cells)
         out["thickness_top_mm"] = thick[best][:, 0]
@@ -525,11 +595,14 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     for f in keep_dir.glob("frames_*.npz"):
         f.unlink()
     keep_dir.rmdir()
-    result = {"iterations": int(iterations), "damping": damping, "history": hist,
+    result = {"iterations": int(iterations), "rounds": k, "damping": damping, "history": hist,
               "best": best, "before": hist[0], "after": hist[best],
               "note": "rms_s: cells whose t* is achievable (clamped excluded) and that "
                       "complete; rms_incl_never_s also counts cells that never complete as "
-                      "finishing at the last simulated time (used to pick the best)."}
+                      "finishing at the last simulated time; n_never_due: cells due by the "
+                      "last simulated time that never complete, clamped ones included. The "
+                      "best round has the fewest n_never_due, then the lowest "
+                      "rms_incl_never_s."}
     atomic_write_text(design_dir / "sim" / REFINE_LOG, json.dumps(result, indent=1) + "\n")
     return result
 

@@ -488,6 +488,8 @@ class ReportThresholds:
     residual_fail_N : float, N
         A non-converged step whose final residual is above this is FAIL; below
         it, WARN.
+    listed_cells : int
+        Longest list of cell (or frame) ids a report or refinement record names.
     """
 
     shape_rms_warn_pct: float = 2.0
@@ -505,6 +507,7 @@ class ReportThresholds:
     collision_depth_mm: float = 0.1
     membrane_collision_fail: bool = False
     residual_fail_N: float = 1e-3
+    listed_cells: int = 50
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -562,6 +565,12 @@ class ModelLimits:
         Bisection steps of the thickness and completion-time solves of temporal programming.
     refine_damping : float
         Damping of the timing corrections of the refinement from the simulation.
+    refine_open_layer_mm : float, mm
+        A layer still open at the end of a simulation, in a cell that never completes,
+        is made this much thinner by the next refinement round (``build._thin_open_layers``).
+    refine_extra_rounds : int
+        Rounds the refinement adds after the ones asked for while its best round still
+        has cells that never complete (each one more simulation).
     relaxation_min_samples : int
         Fewest samples of the hold step of a stress-relaxation test.
     relaxation_weight_floor_s : float, s
@@ -590,6 +599,8 @@ class ModelLimits:
     max_clamped_fraction: float = 0.5
     bisection_steps: int = 50
     refine_damping: float = 0.8
+    refine_open_layer_mm: float = 0.1
+    refine_extra_rounds: int = 2
     relaxation_min_samples: int = 10
     relaxation_weight_floor_s: float = 4.0
     tolerance_thickness_floor_mm: float = 0.05
@@ -735,6 +746,15 @@ class StencilSearch:
         so the inset stays.  Above the threshold: petal 77 %, saddle 81 %, dome 82 %, the
         stand (``--size 171``) 85 %, the cover (``--size 106 --min-bumper 0.1``) 88 %; the
         reference's stencils cover 80-88 %.
+    remove_flaps : bool
+        Merge the two triangles of a rim vertex that has only two (a flap:
+        :func:`pysolver.design.remesh.remove_flaps`).  Its two rim bases, joined by one
+        cell and hanging from the rest by one cell each, turn in plane in water and lock
+        with their cells closed at one end.  Measured on the spiral: with flaps, 3 such
+        cells never finish, whatever the refinement does; without them, none.
+    flap_min_angle_deg : float, deg
+        A flap is kept where the merged triangle would have a smaller angle (its inner
+        vertex near the chord: a base would reach across the triangle's edge).
     trade_counts : tuple of float
         With a time landscape the user gave (``--time``, ``--time-file``), relative vertex
         counts below the chosen one also tried: larger cells are faster, and a landscape
@@ -803,6 +823,8 @@ class StencilSearch:
     margin: float = 0.3
     opt_pin_weight: float = 100.0
     min_area_covered: float = 0.75
+    remove_flaps: bool = True
+    flap_min_angle_deg: float = 30.0
     trade_counts: tuple = (0.93, 0.86)
     trade_min_scale3d: float = 0.92
     trade_gain: float = 0.03

@@ -43,18 +43,26 @@ def test_opposite_vertices_give_the_centroid_distance(dome_domain):
 
 def test_relaxed_stencil_is_regular_on_the_target(dome_domain):
     # grading 0: the spacing is uniform on the target, so 3D edges should be nearly equal
+    # (the relaxation alone: flaps are merged after it, into triangles of >= 30 deg)
+    keep_flaps = replace(dome_domain.settings, remove_flaps=False)
+    dom = remesh.FlatDomain(dome_domain.V, dome_domain.F, keep_flaps)
     dom0 = remesh.FlatDomain(dome_domain.V, dome_domain.F,
-                             replace(dome_domain.settings, relax_iterations=0))
-    relaxed, plain = [], []
+                             replace(keep_flaps, relax_iterations=0))
+    relaxed, plain, merged = [], [], []
     for seed in range(3):
-        P, F = dome_domain.stencil(70, seed=seed)
-        relaxed.append(remesh.stencil_figures(dome_domain.lift(P), F))
+        P, F = dom.stencil(70, seed=seed)
+        relaxed.append(remesh.stencil_figures(dom.lift(P), F))
         P0, F0 = dom0.stencil(70, seed=seed)
         plain.append(remesh.stencil_figures(dom0.lift(P0), F0)["edge_spread"])
+        P1, F1 = dome_domain.stencil(70, seed=seed)
+        merged.append(remesh.stencil_figures(dome_domain.lift(P1), F1))
     spread = [r["edge_spread"] for r in relaxed]
     assert max(spread) <= 1.40, spread  # 95th / 5th percentile of 3D edge length
     assert min(r["min_angle_deg"] for r in relaxed) >= 35.0
     assert np.mean(spread) < np.mean(plain)  # the relaxation removes Lloyd's defects
+    # merging the flaps keeps the stencil regular (the flat angle bound, a little less in 3D)
+    assert max(r["edge_spread"] for r in merged) <= 1.40
+    assert min(r["min_angle_deg"] for r in merged) >= STENCIL.flap_min_angle_deg - 2.0
 
 
 def test_layout_logs_are_the_scaling_rules(dome_domain):
@@ -430,7 +438,7 @@ def test_time_graded_stencil_is_finer_where_the_landscape_is_late():
     q = (np.arange(40)[:, None] * 21 + np.arange(20)[None, :]).ravel()
     F = np.r_[np.c_[q, q + 21, q + 1], np.c_[q + 1, q + 21, q + 22]]
     t = np.where(V[:, 0] < 40, 30.0, 80.0)
-    S = replace(STENCIL, timing_grading=0.3)
+    S = replace(STENCIL, timing_grading=0.3, remove_flaps=False)  # long merged rim chords
     dom = remesh.FlatDomain(V, F, S, time=t)
     P, F2 = dom.stencil(120, seed=0)
     E = igl.edges(F2)
@@ -458,3 +466,64 @@ def test_time_graded_search_falls_back_when_the_grading_is_unprintable():
     assert not (tg["max_cell_length_mm"] <= UNIT_CELL.max_cell_length
                 and tg["scale3d"] >= STENCIL.trade_min_scale3d)
     assert info["max_cell_length_mm"] <= UNIT_CELL.max_cell_length
+
+
+def _rim_triangle_count(F):
+    count = np.bincount(np.asarray(F).ravel())
+    return count[igl.boundary_loop(np.asarray(F))]
+
+
+def _signed_areas(P, F):
+    a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
+    return 0.5 * ((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
+
+
+def _flap_left_for_a_reason(P, F, v, min_angle):
+    f0, f1 = np.flatnonzero((F == v).any(axis=1))
+    u = np.setdiff1d(F[f1], F[f0])[0]
+    T = np.where(F[f0] == v, u, F[f0])
+    folded = _signed_areas(P, T[None])[0] * _signed_areas(P, F).sum() <= 0
+    return folded or remesh._min_angle_deg(P[T]) < min_angle
+
+
+def test_flaps_are_merged_keeping_orientation_and_area():
+    from scipy.spatial import Delaunay
+
+    # a disk: 24 rim points and jittered inner points, Delaunay-triangulated
+    rng = np.random.default_rng(3)
+    a = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    rim = np.c_[np.cos(a), np.sin(a)] * 10.0
+    inner = rng.uniform(-8.0, 8.0, (80, 2))
+    inner = inner[np.linalg.norm(inner, axis=1) < 8.5]
+    P = np.vstack([rim, inner])
+    F = Delaunay(P).simplices
+    F = np.where((_signed_areas(P, F) < 0)[:, None], F[:, ::-1], F)
+    P, F = remesh.remove_ears(P, F)
+    n_flaps = int((_rim_triangle_count(F) == 2).sum())
+    assert n_flaps >= 2                                   # the input has flaps to merge
+    P2, F2 = remesh.remove_flaps(P, F, min_angle_deg=20.0)
+    removed = len(P) - len(P2)
+    assert removed >= 1 and len(F) - len(F2) == removed   # one vertex, one face per flap
+    assert (_signed_areas(P2, F2) > 0).all()              # orientation kept, nothing folds
+    assert len(igl.boundary_loop(F2)) == len(igl.boundary_loop(F)) - removed
+    # the rim is cut straight past each merged flap: only area is lost, no vertex moves
+    assert _signed_areas(P2, F2).sum() < _signed_areas(P, F).sum()
+    assert all(np.any(np.all(P == q, axis=1)) for q in P2)
+    # every flap left would fold or give a triangle thinner than the threshold
+    count = np.bincount(F2.ravel(), minlength=len(P2))
+    for v in igl.boundary_loop(F2):
+        if count[v] == 2:
+            assert _flap_left_for_a_reason(P2, F2, v, 20.0)
+    # with no angle threshold all non-folding flaps go
+    P3, F3 = remesh.remove_flaps(P, F, min_angle_deg=0.0)
+    assert len(P3) <= len(P2)
+
+
+def test_stencils_have_no_flaps_where_they_can_merge():
+    s = surfaces.builtin("dome")
+    dom = remesh.FlatDomain(s.V, s.F)
+    P, F = dom.stencil(remesh.estimate_vertices(remesh.surface_area(s.V, s.F)), seed=0)
+    count = np.bincount(F.ravel(), minlength=len(P))
+    for v in igl.boundary_loop(F):
+        if count[v] == 2:
+            assert _flap_left_for_a_reason(P, F, v, STENCIL.flap_min_angle_deg)

@@ -17,10 +17,10 @@ from pysolver.errors import InputError
 # shapes come from the automatic vertex-count search (nothing tuned per shape)
 GOLDEN = {
     "regular": (60, 7.0),
-    "dome": (123, 8.40),
-    "saddle": (129, 8.25),
-    "petal": (200, 8.39),
-    "spiral": (207, 8.68),
+    "dome": (120, 8.12),
+    "saddle": (127, 7.73),
+    "petal": (192, 8.77),
+    "spiral": (207, 8.84),
     "weave": (255, 5.85),
 }
 

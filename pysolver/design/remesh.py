@@ -22,7 +22,11 @@ log-scale 0, :func:`pysolver.design.flatten.cetm`):
    rest length 1.2 x the RMS length, scaled by the desired spacing, Delaunay
    re-triangulation (Shewchuk's Triangle) every few steps.  It removes most of the valence
    defects a Lloyd iteration from random seeds leaves behind.
-4. **Ears**: triangles with two boundary edges are removed.
+4. **Ears and flaps**: triangles with two boundary edges are removed; a rim vertex in only
+   two triangles (a *flap*: two rim bases joined by one cell, a four-bar chain along the rim
+   that turns in plane in water and locks with its cells closed at one end) is dropped and
+   its two triangles merged, where the merged triangle neither folds nor has an angle under
+   ``StencilSearch.flap_min_angle_deg`` (:func:`remove_flaps`).
 5. **Optimisation** (:mod:`pysolver.design.stencil_opt`): the interior vertices move in the plane
    to minimise the longest flat cell after both scaling rules and, given the time landscape,
    to suit each cell's speed to its requested time.
@@ -97,6 +101,68 @@ def remove_ears(V, F):
     remap = -np.ones(len(V), dtype=np.int64)
     remap[used] = np.arange(len(used))
     return np.asarray(V)[used], remap[F]
+
+
+def _min_angle_deg(T):
+    """Smallest angle of one triangle ``T`` (3, d), degrees."""
+    e = [T[(i + 1) % 3] - T[i] for i in range(3)]
+    ang = []
+    for i in range(3):
+        p, q = e[i], -e[(i + 2) % 3]
+        c = np.dot(p, q) / max(np.linalg.norm(p) * np.linalg.norm(q), 1e-300)
+        ang.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    return min(ang)
+
+
+def remove_flaps(P, F, min_angle_deg: float = STENCIL.flap_min_angle_deg):
+    """Merge the two triangles of every rim vertex that has only two (a *flap*), in the plane.
+
+    Such a vertex ``v`` with rim neighbours ``a``, ``b`` and inner neighbour ``w`` gives two
+    rim bases joined by a rim-to-rim unit cell, hanging from the rest of the shell by one cell
+    each: a four-bar chain along the rim.  In water the chain turns in plane (the bases rotate
+    in opposite senses), its cells close at one end only and lock.  The two triangles
+    ``(v, a, w)``, ``(v, w, b)`` become ``(a, w, b)`` (the rim runs straight from ``a`` to
+    ``b``), when that triangle keeps the orientation; ``v`` is dropped.
+
+    Parameters
+    ----------
+    P : (k, 2) float, mm -- flat points
+    F : (f, 3) int
+
+    Returns
+    -------
+    P : (k', 2) float, mm
+    F : (f', 3) int
+    """
+    P = np.asarray(P, float)
+    F = np.asarray(F, dtype=np.int64).copy()
+
+    def signed_area(T):
+        a, b, c = P[T[:, 0]], P[T[:, 1]], P[T[:, 2]]
+        return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1])
+                      - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+
+    sense = np.sign(signed_area(F).sum())
+    skip = set()
+    while True:
+        count = np.bincount(F.ravel(), minlength=len(P))
+        rim = igl.boundary_loop(F) if len(F) > 2 else np.zeros(0, int)
+        flaps = [int(v) for v in rim if count[v] == 2 and int(v) not in skip]
+        if not flaps:
+            break
+        v = flaps[0]
+        f0, f1 = np.flatnonzero((F == v).any(axis=1))
+        u = int(np.setdiff1d(F[f1], F[f0])[0])
+        merged = np.where(F[f0] == v, u, F[f0])
+        if (signed_area(merged[None])[0] * sense <= 0
+                or _min_angle_deg(P[merged]) < min_angle_deg):
+            skip.add(v)  # reflex rim at v, or the inner vertex near the chord: keep the flap
+            continue
+        F = np.vstack([np.delete(F, [f0, f1], axis=0), merged])
+    used = np.unique(F)
+    remap = -np.ones(len(P), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return P[used], remap[F]
 
 
 # --------------------------------------------------------------------------------------
@@ -371,6 +437,8 @@ class FlatDomain:
         P = self.relax(P, nb)
         F = triangulate_flat(P, nb)
         P, F = remove_ears(P, F)
+        if self.settings.remove_flaps:
+            P, F = remove_flaps(P, F, self.settings.flap_min_angle_deg)
         return P, F
 
 

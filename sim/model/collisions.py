@@ -80,10 +80,7 @@ def completion_times(frames, collided=None, *, rule: str = "clearance",
         NaN for cells that never complete.
     """
     if collided is None:
-        keys = ("t", "collided", "bracket_length", "collision_length")
-        if isinstance(frames, str | os.PathLike):
-            with np.load(frames, allow_pickle=False) as z:
-                frames = {k: z[k] for k in keys if k in z.files}
+        frames = _completion_frames(frames)
         t, collided = np.asarray(frames["t"], float), np.asarray(frames["collided"])
         if bracket_length is None and "bracket_length" in frames:
             bracket_length = frames["bracket_length"]
@@ -97,10 +94,7 @@ def completion_times(frames, collided=None, *, rule: str = "clearance",
         raise InputError(f"collided has shape {c.shape}, expected (n_frames={len(t)}, "
                          "n_cells, 4)", fix="pass frames.npz's 't' and 'collided'")
     if rule == "clearance":
-        if bracket_length is not None and collision_length is not None:
-            gap = (np.asarray(bracket_length, float)[: len(t)]
-                   - np.asarray(collision_length, float)[None])
-            c = c | (gap <= tol_mm)
+        c = _closed(c, bracket_length, collision_length, tol_mm, len(t))
         done = c.all(axis=2)
     elif rule == "all":
         done = c.all(axis=2)
@@ -110,6 +104,47 @@ def completion_times(frames, collided=None, *, rule: str = "clearance",
         raise InputError(f"rule must be 'clearance', 'all' or 'layer', got {rule!r}")
     first = np.argmax(done, axis=0)
     return np.where(done.any(axis=0), t[first], np.nan)
+
+
+def _completion_frames(frames) -> dict:
+    """The arrays of ``frames.npz`` the completion rule reads, from a dict or a path."""
+    if isinstance(frames, str | os.PathLike):
+        with np.load(frames, allow_pickle=False) as z:
+            return {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
+                    if k in z.files}
+    return frames
+
+
+def _closed(collided, bracket_length, collision_length, tol_mm, n_frames):
+    """Springs at their bumpers under the clearance rule: (n_frames, n_cells, 4) bool."""
+    if bracket_length is None or collision_length is None:
+        return collided
+    gap = (np.asarray(bracket_length, float)[:n_frames]
+           - np.asarray(collision_length, float)[None])
+    return collided | (gap <= tol_mm)
+
+
+def open_layers(frames, tol_mm: float = UNIT_CELL.clearance) -> np.ndarray:
+    """Layers of every unit cell still open in the last frame, by the clearance rule of
+    :func:`completion_times`: a layer is open when one of its two bracket springs is
+    neither collided nor within ``tol_mm`` of its bumper contact length.
+
+    Parameters
+    ----------
+    frames : dict or path-like
+        ``frames.npz`` content or its path (``t``, ``collided``, ``bracket_length``,
+        ``collision_length``).
+    tol_mm : float, mm
+
+    Returns
+    -------
+    open : (n_cells, 2) bool -- (top, bottom)
+    """
+    frames = _completion_frames(frames)
+    t = np.asarray(frames["t"], float)
+    c = _closed(np.asarray(frames["collided"], bool), frames.get("bracket_length"),
+                frames.get("collision_length"), tol_mm, len(t))[-1]
+    return ~np.column_stack([c[:, 0] & c[:, 1], c[:, 2] & c[:, 3]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -453,5 +488,5 @@ def membrane_collisions(base_center, base_rotation, membrane_vertices, *, t=None
                     {"local_radius_mm": float(local_radius), "n_membrane_vertices": int(n_mem)})
 
 
-__all__ = ["BASE_RADIUS", "BASE_HALF_HEIGHT", "completion_times", "cylinder_sdf",
+__all__ = ["BASE_RADIUS", "BASE_HALF_HEIGHT", "completion_times", "open_layers", "cylinder_sdf",
            "cylinder_samples", "CollisionResult", "base_collisions", "membrane_collisions"]

@@ -316,7 +316,7 @@ def fold_metrics(C, R, cell_pairs, target_fold_deg, th: Thresholds):
         "max_deg": float(np.abs(d).max()) if d.size else 0.0,
         "n_folded": int(folded.sum()), "n_flipped": int(flipped.sum()),
         "flipped_fraction": float(flipped.sum() / max(folded.sum(), 1)),
-        "flipped_cells": [int(i) for i in np.flatnonzero(flipped)[:50]],
+        "flipped_cells": [int(i) for i in np.flatnonzero(flipped)[:th.listed_cells]],
         "fold_deg": fold,
     }
 
@@ -365,7 +365,7 @@ def timing_metrics(t, collided, t_star, th: Thresholds, bracket_length=None,
         "n_completed": int(done.sum()), "n_never": int((~done).sum()),
         "n_never_due": int(never_due.sum()),
         "never_due_fraction": float(never_due.sum() / max(due.sum(), 1)),
-        "never_due_cells": [int(i) for i in np.flatnonzero(never_due)[:50]],
+        "never_due_cells": [int(i) for i in np.flatnonzero(never_due)[:th.listed_cells]],
         "n_clamped": int((~feasible).sum()),
         "rms_s": rms, "bias_s": float(d.mean()) if d.size else float("nan"),
         "max_abs_s": float(np.abs(d).max()) if d.size else float("nan"),
@@ -399,8 +399,8 @@ def solver_metrics(fr, th: Thresholds):
         "wall_total_s": float(np.nansum(wall)), "wall_mean_s": float(np.nanmean(wall)),
         "wall_max_s": float(np.nanmax(wall)) if n else float("nan"),
         "n_nonconverged": int(len(bad)), "n_bad_residual": int(len(bad_res)),
-        "nonconverged_frames": [int(i) for i in bad[:50]],
-        "nonconverged_times_s": [float(t[i]) for i in bad[:50]],
+        "nonconverged_frames": [int(i) for i in bad[:th.listed_cells]],
+        "nonconverged_times_s": [float(t[i]) for i in bad[:th.listed_cells]],
     }
 
 
