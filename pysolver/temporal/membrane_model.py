@@ -65,8 +65,9 @@ from ..material.validate import (
     validate_model_file,
 )
 from ..mechanics import MembraneMesh, membrane_mesh
-from ..mechanics.energies import membrane_terms
+from ..mechanics.energies import SparsePattern, membrane_terms
 from ..mechanics.rim import rim_margin
+from ..mechanics.solver import LinearSolver, newton
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, MODEL_LIMITS, SIM, UNIT_CELL
 from ..params import tol as TOL
 
@@ -296,9 +297,9 @@ class PlaneMembrane:
         self.area = 0.5 * np.abs(np.linalg.det(Dm))                            # rest area
         self.mu, self.h = mu, h
         n = len(X)
-        dofs = np.stack([2 * self.tri, 2 * self.tri + 1], axis=-1).reshape(len(tri), 6)
-        self.rows = np.repeat(dofs, 6, axis=1).ravel()
-        self.cols = np.tile(dofs, (1, 6)).ravel()
+        self.dofs = np.stack([2 * self.tri, 2 * self.tri + 1], axis=-1).reshape(len(tri), 6)
+        self.rows = np.repeat(self.dofs, 6, axis=1).ravel()
+        self.cols = np.tile(self.dofs, (1, 6)).ravel()
         self.ndof = 2 * n
 
     def deformation(self, x):
@@ -322,70 +323,173 @@ class PlaneMembrane:
         G = np.stack([g[:, 1, :2], g[:, 2, :2]], axis=-1)                     # (m, 2, 2)
         return G @ np.transpose(self.Dm, (0, 2, 1)) / (self.h * self.area)[:, None, None]
 
+    def element_terms(self, x, hessian=False, psd=False):
+        """Element energies, in-plane gradients and Hessians in one evaluation.
+
+        Parameters
+        ----------
+        x : (n, 2) float, mm
+        hessian : bool
+        psd : bool -- project each element Hessian to positive semi-definite
+
+        Returns
+        -------
+        E : (m,) float, N mm
+        g : (m, 3, 2) float, N -- per element vertex
+        H : (m, 6, 6) float, N/mm, or None without ``hessian`` -- rows and columns ordered
+            ``2 * k + axis`` over the element's vertices ``k`` (the columns of :attr:`dofs`)
+        """
+        E, g, H = self._terms(x, hessian=hessian, psd=psd)
+        if H is not None:                                                     # (m, 3, 3, 3, 3)
+            H = np.transpose(H[..., :2, :2], (0, 1, 3, 2, 4)).reshape(len(self.tri), 6, 6)
+        return E, g[:, :, :2], H
+
+    def inverted(self, x) -> bool:
+        """Whether an element is inverted (``det F <= 0``)."""
+        return bool(np.any(np.linalg.det(self.deformation(x)) <= 0))
+
+    def assemble_gradient(self, g):
+        """Node gradient (n, 2) N of element gradients ``g`` (m, 3, 2) N."""
+        out = np.zeros((self.ndof // 2, 2))
+        np.add.at(out, self.tri, g)
+        return out
+
     def energy(self, x):
         """Total energy, N mm; ``inf`` if an element is inverted (``det F <= 0``)."""
-        if np.any(np.linalg.det(self.deformation(x)) <= 0):
+        if self.inverted(x):
             return np.inf
-        E, _, _ = self._terms(x, hessian=False)
-        return float(np.sum(E))
+        return float(np.sum(self.element_terms(x)[0]))
 
     def gradient(self, x):
         """Gradient, (n, 2) N."""
-        _, g, _ = self._terms(x, hessian=False)
-        out = np.zeros_like(np.asarray(x, float))
-        np.add.at(out, self.tri, g[:, :, :2])
-        return out
+        return self.assemble_gradient(self.element_terms(x)[1])
 
     def hessian(self, x, psd=False):
         """Hessian, sparse (2n, 2n) N/mm; ``psd``: each element's projected to PSD."""
-        _, _, H = self._terms(x, hessian=True, psd=psd)                       # (m, 3, 3, 3, 3)
-        He = np.transpose(H[..., :2, :2], (0, 1, 3, 2, 4)).reshape(len(self.tri), 6, 6)
+        He = self.element_terms(x, hessian=True, psd=psd)[2]
         return sp.csr_matrix((He.ravel(), (self.rows, self.cols)), shape=(self.ndof,) * 2)
 
 
-def _relax(mem: PlaneMembrane, x, free, tol=NEWTON_TOL, max_iter=60):
-    """Newton with backtracking on the free nodes (the energy is convex here).
+class FreeNodeProblem:
+    """Equilibrium of the free nodes of a :class:`PlaneMembrane`, for the shell's Newton solver.
 
-    Hand-written: a few dozen lines on a small, convex, well-scaled problem.
+    The static problem of :func:`pysolver.mechanics.solver.newton` (the protocol of its
+    ``StaticProblem``) for a flat membrane whose attached nodes stay where the start state
+    has them: the degrees of freedom are the in-plane translations of the free nodes, ordered
+    ``2 * k + axis`` over ``free``; there are no rotations.  The Hessian is assembled into the
+    lower-triangle CSC pattern the solver factorises (:class:`.energies.SparsePattern`).
+
+    Parameters
+    ----------
+    mem : PlaneMembrane
+    x : (v, 2) float, mm
+        Start state (copied); the attached nodes keep these positions.
+    free : (f,) int
+        Free nodes.
     """
-    fdof = np.stack([2 * free, 2 * free + 1], axis=-1).ravel()
-    x = x.copy()
-    E = mem.energy(x)
-    if not np.isfinite(E):
+
+    def __init__(self, mem: PlaneMembrane, x, free):
+        self.mem = mem
+        self.x = np.array(x, dtype=float)
+        free = np.asarray(free, dtype=np.int64)
+        self.fdof = np.stack([2 * free, 2 * free + 1], axis=-1).ravel()
+        self.n = len(self.fdof)
+        self.dof_scale = np.ones(self.n)
+        self.trans_dofs = np.arange(self.n)
+        self.rot_dofs = np.zeros(0, dtype=np.int64)
+        reduced = np.full(mem.ndof, -1, dtype=np.int64)
+        reduced[self.fdof] = np.arange(self.n)
+        self.pattern = SparsePattern(self.n, [reduced[mem.dofs]])
+        self._scale = None  # (state, sum of element energies) of the last evaluation
+
+    def _evaluate(self, x, hessian=False, psd=False):
+        """Energy (N mm; ``inf`` if an element is inverted), free-node gradient (n,) N,
+        reduced Hessian (lower-triangle CSC, N/mm; None without ``hessian``) and the sum of
+        the element energies' magnitudes (N mm)."""
+        mem = self.mem
+        Ee, ge, He = mem.element_terms(x, hessian=hessian, psd=psd)
+        E = np.inf if mem.inverted(x) else float(np.sum(Ee))
+        g = mem.assemble_gradient(ge).reshape(-1)[self.fdof]
+        H = None if He is None else self.pattern.assemble([He])
+        return E, g, H, float(np.sum(np.abs(Ee)))
+
+    def evaluate(self, hessian=True, psd=False):
+        """Energy (N mm), gradient (n,) N and Hessian (lower-triangle CSC, N/mm, ``psd``:
+        convexified per element; None without ``hessian``) at the current state."""
+        E, g, H, scale = self._evaluate(self.x, hessian=hessian, psd=psd)
+        self._scale = (self.x, scale)
+        return E, g, H
+
+    def trial(self, dx, alpha):
+        """The state moved by ``alpha * dx`` (free nodes only), (v, 2) mm."""
+        x = self.x.copy()
+        x.reshape(-1)[self.fdof] += alpha * dx
+        return x
+
+    def energy_at(self, trial) -> float:
+        """Energy at a trial state, N mm (``inf`` if an element is inverted)."""
+        return self._evaluate(trial)[0]
+
+    def gradient_at(self, trial):
+        """Energy (N mm) and free-node gradient (n,) N at a trial state."""
+        return self._evaluate(trial)[:2]
+
+    def accept(self, trial) -> None:
+        self.x = trial
+
+    def residual(self, g) -> float:
+        """Largest force on a free node component, N."""
+        return float(np.abs(g).max(initial=0.0))
+
+    def roundoff(self) -> float:
+        """Round-off of the energy at the current state, N mm (as ``StaticProblem``'s)."""
+        if self._scale is None or self._scale[0] is not self.x:
+            self.evaluate(hessian=False)
+        return TOL.energy_roundoff * max(self._scale[1], 1.0)
+
+
+def _relax(mem: PlaneMembrane, x, free, tol=NEWTON_TOL, linear: LinearSolver | None = None,
+           max_iter: int = TOL.newton_max_iter_wet):
+    """Relax the free nodes with the shell's Newton solver (:func:`.solver.newton`).
+
+    Elements in compression make the exact Hessian indefinite (seen on cover's
+    40 000-triangle membrane); the solver then shifts it or takes the per-element PSD
+    projection, which gives a descent direction to the same minimum.
+
+    Parameters
+    ----------
+    mem : PlaneMembrane
+    x : (v, 2) float, mm -- start state (not modified)
+    free : (f,) int -- free nodes
+    tol : float, N -- largest free-node force component at convergence
+    linear : LinearSolver, optional -- reused between calls on the same free nodes
+    max_iter : int -- most Newton iterations
+
+    Returns
+    -------
+    x : (v, 2) float, mm
+
+    Raises
+    ------
+    RuntimeError
+        The start state has an inverted triangle, or the solve stopped with a force above
+        ``TOL.newton_grad``.
+    """
+    problem = FreeNodeProblem(mem, x, free)
+    if not np.isfinite(problem.evaluate(hessian=False)[0]):
         raise RuntimeError("membrane start state has inverted triangles")
-    for _ in range(max_iter):
-        g = mem.gradient(x).ravel()[fdof]
-        if np.max(np.abs(g)) < tol:
-            return x
-        H = mem.hessian(x)[fdof][:, fdof].tocsc()
-        dx = -spla.spsolve(H, g)
-        if not g @ dx < 0:
-            # elements in compression make the exact Hessian indefinite and its step climb
-            # (seen on cover's 40 000-triangle membrane); the per-element PSD projection
-            # gives a descent direction to the same minimum
-            H = mem.hessian(x, psd=True)[fdof][:, fdof].tocsc()
-            dx = -spla.spsolve(H, g)
-        step = 1.0
-        for _ in range(MODEL_LIMITS.membrane_halvings):
-            xt = x.copy()
-            xt.reshape(-1)[fdof] += step * dx
-            Et = mem.energy(xt)
-            if Et <= E:
-                break
-            step *= 0.5
-        else:
-            break
-        x, E = xt, Et
-    g = mem.gradient(x).ravel()[fdof]
-    if np.max(np.abs(g)) > TOL.newton_grad:
-        raise RuntimeError(f"membrane relaxation did not converge (|g| = {np.abs(g).max():.2e} N)")
-    return x
+    res = newton(problem, tol=tol, max_iter=max_iter, linear=linear)
+    if not res.residual <= TOL.newton_grad:
+        raise RuntimeError(f"membrane relaxation did not converge ({res.status}, "
+                           f"|g| = {res.residual:.2e} N)")
+    return problem.x
 
 
-def _move_bodies(mem: PlaneMembrane, x, free, att, x_att_new):
+def _move_bodies(mem: PlaneMembrane, x, free, att, x_att_new, linear=None):
     """Move the attached nodes and predict the free nodes with one linear (tangent) solve.
 
-    The load step is halved until the predicted state has no inverted triangle.
+    The load step is halved until the predicted state has no inverted triangle; the state of
+    a partial step is relaxed (:func:`_relax`, with ``linear``) before the rest follows.
     """
     fdof = np.stack([2 * free, 2 * free + 1], axis=-1).ravel()
     adof = np.stack([2 * att, 2 * att + 1], axis=-1).ravel()
@@ -401,8 +505,8 @@ def _move_bodies(mem: PlaneMembrane, x, free, att, x_att_new):
         if np.isfinite(mem.energy(xt)):
             if frac == 1.0:
                 return xt
-            xt = _relax(mem, xt, free)
-            return _move_bodies(mem, xt, free, att, x_att_new)
+            xt = _relax(mem, xt, free, linear=linear)
+            return _move_bodies(mem, xt, free, att, x_att_new, linear)
     raise RuntimeError("membrane load step failed")  # pragma: no cover
 
 
@@ -479,8 +583,9 @@ def relax_contracted(mesh: MembraneMesh, centers, mem: PlaneMembrane, s: float, 
     att = np.flatnonzero(mesh.body >= 0)
     cb = np.asarray(centers, float)[mesh.body[att], :2]
     x = mesh.xy.copy() if x is None else x
-    x = _move_bodies(mem, x, free, att, s * cb + (mesh.xy[att] - cb))
-    return _relax(mem, x, free)
+    linear = LinearSolver()  # one symbolic analysis for every solve on these free nodes
+    x = _move_bodies(mem, x, free, att, s * cb + (mesh.xy[att] - cb), linear)
+    return _relax(mem, x, free, linear=linear)
 
 
 def layout_membrane(UV, F, max_area: float, geometry: dict | None = None):
@@ -584,5 +689,5 @@ def _design_matrix(b, d, terms=MODEL_TERMS):
 
 __all__ = ["check_membrane_model", "validate_membrane_model_file",
            "TERMS", "MODEL_TERMS", "SI_TERMS", "FORM", "MODEL_PATH", "MembraneModel",
-           "load_membrane_model", "layout_membrane", "PlaneMembrane", "cell_tractions",
-           "relax_contracted", "cell_membrane_factors"]
+           "load_membrane_model", "layout_membrane", "PlaneMembrane", "FreeNodeProblem",
+           "cell_tractions", "relax_contracted", "cell_membrane_factors"]

@@ -67,6 +67,7 @@ import numpy as np
 
 from pysolver.atomic import atomic_file, atomic_write_text
 from pysolver.errors import InputError, MorphshellError
+from pysolver.geometry import rigid_fit
 from pysolver.material.model import load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics.energies import ShellEnergy, State
@@ -265,9 +266,10 @@ class Simulation:
         little, differently on each BLAS and thread count, and the predictor extrapolates the
         turn (the benchmark shell spun by 144 degrees over its run; the two solver paths
         differed by 0.009 mm, and by 7e-10 mm after a rigid fit).  The best-fit rotation (Kabsch,
-        about the centroid) of this step's base centres and free vertices onto the previous
-        frame's is undone, so a frame has no net rotation relative to the previous one and the
-        result no longer depends on that round-off.  With weight and a table
+        :func:`pysolver.geometry.rigid_fit`, turned about the centroid) of this step's base
+        centres and free vertices onto the previous frame's is undone, so a frame has no net
+        rotation relative to the previous one and the result no longer depends on that
+        round-off.  With weight and a table
         (``physics.gravity``) only the turn about the vertical is free, and only it is undone.
         """
         s = self.state
@@ -275,11 +277,10 @@ class Simulation:
         Q = np.concatenate([before.c, before.f])
         pc, qc = P.mean(axis=0), Q.mean(axis=0)
         if self.energy.external is None:
-            U, S, Vt = np.linalg.svd((P - pc).T @ (Q - qc))
-            if S[1] <= TOL.degenerate * S[0]:  # collinear: the turn about the line is undefined
-                return
-            d = np.sign(np.linalg.det(Vt.T @ U.T))
-            Rg = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T  # Rg (p - pc) ~ q - qc
+            lam = np.linalg.eigvalsh((P - pc).T @ (P - pc))  # ascending, mm^2
+            if lam[1] <= TOL.degenerate * lam[2]:  # collinear: the turn about the line is
+                return                             # undefined
+            Rg, _ = rigid_fit(P, Q)  # Rg (p - pc) ~ q - qc
         else:
             up = np.abs(self.energy.external.up)
             e1, e2 = np.eye(3)[np.argsort(up)[:2]]  # the horizontal axes
