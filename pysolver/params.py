@@ -586,8 +586,6 @@ class ModelLimits:
     membrane_factor_max_area : float, mm^2
         Largest flat triangle of the membrane mesh of a design's own stencil (per-cell
         membrane factors).
-    membrane_halvings : int
-        Step halvings of the line search of the plane membrane relaxation.
     membrane_contraction_min : float
         Smallest uniform contraction (current / flat size) of the stencil estimated from the
         cells' closing distances for the per-cell membrane factors.
@@ -607,7 +605,6 @@ class ModelLimits:
     tolerance_modulus_floor: float = 0.05
     membrane_fit_max_area: float = 0.5
     membrane_factor_max_area: float = 1.0
-    membrane_halvings: int = 40
     membrane_contraction_min: float = 0.5
 
 
