@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.model.collisions import open_layers
+from sim.model.collisions import never_due, open_layers
 from sim.model.physics import parse_physics
 from sim.model.simulate import SimSettings, simulate_design, simulate_model, simulated_completion
 from sim.report import (
@@ -64,7 +64,7 @@ from .design.surfaces import BUILTIN_SHAPES, check_spec
 from .design.time_landscape import read_time_file
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
 from .material.model import DEFAULT_MODEL_PATH, check_bracket_geometry, load_bracket_model
-from .params import DEFAULT_REFINE, LIMITS, MODEL_LIMITS, SIM, UNIT_CELL
+from .params import DEFAULT_REFINE, LIMITS, MODEL_LIMITS, REPORT, SIM, UNIT_CELL
 from .render import (
     DEFAULT_RENDERER,
     check_renderer,
@@ -442,8 +442,7 @@ def _thin_open_layers(cap, h_prev, t_sim, t_star, t_end, frames_path, tol_mm):
     n_thinned : int -- layers newly capped below their previous thickness
     """
     h_prev = np.asarray(h_prev, float)
-    stuck = ~np.isfinite(t_sim) & (np.asarray(t_star, float) <= t_end)
-    thin = open_layers(frames_path, tol_mm) & stuck[:, None]
+    thin = open_layers(frames_path, tol_mm) & never_due(t_sim, t_star, t_end)[:, None]
     h_min = UNIT_CELL.thickness_min
     lower = np.maximum(h_min, h_prev - MODEL_LIMITS.refine_open_layer_mm)
     cap = np.where(thin, np.minimum(cap, lower), cap)
@@ -463,11 +462,24 @@ def _best_iteration(hist) -> int:
 def _refine_again(hist, k: int, rounds: int) -> bool:
     """Whether the refinement runs round ``k + 1``: the ``rounds`` asked for, then up to
     ``MODEL_LIMITS.refine_extra_rounds`` more while the best round so far leaves cells that
-    never complete."""
+    never complete, and the last round either thinned a layer or closed a cell (otherwise
+    another simulation could not change anything the time correction has not)."""
     if k < rounds:
         return True
-    extra = 0 < rounds and k < rounds + MODEL_LIMITS.refine_extra_rounds
-    return extra and hist[_best_iteration(hist)]["n_never_due"] > 0
+    if rounds == 0 or k >= rounds + MODEL_LIMITS.refine_extra_rounds:
+        return False
+    last, before = hist[-1], hist[-2]
+    moved = last["n_layers_thinned"] > 0 or last["n_never_due"] < before["n_never_due"]
+    return moved and hist[_best_iteration(hist)]["n_never_due"] > 0
+
+
+def _round_record(t_star, t_sim, clamped, t_end, **extra) -> dict:
+    """One refinement round's figures: :func:`timing_errors` and the cells that never
+    complete although due (:func:`sim.model.collisions.never_due`)."""
+    stuck = never_due(t_sim, t_star, t_end)
+    return dict(timing_errors(t_star, t_sim, clamped, t_end), n_never_due=int(stuck.sum()),
+                never_due_cells=[int(i) for i in np.flatnonzero(stuck)[:REPORT.listed_cells]],
+                **extra)
 
 
 def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
@@ -507,10 +519,12 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     Returns
     -------
     dict
-        ``history`` (per iteration: RMS/max error, Spearman, thickness range), ``best``
-        (iteration index, 0 = before refinement; the fewest cells that never complete
-        although due, then the lowest ``rms_incl_never_s``),
-        ``before``/``after`` metrics.
+        ``iterations`` (asked), ``rounds`` (run), ``damping``, ``history`` (per round:
+        :func:`timing_errors`, ``n_never_due`` and ``never_due_cells``, the thickness range,
+        ``n_layers_thinned``: layers newly capped, and the seconds taken), ``best`` (round
+        index, 0 = before refinement: the fewest cells that never complete although due,
+        then the lowest ``rms_incl_never_s``), ``before``/``after`` (round 0 and the best
+        one) and a ``note``.
     """
     design_dir = Path(design_dir)
     if int(iterations) != iterations or iterations < 0:
@@ -547,8 +561,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     keep_dir.mkdir(parents=True, exist_ok=True)
     shutil.copy2(frames_path, keep_dir / "frames_0.npz")
     th0 = np.column_stack([cells["thickness_top_mm"], cells["thickness_bottom_mm"]])
-    hist = [dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=0,
-                 thickness_mm=[float(th0.min()), float(th0.max())])]
+    hist = [_round_record(t_star, t_sim, clamped, t_last, iteration=0,
+                          thickness_mm=[float(th0.min()), float(th0.max())])]
     thick = [th0]
     cap = np.full(th0.shape, np.inf)
     _log_refine(f"{design_dir.name}: before refinement rms {hist[0]['rms_s']:.2f} s, spearman "
@@ -577,10 +591,10 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
         t_sim, t_frames = simulated_completion(design_dir, tol_mm)
         shutil.copy2(frames_path, keep_dir / f"frames_{k}.npz")
         thick.append(th)
-        hist.append(dict(timing_errors(t_star, t_sim, clamped, t_last), iteration=k,
-                         thickness_mm=[float(th.min()), float(th.max())],
-                         n_layers_thinned=n_thinned,
-                         seconds=round(time.perf_counter() - t0, 1)))
+        hist.append(_round_record(t_star, t_sim, clamped, t_last, iteration=k,
+                                  thickness_mm=[float(th.min()), float(th.max())],
+                                  n_layers_thinned=n_thinned,
+                                  seconds=round(time.perf_counter() - t0, 1)))
         _log_refine(f"{design_dir.name}: refine {k}/{max(k, rounds)}: rms "
                     f"{hist[-1]['rms_s']:.2f} s, "
              f"spearman {hist[-1]['spearman']:.3f}, {hist[-1]['n_never_due']} never complete "
@@ -602,7 +616,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
                       "finishing at the last simulated time; n_never_due: cells due by the "
                       "last simulated time that never complete, clamped ones included. The "
                       "best round has the fewest n_never_due, then the lowest "
-                      "rms_incl_never_s."}
+                      "rms_incl_never_s: a round that closes more cells is kept even at a "
+                      "larger timing error."}
     atomic_write_text(design_dir / "sim" / REFINE_LOG, json.dumps(result, indent=1) + "\n")
     return result
 

@@ -516,6 +516,9 @@ class ReportThresholds:
                                                     and math.isfinite(v) and v >= 0):
                 raise InputError(f"Thresholds.{f.name} = {v!r}: must be a finite number >= 0",
                                  fix="pass a non-negative number")
+        if not (isinstance(self.listed_cells, int) and self.listed_cells >= 1):
+            raise InputError(f"Thresholds.listed_cells = {self.listed_cells!r}: must be a "
+                             "whole number >= 1", fix="pass how many cell ids a list names")
         if self.shape_rms_warn_pct > self.shape_rms_fail_pct:
             raise InputError("Thresholds: shape_rms_warn_pct > shape_rms_fail_pct",
                              fix="the WARN limit must not exceed the FAIL limit")

@@ -430,6 +430,12 @@ def test_rim_fallback_never_trades_printability():
     assert best == inset
 
 
+def _interior_edges(F):
+    E = igl.edges(F)
+    rim = {tuple(sorted(e)) for e in igl.boundary_facets(F)[0].tolist()}
+    return E[[tuple(sorted(e)) not in rim for e in E.tolist()]]
+
+
 def test_time_graded_stencil_is_finer_where_the_landscape_is_late():
     # a flat 80 x 40 mm plate (conformal scale 0): its left half asked for 30 s, its right
     # half for 80 s; the spacing should follow (t / t_mean)^(-timing_grading)
@@ -438,10 +444,10 @@ def test_time_graded_stencil_is_finer_where_the_landscape_is_late():
     q = (np.arange(40)[:, None] * 21 + np.arange(20)[None, :]).ravel()
     F = np.r_[np.c_[q, q + 21, q + 1], np.c_[q + 1, q + 21, q + 22]]
     t = np.where(V[:, 0] < 40, 30.0, 80.0)
-    S = replace(STENCIL, timing_grading=0.3, remove_flaps=False)  # long merged rim chords
+    S = replace(STENCIL, timing_grading=0.3)
     dom = remesh.FlatDomain(V, F, S, time=t)
     P, F2 = dom.stencil(120, seed=0)
-    E = igl.edges(F2)
+    E = _interior_edges(F2)  # (rim edges follow the boundary points and the merged flaps)
     mid = 0.5 * (P[E[:, 0]] + P[E[:, 1]])
     L = np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)
     early, late = L[mid[:, 0] < 30].mean(), L[mid[:, 0] > 50].mean()
@@ -449,7 +455,7 @@ def test_time_graded_stencil_is_finer_where_the_landscape_is_late():
     assert late / early == pytest.approx(want, rel=0.12)
     # without a landscape the same plate is uniform
     P0, F0 = remesh.FlatDomain(V, F, S).stencil(120, seed=0)
-    E0 = igl.edges(F0)
+    E0 = _interior_edges(F0)
     m0 = 0.5 * (P0[E0[:, 0]] + P0[E0[:, 1]])
     L0 = np.linalg.norm(P0[E0[:, 0]] - P0[E0[:, 1]], axis=1)
     assert L0[m0[:, 0] > 50].mean() / L0[m0[:, 0] < 30].mean() == pytest.approx(1.0, abs=0.08)
@@ -473,50 +479,76 @@ def _rim_triangle_count(F):
     return count[igl.boundary_loop(np.asarray(F))]
 
 
-def _signed_areas(P, F):
-    a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
-    return 0.5 * ((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
-
-
 def _flap_left_for_a_reason(P, F, v, min_angle):
-    f0, f1 = np.flatnonzero((F == v).any(axis=1))
-    u = np.setdiff1d(F[f1], F[f0])[0]
-    T = np.where(F[f0] == v, u, F[f0])
-    folded = _signed_areas(P, T[None])[0] * _signed_areas(P, F).sum() <= 0
-    return folded or remesh._min_angle_deg(P[T]) < min_angle
+    area = remesh._signed_areas
+    pair = np.flatnonzero((F == v).any(axis=1))
+    u = np.setdiff1d(F[pair[1]], F[pair[0]])[0]
+    T = np.where(F[pair[0]] == v, u, F[pair[0]])[None]
+    sense = np.sign(area(P, F).sum())
+    folded = area(P, T)[0] * sense <= 0
+    thin = np.degrees(igl.internal_angles(P, T).min()) < min_angle
+    return folded or thin
 
 
-def test_flaps_are_merged_keeping_orientation_and_area():
+def _disk(seed=3):
     from scipy.spatial import Delaunay
 
     # a disk: 24 rim points and jittered inner points, Delaunay-triangulated
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     a = np.linspace(0, 2 * np.pi, 24, endpoint=False)
     rim = np.c_[np.cos(a), np.sin(a)] * 10.0
     inner = rng.uniform(-8.0, 8.0, (80, 2))
     inner = inner[np.linalg.norm(inner, axis=1) < 8.5]
     P = np.vstack([rim, inner])
     F = Delaunay(P).simplices
-    F = np.where((_signed_areas(P, F) < 0)[:, None], F[:, ::-1], F)
-    P, F = remesh.remove_ears(P, F)
+    F = np.where((remesh._signed_areas(P, F) < 0)[:, None], F[:, ::-1], F)
+    return remesh.remove_ears(P, F)
+
+
+def test_flaps_are_merged_keeping_orientation_and_area():
+    area = remesh._signed_areas
+    P, F = _disk()
     n_flaps = int((_rim_triangle_count(F) == 2).sum())
     assert n_flaps >= 2                                   # the input has flaps to merge
     P2, F2 = remesh.remove_flaps(P, F, min_angle_deg=20.0)
     removed = len(P) - len(P2)
     assert removed >= 1 and len(F) - len(F2) == removed   # one vertex, one face per flap
-    assert (_signed_areas(P2, F2) > 0).all()              # orientation kept, nothing folds
+    assert (area(P2, F2) > 0).all()                       # orientation kept, nothing folds
     assert len(igl.boundary_loop(F2)) == len(igl.boundary_loop(F)) - removed
-    # the rim is cut straight past each merged flap: only area is lost, no vertex moves
-    assert _signed_areas(P2, F2).sum() < _signed_areas(P, F).sum()
-    assert all(np.any(np.all(P == q, axis=1)) for q in P2)
-    # every flap left would fold or give a triangle thinner than the threshold
+    # the rim is cut straight past each merged flap (convex there): only area is lost
+    assert area(P2, F2).sum() < area(P, F).sum()
+    # every flap left would fold or give a triangle thinner than asked
     count = np.bincount(F2.ravel(), minlength=len(P2))
     for v in igl.boundary_loop(F2):
         if count[v] == 2:
             assert _flap_left_for_a_reason(P2, F2, v, 20.0)
-    # with no angle threshold all non-folding flaps go
+    # with no angle threshold only the merges that would fold are left
     P3, F3 = remesh.remove_flaps(P, F, min_angle_deg=0.0)
-    assert len(P3) <= len(P2)
+    count = np.bincount(F3.ravel(), minlength=len(P3))
+    assert all(_flap_left_for_a_reason(P3, F3, v, 0.0)
+               for v in igl.boundary_loop(F3) if count[v] == 2)
+
+
+def test_a_flap_on_a_concave_rim_is_merged_across_the_dent():
+    area = remesh._signed_areas
+    P, F = _disk()
+    count = np.bincount(F.ravel(), minlength=len(P))
+    v = next(int(x) for x in igl.boundary_loop(F) if count[x] == 2)
+    loop = list(igl.boundary_loop(F))
+    k = loop.index(v)
+    a, b = loop[k - 1], loop[(k + 1) % len(loop)]
+    # move v just inside the chord a-b: both its triangles keep their orientation
+    inward = -(P[a] + P[b]) / np.linalg.norm(P[a] + P[b])
+    P = P.copy()
+    P[v] = 0.5 * (P[a] + P[b]) + 0.3 * inward
+    assert (area(P, F) > 0).all()
+    P2, F2 = remesh.remove_flaps(P, F, min_angle_deg=0.0)
+    assert not np.any(np.all(P2 == P[v], axis=1))       # v dropped
+    assert (area(P2, F2) > 0).all()
+    # the rim now runs along the chord a-b, outside the dent
+    ia, ib = (int(np.flatnonzero(np.all(P2 == P[x], axis=1))[0]) for x in (a, b))
+    rim_edges = {tuple(sorted(e)) for e in igl.boundary_facets(F2)[0].tolist()}
+    assert (min(ia, ib), max(ia, ib)) in rim_edges
 
 
 def test_stencils_have_no_flaps_where_they_can_merge():

@@ -103,15 +103,11 @@ def remove_ears(V, F):
     return np.asarray(V)[used], remap[F]
 
 
-def _min_angle_deg(T):
-    """Smallest angle of one triangle ``T`` (3, d), degrees."""
-    e = [T[(i + 1) % 3] - T[i] for i in range(3)]
-    ang = []
-    for i in range(3):
-        p, q = e[i], -e[(i + 2) % 3]
-        c = np.dot(p, q) / max(np.linalg.norm(p) * np.linalg.norm(q), 1e-300)
-        ang.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-    return min(ang)
+def _signed_areas(P, F):
+    """Signed areas of flat triangles: (f,) float, mm^2 (> 0 counter-clockwise)."""
+    a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
+    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1])
+                  - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
 
 
 def remove_flaps(P, F, min_angle_deg: float = STENCIL.flap_min_angle_deg):
@@ -121,44 +117,49 @@ def remove_flaps(P, F, min_angle_deg: float = STENCIL.flap_min_angle_deg):
     rim bases joined by a rim-to-rim unit cell, hanging from the rest of the shell by one cell
     each: a four-bar chain along the rim.  In water the chain turns in plane (the bases rotate
     in opposite senses), its cells close at one end only and lock.  The two triangles
-    ``(v, a, w)``, ``(v, w, b)`` become ``(a, w, b)`` (the rim runs straight from ``a`` to
-    ``b``), when that triangle keeps the orientation; ``v`` is dropped.
+    ``(v, a, w)``, ``(v, w, b)`` become ``(a, w, b)`` and ``v`` is dropped: the rim runs
+    straight from ``a`` to ``b`` (inside the old rim where it is convex at ``v``, outside
+    where it is concave; no point moves, and the stencil's flat layout is computed from its
+    3D points anyway).  A flap stays where the merged triangle would fold or have an angle
+    under ``min_angle_deg`` (``w`` near the chord: a base would reach across its edge).
+    Measured on the spiral, whose inner rim is concave: keeping the concave flaps leaves 6
+    cells that never close, merging them none.  Used on the flat stencil of the CVT method;
+    the ``"pymeshlab"`` comparison method keeps its flaps.
 
     Parameters
     ----------
     P : (k, 2) float, mm -- flat points
-    F : (f, 3) int
+    F : (f, 3) int -- a triangulated disk (one rim loop), consistently oriented
+    min_angle_deg : float, deg
 
     Returns
     -------
-    P : (k', 2) float, mm
-    F : (f', 3) int
+    P : (k', 2) float, mm -- ``P`` without the dropped vertices (no point moves)
+    F : (f', 3) int -- one face fewer per dropped vertex
     """
     P = np.asarray(P, float)
     F = np.asarray(F, dtype=np.int64).copy()
-
-    def signed_area(T):
-        a, b, c = P[T[:, 0]], P[T[:, 1]], P[T[:, 2]]
-        return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1])
-                      - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-
-    sense = np.sign(signed_area(F).sum())
+    sense = np.sign(_signed_areas(P, F).sum())
     skip = set()
-    while True:
+    while len(F) >= 2:
         count = np.bincount(F.ravel(), minlength=len(P))
-        rim = igl.boundary_loop(F) if len(F) > 2 else np.zeros(0, int)
-        flaps = [int(v) for v in rim if count[v] == 2 and int(v) not in skip]
+        flaps = [int(v) for v in igl.boundary_loop(F) if count[v] == 2 and int(v) not in skip]
         if not flaps:
             break
         v = flaps[0]
-        f0, f1 = np.flatnonzero((F == v).any(axis=1))
-        u = int(np.setdiff1d(F[f1], F[f0])[0])
-        merged = np.where(F[f0] == v, u, F[f0])
-        if (signed_area(merged[None])[0] * sense <= 0
-                or _min_angle_deg(P[merged]) < min_angle_deg):
-            skip.add(v)  # reflex rim at v, or the inner vertex near the chord: keep the flap
+        pair = np.flatnonzero((F == v).any(axis=1))
+        u = np.setdiff1d(F[pair[1]], F[pair[0]])
+        if len(u) != 1:
+            raise InputError(f"remove_flaps: the two triangles of rim vertex {v} share "
+                             f"{3 - len(u)} vertices", fix="give a manifold triangle mesh "
+                             "without repeated faces.")
+        merged = np.where(F[pair[0]] == v, u[0], F[pair[0]])
+        if (_signed_areas(P, merged[None])[0] * sense <= 0
+                or np.degrees(igl.internal_angles(P, merged[None]).min()) < min_angle_deg):
+            skip.add(v)
             continue
-        F = np.vstack([np.delete(F, [f0, f1], axis=0), merged])
+        F = np.vstack([np.delete(F, pair, axis=0), merged])
+        skip -= set(merged.tolist())  # their triangles changed: look at them again
     used = np.unique(F)
     remap = -np.ones(len(P), dtype=np.int64)
     remap[used] = np.arange(len(used))
@@ -425,8 +426,8 @@ class FlatDomain:
         return P
 
     def stencil(self, n: int, seed: int = 0, inset: float = 0.0):
-        """Flat stencil before optimisation: CVT, relaxation, triangulation, ear removal
-        (``inset``: mm from the rim).
+        """Flat stencil before optimisation: CVT, relaxation, triangulation, ear removal,
+        flap merging (``inset``: mm from the rim).
 
         Returns
         -------
@@ -911,5 +912,6 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
 
 
 __all__ = ["surface_area", "time_spacing_log", "estimate_vertices", "remove_ears",
+           "remove_flaps",
            "isotropic_remesh", "resample_dense", "triangulate_flat", "FlatDomain", "edge_for_count",
            "stencil_figures", "remesh_surface"]

@@ -67,7 +67,7 @@ from ..design.time_landscape import cell_target_times
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
-from ..params import MODEL_LIMITS, REPORT, SEQUENCING, SIM, UNIT_CELL
+from ..params import MODEL_LIMITS, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
@@ -663,17 +663,14 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
     t_sim : (n,) float, s -- simulated completion (NaN = never)
     exclude : (n,) bool, optional -- cells left out of the statistics (clamped ones)
     t_end : float, s, optional -- also give ``rms_incl_never_s``, where cells that never
-        complete count as finishing at ``t_end`` (a lower bound of their error), and
-        ``n_never_due``: cells asked to finish by ``t_end`` that never complete, excluded
-        ones included (the simulation check's count), and the first of them,
-        ``never_due_cells``.
+        complete count as finishing at ``t_end`` (a lower bound of their error).
 
     Returns
     -------
     dict
         ``rms_s``, ``mean_s``, ``max_abs_s`` over completed cells, ``spearman`` (t* vs
         t_sim over completed cells), ``n_used``, ``n_never``, ``n_cells`` and, with
-        ``t_end``, ``rms_incl_never_s``, ``n_never_due`` and ``never_due_cells``.
+        ``t_end``, ``rms_incl_never_s``.
     """
     from scipy.stats import spearmanr  # heavy: this scipy submodule loads only where it is used
 
@@ -693,9 +690,6 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
     if t_end is not None:
         e2 = np.where(np.isfinite(t_sim), t_sim, float(t_end))[keep] - t_star[keep]
         out["rms_incl_never_s"] = float(np.sqrt(np.mean(e2 ** 2))) if e2.size else float("nan")
-        never_due = ~np.isfinite(t_sim) & (t_star <= float(t_end))
-        out["n_never_due"] = int(never_due.sum())
-        out["never_due_cells"] = [int(i) for i in np.flatnonzero(never_due)[:REPORT.listed_cells]]
     return out
 
 

@@ -24,8 +24,8 @@ radius: chord sag 0.017 mm); see ``docs/report.md``.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -80,7 +80,7 @@ def completion_times(frames, collided=None, *, rule: str = "clearance",
         NaN for cells that never complete.
     """
     if collided is None:
-        frames = _completion_frames(frames)
+        frames = read_completion_frames(frames)
         t, collided = np.asarray(frames["t"], float), np.asarray(frames["collided"])
         if bracket_length is None and "bracket_length" in frames:
             bracket_length = frames["bracket_length"]
@@ -106,13 +106,18 @@ def completion_times(frames, collided=None, *, rule: str = "clearance",
     return np.where(done.any(axis=0), t[first], np.nan)
 
 
-def _completion_frames(frames) -> dict:
-    """The arrays of ``frames.npz`` the completion rule reads, from a dict or a path."""
-    if isinstance(frames, str | os.PathLike):
-        with np.load(frames, allow_pickle=False) as z:
-            return {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
-                    if k in z.files}
-    return frames
+def read_completion_frames(frames) -> dict:
+    """The arrays of ``frames.npz`` the completion rule reads (``t``, ``collided``,
+    ``bracket_length``, ``collision_length``), from a dict (returned as it is), the file
+    or a design folder (its ``sim/frames.npz``)."""
+    if isinstance(frames, dict):
+        return frames
+    p = Path(frames)
+    if p.is_dir():
+        p = p / "sim" / "frames.npz"
+    with np.load(p, allow_pickle=False) as z:
+        return {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
+                if k in z.files}
 
 
 def _closed(collided, bracket_length, collision_length, tol_mm, n_frames):
@@ -124,6 +129,25 @@ def _closed(collided, bracket_length, collision_length, tol_mm, n_frames):
     return collided | (gap <= tol_mm)
 
 
+def never_due(t_done, t_star, t_end: float) -> np.ndarray:
+    """Unit cells asked to finish by ``t_end`` that never complete: the simulation check's
+    WARN (and, above ``ReportThresholds.incomplete_fail_fraction``, FAIL) and what the
+    refinement minimises first.  Clamped cells count: an infeasible time is no excuse for
+    a cell that stays open.
+
+    Parameters
+    ----------
+    t_done : (n,) float, s -- :func:`completion_times` (NaN = never)
+    t_star : (n,) float, s -- programmed times
+    t_end : float, s -- last simulated time
+
+    Returns
+    -------
+    (n,) bool
+    """
+    return ~np.isfinite(np.asarray(t_done, float)) & (np.asarray(t_star, float) <= float(t_end))
+
+
 def open_layers(frames, tol_mm: float = UNIT_CELL.clearance) -> np.ndarray:
     """Layers of every unit cell still open in the last frame, by the clearance rule of
     :func:`completion_times`: a layer is open when one of its two bracket springs is
@@ -132,18 +156,22 @@ def open_layers(frames, tol_mm: float = UNIT_CELL.clearance) -> np.ndarray:
     Parameters
     ----------
     frames : dict or path-like
-        ``frames.npz`` content or its path (``t``, ``collided``, ``bracket_length``,
-        ``collision_length``).
+        ``frames.npz`` content, the file or a design folder
+        (:func:`read_completion_frames`).
     tol_mm : float, mm
 
     Returns
     -------
     open : (n_cells, 2) bool -- (top, bottom)
     """
-    frames = _completion_frames(frames)
+    frames = read_completion_frames(frames)
     t = np.asarray(frames["t"], float)
-    c = _closed(np.asarray(frames["collided"], bool), frames.get("bracket_length"),
-                frames.get("collision_length"), tol_mm, len(t))[-1]
+    c = np.asarray(frames["collided"], bool)
+    if c.ndim != 3 or c.shape[2] != 4 or c.shape[0] != t.shape[0] or len(t) == 0:
+        raise InputError(f"collided has shape {c.shape}, expected (n_frames={len(t)} >= 1, "
+                         "n_cells, 4)", fix="pass frames.npz's 't' and 'collided'")
+    c = _closed(c, frames.get("bracket_length"), frames.get("collision_length"), tol_mm,
+                len(t))[-1]
     return ~np.column_stack([c[:, 0] & c[:, 1], c[:, 2] & c[:, 3]])
 
 
@@ -488,5 +516,6 @@ def membrane_collisions(base_center, base_rotation, membrane_vertices, *, t=None
                     {"local_radius_mm": float(local_radius), "n_membrane_vertices": int(n_mem)})
 
 
-__all__ = ["BASE_RADIUS", "BASE_HALF_HEIGHT", "completion_times", "open_layers", "cylinder_sdf",
-           "cylinder_samples", "CollisionResult", "base_collisions", "membrane_collisions"]
+__all__ = ["BASE_RADIUS", "BASE_HALF_HEIGHT", "completion_times", "read_completion_frames",
+           "never_due", "open_layers", "cylinder_sdf", "cylinder_samples", "CollisionResult",
+           "base_collisions", "membrane_collisions"]

@@ -76,7 +76,7 @@ from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newt
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
 
-from .collisions import completion_times
+from .collisions import completion_times, read_completion_frames
 from .contact import BaseContact
 from .physics import BracketBending, ExternalTerms, bending_stiffness, check_physics, physics_json
 
@@ -739,13 +739,7 @@ def simulated_completion(frames, tol_mm: float = UNIT_CELL.clearance):
     t_done : (n_cells,) float, s -- NaN for cells that never complete
     t : (n_frames,) float, s -- frame times
     """
-    if not isinstance(frames, dict):
-        p = Path(frames)
-        if p.is_dir():
-            p = p / "sim" / "frames.npz"
-        with np.load(p, allow_pickle=False) as z:
-            frames = {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
-                      if k in z.files}
+    frames = read_completion_frames(frames)
     t = np.asarray(frames["t"], float)
     return completion_times(frames, rule="clearance", tol_mm=tol_mm), t
 

@@ -140,7 +140,7 @@ def provenance(folder, build_info=None) -> dict:
         "build_inputs_sha256": info.get("inputs_sha256"),
         "landscape": land,
         "stencil": stencil,
-        "refine_rounds": refine.get("iterations", opts.get("refine")),
+        "refine_rounds": refine.get("rounds", refine.get("iterations", opts.get("refine"))),
         "models": models,
         "simulation": {k: sim_sum.get(k) for k in ("steps", "t_final_s", "stopped_early",
                                                     "wall_s") if k in sim_sum},

@@ -42,7 +42,7 @@ from pysolver.params import UNIT_CELL, ReportThresholds
 from pysolver.params import tol as TOL
 from pysolver.tables import Design, read_design, read_table
 
-from ..model.collisions import base_collisions, membrane_collisions
+from ..model.collisions import base_collisions, membrane_collisions, never_due
 from ..model.collisions import completion_times as collision_completion_times
 from ..viewer import asset_text, frame_alignments, viewer_data, viewer_json
 from . import fabrication as fab
@@ -344,7 +344,7 @@ def timing_metrics(t, collided, t_star, th: Thresholds, bracket_length=None,
     t_end = float(t[-1])
     done = np.isfinite(t_done)
     due = t_star <= t_end
-    never_due = ~done & due
+    stuck = never_due(t_done, t_star, t_end)
     feasible = (np.ones_like(done) if clamped is None
                 else ~np.asarray(clamped, bool)[: len(done)])
 
@@ -363,9 +363,9 @@ def timing_metrics(t, collided, t_star, th: Thresholds, bracket_length=None,
     return {
         "source": source, "t_end_s": t_end, "n_cells": int(len(t_star)),
         "n_completed": int(done.sum()), "n_never": int((~done).sum()),
-        "n_never_due": int(never_due.sum()),
-        "never_due_fraction": float(never_due.sum() / max(due.sum(), 1)),
-        "never_due_cells": [int(i) for i in np.flatnonzero(never_due)[:th.listed_cells]],
+        "n_never_due": int(stuck.sum()),
+        "never_due_fraction": float(stuck.sum() / max(due.sum(), 1)),
+        "never_due_cells": [int(i) for i in np.flatnonzero(stuck)[:th.listed_cells]],
         "n_clamped": int((~feasible).sum()),
         "rms_s": rms, "bias_s": float(d.mean()) if d.size else float("nan"),
         "max_abs_s": float(np.abs(d).max()) if d.size else float("nan"),
