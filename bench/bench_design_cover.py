@@ -134,7 +134,7 @@ def main() -> int:
         tf = tmp / "cover_reference_landscape_on_target.csv"
         np.savetxt(tf, t_src, fmt="%.6f", header="time_s", comments="")
         d = tmp / "cover_landscape"
-        _design(src / "cover_src.obj", d, 106.0, 0.1, time_file=tf)
+        sl, sec = _design(src / "cover_src.obj", d, 106.0, 0.1, time_file=tf)
         p = program_design(d, progress=False, picture=False)
         cells = read_cells(d / "cells.csv")
         frac = float(np.mean(np.asarray(cells["clamped"], bool)))
@@ -147,10 +147,14 @@ def main() -> int:
             "clamped_fraction": round(frac, 4), "cells": int(len(cells["clamped"])),
             "brackets_at_bound_fraction": {"thickness_min": round(float(at_min.mean()), 4),
                                            "thickness_max": round(float(at_max.mean()), 4)},
-            "program": {k: v for k, v in p.items() if isinstance(v, (int, float, str))}}
+            "program": {k: v for k, v in p.items() if isinstance(v, (int, float, str))},
+            "design": _figures(sl, sec, 567)}
         print(f"reference landscape on morphshell's cover: {100 * frac:.1f} % of cells clamped, "
               f"{100 * at_min.mean():.1f} % / {100 * at_max.mean():.1f} % of the brackets at "
-              f"{UNIT_CELL.thickness_min:g} / {UNIT_CELL.thickness_max:g} mm", flush=True)
+              f"{UNIT_CELL.thickness_min:g} / {UNIT_CELL.thickness_max:g} mm; "
+              f"{sl['counts']['bases']} bases, longest flat cell "
+              f"{sl['cell_length_mm']['max']:.2f} mm, scale3d {sl['scale']['scale3d']:.3f}",
+              flush=True)
     (out / "design_cover.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
     print(f"-> {out / 'design_cover.json'}")
     return 0
