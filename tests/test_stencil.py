@@ -18,7 +18,7 @@ from pysolver.design.flatten import cetm
 from pysolver.design.layout import build_layout
 from pysolver.design.mesh_input import load_input
 from pysolver.errors import InputError
-from pysolver.geometry import face_adjacency, face_centroids, unit_cells
+from pysolver.geometry import face_adjacency, face_centroids, signed_areas_2d, unit_cells
 from pysolver.params import STENCIL, UNIT_CELL
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "reference-shapes"
@@ -480,7 +480,7 @@ def _rim_triangle_count(F):
 
 
 def _flap_left_for_a_reason(P, F, v, min_angle):
-    area = remesh._signed_areas
+    area = signed_areas_2d
     pair = np.flatnonzero((F == v).any(axis=1))
     u = np.setdiff1d(F[pair[1]], F[pair[0]])[0]
     T = np.where(F[pair[0]] == v, u, F[pair[0]])[None]
@@ -501,12 +501,12 @@ def _disk(seed=3):
     inner = inner[np.linalg.norm(inner, axis=1) < 8.5]
     P = np.vstack([rim, inner])
     F = Delaunay(P).simplices
-    F = np.where((remesh._signed_areas(P, F) < 0)[:, None], F[:, ::-1], F)
+    F = np.where((signed_areas_2d(P, F) < 0)[:, None], F[:, ::-1], F)
     return remesh.remove_ears(P, F)
 
 
 def test_flaps_are_merged_keeping_orientation_and_area():
-    area = remesh._signed_areas
+    area = signed_areas_2d
     P, F = _disk()
     n_flaps = int((_rim_triangle_count(F) == 2).sum())
     assert n_flaps >= 2                                   # the input has flaps to merge
@@ -530,7 +530,7 @@ def test_flaps_are_merged_keeping_orientation_and_area():
 
 
 def test_a_flap_on_a_concave_rim_is_merged_across_the_dent():
-    area = remesh._signed_areas
+    area = signed_areas_2d
     P, F = _disk()
     count = np.bincount(F.ravel(), minlength=len(P))
     v = next(int(x) for x in igl.boundary_loop(F) if count[x] == 2)

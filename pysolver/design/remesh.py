@@ -61,7 +61,7 @@ from scipy.spatial import cKDTree
 from shapely.geometry import LinearRing, Polygon
 
 from ..errors import InputError
-from ..geometry import face_adjacency, face_normals
+from ..geometry import face_adjacency, face_normals, signed_areas_2d
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ..params import tol as TOL
 from .flatten import cetm
@@ -103,13 +103,6 @@ def remove_ears(V, F):
     return np.asarray(V)[used], remap[F]
 
 
-def _signed_areas(P, F):
-    """Signed areas of flat triangles: (f,) float, mm^2 (> 0 counter-clockwise)."""
-    a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
-    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1])
-                  - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-
-
 def remove_flaps(P, F, min_angle_deg: float = STENCIL.flap_min_angle_deg):
     """Merge the two triangles of every rim vertex that has only two (a *flap*), in the plane.
 
@@ -139,7 +132,7 @@ def remove_flaps(P, F, min_angle_deg: float = STENCIL.flap_min_angle_deg):
     """
     P = np.asarray(P, float)
     F = np.asarray(F, dtype=np.int64).copy()
-    sense = np.sign(_signed_areas(P, F).sum())
+    sense = np.sign(signed_areas_2d(P, F).sum())
     skip = set()
     while len(F) >= 2:
         count = np.bincount(F.ravel(), minlength=len(P))
@@ -154,7 +147,7 @@ def remove_flaps(P, F, min_angle_deg: float = STENCIL.flap_min_angle_deg):
                              f"{3 - len(u)} vertices", fix="give a manifold triangle mesh "
                              "without repeated faces.")
         merged = np.where(F[pair[0]] == v, u[0], F[pair[0]])
-        if (_signed_areas(P, merged[None])[0] * sense <= 0
+        if (signed_areas_2d(P, merged[None])[0] * sense <= 0
                 or np.degrees(igl.internal_angles(P, merged[None]).min()) < min_angle_deg):
             skip.add(v)
             continue

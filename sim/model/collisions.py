@@ -89,10 +89,7 @@ def completion_times(frames, collided=None, *, rule: str = "clearance",
     else:
         t = np.asarray(frames, float)
         collided = np.asarray(collided)
-    c = collided.astype(bool)
-    if c.ndim != 3 or c.shape[2] != 4 or c.shape[0] != t.shape[0]:
-        raise InputError(f"collided has shape {c.shape}, expected (n_frames={len(t)}, "
-                         "n_cells, 4)", fix="pass frames.npz's 't' and 'collided'")
+    c = _checked_collided(collided, t)
     if rule == "clearance":
         c = _closed(c, bracket_length, collision_length, tol_mm, len(t))
         done = c.all(axis=2)
@@ -118,6 +115,15 @@ def read_completion_frames(frames) -> dict:
     with np.load(p, allow_pickle=False) as z:
         return {k: z[k] for k in ("t", "collided", "bracket_length", "collision_length")
                 if k in z.files}
+
+
+def _checked_collided(collided, t) -> np.ndarray:
+    """``collided`` as (n_frames, n_cells, 4) bool matching the frame times ``t``."""
+    c = np.asarray(collided).astype(bool)
+    if c.ndim != 3 or c.shape[2] != 4 or c.shape[0] != t.shape[0]:
+        raise InputError(f"collided has shape {c.shape}, expected (n_frames={len(t)}, "
+                         "n_cells, 4)", fix="pass frames.npz's 't' and 'collided'")
+    return c
 
 
 def _closed(collided, bracket_length, collision_length, tol_mm, n_frames):
@@ -166,10 +172,9 @@ def open_layers(frames, tol_mm: float = UNIT_CELL.clearance) -> np.ndarray:
     """
     frames = read_completion_frames(frames)
     t = np.asarray(frames["t"], float)
-    c = np.asarray(frames["collided"], bool)
-    if c.ndim != 3 or c.shape[2] != 4 or c.shape[0] != t.shape[0] or len(t) == 0:
-        raise InputError(f"collided has shape {c.shape}, expected (n_frames={len(t)} >= 1, "
-                         "n_cells, 4)", fix="pass frames.npz's 't' and 'collided'")
+    c = _checked_collided(frames["collided"], t)
+    if len(t) == 0:
+        raise InputError("frames.npz has no frame", fix="simulate the design first")
     c = _closed(c, frames.get("bracket_length"), frames.get("collision_length"), tol_mm,
                 len(t))[-1]
     return ~np.column_stack([c[:, 0] & c[:, 1], c[:, 2] & c[:, 3]])
