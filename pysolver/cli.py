@@ -377,7 +377,7 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
     """Material and membrane fits, specimens, the shape list."""
     cmd = args.command
     if cmd == "fit-material":
-        from .material.fit import fit_material  # lazy: the stage loads when its subcommand runs
+        from .fitting.material_fit import fit_material  # lazy: loads with its subcommand
         out, report = args.out, args.report
         if args.data is not None:  # a user's data never overwrites the committed default model
             stem = Path(args.data).resolve().name or "material"
@@ -395,7 +395,7 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         print(f"material model: {res['model_file']} (use it with MATERIAL={res['model_file']})")
         return EXIT_OK
     if cmd == "fit-membrane":
-        from .temporal.membrane_fit import fit_membrane_model  # lazy: loads with its subcommand
+        from .fitting.membrane_fit import fit_membrane_model  # lazy: loads with its subcommand
         if args.out is not None:
             claim_output_file(args.out, what="--out model file")
         if args.report is not None:

@@ -554,7 +554,7 @@ class ModelLimits:
     Attributes
     ----------
     membrane_b0_mm : (float, float), mm
-        Range of the flat bracket length b0 of :func:`pysolver.temporal.cell_membrane.
+        Range of the flat bracket length b0 of :func:`pysolver.fitting.cell_membrane.
         membrane_traction` (its unit-cell membrane patch).
     membrane_d_max_fraction : float
         Largest contraction d of that patch, as a fraction of b0 (exclusive).
@@ -672,7 +672,8 @@ class StencilSearch:
     opt_clearance_slack : float
         Log shortfall of the clearance (2 %) a round may leave and still be kept.
     opt_tiny : float
-        Floor of the arguments of the barrier's and penalties' logarithms.
+        Floor of the arguments of the barrier's and penalties' logarithms, and the guard
+        added under the square root of the half fold's tangent (finite gradient when flat).
     opt_rounds, opt_iterations : int
         Outer rounds (re-lifting onto the target) and L-BFGS iterations per round.
     opt_barrier : float

@@ -16,8 +16,8 @@ them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests kee
   and the command line import ``sim``; the other front ends (studio, tolerance analysis,
   sweep) ask the orchestrator to simulate, and no design-side package (design, temporal,
   render, material, fitting, mechanics, core) imports ``sim`` at all;
-* the offline fitting tools (material fit and report, membrane-model fit) sit above every
-  runtime stage: only the front ends import them;
+* the offline fitting tools (:mod:`pysolver.fitting`: material fit and report, membrane-model
+  fit) sit above every runtime stage: only the front ends import them;
 * project modules are imported at module level: an import inside a function hides an edge
   of the graph.  The one exception is the command line (:mod:`pysolver.cli`), whose
   subcommands import their stage when they run so that ``morphshell --help`` is instant;
@@ -52,8 +52,6 @@ LAYERS = {
 
 CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.atomic",
         "pysolver.geometry", "pysolver.tables"}
-FITTING = {"pysolver.material.fit", "pysolver.material.report",
-           "pysolver.temporal.membrane_fit"}
 LAZY_ALLOWED = {"pysolver.cli"}  # see the module docstring
 
 
@@ -61,9 +59,8 @@ def group(mod: str) -> str:
     """The layer group of a project module."""
     if mod in CORE:
         return "core"
-    if mod in FITTING:
-        return "fitting"
-    for prefix, g in (("pysolver.material", "material"), ("pysolver.design", "design"),
+    for prefix, g in (("pysolver.fitting", "fitting"), ("pysolver.material", "material"),
+                      ("pysolver.design", "design"),
                       ("pysolver.mechanics", "mechanics"),
                       ("pysolver.temporal", "temporal"), ("pysolver.render", "render"),
                       ("sim.report", "report"), ("sim.viewer", "report"),
@@ -212,8 +209,7 @@ def test_only_the_orchestrator_imports_sim():
     import the simulator (any ``sim`` module, report and viewer included); design-side
     packages (temporal programming included, whose membrane model uses
     :mod:`pysolver.mechanics`) and the other front ends never do."""
-    assert {group(m) for m in MODULES if m.startswith("pysolver.temporal.")} == \
-        {"temporal", "fitting"}
+    assert {group(m) for m in MODULES if m.startswith("pysolver.temporal.")} == {"temporal"}
     assert SIM_IMPORTERS <= set(MODULES)
     bad = [f"{a}:{line} ({group(a)}) imports {b}" for a, b, line, _, _ in IMPORTS
            if a.split(".")[0] == "pysolver" and a not in SIM_IMPORTERS
@@ -230,8 +226,9 @@ def test_project_imports_at_module_level():
 
 def test_runtime_does_not_import_the_offline_fits():
     """The offline fitting tools (material fit, membrane-model fit) live apart from the
-    runtime models: only the front ends (the command line) import them."""
-    assert FITTING <= set(MODULES)
+    runtime models, in :mod:`pysolver.fitting`: only the front ends (the command line)
+    import them."""
+    assert {"pysolver.fitting.material_fit", "pysolver.fitting.membrane_fit"} <= set(MODULES)
     bad = [f"{a}:{line} ({group(a)}) imports {b}" for a, b, line, _, _ in IMPORTS
            if group(b) == "fitting" and group(a) not in ("fitting", "front")]
     assert not bad, "\n".join(bad)

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from pysolver.design import run_design
+from pysolver.fitting.material_fit import fit_material
 from pysolver.material import load_bracket_model
-from pysolver.material.fit import fit_material
 from pysolver.material.measurements import DEFAULT_DATA_DIR
 from pysolver.material.model import DEFAULT_MODEL_PATH
 from pysolver.tables import read_cells

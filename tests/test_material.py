@@ -15,14 +15,7 @@ import numpy as np
 import pytest
 
 from pysolver.errors import InputError
-from pysolver.material import (
-    load_bracket_model,
-    load_measurements,
-    plastic_rest_length,
-    poly_force,
-)
-from pysolver.material.creep import CreepModel
-from pysolver.material.fit import (
+from pysolver.fitting.material_fit import (
     DEFAULT_MODEL_PATH,
     FitOptions,
     dumps_model,
@@ -32,9 +25,16 @@ from pysolver.material.fit import (
     run_chain,
     wet_eval_rows,
 )
+from pysolver.fitting.material_report import compare_models
+from pysolver.material import (
+    load_bracket_model,
+    load_measurements,
+    plastic_rest_length,
+    poly_force,
+)
+from pysolver.material.creep import CreepModel
 from pysolver.material.measurements import DEFAULT_DATA_DIR, movmean_even, preprocess_dry
 from pysolver.material.polyfit import monomial_exponents
-from pysolver.material.report import compare_models
 from pysolver.params import SIM, UNIT_CELL
 
 # thresholds set from the first honest fit (dry 0.0558 mm, wet 0.6392 mm, eq. 9 0.7208 mm)
@@ -228,14 +228,14 @@ def test_committed_model_concave_and_stiff_positive_in_cells(model):
 
 def test_committed_model_residuals_on_measurements(model):
     meas = load_measurements()
-    wet = model_residuals(model, wet_eval_rows(meas.wet, 0.7, 120.0))
+    wet = model_residuals(model, wet_eval_rows(meas.wet))
     assert wet["rms_mm"] < WET_RMS_MAX_MM
     assert len(wet["per_curve_rms_mm"]) == 80
     dry = preprocess_dry(meas.dry)
     xd = model.compression_for_force(dry.h, dry.b, 0.0, dry.F / 4.0)
     assert np.sqrt(np.mean((xd - dry.x) ** 2)) < DRY_RMS_MAX_MM
     creep = model.creep_model()
-    ev = wet_eval_rows(meas.wet, 0.7, 120.0)
+    ev = wet_eval_rows(meas.wet)
     x9 = creep.displacement(ev.h, ev.b, ev.F, ev.t, model.meta["fit"]["options"]["integration"])
     assert np.sqrt(np.mean((x9 - ev.x) ** 2)) < WET_EQ9_RMS_MAX_MM
     assert model.meta["provenance"]["inputs_sha256"] == meas.provenance()

@@ -15,9 +15,9 @@ from synthetic import regular_stencil
 
 from pysolver.design.cellnodes import model_arrays
 from pysolver.design.surfaces import regular_grid
+from pysolver.fitting.membrane_fit import patch_mesh
 from pysolver.mechanics import build_model, membrane_mesh
 from pysolver.params import SIM, UNIT_CELL
-from pysolver.temporal.membrane_fit import patch_mesh
 from pysolver.temporal.membrane_model import (
     FACTOR_MESH_AREA,
     cell_membrane_factors,

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pysolver.fitting.membrane_fit import patch_mesh
 from pysolver.mechanics.energies import full_from_lower
 from pysolver.mechanics.solver import newton
 from pysolver.params import tol as TOL
-from pysolver.temporal.membrane_fit import patch_mesh
 from pysolver.temporal.membrane_model import (
     NEWTON_TOL,
     FreeNodeProblem,

@@ -316,7 +316,7 @@ def test_committed_models_pass():
 
 def test_fresh_fit_passes(tmp_path):
     """A fit of the shipped measurements (default options) passes the validator."""
-    from pysolver.material.fit import fit_material
+    from pysolver.fitting.material_fit import fit_material
 
     out = tmp_path / "fresh.json"
     fit_material(out_path=out, report_dir=tmp_path / "report", progress=False,

@@ -1,4 +1,4 @@
-"""Membrane traction on a unit cell (pysolver.temporal.cell_membrane), the input of temporal
+"""Membrane traction on a unit cell (pysolver.fitting.cell_membrane), the input of temporal
 programming.
 
 Tolerances: closed form at d = 0 to 1e-4 relative; mesh refinement 0.5 -> 0.25 mm^2 changes
@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pysolver.fitting.cell_membrane import membrane_traction
 from pysolver.params import SIM, UNIT_CELL
-from pysolver.temporal.cell_membrane import membrane_traction
 from pysolver.temporal.membrane_model import load_membrane_model
 
 

@@ -19,6 +19,7 @@ from pysolver import tables
 from pysolver.build import refine_design
 from pysolver.design.time_landscape import cell_target_times
 from pysolver.errors import InputError
+from pysolver.fitting.membrane_fit import regular_patch, sample_patch
 from pysolver.params import MODEL_LIMITS, UNIT_CELL
 from pysolver.temporal import (
     PICTURE,
@@ -30,7 +31,6 @@ from pysolver.temporal import (
     time_ranges,
     timing_errors,
 )
-from pysolver.temporal.membrane_fit import regular_patch, sample_patch
 from pysolver.temporal.membrane_model import (
     MODEL_PATH,
     MembraneModel,

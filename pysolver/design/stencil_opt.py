@@ -118,7 +118,7 @@ def _cell_geometry(Q, X, F, fa, fb, o1, o2):
     # (the layout refuses folds over 178 deg; -0.99 keeps tan finite before that)
     cphi = anp.clip(anp.sum(N[fa] * N[fb], axis=1), -0.99, 1.0)
     cos_t = anp.sqrt((1.0 + cphi) / 2.0)
-    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + 1e-30)
+    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + STENCIL.opt_tiny)
     D = anp.sqrt(anp.sum((X[o1] - X[o2]) ** 2, axis=1)) / 3.0
     d = anp.sqrt(anp.sum((Q[o1] - Q[o2]) ** 2, axis=1)) / 3.0
     return cos_t, tan_t, D, d

@@ -11,9 +11,9 @@ plastic_rest_length(rest, rest0, length, eta)
 load_measurements(data_dir=None)
     Read and validate the measurement CSVs.
 
-The offline fitting tools live apart from this runtime model: :mod:`pysolver.material.fit`
-(``fit_material``, ``make material``) and :mod:`pysolver.material.report` (its pictures,
-``compare_models``).
+The offline fit lives apart from this runtime model, in :mod:`pysolver.fitting`:
+:mod:`~pysolver.fitting.material_fit` (``fit_material``, ``make material``) and
+:mod:`~pysolver.fitting.material_report` (its pictures, ``compare_models``).
 """
 
 from .measurements import load_measurements

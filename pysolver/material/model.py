@@ -291,7 +291,7 @@ def model_dict(grid_min, grid_step, coef, meta) -> dict:
                         "mm, compression positive) on a regular (thickness, bracket length, "
                         "time in water) grid, interpolated trilinearly; energy W = "
                         "sum_k c_k x^(k+1)/(k+1) (N mm). Fitted from unit-cell tests (4 brackets "
-                        "per specimen) by pysolver.material.fit (SI Note 3).",
+                        "per specimen) by pysolver.fitting.material_fit (SI Note 3).",
          "units": {"thickness": "mm", "bracket_length": "mm", "time": "s", "x": "mm",
                    "force": "N", "energy": "N mm"},
          "grid": {"axes": ["thickness_mm", "bracket_length_mm", "time_s"],

@@ -2,9 +2,8 @@
 
 Modules: :mod:`.program` (force balance, thickness solve, :func:`program_design`),
 :mod:`.membrane_model` (the linearised membrane model ``F_mem``, the FEM membrane of the
-per-cell correction), :mod:`.plots`; offline, apart from the runtime: :mod:`.membrane_fit`
-(the fit of ``F_mem``, ``make membrane-model``) and :mod:`.cell_membrane` (membrane traction
-samples from the simulator's model and solver).  Every membrane here is the one membrane
+per-cell correction), :mod:`.plots`.  The fit of ``F_mem`` (``make membrane-model``) is an
+offline tool, in :mod:`pysolver.fitting.membrane_fit`.  Every membrane here is the one membrane
 energy of :mod:`pysolver.mechanics.energies` on the one membrane mesh of a flat layout
 (:func:`pysolver.mechanics.membrane_mesh`); nothing here imports the simulator (``sim``).
 """

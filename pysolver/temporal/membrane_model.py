@@ -73,7 +73,7 @@ from ..params import tol as TOL
 
 MODEL_PATH = MEMBRANE_MODEL_FILE
 """The committed membrane model (written by
-:func:`pysolver.temporal.membrane_fit.fit_membrane_model`)."""
+:func:`pysolver.fitting.membrane_fit.fit_membrane_model`)."""
 
 MESH_MAX_AREA = MODEL_LIMITS.membrane_fit_max_area  # mm^2, flat, of the fit
 NEWTON_TOL = TOL.membrane_grad  # N, infinity norm of the free-node gradient

@@ -76,10 +76,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..params import SIM, UNIT_CELL
-from ..params import tol as TOL
-from .creep import INTEGRATIONS, CreepModel
-from .measurements import (
+from ..material.creep import INTEGRATIONS, CreepModel
+from ..material.measurements import (
     REPO_ROOT,
     SPECIMEN_BRACKETS,
     Measurements,
@@ -89,15 +87,17 @@ from .measurements import (
     preprocess_dry,
     preprocess_wet,
 )
-from .model import BracketModel, bracket_record, load_bracket_model, model_dict
-from .polyfit import (
+from ..material.model import BracketModel, bracket_record, load_bracket_model, model_dict
+from ..material.polyfit import (
     constrained_lstsq,
     constrained_normal_lstsq,
     design_matrix,
     monomial_exponents,
     mv,
 )
-from .report import compare_models, write_report
+from ..params import SIM, UNIT_CELL
+from ..params import tol as TOL
+from .material_report import compare_models, write_report
 
 DEFAULT_MODEL_PATH = REPO_ROOT / "pysolver" / "data" / "bracket_model.json"
 """The committed fitted model."""
@@ -428,8 +428,20 @@ def model_residuals(model, obs: Observations) -> dict:
     return _rms_summary(x - obs.x, obs.series, obs.names)
 
 
-def wet_eval_rows(wet_table, strain_cut: float, t_max_s: float) -> Observations:
-    """Wet rows used to score models: tail cut, ``x/b < strain_cut``, ``t <= t_max_s``."""
+SCORE_STRAIN_CUT = 0.7
+"""Wet rows with ``x/b`` under this score a model (the reference code's cut, kept for scoring
+so that scores compare with the reference's; the fit itself uses ``FitOptions.wet_strain_cut``)."""
+
+
+def wet_eval_rows(wet_table, strain_cut: float = SCORE_STRAIN_CUT,
+                  t_max_s: float | None = None) -> Observations:
+    """Wet rows used to score models: tail cut, ``x/b < strain_cut``, ``t <= t_max_s``.
+
+    ``t_max_s`` defaults to the end of the model grid in time (``FitOptions().grid_axes()``,
+    120 s): the model is not fitted beyond it.
+    """
+    if t_max_s is None:
+        t_max_s = float(FitOptions().grid_axes()[2][-1])
     obs = preprocess_wet(wet_table, strain_cut=strain_cut)
     return obs.subset(obs.t * 60.0 <= t_max_s + TOL.rel)
 
@@ -502,7 +514,7 @@ def run_chain(meas: Measurements, opts: FitOptions, progress: bool = True,
     model = BracketModel([hg[0], bg[0], tg[0]], [hg[1] - hg[0], bg[1] - bg[0], tg[1] - tg[0]],
                          coef)
     if score_rows is None:
-        score_rows = wet_eval_rows(meas.wet, 0.7, float(tg[-1]))
+        score_rows = wet_eval_rows(meas.wet, t_max_s=float(tg[-1]))
     xd = model.compression_for_force(dry_obs.h, dry_obs.b, 0.0, dry_obs.F / SPECIMEN_BRACKETS)
     rdry = _rms_summary(xd - dry_obs.x, dry_obs.series, dry_obs.names)
     xpd = creep.dry(dry_obs.h, dry_obs.b, dry_obs.F)
@@ -513,7 +525,8 @@ def run_chain(meas: Measurements, opts: FitOptions, progress: bool = True,
         "wet_eq9": creep_residuals(creep, score_rows, opts.integration, opts.gauss_points),
         "wet_ln_rate_rms": winfo["ln_rate_rms"],
         "force_polynomial_fit_rms_N_specimen": linfo["fit_rms"],
-        "scoring_rows": "wet: tail cut, x/b < 0.7, t <= 120 s; dry: t < 5.25 s",
+        "scoring_rows": f"wet: tail cut, x/b < {SCORE_STRAIN_CUT:g}, t <= {tg[-1]:g} s; dry: "
+                        f"t < {opts.dry_time_cut_s:g} s",
     }
     log(f"  fit chain done in {time.time() - t0:.1f} s: dry RMS {rdry['rms_mm']:.4f} mm, wet RMS "
         f"{residuals['wet_model']['rms_mm']:.4f} mm")
@@ -543,7 +556,7 @@ def monotonicity_violations(model, n: int = 100_000, seed: int = 0) -> dict:
             "grid": (float(model.grid_min[1]), float(model.grid_max[1]), 0.7)}.items():
         h = rng.uniform(UNIT_CELL.thickness_min, UNIT_CELL.thickness_max, n)
         b = rng.uniform(b_lo, b_hi, n)
-        t = rng.uniform(0.0, 120.0, n)
+        t = rng.uniform(float(model.grid_min[2]), float(model.grid_max[2]), n)
         x = rng.uniform(0.0, xf, n) * b
         F = model.force(h, b, t, x)
         tol = TOL.monotone_rtol * np.abs(F) + TOL.monotone_atol
@@ -626,7 +639,7 @@ def model_file_dict(res: FitResult, meas: Measurements) -> dict:
                                              "p_load": res.load_info["max_violation"]}},
         "creep_model": res.creep.to_dict(),
         "provenance": {"inputs_sha256": meas.provenance(), "versions": _versions(),
-                       "method": "pysolver.material.fit.fit_material (SI Note 3)"},
+                       "method": "pysolver.fitting.material_fit.fit_material (SI Note 3)"},
     }
     d = model_dict(res.model.grid_min, res.model.grid_step, res.model.coef, meta)
     return _round_sig(d)

@@ -13,14 +13,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..params import UNIT_CELL  # noqa: E402
-from ..params import tol as TOL  # noqa: E402
-from .measurements import (  # noqa: E402
+from ..material.measurements import (  # noqa: E402
     SPECIMEN_BRACKETS,
     preprocess_dry,
     preprocess_wet,
 )
-from .model import load_bracket_model
+from ..material.model import load_bracket_model
+from ..params import UNIT_CELL  # noqa: E402
+from ..params import tol as TOL  # noqa: E402
 
 _LOAD_COLORS = {1.0: "tab:blue", 2.0: "tab:orange", 3.0: "tab:green", 4.0: "tab:red",
                 5.0: "tab:purple"}
@@ -97,11 +97,11 @@ def plot_wet(meas, res, out_png) -> None:
         inside = xs / b < cut
         ax.plot(ts, np.where(inside, xs, np.nan), color=col, lw=1.5)
         ax.plot(ts, np.where(inside, np.nan, xs), color=col, lw=0.8, alpha=0.35)
-        tm = np.linspace(0.0, 120.0, 121)
+        tm = np.linspace(res.model.grid_min[2], res.model.grid_max[2], 121)
         xm = res.model.compression_for_force(h, b, tm, F / SPECIMEN_BRACKETS)
         ax.plot(tm, xm, "--", color=col, lw=1.2)
         ax.set_title(f"h={h:.2f}, l={l:g} mm (b={b:.2f})", fontsize=8)
-        ax.set_xlim(0, 125)
+        ax.set_xlim(0, 1.04 * res.model.grid_max[2])
         ax.set_ylim(0, b * 1.05)
         ax.axhline(cut * b, color="0.6", lw=0.5, ls=":")
         ax.tick_params(labelsize=7)
@@ -179,7 +179,9 @@ def compare_models(model_a, model_b, out_png, labels=("a", "b"),
     ma = model_a if hasattr(model_a, "force") else load_bracket_model(model_a)
     mb = model_b if hasattr(model_b, "force") else load_bracket_model(model_b)
     if cells is None:
-        cells = [(h, UNIT_CELL.bracket_length(l)) for l in (6.0, 9.0) for h in (0.30, 0.45, 0.65)]
+        h_mid = 0.5 * (UNIT_CELL.thickness_min + UNIT_CELL.thickness_max)
+        cells = [(h, UNIT_CELL.bracket_length(l)) for l in (6.0, 9.0)
+                 for h in (UNIT_CELL.thickness_min, h_mid, UNIT_CELL.thickness_max)]
     nc = 3
     nr = int(np.ceil(len(cells) / nc))
     fig, axs = plt.subplots(nr, nc, figsize=(3.4 * nc, 2.8 * nr), squeeze=False)

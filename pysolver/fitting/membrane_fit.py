@@ -26,7 +26,7 @@ from ..atomic import atomic_write_text
 from ..mechanics import MembraneMesh
 from ..params import SIM, UNIT_CELL
 from ..params import tol as TOL
-from .membrane_model import (
+from ..temporal.membrane_model import (
     FORM,
     MESH_MAX_AREA,
     MODEL_PATH,
