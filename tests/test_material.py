@@ -23,7 +23,6 @@ from pysolver.fitting.material_fit import (
     model_residuals,
     monotonicity_violations,
     run_chain,
-    wet_eval_rows,
 )
 from pysolver.fitting.material_report import compare_models
 from pysolver.material import (
@@ -33,7 +32,12 @@ from pysolver.material import (
     poly_force,
 )
 from pysolver.material.creep import CreepModel
-from pysolver.material.measurements import DEFAULT_DATA_DIR, movmean_even, preprocess_dry
+from pysolver.material.measurements import (
+    DEFAULT_DATA_DIR,
+    movmean_even,
+    preprocess_dry,
+    wet_eval_rows,
+)
 from pysolver.material.polyfit import monomial_exponents
 from pysolver.params import SIM, UNIT_CELL
 
@@ -228,14 +232,14 @@ def test_committed_model_concave_and_stiff_positive_in_cells(model):
 
 def test_committed_model_residuals_on_measurements(model):
     meas = load_measurements()
-    wet = model_residuals(model, wet_eval_rows(meas.wet))
+    wet = model_residuals(model, wet_eval_rows(meas.wet, float(model.grid_max[2])))
     assert wet["rms_mm"] < WET_RMS_MAX_MM
     assert len(wet["per_curve_rms_mm"]) == 80
     dry = preprocess_dry(meas.dry)
     xd = model.compression_for_force(dry.h, dry.b, 0.0, dry.F / 4.0)
     assert np.sqrt(np.mean((xd - dry.x) ** 2)) < DRY_RMS_MAX_MM
     creep = model.creep_model()
-    ev = wet_eval_rows(meas.wet)
+    ev = wet_eval_rows(meas.wet, float(model.grid_max[2]))
     x9 = creep.displacement(ev.h, ev.b, ev.F, ev.t, model.meta["fit"]["options"]["integration"])
     assert np.sqrt(np.mean((x9 - ev.x) ** 2)) < WET_EQ9_RMS_MAX_MM
     assert model.meta["provenance"]["inputs_sha256"] == meas.provenance()

@@ -1,14 +1,15 @@
 """Fit the data-driven bracket model of SI Note 3 from the tensile-test measurements.
 
-Chain (``fit_material``): read and validate the CSVs (:mod:`.measurements`); fit ``p_dry(h,b,F)``
-(8 terms, constrained least squares) and ``p_wet(h,b,F,t)`` (70 terms, log creep rate, equal
-weight per curve); evaluate the displacement model ``x = p_dry + int F exp(p_wet) dt`` on the
-dense grid (h 0.30..0.65 step 0.05, b = 0.8055 + 0.25 j, t = 0..120 s step 6 s) for F = 0..9.99 N;
-fit a force polynomial ``F(x) = c1 x + .. + c4 x^4`` per cell with ``F' >= 0``, ``F'' <= 0`` on
-[0, b]; divide by the 4 brackets of a specimen; write the model file and a report.
-All QPs use quadprog through qpsolvers, with column and row scaling and a cutting-plane working
-set (see :mod:`.polyfit`).  Same data -> byte-identical model file (floats rounded to 12
-significant digits, no date, no absolute paths).
+Chain (``fit_material``): read and validate the CSVs (:mod:`pysolver.material.measurements`);
+fit ``p_dry(h,b,F)`` (8 terms, constrained least squares) and ``p_wet(h,b,F,t)`` (70 terms,
+log creep rate, equal weight per curve); evaluate the displacement model
+``x = p_dry + int F exp(p_wet) dt`` on the dense grid (h 0.30..0.65 step 0.05,
+b = 0.8055 + 0.25 j, t = 0..120 s step 6 s) for F = 0..9.99 N; fit a force polynomial
+``F(x) = c1 x + .. + c4 x^4`` per cell with ``F' >= 0``, ``F'' <= 0`` on [0, b]; divide by
+the 4 brackets of a specimen; write the model file and a report.  All QPs use quadprog
+through qpsolvers, with column and row scaling and a cutting-plane working set (see
+:mod:`pysolver.material.polyfit`).  Same data -> byte-identical model file (floats rounded to
+12 significant digits, no date, no absolute paths).
 
 Wall time on 2 cores: the chain 6-15 s, ``fit_material`` with figures and the option study
 (``evaluate_options=True``, 4 extra refits) 21 s on a quiet machine, 50-80 s with 3-4 other
@@ -59,7 +60,7 @@ cells fitted independently in h (code)      0.6392 (0.748)  0.7208 (0.822)  0.05
 6. Kept from the code: dry time cut 5.25 s; measured load for dry, nominal load for wet; tail cut
    rule; rate floor 0.01 mm/min; t = 0 at the start of the recording (the SI's 8 s of submersion
    is not modelled); load resampling F < 10 N, x < b, x <= 10 mm.
-7. Outside the grid the model clamps (see :mod:`.model`).
+7. Outside the grid the model clamps (see :mod:`pysolver.material.model`).
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ from ..errors import InputError
 from ..material.creep import INTEGRATIONS, CreepModel
 from ..material.measurements import (
     REPO_ROOT,
+    SCORE_STRAIN_CUT,
     SPECIMEN_BRACKETS,
     Measurements,
     Observations,
@@ -86,6 +88,7 @@ from ..material.measurements import (
     load_measurements,
     preprocess_dry,
     preprocess_wet,
+    wet_eval_rows,
 )
 from ..material.model import BracketModel, bracket_record, load_bracket_model, model_dict
 from ..material.polyfit import (
@@ -428,24 +431,6 @@ def model_residuals(model, obs: Observations) -> dict:
     return _rms_summary(x - obs.x, obs.series, obs.names)
 
 
-SCORE_STRAIN_CUT = 0.7
-"""Wet rows with ``x/b`` under this score a model (the reference code's cut, kept for scoring
-so that scores compare with the reference's; the fit itself uses ``FitOptions.wet_strain_cut``)."""
-
-
-def wet_eval_rows(wet_table, strain_cut: float = SCORE_STRAIN_CUT,
-                  t_max_s: float | None = None) -> Observations:
-    """Wet rows used to score models: tail cut, ``x/b < strain_cut``, ``t <= t_max_s``.
-
-    ``t_max_s`` defaults to the end of the model grid in time (``FitOptions().grid_axes()``,
-    120 s): the model is not fitted beyond it.
-    """
-    if t_max_s is None:
-        t_max_s = float(FitOptions().grid_axes()[2][-1])
-    obs = preprocess_wet(wet_table, strain_cut=strain_cut)
-    return obs.subset(obs.t * 60.0 <= t_max_s + TOL.rel)
-
-
 # ------------------------------------------------------------------------------------------------
 # the whole chain
 
@@ -490,7 +475,8 @@ def run_chain(meas: Measurements, opts: FitOptions, progress: bool = True,
     progress : bool
         One line per stage on stderr.
     score_rows : Observations, optional
-        Wet rows to score on (default :func:`wet_eval_rows` with x/b < 0.7, t <= 120 s).
+        Wet rows to score on (default :func:`~pysolver.material.measurements.wet_eval_rows`:
+        x/b < ``SCORE_STRAIN_CUT``, t up to the end of the model's time grid).
 
     Returns
     -------

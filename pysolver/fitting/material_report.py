@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..material.measurements import (  # noqa: E402
+    SCORE_STRAIN_CUT,
     SPECIMEN_BRACKETS,
     preprocess_dry,
     preprocess_wet,
@@ -112,7 +113,7 @@ def plot_wet(meas, res, out_png) -> None:
     r = res.residuals["wet_model"]
     fig.suptitle("Creep in hot water at constant load: data (solid; faint beyond the strain cut "
                  f"x/b = {cut:.3g}) vs tabulated model (dashed). RMS {r['rms_mm']:.3f} mm "
-                 f"(x/b < 0.7, t <= 120 s)", fontsize=10)
+                 f"(x/b < {SCORE_STRAIN_CUT:g}, t <= {res.model.grid_max[2]:g} s)", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     fig.savefig(out_png, dpi=90)
     plt.close(fig)

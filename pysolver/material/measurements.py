@@ -46,6 +46,11 @@ shipped with the project; source, licence and columns in its ``README.md``)."""
 SPECIMEN_BRACKETS = 4
 """Brackets per test specimen (two V-brackets per side): specimen force = 4 x bracket force."""
 
+SCORE_STRAIN_CUT = 0.7
+"""Wet rows with ``x/b`` under this score a model (:func:`wet_eval_rows`): the reference code's
+cut, kept for scoring so that scores compare with the reference's; the fit itself uses
+``FitOptions.wet_strain_cut``."""
+
 STANDARD_DESIGN = {5.0: (0.30, 0.40, 0.50, 0.60), 6.0: (0.30, 0.40, 0.50, 0.60),
                    7.0: (0.30, 0.40, 0.50, 0.60), 8.0: (0.35, 0.45, 0.55, 0.65),
                    9.0: (0.35, 0.45, 0.55, 0.65)}
@@ -490,8 +495,9 @@ def tail_cut_index(t_min: np.ndarray, x: np.ndarray, rate_min: float = -0.1,
     return len(x) if hit.size == 0 else int(hit[0]) + 1
 
 
-def preprocess_wet(wet: TestTable, strain_cut: float = 0.7, tail_rate: float = -0.1,
-                   window: int = 10, apply_strain_cut: bool = True) -> Observations:
+def preprocess_wet(wet: TestTable, strain_cut: float = SCORE_STRAIN_CUT,
+                   tail_rate: float = -0.1, window: int = 10,
+                   apply_strain_cut: bool = True) -> Observations:
     """Wet rows used by the fit (material-model.md §4).
 
     Parameters
@@ -518,6 +524,22 @@ def preprocess_wet(wet: TestTable, strain_cut: float = 0.7, tail_rate: float = -
         keep &= wet.x / wet.b < strain_cut
     return Observations(wet.h[keep], wet.b[keep], wet.nominal[keep], wet.x[keep], t_min[keep],
                         wet.series[keep], wet.names)
+
+
+def wet_eval_rows(wet: TestTable, t_max_s: float,
+                  strain_cut: float = SCORE_STRAIN_CUT) -> Observations:
+    """Wet rows that score a bracket model: tail cut, ``x/b < strain_cut``, ``t <= t_max_s``.
+
+    Parameters
+    ----------
+    wet : TestTable
+    t_max_s : float, s
+        The end of the scored model's time grid (``model.grid_max[2]``): the model is not
+        fitted beyond it.
+    strain_cut : float
+    """
+    obs = preprocess_wet(wet, strain_cut=strain_cut)
+    return obs.subset(obs.t * 60.0 <= t_max_s + TOL.rel)
 
 
 def creep_rates(obs: Observations, floor: float = 0.01):

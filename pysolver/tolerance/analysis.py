@@ -79,8 +79,7 @@ from pysolver import distributed
 from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
 from pysolver.build import check_sim_span, simulate_and_check
 from pysolver.errors import InputError, MorphshellError, refuse_first
-from pysolver.fitting.material_fit import SPECIMEN_BRACKETS, wet_eval_rows
-from pysolver.material.measurements import load_measurements
+from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
 from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
@@ -149,7 +148,7 @@ def material_scatter(material=None, data_dir=None) -> dict:
     mod = material if hasattr(material, "compression_for_force") else load_bracket_model(
         material)
     meas = load_measurements(data_dir)
-    obs = wet_eval_rows(meas.wet)
+    obs = wet_eval_rows(meas.wet, float(mod.grid_max[2]))
     x = mod.compression_for_force(obs.h, obs.b, obs.t * 60.0, obs.F / SPECIMEN_BRACKETS)
     logs = []
     for k in np.unique(obs.series):
