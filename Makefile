@@ -6,10 +6,12 @@
 #   make tolerance shape=petal [SAMPLES=64]   Monte Carlo tolerance analysis (Dask)
 #   make sweep SPEC=file.toml                 build and tabulate design variants (Dask)
 #   make scad-params        regenerate scad/params.scad from pysolver/params.py
+#   make lock               re-resolve uv.lock (every package to its newest allowed release)
 #
-# The first call creates .venv and installs the project; Debian packages that are
-# missing are installed with apt-get when running as root (otherwise the exact
-# sudo line is printed).  Re-running is fast when nothing changed.
+# The first call creates .venv and installs exactly the versions pinned in uv.lock (with
+# uv, itself pinned and installed from PyPI into .uv/); Debian packages that are missing are
+# installed with apt-get when running as root (otherwise the exact sudo line is printed).
+# Re-running is fast when nothing changed.
 
 SHELL      := /bin/bash
 shape      ?= petal
@@ -29,6 +31,8 @@ PYTHON     ?= python3
 VENV       := .venv
 PY         := $(VENV)/bin/python
 STAMP      := $(VENV)/.installed
+UV_VERSION := 0.13.9
+UV         := .uv/bin/uv
 APT_PKGS   := openscad libsuitesparse-dev libopenblas0-pthread libegl1 libegl-mesa0 libgl1-mesa-dri \
               chromium chromium-driver
 
@@ -61,7 +65,7 @@ DASK_OPTS  := $${MS_SCHEDULER:+--scheduler "$$MS_SCHEDULER"} \
               $${MS_WORKERS:+--workers "$$MS_WORKERS"}
 
 .PHONY: all build design sim report test bench clean material membrane-model specimens \
-        system-deps venv lint shapes studio studio-shots tolerance sweep scad-params
+        system-deps venv lint shapes studio studio-shots tolerance sweep scad-params lock
 
 all: build
 
@@ -146,8 +150,16 @@ system-deps:
 	  fi; \
 	fi
 
-$(STAMP): pyproject.toml | system-deps
-	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+# uv, pinned: the tool that installs the lock (a wheel from PyPI, into its own venv)
+$(UV):
+	@$(PYTHON) -m venv .uv && .uv/bin/python -m pip install -q "uv==$(UV_VERSION)"
+
+# exactly uv.lock (--locked: refused, with the fix, when pyproject.toml changed since)
+$(STAMP): pyproject.toml uv.lock | system-deps $(UV)
+	@$(UV) sync --locked --extra dev --python "$(PYTHON)" --quiet || { \
+	  echo "The install from uv.lock failed. If pyproject.toml changed, refresh the lock: make lock"; \
+	  exit 1; }
 	@touch $(STAMP)
+
+lock: $(UV)
+	$(UV) lock --upgrade --python "$(PYTHON)"

@@ -44,6 +44,7 @@ import re
 import sys
 import tempfile
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -125,11 +126,6 @@ def load_spec(path) -> dict:
     InputError
         Unreadable TOML, unknown keys, wrong types, duplicate names, too many variants.
     """
-    try:
-        import tomllib  # Python >= 3.11 (tomli before)
-    except ImportError:  # Python 3.10: the same parser from PyPI (pyproject.toml)
-        import tomli as tomllib  # Python < 3.11 fallback for tomllib
-
     p = Path(path)
     try:
         text = p.read_bytes().decode("utf-8")
