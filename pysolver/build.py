@@ -26,6 +26,7 @@ import shutil
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -152,13 +153,47 @@ def _version(dist: str) -> str:
         return "not installed"
 
 
+LOCK_FILE = Path(__file__).resolve().parents[1] / "uv.lock"
+"""The lock file that ``make`` installs (absent when morphshell is installed some other way)."""
+
+
+def lock_record(lock=LOCK_FILE) -> dict:
+    """The lock file's hash, and the installed packages whose version it does not pin.
+
+    Returns
+    -------
+    dict
+        ``sha256`` of ``uv.lock`` (None when there is none), ``mismatched``: sorted
+        ``"name installed (lock: v1, v2)"`` for every package the lock pins that is installed
+        at another version (empty when the environment is exactly the lock's).
+    """
+    lock = Path(lock)
+    if not lock.is_file():
+        return {"sha256": None, "mismatched": []}
+    data = tomllib.loads(lock.read_text(encoding="utf-8"))
+    pinned: dict = {}
+    for pkg in data.get("package", []):
+        if "version" in pkg and (pkg.get("source") or {}).get("editable") is None:
+            pinned.setdefault(pkg["name"], set()).add(pkg["version"])
+    bad = []
+    for name, vers in sorted(pinned.items()):
+        have = _version(name)
+        if have != "not installed" and have not in vers:
+            bad.append(f"{name} {have} (lock: {', '.join(sorted(vers))})")
+    return {"sha256": _sha256_file(lock), "mismatched": bad}
+
+
 def tool_versions() -> dict:
-    """Versions of the project, OpenSCAD, Python and the key libraries."""
+    """Versions of the project, OpenSCAD, Python and the key libraries, and the lock file's
+    hash (:func:`lock_record`: ``lock_sha256``, ``lock_mismatched``)."""
     v = {name: _version(name) for name in (
         "morphshell", "numpy", "scipy", "libigl", "trimesh", "manifold3d", "triangle",
         "pymeshlab", "scikit-sparse", "qpsolvers", "matplotlib", "pyvista",
-        "openscad-evaluator")}
+        "openscad-evaluator", "autograd", "numba")}
     v["python"] = sys.version.split()[0]
+    lock = lock_record()
+    v["lock_sha256"] = lock["sha256"]
+    v["lock_mismatched"] = lock["mismatched"]
     try:
         out = subprocess.run(["openscad", "--version"], capture_output=True, text=True,
                              timeout=30)
@@ -224,7 +259,7 @@ def check_build_options(*, jobs=None, t_end=None, dt=None, refine=None, render: 
 
 
 def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0,
-          flattening: str = "cetm", stencil_order: bool = False, material=None,
+          flattening: str = "cetm", stencil: bool = False, material=None,
           refine: int = DEFAULT_REFINE, program: bool = True, render: bool = True,
           simulate: bool = True, t_end=None, dt=None, jobs=None,
           progress: bool = True, renderer=None, keep_failed: bool = False,
@@ -239,7 +274,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         ``regular``) or a path to a mesh / stencil OBJ.
     out : path-like, optional
         Output folder (default ``build/<name>``).
-    vertices, time, time_file, scale, size, flattening, stencil_order
+    vertices, time, time_file, scale, size, flattening, stencil
         Design options, see :func:`pysolver.design.run_design`.
     material : path-like, optional
         Bracket model file (default: the committed model).
@@ -284,7 +319,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     out = claim_output(out or BUILD_ROOT / name, what="output folder",
                        inputs=[source, material, time_file])
     design_opts = dict(vertices=vertices, time=time, scale=scale, flattening=flattening,
-                       stencil_order=stencil_order, params=params)
+                       stencil=stencil, params=params)
     if seed is not None:  # (only when given: keeps the hash of earlier builds)
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
             raise InputError(f"--seed must be a whole number from 0 to 2^32 - 1, got {seed!r}",

@@ -70,8 +70,11 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
                            "(for unitless meshes)")
     p.add_argument("--flattening", choices=("cetm", "lscm"), default="cetm",
                    help="conformal flattening method (default: cetm)")
-    p.add_argument("--stencil-order", action="store_true",
-                   help="treat an OBJ with vt as a finished stencil: keep vertex/face order")
+    p.add_argument("--stencil", "--stencil-order", dest="stencil", action="store_true",
+                   help="the mesh is a finished stencil: its own triangles are the bases (no "
+                        "remeshing), its vt (OBJ) the flat layout (else it is flattened); "
+                        "without it a mesh with a UV map is a target surface, and only "
+                        "morphshell's own stencil.obj is read as a stencil")
     p.add_argument("--min-bumper", type=float, default=None, metavar="MM",
                    help="minimal bumper length beyond the base rim, mm (default 0.3, the "
                         "paper's; 3D scaling rule)")
@@ -300,7 +303,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
         result = build(args.shape, out=args.out, vertices=args.vertices, time=args.time,
                        scale=args.scale, size=args.size, flattening=args.flattening,
                        time_file=args.time_file,
-                       stencil_order=args.stencil_order, material=args.material,
+                       stencil=args.stencil, material=args.material,
                        refine=args.refine, program=not args.no_program,
                        render=not args.no_render, simulate=not args.no_sim,
                        t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress,
@@ -312,7 +315,7 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
         design_only(args.shape, out=args.out, vertices=args.vertices, time=args.time,
                     scale=args.scale, size=args.size, flattening=args.flattening,
                     time_file=args.time_file,
-                    stencil_order=args.stencil_order, progress=progress,
+                    stencil=args.stencil, progress=progress,
                     params=_unit_cell(args))
         return EXIT_OK
     return _run_other(args, progress)

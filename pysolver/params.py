@@ -670,7 +670,15 @@ class StencilSearch:
     opt_clearance_weight : float
         Weight of the squared log shortfall of a base centre's clearance.
     opt_clearance_slack : float
-        Log shortfall of the clearance (2 %) a round may leave and still be kept.
+        Log shortfall of the clearance (2 %) a round may leave and still be kept (a hard
+        limit of :func:`pysolver.design.stencil_opt.accept_step`).
+    opt_backtracks : int
+        Halvings of a round's step back toward its start tried when the L-BFGS point breaks
+        a hard limit or does not improve the exact objective: a soft penalty's overshoot
+        never costs the whole round.
+    opt_stiffen : float
+        When no point of the step is kept, the round is solved once more with the clearance
+        penalty this many times stiffer.
     opt_tiny : float
         Floor of the arguments of the barrier's and penalties' logarithms, and the guard
         added under the square root of the half fold's tangent (finite gradient when flat).
@@ -802,6 +810,8 @@ class StencilSearch:
     opt_angle_weight: float = 100.0
     opt_clearance_weight: float = 1000.0
     opt_clearance_slack: float = 0.02
+    opt_backtracks: int = 6
+    opt_stiffen: float = 10.0
     opt_tiny: float = 1e-30
     opt_rounds: int = 2
     opt_iterations: int = 50

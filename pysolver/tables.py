@@ -256,6 +256,11 @@ def read_support_frame(path) -> np.ndarray:
 # stencil.obj
 
 
+STENCIL_MARKER = "# morphshell stencil"
+"""First line of every ``stencil.obj`` morphshell writes: such an OBJ is read as a stencil
+(:func:`pysolver.design.mesh_input.load_input`); any other OBJ only with ``--stencil``."""
+
+
 def write_stencil(path, V, UV, F) -> Path:
     """Write ``stencil.obj``: ``v`` (target, mm), ``vt`` (flat, mm, row-aligned), ``f`` 1-based."""
     V = np.asarray(V, float)
@@ -265,7 +270,7 @@ def write_stencil(path, V, UV, F) -> Path:
     path = Path(path)
     if path.is_dir():
         path = path / "stencil.obj"
-    lines = ["# morphshell stencil: v = target (mm), vt = flat layout (mm), row-aligned"]
+    lines = [f"{STENCIL_MARKER}: v = target (mm), vt = flat layout (mm), row-aligned"]
     lines += ["v {:.9g} {:.9g} {:.9g}".format(*tuple(p)) for p in V + 0.0]
     lines += ["vt {:.9g} {:.9g}".format(*tuple(p)) for p in UV + 0.0]
     lines += ["f {} {} {}".format(*(f + 1)) for f in F]

@@ -10,6 +10,8 @@ cells are all boundary cells; the programming stage is checked on ``regular``).
 
 from __future__ import annotations
 
+import hashlib
+import importlib.metadata
 import json
 import os
 import re
@@ -21,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pysolver.build import inputs_hash
+from pysolver.build import inputs_hash, lock_record
 from pysolver.design import run_design
 
 REPO = Path(__file__).resolve().parent.parent
@@ -81,6 +83,9 @@ def test_summary_records_versions_and_inputs_hash(cli_build):
                 "triangle", "matplotlib", "openscad"):
         assert v.get(lib) and v[lib] != "not installed", lib
     assert re.match(r"OpenSCAD version \d{4}\.\d\d", v["openscad"]), v["openscad"]
+    # the lock make installs: its hash, and no installed package off it
+    assert v["lock_sha256"] == hashlib.sha256((REPO / "uv.lock").read_bytes()).hexdigest()
+    assert v["lock_mismatched"] == []
     assert re.fullmatch(r"[0-9a-f]{64}", s["inputs_sha256"])
     # the hash is that of the recorded source + options, and changes with any option
     assert s["inputs_sha256"] == inputs_hash(s["source"], s["options"])
@@ -89,6 +94,18 @@ def test_summary_records_versions_and_inputs_hash(cli_build):
     assert s["figures"]["n_bases"] == 4 and s["figures"]["n_cells"] == 3
     assert set(s["stages"]) == {"design", "render"}
     assert not (cli_build / ".inputs_sha256").exists()
+
+
+def test_lock_record_names_packages_installed_off_the_lock(tmp_path):
+    lock = tmp_path / "uv.lock"
+    lock.write_text('version = 1\n\n[[package]]\nname = "numpy"\nversion = "0.0.1"\n'
+                    '\n[[package]]\nname = "scipy"\nversion = "%s"\n'
+                    '\n[[package]]\nname = "no-such-package-here"\nversion = "1.0"\n'
+                    % importlib.metadata.version("scipy"))
+    rec = lock_record(lock)
+    assert rec["sha256"] == hashlib.sha256(lock.read_bytes()).hexdigest()
+    assert rec["mismatched"] == [f"numpy {np.__version__} (lock: 0.0.1)"]
+    assert lock_record(tmp_path / "absent.lock") == {"sha256": None, "mismatched": []}
 
 
 def test_build_tables_match_an_independent_design(cli_build, tmp_path):

@@ -345,7 +345,7 @@ def test_too_curved_names_the_region_in_target_mm(tmp_path):
     out = tmp_path / "out"
     cap = _cap(tmp_path)
     with pytest.raises(InputError) as e:
-        design_only(str(cap), out=out, stencil_order=True, progress=False)
+        design_only(str(cap), out=out, stencil=True, progress=False)
     msg = str(e.value)
     _names(msg, r"unprintable design: \d+ unit cell\(s\) longer than 9\.5 mm \(max 1\d\.\d\d mm\)",
            r"on the target: cell \d+ at \(", r"region centred at \(",

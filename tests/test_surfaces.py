@@ -173,6 +173,45 @@ def test_user_mesh_with_vertex_times(dome_ply, tmp_path):
                    progress=False, plots=False)
 
 
+def _obj_with_uv(path, V, UV, F, marker: bool = False):
+    """An OBJ as modelling tools export it: ``v``, ``vt`` and ``f v/vt`` corners."""
+    lines = [tables.STENCIL_MARKER + ": test"] if marker else ["# exported"]
+    lines += ["v {:.9g} {:.9g} {:.9g}".format(*p) for p in V]
+    lines += ["vt {:.9g} {:.9g}".format(*p) for p in UV]
+    lines += ["f " + " ".join(f"{i + 1}/{i + 1}" for i in f) for f in F]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_mesh_with_a_uv_map_is_a_target_surface(tmp_path):
+    """A UV map is a texture layout: the mesh is a target unless --stencil or the marker."""
+    s = surfaces.builtin("dome")
+    # a texture layout that is a valid flat layout too: the UV map alone decides nothing
+    src = _obj_with_uv(tmp_path / "textured.obj", s.V, s.V[:, :2] / 100 + 0.5, s.F)
+    m = load_input(src)
+    assert m.kind == "mesh" and m.UV is None and len(m.F) == len(s.F)
+    assert any("UV map (vt) ignored" in n and "--stencil" in n for n in m.notes)
+    m = load_input(src, stencil=True)
+    assert m.kind == "stencil" and np.allclose(m.UV, s.V[:, :2] / 100 + 0.5, atol=1e-8)
+    m = load_input(_obj_with_uv(tmp_path / "own.obj", s.V, s.V[:, :2], s.F, marker=True))
+    assert m.kind == "stencil" and np.allclose(m.UV, s.V[:, :2], atol=1e-6)
+
+
+def test_stencil_with_an_invalid_flat_layout_names_the_target_route(tmp_path):
+    s = surfaces.builtin("dome")
+    UV = s.V[:, :2].copy()
+    UV[:len(UV) // 2, 0] *= -1  # half of the layout mirrored: triangles of both orientations
+    src = _obj_with_uv(tmp_path / "textured.obj", s.V, UV, s.F)
+    with pytest.raises(InputError, match=r"flat triangles are inverted") as e:
+        run_design(src, tmp_path / "out", stencil=True, progress=False, plots=False)
+    assert "without --stencil" in e.value.fix
+    with pytest.raises(InputError, match=r"stencil marker") as e:
+        run_design(_obj_with_uv(tmp_path / "own.obj", s.V, UV, s.F, True), tmp_path / "o2",
+                   progress=False, plots=False)
+    assert "marker" in e.value.fix
+    assert not (tmp_path / "out").exists() and not (tmp_path / "o2").exists()
+
+
 def test_user_stencil_keeps_vertex_and_face_order(tmp_path):
     """A stencil OBJ (v target, vt flat) is used as is: same vertex and face order."""
     out = tmp_path / "dome"
@@ -267,13 +306,13 @@ def test_good_mesh_formats_load(tmp_path):
 
 
 def test_mesh_as_stencil_and_lscm(tmp_path):
-    """``stencil_order=True`` keeps a user mesh's own triangulation (order kept, flattened
+    """``stencil=True`` keeps a user mesh's own triangulation (order kept, flattened
     here); ``flattening='lscm'`` is selectable and recorded."""
     out = tmp_path / "dome"
     run_design("dome", out, progress=False, plots=False)
     V, _, F = tables.read_stencil(out / "stencil.obj")
     src = save_mesh(tmp_path / "mine.ply", V, F)
-    summary = run_design(src, tmp_path / "mine", stencil_order=True, flattening="lscm",
+    summary = run_design(src, tmp_path / "mine", stencil=True, flattening="lscm",
                          progress=False, plots=False)
     assert summary["flattening"]["method"] == "lscm"
     assert set(summary["flattening"]["comparison"]) == {"cetm", "lscm"}

@@ -1,9 +1,12 @@
 """Read and validate user target surfaces (OBJ, STL, PLY, OFF) and stencil OBJs.
 
-:func:`load_input` returns an :class:`InputMesh`.  An OBJ with one ``vt`` per ``v``
-(row-aligned, or one-to-one ``v/vt`` face corners) is a **stencil**: its vertex and
-face order are kept and ``UV`` is its flat layout.  Everything else is a target surface
-(vertex order kept with ``process=False``; STL vertices are merged).
+:func:`load_input` returns an :class:`InputMesh`.  Every mesh is a **target surface**
+(vertex order kept with ``process=False``; coincident corners are welded), a mesh with a
+UV map (``vt`` rows, as modelling tools export them) included: its UV map is a texture
+layout, not a flat stencil.  An OBJ is a **stencil** (one ``vt`` per ``v``, row-aligned or
+one-to-one ``v/vt`` face corners; vertex and face order kept, ``UV`` its flat layout) only
+when the user says so (``stencil=True``, ``--stencil``) or when it carries the marker line
+morphshell writes into its own ``stencil.obj`` (:data:`STENCIL_MARKER`).
 
 :func:`validate_surface` refuses, with an actionable message, anything that cannot be
 a shell: empty or corrupt files, unsupported formats, NaN/inf, degenerate triangles,
@@ -25,7 +28,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import face_adjacency
 from ..params import tol as TOL
-from ..tables import read_stencil
+from ..tables import STENCIL_MARKER, read_stencil
 
 SUPPORTED = (".obj", ".stl", ".ply", ".off")
 # a shell smaller or larger than this (bounding-box diagonal, mm) is probably in other units:
@@ -89,6 +92,12 @@ def _obj_has_vt(path: Path) -> bool:
             if line.startswith("vt "):
                 return True
     return False
+
+
+def has_stencil_marker(path) -> bool:
+    """Whether the OBJ's first line is the marker morphshell writes into ``stencil.obj``."""
+    with open(path, errors="replace") as fh:
+        return fh.readline().startswith(STENCIL_MARKER)
 
 
 def _read_trimesh(path: Path):
@@ -180,7 +189,7 @@ def size_factor(V, size: float, name: str = "surface") -> float:
 
 
 def load_input(path, scale: float = 1.0, validate: bool = True,
-               size: float | None = None) -> InputMesh:
+               size: float | None = None, stencil: bool = False) -> InputMesh:
     """Load a target surface or a stencil OBJ.
 
     Parameters
@@ -193,6 +202,10 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
     size : float, mm, optional
         Scale the coordinates instead so that the largest bounding-box extent is ``size``
         mm (for unitless meshes); exclusive with ``scale`` (``scale`` must then be 1).
+    stencil : bool
+        The OBJ is a finished stencil (``--stencil``): its ``vt`` is its flat layout.
+        Without it, only an OBJ that carries morphshell's stencil marker is one; any other
+        mesh with a UV map is a target surface and its ``vt`` rows are ignored.
 
     Returns
     -------
@@ -212,8 +225,11 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
     if path.stat().st_size == 0:
         raise InputError(f"{path}: empty file", fix="re-export the mesh")
     notes = []
-    if ext == ".obj" and _obj_has_vt(path):
-
+    has_vt = ext == ".obj" and _obj_has_vt(path)
+    if has_vt and not (stencil or has_stencil_marker(path)):
+        notes.append("UV map (vt) ignored: a mesh with a UV map is a target surface "
+                     "(give --stencil to use its triangles and vt as a finished stencil)")
+    elif has_vt:
         try:
             V, UV, F = read_stencil(path)
             if size is not None:
@@ -225,7 +241,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
                 validate_surface(mesh.V, mesh.F, str(path))
             return mesh
         except InputError as e:
-            if "seam" not in e.problem:
+            if "seam" not in e.problem or stencil:
                 raise
             notes.append("vt ignored: the texture layout has seams (not a stencil)")
     m = _read_trimesh(path)

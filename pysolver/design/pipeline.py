@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import tables
 from ..errors import InputError
+from ..geometry import signed_areas_2d
 from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell, check_unit_cell
 from ..params import tol as TOL
 from . import surfaces
@@ -66,7 +67,7 @@ class _Clock:
                   f"(total {now - self._start:6.1f} s)", file=sys.stderr, flush=True)
 
 
-def _load_source(source, scale: float, size=None):
+def _load_source(source, scale: float, size=None, stencil: bool = False):
     """Returns (surface-like object, kind, source description, hash, input mesh or None,
     factor applied to the input coordinates: ``scale``, or the one that ``size`` asks for)."""
     if isinstance(source, surfaces.Surface):
@@ -93,7 +94,7 @@ def _load_source(source, scale: float, size=None):
                          fix=f"give a mesh file (OBJ, STL, PLY, OFF) or one of "
                              f"{', '.join(surfaces.BUILTIN)}")
 
-    mesh = load_input(p, scale=scale, size=size)
+    mesh = load_input(p, scale=scale, size=size, stencil=stencil)
     h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
     surf = surfaces.Surface(p.stem, mesh.V, mesh.F, UV=mesh.UV)
     return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh, mesh.scale
@@ -116,7 +117,7 @@ def _target_times(time, surf, mesh):
     return t if np.ptp(t) > TOL.time else None
 
 
-def _time_file_source(path, mesh, surf, stencil_order: bool):
+def _time_file_source(path, mesh, surf, stencil: bool):
     """The ``time`` source for ``--time-file``: the values as they are (an array per stencil
     vertex) for a finished stencil, else a vertex attribute of the input mesh that
     :func:`~pysolver.design.time_landscape.resolve_time` interpolates (``vertex:<name>``).
@@ -134,12 +135,28 @@ def _time_file_source(path, mesh, surf, stencil_order: bool):
                              "(an expression of x, y, z in mm), or design a mesh file")
     t = time_file_per_vertex(values, mesh, str(path))
     info = {"path": str(path), "sha256": sha, "values": int(len(values))}
-    if surf.UV is not None or stencil_order:  # the stencil is the input: vertex-aligned
+    if surf.UV is not None or stencil:  # the stencil is the input: vertex-aligned
         info["carried"] = "used as given: the input is the stencil"
         return t, info
     mesh.vertex_attributes = dict(mesh.vertex_attributes or {}, **{TIME_FILE_ATTRIBUTE: t})
     info["carried"] = "barycentric interpolation on the input surface"
     return f"vertex:{TIME_FILE_ATTRIBUTE}", info
+
+
+def _check_given_layout(UV, F, src: str, asked: bool) -> None:
+    """Refuse a stencil whose flat layout (its ``vt``) is not one: triangles of both
+    orientations, or degenerate.  The fix names the way to design the mesh as a target."""
+    A = signed_areas_2d(UV, F)
+    bad = int(min(np.sum(A > 0), np.sum(A < 0)) + np.sum(A == 0))
+    if bad:
+        why = "--stencil was given" if asked else "it carries morphshell's stencil marker"
+        raise InputError(
+            f"{src} is read as a finished stencil ({why}), but its flat layout (vt) is not a "
+            f"valid one: {bad} of its {len(F)} flat triangles are inverted or degenerate "
+            "(a texture's UV map is not a stencil)",
+            fix="to design this mesh as a target surface, give it without --stencil (its vt "
+                "is then ignored)" if asked else
+                "remove the first line (the marker) to design the mesh as a target surface")
 
 
 def design_layout(V, UV, F, params: UnitCell = UNIT_CELL, central_length=None) -> Layout:
@@ -274,7 +291,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
 
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
-               stencil_order=False, progress=True, plots=True, seed=None,
+               stencil=False, progress=True, plots=True, seed=None,
                size=None, time_file=None) -> dict:
     """Design a shell and write the design folder.
 
@@ -301,7 +318,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         CSV of one time (s) per vertex of the input mesh, in file order (exclusive with
         ``time``; :func:`pysolver.design.time_landscape.read_time_file`).  Carried onto the stencil
         by barycentric interpolation on the input surface, the path of a PLY vertex
-        property; for a finished stencil (OBJ with vt, or ``stencil_order``) used as given.
+        property; for a finished stencil (OBJ with vt, or ``stencil``) used as given.
     flattening : {"cetm", "lscm"}
         Conformal flattening used for the layout (both are computed and compared).
     params : UnitCell
@@ -309,9 +326,11 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         Uniform bracket thickness written until the temporal stage sets it.
     central_length : float, mm, optional
         Flat central length override (shortest cell); default from the shape.
-    stencil_order : bool
-        For an input mesh without vt: use its own triangulation as the stencil
-        (no remeshing), keeping vertex and face order.
+    stencil : bool
+        The input mesh is a finished stencil (``--stencil``): its own triangulation is the
+        stencil (no remeshing; vertex and face order kept), its ``vt`` (an OBJ) the flat
+        layout, else it is flattened.  Without it a mesh with a UV map is a target surface;
+        only an OBJ with morphshell's stencil marker is read as a stencil.
     progress : bool
         One line per stage on stderr.
     plots : bool
@@ -329,10 +348,10 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
                          thickness=thickness, params=params, size=size, time_file=time_file)
     out_dir = Path(out_dir)
     clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
-    surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size)
+    surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size, stencil)
     time_opt, time_file_info = time, None
     if time_file is not None:
-        time, time_file_info = _time_file_source(time_file, mesh, surf, stencil_order)
+        time, time_file_info = _time_file_source(time_file, mesh, surf, stencil)
     check_time_source(time, mesh)
     sequence = None
     if time is None and surf.time is None and mesh is not None:
@@ -342,7 +361,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
 
     remesh_info = {}
     comparison = {}
-    if vertices is not None and (surf.UV is not None or stencil_order):
+    if vertices is not None and (surf.UV is not None or stencil):
         what = ("a finished stencil (its own flat layout)" if kind != "builtin"
                 else "a fixed tessellation")
         raise InputError(f"--vertices {vertices} has no effect on {src_desc}: it is {what}, "
@@ -351,11 +370,12 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
                              "remeshed (built-in curved shapes and mesh files).")
     if surf.UV is not None:
         V0, UV0, F0 = surf.V, surf.UV, surf.F
+        _check_given_layout(UV0, F0, src_desc, stencil)
         remesh_info = {"remeshed": False, "vertices": int(len(V0))}
         clock.step("remesh")
         clock.step("flatten")
     else:
-        if stencil_order:
+        if stencil:
             V0, F0 = surf.V, surf.F
             remesh_info = {"remeshed": False, "vertices": int(len(V0))}
         else:
@@ -445,7 +465,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         "sequencing": sequence,
         "scale": scale, "size_mm": size, "input_scale": input_scale,
         "flattening": flattening, "thickness_mm": thickness,
-        "central_length_mm": cl, "stencil_order": stencil_order,
+        "central_length_mm": cl, "stencil": stencil,
         "params": params.to_dict(),
         "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
         "alignment_bases": [int(i) for i in lay.alignment],

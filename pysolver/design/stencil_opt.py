@@ -245,6 +245,187 @@ def timing_misfit(Q, X, F, fa, fb, o1, o2, boundary, log_t_star, log_s3, log_s2,
     return anp.mean(early**2 + late**2)
 
 
+class StencilObjective:
+    """The objective of :func:`optimize_stencil` for one stencil: its fixed data and terms.
+
+    Built once per call (a class because the cells, the free/fixed split, the starting
+    angles and clearances and the landscape are reused by every round and every check).
+
+    Parameters
+    ----------
+    domain : pysolver.design.remesh.FlatDomain
+    P : (n, 2) float, mm
+        The starting flat stencil (its angles and clearances set the penalties' floors).
+    F : (m, 3) int
+    params : UnitCell
+    settings : StencilSearch
+    t_vertex : (n,) float, s, optional
+    pin : bool
+    """
+
+    def __init__(self, domain, P, F, params: UnitCell, settings: StencilSearch,
+                 t_vertex=None, pin: bool = False):
+        self.domain, self.F, self.params, self.settings = domain, F, params, settings
+        cells = unit_cells(F, face_adjacency(F))
+        self.n_cells = len(cells.faces)
+        self.fa, self.fb = cells.faces[:, 0], cells.faces[:, 1]
+        o = opposite_vertices(F, cells)
+        self.o1, self.o2 = o[:, 0], o[:, 1]
+        varies = t_vertex is not None and np.ptp(np.asarray(t_vertex, float)) > TOL.time
+        self.w_t = settings.opt_timing_weight if varies else 0.0
+        if self.w_t > 0:
+            self.log_ts = np.log(np.maximum(cell_target_times(
+                t_vertex, cells.verts[:, 0], cells.verts[:, 1]), settings.opt_tiny))
+            # cells with a base on the rim (temporal programming's ``boundary`` flag instead
+            # asks for an end of the shared edge on the rim; they differ on about 1 % of cells)
+            rim = np.any(face_adjacency(F) < 0, axis=1)
+            self.bnd = (rim[self.fa] | rim[self.fb]).astype(float)
+        self.log_cap = np.log(params.max_cell_length - settings.margin)
+        self.pin = settings.opt_pin_weight if pin else 0.0
+        self.fixed = np.zeros(len(P), dtype=bool)
+        self.fixed[igl.boundary_loop(F)] = True
+        self.free = np.flatnonzero(~self.fixed)
+        # Q = concat(free rows, fixed rows)[perm]: indexing keeps autograd's tape simple
+        order = np.r_[self.free, np.flatnonzero(self.fixed)]
+        self.perm = np.empty(len(P), dtype=np.int64)
+        self.perm[order] = np.arange(len(P))
+        self.A0 = _signed_areas(P, F)
+        # flat corners within [floor, cap] (or no worse than at the start): each base's printed
+        # disc and bracket roots must stay inside its triangle's neighbourhood, which the
+        # membrane meshes of the simulator and of the per-cell correction assume
+        start = _angles_np(P, F)
+        self.floor = np.minimum(np.radians(settings.opt_min_angle_deg), start)
+        self.cap = np.maximum(np.radians(settings.opt_max_angle_deg), start)
+        # and every base centre (flat centroid) at least opt_centroid_edge_mm from its
+        # triangle's edges once scaled (or no nearer than at the start)
+        log_s2 = float(self._logs(P, domain.lift(P), None)[1])
+        self.log_clear = np.minimum(np.log(settings.opt_centroid_edge_mm),
+                                    log_s2 + np.log(_np(centroid_edge_distances(P, F))))
+
+    def _logs(self, Q, X, sharpness):
+        return layout_logs(Q, X, self.F, self.fa, self.fb, self.o1, self.o2, self.params,
+                           sharpness)
+
+    def main_terms(self, log_s3, log_s2, log_d, ex):
+        """Pinned: the longest flat cell per unit of 3D scaling, with the exact 3D scaling
+        held at 1 (the shell keeps its target's size, so the count search can trade vertices
+        for flat length); else the longest flat cell (+ the optional 3D scaling weight)."""
+        if self.pin > 0:
+            return log_s2 + log_d - log_s3 + self.pin * ex[0] ** 2
+        return log_s2 + log_d + self.settings.opt_s3_weight * log_s3
+
+    def timing(self, Q, X, log_s3, log_s2, ex):
+        """The timing misfit at the smoothed scalings (they over-estimate s2 by 6-7 %, so
+        every flat length, which the margin absorbs; at the exact, non-smooth ones L-BFGS
+        stalls and the count search lost its footing, measured on cover and dome), and a
+        penalty that keeps the exact longest flat cell ``ex`` under the limit less the
+        search's margin."""
+        if self.w_t <= 0:
+            return 0.0
+        over = anp.maximum(ex[1] + ex[2] - self.log_cap, 0.0)
+        return (self.w_t * timing_misfit(Q, X, self.F, self.fa, self.fb, self.o1, self.o2,
+                                         self.bnd, self.log_ts, log_s3, log_s2, self.params,
+                                         self.settings)
+                + self.settings.opt_cap_weight * over**2)
+
+    def shortfall(self, Q, log_s2_exact) -> float:
+        """Worst log shortfall of a base centre's clearance (0 when every one is clear)."""
+        short = np.max(self.log_clear - log_s2_exact
+                       - np.log(np.maximum(_np(centroid_edge_distances(Q, self.F)),
+                                           self.settings.opt_tiny)))
+        return max(float(short), 0.0)
+
+    def exact(self, Q):
+        """The objective without its penalties and barrier, on the exact lift of ``Q``, and
+        the clearance shortfall (:meth:`shortfall`)."""
+        X = self.domain.lift(Q)
+        a, b, c = self._logs(Q, X, self.settings.opt_sharpness)
+        ex = self._logs(Q, X, None)
+        return (float(self.main_terms(a, b, c, ex) + self.timing(Q, X, a, b, ex)),
+                self.shortfall(Q, float(ex[1])))
+
+    def linearised(self, P0, clearance_weight: float):
+        """``fun(x) -> (f, g)`` over the free vertices' coordinates ``x`` (2 k,), with the
+        lift linearised at ``P0`` (the Jacobian of the dense piecewise linear map), and the
+        penalties and the orientation barrier."""
+        st, F = self.settings, self.F
+        X0, J = self.domain.lift(P0), self.domain.lift_jacobian(P0)
+        Pfix = P0[self.fixed]
+
+        def objective(x):
+            Q = anp.concatenate([anp.reshape(x, (-1, 2)), Pfix])[self.perm]
+            X = X0 + anp.einsum("nij,nj->ni", J, Q - P0)
+            A = _signed_areas(Q, F) / self.A0
+            log_s3, log_s2, log_d = self._logs(Q, X, st.opt_sharpness)
+            ang = flat_corner_angles(Q, F)
+            bad = anp.maximum(self.floor - ang, 0.0) + anp.maximum(ang - self.cap, 0.0)
+            # the clearance takes the exact flat scaling (the smoothed one over-estimates it)
+            ex = self._logs(Q, X, None)
+            near = anp.maximum(self.log_clear - ex[1] - anp.log(anp.maximum(
+                centroid_edge_distances(Q, F), st.opt_tiny)), 0.0)
+            return (self.main_terms(log_s3, log_s2, log_d, ex)
+                    + self.timing(Q, X, log_s3, log_s2, ex)
+                    + st.opt_angle_weight * anp.sum(bad**2)
+                    + clearance_weight * anp.sum(near**2)
+                    - st.opt_barrier * anp.sum(anp.log(anp.maximum(A, st.opt_tiny))))
+
+        fg = value_and_grad(objective)
+
+        def fun(x):
+            f, g = fg(x)
+            return float(f), np.asarray(g, dtype=float)
+        return fun
+
+    def embed(self, P0, x):
+        """(n, 2) float: ``P0`` with its free vertices at ``x``."""
+        P = P0.copy()
+        P[self.free] = np.reshape(x, (-1, 2))
+        return P
+
+    def iterations(self) -> int:
+        st = self.settings
+        return st.opt_timing_iterations if self.w_t > 0 else st.opt_iterations
+
+
+def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: float):
+    """The farthest point from ``P0`` toward ``Pn`` that keeps the hard limits and lowers
+    the exact objective: ``P0 + a (Pn - P0)`` for ``a = 1, 1/2, 1/4, ...``
+    (``StencilSearch.opt_backtracks`` halvings).
+
+    The hard limits: every flat triangle positively oriented, and no base centre's clearance
+    short by more than ``max(short_now, opt_clearance_slack)`` (log).  The clearance is a
+    soft penalty in the objective, so L-BFGS may end a little beyond the limit; the segment
+    back to the start (which keeps the limits) gives the improving point that does not,
+    instead of losing the whole round.
+
+    Returns
+    -------
+    step : dict
+        ``kept`` (bool), ``step`` (the fraction ``a`` taken, or None), ``objective`` and
+        ``clearance_shortfall`` at the point kept (or at ``Pn`` when none is), ``why``.
+    P : (n, 2) float or None
+        The point kept.
+    """
+    st = problem.settings
+    limit = max(short_now, st.opt_clearance_slack)
+    first = None
+    for k in range(st.opt_backtracks + 1):
+        a = 0.5**k
+        Q = P0 + a * (Pn - P0)
+        if not np.all(_signed_areas(Q, problem.F) > 0):
+            first = first or {"why": "a flat triangle turns over"}
+            continue
+        new, short = problem.exact(Q)
+        if new < current and short <= limit:
+            return {"kept": True, "step": a, "objective": new, "clearance_shortfall": short,
+                    "why": "kept" if k == 0 else f"kept at {a:g} of the step"}, Q
+        first = first or {
+            "objective": new, "clearance_shortfall": short,
+            "why": (f"a base centre's clearance short by {short:.3f} (limit {limit:.3f})"
+                    if short > limit else "the objective does not fall on the exact lift")}
+    return {"kept": False, "step": None, **first}, None
+
+
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
                      settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False):
     """Move the interior stencil vertices to shorten the longest flat cell.
@@ -263,6 +444,12 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     cell per unit of 3D scaling, ``log lmax - log s3``, and ``opt_pin_weight (log s3)^2`` (exact
     s3) holds the shell at its target's size: the count search's last pass.
 
+    Each outer round runs L-BFGS on the linearised lift, then checks the result on the
+    exact lift (:func:`accept_step`): an improving round is never thrown away for a soft
+    penalty's overshoot.  When no point of the step keeps the hard limits, the round is
+    solved again with the clearance penalty ``opt_stiffen`` times stiffer; only when that
+    fails too is the round dropped (and the rounds stop).
+
     Parameters
     ----------
     domain : pysolver.design.remesh.FlatDomain
@@ -273,11 +460,6 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         Stencil triangles (positively oriented in the plane); the connectivity is kept.
     params : UnitCell
     settings : StencilSearch
-        ``opt_sharpness``, ``opt_s3_weight``, ``opt_min_angle_deg``, ``opt_max_angle_deg``,
-        ``opt_centroid_edge_mm``, ``opt_angle_weight``,
-        ``opt_rounds``, ``opt_iterations``, ``opt_barrier``, ``opt_timing_weight``,
-        ``timing_fastest``, ``timing_slowest``, ``timing_margin``, ``opt_cap_weight``,
-        ``opt_timing_iterations``, ``margin``, ``opt_pin_weight``.
     t_vertex : (n,) float, s, optional
         The time landscape at the stencil vertices (kept fixed while they move).  A
         constant landscape leaves the term out: temporal programming then picks the
@@ -291,128 +473,41 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     P : (n, 2) float, mm
         Optimised flat positions (every triangle still positively oriented).
     info : dict
-        ``rounds``: outer rounds kept (each improved the objective on the exact lift).
+        ``rounds``: outer rounds kept; ``history``: one record per round tried
+        (``round``, ``start``, ``lbfgs``, ``iterations``, ``stiffened``, and
+        :func:`accept_step`'s ``kept``, ``step``, ``objective``, ``clearance_shortfall``,
+        ``why``).
     """
     P = np.array(P, dtype=float)
     F = np.asarray(F, dtype=np.int64)
-    cells = unit_cells(F, face_adjacency(F))
-    if len(cells.faces) == 0:
-        return P, {"rounds": 0}
-    fa, fb = cells.faces[:, 0], cells.faces[:, 1]
-    o = opposite_vertices(F, cells)
-    o1, o2 = o[:, 0], o[:, 1]
-    varies = t_vertex is not None and np.ptp(np.asarray(t_vertex, float)) > TOL.time
-    w_t = settings.opt_timing_weight if varies else 0.0
-    if w_t > 0:
-        log_ts = np.log(np.maximum(cell_target_times(t_vertex, cells.verts[:, 0],
-                                                     cells.verts[:, 1]), settings.opt_tiny))
-        # cells with a base on the rim (temporal programming's ``boundary`` flag instead
-        # asks for an end of the shared edge on the rim; they differ on about 1 % of cells)
-        rim = np.any(face_adjacency(F) < 0, axis=1)
-        bnd = (rim[fa] | rim[fb]).astype(float)
-
-    log_cap = np.log(params.max_cell_length - settings.margin)
-    pin = settings.opt_pin_weight if pin else 0.0
-
-    def main_terms(log_s3, log_s2, log_d, ex):
-        # pinned: the longest flat cell per unit of 3D scaling, with the exact 3D scaling held
-        # at 1 (the shell keeps its target's size, so the count search can trade vertices for
-        # flat length); else the longest flat cell (+ the optional 3D scaling weight)
-        if pin > 0:
-            return log_s2 + log_d - log_s3 + pin * ex[0] ** 2
-        return log_s2 + log_d + settings.opt_s3_weight * log_s3
-
-    def timing(Q, X, log_s3, log_s2, ex):
-        # the misfit, at the smoothed scalings: they over-estimate s2 by 6-7 % (so every
-        # flat length), which the margin absorbs; at the exact, non-smooth ones L-BFGS stalls
-        # and the count search lost its footing (measured on cover and dome).  And a penalty
-        # that keeps the trade printable: the exact longest flat cell ``ex`` stays under the
-        # limit less the search's margin.
-        if w_t <= 0:
-            return 0.0
-        over = anp.maximum(ex[1] + ex[2] - log_cap, 0.0)
-        return (w_t * timing_misfit(Q, X, F, fa, fb, o1, o2, bnd, log_ts, log_s3, log_s2,
-                                    params, settings)
-                + settings.opt_cap_weight * over**2)
-    fixed = np.zeros(len(P), dtype=bool)
-    fixed[igl.boundary_loop(F)] = True
-    free = np.flatnonzero(~fixed)
-    # Q = concat(free rows, fixed rows)[perm]: indexing keeps autograd's tape simple
-    order = np.r_[free, np.flatnonzero(fixed)]
-    perm = np.empty(len(P), dtype=np.int64)
-    perm[order] = np.arange(len(P))
-    A0 = _signed_areas(P, F)
-    mu = settings.opt_barrier
-    # flat corners within [floor, cap] (or no worse than at the start): each base's printed
-    # disc and bracket roots must stay inside its triangle's neighbourhood, which the
-    # membrane meshes of the simulator and of the per-cell correction assume
-    start = _angles_np(P, F)
-    floor = np.minimum(np.radians(settings.opt_min_angle_deg), start)
-    cap = np.maximum(np.radians(settings.opt_max_angle_deg), start)
-    # and every base centre (flat centroid) at least opt_centroid_edge_mm from its triangle's
-    # edges once scaled (or no nearer than at the start)
-    log_s2_start = float(layout_logs(P, domain.lift(P), F, fa, fb, o1, o2, params, None)[1])
-    log_clear = np.minimum(np.log(settings.opt_centroid_edge_mm),
-                           log_s2_start + np.log(_np(centroid_edge_distances(P, F))))
-    rounds = 0
-
-    def exact(Q):  # the objective and the worst clearance shortfall, on the exact lift of Q
-        X = domain.lift(Q)
-        a, b, c = layout_logs(Q, X, F, fa, fb, o1, o2, params, settings.opt_sharpness)
-        ex = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)
-        short = float(np.max(log_clear - float(ex[1])
-                             - np.log(_np(centroid_edge_distances(Q, F)))))
-        return (float(main_terms(a, b, c, ex) + timing(Q, X, a, b, ex)),
-                max(short, 0.0))
-
-    current, short_now = exact(P)
-
-    for _ in range(settings.opt_rounds):
-        X0 = domain.lift(P)
-        J = domain.lift_jacobian(P)
-        P0 = P.copy()
-        Pfix = P0[fixed]
-
-        def objective(x, X0=X0, J=J, P0=P0, Pfix=Pfix):
-            Q = anp.concatenate([anp.reshape(x, (-1, 2)), Pfix])[perm]
-            X = X0 + anp.einsum("nij,nj->ni", J, Q - P0)
-            A = _signed_areas(Q, F) / A0
-            log_s3, log_s2, log_d = layout_logs(Q, X, F, fa, fb, o1, o2, params,
-                                                settings.opt_sharpness)
-            ang = flat_corner_angles(Q, F)
-            bad = anp.maximum(floor - ang, 0.0) + anp.maximum(ang - cap, 0.0)
-            # the clearance takes the exact flat scaling (the smoothed one over-estimates it)
-            ex = layout_logs(Q, X, F, fa, fb, o1, o2, params, None)
-            near = anp.maximum(log_clear - ex[1] - anp.log(anp.maximum(
-                centroid_edge_distances(Q, F), settings.opt_tiny)), 0.0)
-            return (main_terms(log_s3, log_s2, log_d, ex)
-                    + timing(Q, X, log_s3, log_s2, ex)
-                    + settings.opt_angle_weight * anp.sum(bad**2)
-                    + settings.opt_clearance_weight * anp.sum(near**2)
-                    - mu * anp.sum(anp.log(anp.maximum(A, settings.opt_tiny))))
-
-        fg = value_and_grad(objective)
-
-        def fun(x, fg=fg):
-            f, g = fg(x)
-            return float(f), np.asarray(g, dtype=float)
-
-        x0 = P0[free].ravel()
-        f0 = fun(x0)[0]
-        res = minimize(fun, x0, jac=True, method="L-BFGS-B",
-                       options={"maxiter": settings.opt_timing_iterations if w_t > 0
-                                else settings.opt_iterations})
-        Pn = P0.copy()
-        Pn[free] = res.x.reshape(-1, 2)
-        if not np.all(_signed_areas(Pn, F) > 0) or not res.fun < f0:
+    problem = StencilObjective(domain, P, F, params, settings, t_vertex, pin)
+    if problem.n_cells == 0:
+        return P, {"rounds": 0, "history": []}
+    current, short_now = problem.exact(P)
+    history = []
+    for r in range(settings.opt_rounds):
+        rec = {"round": r + 1, "start": round(current, 6)}
+        for stiffened, w in enumerate((settings.opt_clearance_weight,
+                                       settings.opt_clearance_weight * settings.opt_stiffen)):
+            fun = problem.linearised(P, w)
+            res = minimize(fun, P[problem.free].ravel(), jac=True, method="L-BFGS-B",
+                           options={"maxiter": problem.iterations()})
+            step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
+            rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),
+                       stiffened=bool(stiffened), **_rounded(step))
+            if Q is not None:
+                break
+        history.append(rec)
+        if Q is None:
             break
-        new, short = exact(Pn)
-        if not new < current or short > max(short_now, settings.opt_clearance_slack):
-            break
-        P, current, short_now = Pn, new, short
-        rounds += 1
-    return P, {"rounds": rounds}
+        P, current, short_now = Q, step["objective"], step["clearance_shortfall"]
+    return P, {"rounds": sum(h["kept"] for h in history), "history": history}
+
+
+def _rounded(step: dict) -> dict:
+    return {k: round(v, 6) if isinstance(v, float) else v for k, v in step.items()}
 
 
 __all__ = ["opposite_vertices", "log_time_range", "estimated_clamping", "flat_corner_angles",
-           "centroid_edge_distances", "layout_logs", "timing_misfit", "optimize_stencil"]
+           "centroid_edge_distances", "layout_logs", "timing_misfit", "StencilObjective",
+           "accept_step", "optimize_stencil"]
