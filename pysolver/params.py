@@ -738,9 +738,21 @@ class StencilSearch:
     opt_pin_weight : float
         Weight (per log^2) of the penalty that holds the exact 3D scaling at 1 when the chosen
         stencil is optimised once more for its longest flat cell per unit of scaling
-        (:func:`pysolver.design.remesh.remesh_surface`; 0 = no second pass): the count
+        (:func:`pysolver.design.count_search.remesh_surface`; 0 = no second pass): the count
         search's scaling lands within a few per cent of 1 (its tolerance, and the seeds'
         noise), this pass brings it within 0.5 % (30 left 1-4 %).
+    polish_tolerance : float
+        The polish "held" the scaling at 1 when the stencil kept is within this (log) of it;
+        otherwise the search says that it could not.
+    refusal_size_factor : float
+        A target none of whose stencils prints at any size is searched once more at this
+        fraction of its size, so that its refusal names a measured smaller ``--size``.
+    min_scale3d : float
+        Smallest 3D scaling (the shell over the size asked for) a stencil may have, and
+        ``1 / min_scale3d`` the largest: the count search picks among candidates within this
+        band first, and the design stage refuses a stencil outside it, naming measured
+        alternatives (a smaller ``--size`` that was tried, ``--min-bumper 0.1``), instead of
+        printing a shell silently smaller or larger than asked.
     min_area_covered : float
         When the stencil the first rim inset gives covers less than this fraction of the
         target's area (3D area of the stencil over the target's), the search also tries the
@@ -777,7 +789,7 @@ class StencilSearch:
         0: scaling 1.06, ~37 %), hence both seeds.
     trade_min_scale3d : float
         Smallest 3D scaling a traded stencil may have (the shell at least this fraction of
-        the requested size).
+        the requested size); at least ``min_scale3d``.
     trade_gain : float
         Smallest drop of the estimated clamped fraction that pays for the smaller shell.
     timing_grading : float
@@ -833,11 +845,14 @@ class StencilSearch:
     candidates: tuple = ()
     margin: float = 0.3
     opt_pin_weight: float = 100.0
+    polish_tolerance: float = 0.02
+    refusal_size_factor: float = 0.8
+    min_scale3d: float = 0.95
     min_area_covered: float = 0.75
     remove_flaps: bool = True
     flap_min_angle_deg: float = 30.0
     trade_counts: tuple = (0.93, 0.86)
-    trade_min_scale3d: float = 0.92
+    trade_min_scale3d: float = 0.95
     trade_gain: float = 0.03
     timing_grading: float = 0.25
 

@@ -98,10 +98,10 @@ def test_summary_records_versions_and_inputs_hash(cli_build):
 
 def test_lock_record_names_packages_installed_off_the_lock(tmp_path):
     lock = tmp_path / "uv.lock"
+    scipy_version = importlib.metadata.version("scipy")
     lock.write_text('version = 1\n\n[[package]]\nname = "numpy"\nversion = "0.0.1"\n'
-                    '\n[[package]]\nname = "scipy"\nversion = "%s"\n'
-                    '\n[[package]]\nname = "no-such-package-here"\nversion = "1.0"\n'
-                    % importlib.metadata.version("scipy"))
+                    f'\n[[package]]\nname = "scipy"\nversion = "{scipy_version}"\n'
+                    '\n[[package]]\nname = "no-such-package-here"\nversion = "1.0"\n')
     rec = lock_record(lock)
     assert rec["sha256"] == hashlib.sha256(lock.read_bytes()).hexdigest()
     assert rec["mismatched"] == [f"numpy {np.__version__} (lock: 0.0.1)"]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from autograd import grad
 
-from pysolver.design import remesh, run_design, stencil_opt, surfaces
+from pysolver.design import count_search, remesh, run_design, stencil_opt, surfaces
 from pysolver.design.flatten import cetm
 from pysolver.design.layout import build_layout
 from pysolver.design.mesh_input import load_input
@@ -51,11 +51,11 @@ def test_relaxed_stencil_is_regular_on_the_target(dome_domain):
     relaxed, plain, merged = [], [], []
     for seed in range(3):
         P, F = dom.stencil(70, seed=seed)
-        relaxed.append(remesh.stencil_figures(dom.lift(P), F))
+        relaxed.append(count_search.stencil_figures(dom.lift(P), F))
         P0, F0 = dom0.stencil(70, seed=seed)
-        plain.append(remesh.stencil_figures(dom0.lift(P0), F0)["edge_spread"])
+        plain.append(count_search.stencil_figures(dom0.lift(P0), F0)["edge_spread"])
         P1, F1 = dome_domain.stencil(70, seed=seed)
-        merged.append(remesh.stencil_figures(dome_domain.lift(P1), F1))
+        merged.append(count_search.stencil_figures(dome_domain.lift(P1), F1))
     spread = [r["edge_spread"] for r in relaxed]
     assert max(spread) <= 1.40, spread  # 95th / 5th percentile of 3D edge length
     assert min(r["min_angle_deg"] for r in relaxed) >= 35.0
@@ -112,9 +112,9 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
 
 def test_optimisation_shortens_the_longest_cell(dome_domain):
     P, F = dome_domain.stencil(70, seed=0)
-    before = remesh.stencil_figures(dome_domain.lift(P), F)
+    before = count_search.stencil_figures(dome_domain.lift(P), F)
     Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
-    after = remesh.stencil_figures(dome_domain.lift(Q), F)
+    after = count_search.stencil_figures(dome_domain.lift(Q), F)
     assert info["rounds"] >= 1
     assert after["max_cell_length_mm"] < before["max_cell_length_mm"] - 0.2
     A = stencil_opt._signed_areas(Q, F)
@@ -126,11 +126,107 @@ def test_optimisation_shortens_the_longest_cell(dome_domain):
     assert len(bnd) and np.array_equal(Q[bnd], P[bnd])  # the rim stays where it was
 
 
+def test_an_improving_round_is_kept_when_the_step_overshoots_a_soft_penalty():
+    """The clearance is a soft penalty: L-BFGS may end beyond its hard limit.  The round is
+    then backtracked toward its start (or solved again, stiffer), never thrown away."""
+    s = surfaces.builtin("dome")
+    soft = replace(STENCIL, grading=0.0, opt_clearance_weight=0.1, opt_stiffen=1.0)
+    dom = remesh.FlatDomain(s.V, s.F, soft)
+    P, F = dom.stencil(70, seed=0)
+    before = count_search.stencil_figures(dom.lift(P), F)
+    start, _ = stencil_opt.StencilObjective(dom, P, F, UNIT_CELL, soft).exact(P)
+    Q, info = stencil_opt.optimize_stencil(dom, P, F, UNIT_CELL, soft)
+    h = info["history"]
+    assert info["rounds"] == len(h) == soft.opt_rounds and all(r["kept"] for r in h)
+    assert h[0]["step"] < 1.0 and "of the step" in h[0]["why"]    # the full step overshot
+    assert all(r["clearance_shortfall"] <= soft.opt_clearance_slack for r in h)
+    assert h[-1]["objective"] < h[0]["start"] == pytest.approx(start, abs=1e-6)
+    after = count_search.stencil_figures(dom.lift(Q), F)
+    assert after["max_cell_length_mm"] < before["max_cell_length_mm"] - 0.2
+    # no halving allowed: the round is solved again with a stiffer penalty, and kept
+    stiff = replace(soft, opt_backtracks=0, opt_stiffen=100.0)
+    _, info = stencil_opt.optimize_stencil(dom, P, F, UNIT_CELL, stiff)
+    r = info["history"][0]
+    assert r["kept"] and r["stiffened"] and r["step"] == 1.0
+    assert r["clearance_shortfall"] <= stiff.opt_clearance_slack
+
+
+def test_accept_step_backtracks_to_an_oriented_improving_point(dome_domain):
+    P, F = dome_domain.stencil(40, seed=0)
+    prob = stencil_opt.StencilObjective(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
+    f0, short0 = prob.exact(P)
+    free = prob.free
+    # a step that turns triangles over: the full step is refused, a short one is not
+    Pn = P.copy()
+    Pn[free] = P[free] + 40.0 * np.random.default_rng(0).standard_normal((len(free), 2))
+    step, Q = stencil_opt.accept_step(prob, P, Pn, np.inf, short0)
+    assert step["kept"] and step["step"] < 1.0
+    assert np.all(stencil_opt._signed_areas(Q, F) > 0)
+    assert np.allclose(Q, P + step["step"] * (Pn - P))
+    # nothing on the segment lowers the objective: refused, with the reason
+    step, Q = stencil_opt.accept_step(prob, P, P, f0, short0)
+    assert not step["kept"] and Q is None and "does not fall" in step["why"]
+
+
+def test_pick_keeps_the_size_before_the_margin():
+    P = UNIT_CELL
+    small = {"scale3d": 0.70, "max_cell_length_mm": 8.0}   # prints with the margin, 30 % small
+    tight = {"scale3d": 0.99, "max_cell_length_mm": 9.4}   # prints, at size, inside the margin
+    far = {"scale3d": 0.90, "max_cell_length_mm": 7.0}
+    tried = {(60, 0, 0.0): small, (130, 0, 0.0): tight, (100, 0, 0.0): far}
+    assert count_search._pick(tried, P, 0.3, STENCIL) == (130, 0, 0.0)
+    assert count_search._pick(tried, P, 0.3) == (100, 0, 0.0)  # (without the size rule)
+    assert not count_search.at_size(small) and count_search.at_size(tight)
+    assert not count_search.at_size({"scale3d": 1.06, "max_cell_length_mm": 8.0})
+    off = {k: v for k, v in tried.items() if k != (130, 0, 0.0)}
+    assert count_search._pick(off, P, 0.3, STENCIL) == (100, 0, 0.0)  # nothing at size
+
+
+def test_size_refusal_names_measured_alternatives():
+    """A target that prints only far under its size is refused; the fix names a smaller
+    --size and --min-bumper 0.1, each searched again."""
+    from pysolver.design.alternatives import size_refusal
+
+    info = {"requested": 60, "seed": 0, "scale3d": 0.70, "max_cell_length_mm": 8.2,
+            "at_size": False,
+            "candidates": [[60, 0, 0.0, 0.70, 8.2], [130, 0, 0.0, 0.99, 10.4],
+                           [80, 0, 0.0, 0.82, 9.9]]}
+    calls = []
+
+    def search(factor, params):
+        calls.append((round(factor, 4), params.min_bumper))
+        ok = factor < 1
+        return {"requested": 62, "seed": 0, "scale3d": 1.0 if ok else 0.93,
+                "max_cell_length_mm": 8.4 if ok else 9.0, "at_size": ok}
+    e = size_refusal(info, UNIT_CELL, search, extent_mm=120.0)
+    assert "3D scaling 0.700" in e.problem and "30 % under" in e.problem
+    assert calls == [(0.7, 0.3), (1.0, 0.1)]          # --size 84, then the 0.1 mm bumper
+    assert "--size 84 (tried: prints" in e.fix
+    assert "--min-bumper 0.1 (tried: does not print at this size" in e.fix
+
+
+def test_design_refuses_a_stencil_off_the_size_asked_for(tmp_path, monkeypatch):
+    from pysolver.design import pipeline
+
+    real = pipeline.remesh_surface
+    seen = []
+
+    def off_size(V, F, **kw):
+        V2, F2, info = real(V, F, **{**kw, "vertices": 40, "seed": 0})
+        seen.append(kw["params"].min_bumper)
+        return V2, F2, dict(info, at_size=len(seen) > 2, scale3d=0.7)
+    monkeypatch.setattr(pipeline, "remesh_surface", off_size)
+    with pytest.raises(InputError, match="no printable stencil keeps the size") as e:
+        run_design("dome", tmp_path / "d", progress=False, plots=False)
+    assert "--size" in e.value.fix and "--min-bumper 0.1" in e.value.fix
+    assert not (tmp_path / "d" / "cells.csv").exists()
+
+
 def test_count_search_picks_a_printable_neighbour():
     s = surfaces.builtin("dome")
     lim = 8.8  # tight enough that some counts fail (unoptimised stencils: 8.3-9.0 mm)
     params = replace(UNIT_CELL, max_cell_length=lim)
-    V2, F2, info = remesh.remesh_surface(s.V, s.F, params=params, seed=0, optimize=False,
+    V2, F2, info = count_search.remesh_surface(s.V, s.F, params=params, seed=0, optimize=False,
                                          settings=replace(STENCIL, candidates=(0.8, 0.9, 1.1)))
     cands = info["candidates"]
     assert info["max_cell_length_mm"] <= lim
@@ -152,13 +248,13 @@ def test_pick_prefers_size_among_printable_and_never_a_failed_layout():
     ok = {"scale3d": 1.2, "max_cell_length_mm": 8.0}
     near = {"scale3d": 1.01, "max_cell_length_mm": 9.4}  # printable, but inside the margin
     failed = {"scale3d": None, "max_cell_length_mm": None, "error": "flipped"}
-    assert remesh._pick({(1, 0, 0.0): ok, (2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) \
+    assert count_search._pick({(1, 0, 0.0): ok, (2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) \
         == (1, 0, 0.0)
-    assert remesh._pick({(2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) == (2, 0, 0.0)
+    assert count_search._pick({(2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) == (2, 0, 0.0)
     long_ = {"scale3d": 1.0, "max_cell_length_mm": 9.9}
     longer = {"scale3d": 1.0, "max_cell_length_mm": 10.5}
-    assert remesh._pick({(4, 0, 0.0): longer, (5, 0, 0.0): long_}, P, 0.3) == (5, 0, 0.0)
-    assert remesh._pick({(3, 0, 0.0): failed}, P, 0.3) is None
+    assert count_search._pick({(4, 0, 0.0): longer, (5, 0, 0.0): long_}, P, 0.3) == (5, 0, 0.0)
+    assert count_search._pick({(3, 0, 0.0): failed}, P, 0.3) is None
 
 
 def test_paper_cover_designs_printable_from_its_target(tmp_path):
@@ -304,8 +400,8 @@ def test_constant_landscape_through_the_search_is_no_landscape():
     # interpolating a constant leaves round-off (1e-14 s) that must not switch the term on
     s = surfaces.builtin("dome")
     kw = dict(vertices=50, seed=0, settings=replace(STENCIL, opt_rounds=1))
-    V0, F0, _ = remesh.remesh_surface(s.V, s.F, **kw)
-    V1, F1, _ = remesh.remesh_surface(s.V, s.F, time=np.full(len(s.V), 60.0), **kw)
+    V0, F0, _ = count_search.remesh_surface(s.V, s.F, **kw)
+    V1, F1, _ = count_search.remesh_surface(s.V, s.F, time=np.full(len(s.V), 60.0), **kw)
     assert np.array_equal(F0, F1) and np.array_equal(V0, V1)
 
 
@@ -314,10 +410,10 @@ def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome
     """The count search's last pass: the 3D scaling held at 1 (from 0.80 and 0.97 here, to
     0.5 %), the longest flat cell per unit of scaling shorter than before."""
     P, F = dome_domain.stencil(n, seed=0)
-    before = remesh.stencil_figures(dome_domain.lift(P), F)
+    before = count_search.stencil_figures(dome_domain.lift(P), F)
     Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
                                            pin=True)
-    after = remesh.stencil_figures(dome_domain.lift(Q), F)
+    after = count_search.stencil_figures(dome_domain.lift(Q), F)
     assert info["rounds"] >= 1
     assert after["scale3d"] == pytest.approx(1.0, abs=0.005)
     assert (after["max_cell_length_mm"] / after["scale3d"]
@@ -352,7 +448,7 @@ def test_trade_takes_fewer_vertices_only_for_a_real_gain_at_a_kept_size():
             tried[(n, sd, inset)] = cands[n]
             meshes[(n, sd, inset)] = (f"V{n}", f"F{n}", None)
         info = {}
-        best, V2, F2, ch = remesh._trade((100, 0, 1.0), "V100", "F100", chosen, trial, tried,
+        best, V2, F2, ch = count_search._trade((100, 0, 1.0), "V100", "F100", chosen, trial, tried,
                                          meshes, UNIT_CELL, S, info, None)
         return best, V2, ch, info["trade"]
 
@@ -384,7 +480,7 @@ def test_narrow_strip_falls_back_to_the_rim_and_a_wide_one_keeps_the_inset():
     # 25 mm wide: a 4 mm inset leaves about 60 % of the area, so the stencil that reaches the
     # rim is searched too and, printable, taken
     V, F = _bent_strip(25.0)
-    V2, F2, info = remesh.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    V2, F2, info = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     rim = info["rim"]
     assert rim["inset_area_covered"] < STENCIL.min_area_covered
     assert rim["fallback"]["taken"] and info["rim_inset_mm"] == 0.0 == rim["inset_mm"]
@@ -392,11 +488,11 @@ def test_narrow_strip_falls_back_to_the_rim_and_a_wide_one_keeps_the_inset():
     assert rim["area_covered"] > STENCIL.min_area_covered
     assert "prints" in rim["why"]
     # deterministic: the same input gives the same stencil
-    V3, F3, again = remesh.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    V3, F3, again = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     assert np.array_equal(F2, F3) and np.array_equal(V2, V3) and again["rim"] == rim
     # 60 mm wide: the inset stencil covers enough; no fallback is searched
     V, F = _bent_strip(60.0)
-    _, _, info = remesh.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    _, _, info = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     assert info["rim_inset_mm"] > 0 and info["rim"]["fallback"] is None
     assert info["rim"]["inset_area_covered"] >= STENCIL.min_area_covered
     assert all(c[2] > 0 for c in info["candidates"])
@@ -416,7 +512,8 @@ def test_rim_fallback_never_trades_printability():
         tried = {inset: {"scale3d": 1.0, "max_cell_length_mm": L_inset},
                  rim: {"scale3d": 1.0, "max_cell_length_mm": L_rim}}
         meshes = {inset: half, rim: square}
-        return remesh._rim_fallback(inset, tried, meshes, 1.0, UNIT_CELL, STENCIL, lambda: None)
+        return count_search._rim_fallback(inset, tried, meshes, 1.0, UNIT_CELL, STENCIL,
+                                          lambda: None)
 
     best, info = choose(8.7, 9.0)
     assert best == rim and info["fallback"]["taken"] and info["fallback"]["area_covered"] == 1.0
@@ -465,7 +562,7 @@ def test_time_graded_search_falls_back_when_the_grading_is_unprintable():
     s = surfaces.builtin("dome")
     t = np.interp(s.V[:, 2], (s.V[:, 2].min(), s.V[:, 2].max()), (30.0, 80.0))
     # a grading far too steep for 9.5 mm cells: redone without, and printable
-    _, _, info = remesh.remesh_surface(s.V, s.F, time=t, user_times=True, seed=0,
+    _, _, info = count_search.remesh_surface(s.V, s.F, time=t, user_times=True, seed=0,
                                        settings=replace(STENCIL, timing_grading=3.0))
     tg = info["timing_grading"]
     assert tg["taken"] is False and tg["grading"] == 3.0

@@ -18,7 +18,6 @@ import json
 import os
 import sys
 import time as _time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,16 +25,18 @@ import numpy as np
 from .. import tables
 from ..errors import InputError
 from ..geometry import signed_areas_2d
-from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell, check_unit_cell
+from ..params import LIMITS, UNIT_CELL, UnitCell, check_unit_cell
 from ..params import tol as TOL
 from . import surfaces
+from .alternatives import printable_alternatives, size_refusal
 from .cellnodes import bracket_nodes, collision_lengths, write_model_file
 from .checks import check_layout
+from .count_search import remesh_surface
 from .flatten import compare_flattenings, distortion_metrics
 from .layout import Layout, build_layout
 from .mesh_input import load_input, size_factor
 from .plots import write_design_plots
-from .remesh import remesh_surface, stencil_figures, surface_area
+from .remesh import surface_area
 from .sequencing import sequencing_landscape
 from .time_landscape import (
     TIME_FILE_ATTRIBUTE,
@@ -252,43 +253,6 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
         read_time_file(time_file)  # format and values now; the count once the mesh is read
 
 
-def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
-    """What would make an unprintable remeshed stencil printable, measured, for the error's fix.
-
-    Tries the same stencil at the reference's 0.1 mm minimal bumper and names the searched
-    vertex count with the shortest longest cell.
-
-    Parameters
-    ----------
-    V : (n, 3) float, mm
-    F : (m, 3) int
-    remesh_info : dict
-        :func:`pysolver.design.remesh.remesh_surface`'s info (``candidates``).
-    params : UnitCell
-
-    Returns
-    -------
-    fix : str
-    """
-    lines = []
-    low = REFERENCE_MIN_BUMPER_MM
-    if params.min_bumper > low + TOL.rel:
-        alt = stencil_figures(V, F, replace(params, min_bumper=low))
-        if alt["max_cell_length_mm"] is not None:
-            ok = alt["max_cell_length_mm"] <= params.max_cell_length
-            lines.append(f"--min-bumper {low:g} (the reference's) gives a longest cell of "
-                         f"{alt['max_cell_length_mm']:.2f} mm on this stencil"
-                         + (" (printable)" if ok else ""))
-    cands = [c for c in remesh_info.get("candidates") or [] if c[4] is not None]
-    if cands:
-        best = min(cands, key=lambda c: c[4])
-        lines.append(f"of the stencils tried, --vertices {best[0]} --seed {best[1]} came "
-                     f"closest ({best[4]:.2f} mm, scale {best[3]:.2f})")
-    lines.append("a cut through the region named above splits the stretch the flattening "
-                 "needs (SI Note 1)")
-    return "; ".join(lines)
-
-
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
                stencil=False, progress=True, plots=True, seed=None,
@@ -361,6 +325,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
 
     remesh_info = {}
     comparison = {}
+    rerun = None
     if vertices is not None and (surf.UV is not None or stencil):
         what = ("a finished stencil (its own flat layout)" if kind != "builtin"
                 else "a fixed tessellation")
@@ -379,13 +344,18 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
             V0, F0 = surf.V, surf.F
             remesh_info = {"remeshed": False, "vertices": int(len(V0))}
         else:
+            t_target = _target_times(time, surf, mesh)
 
-            V0, F0, remesh_info = remesh_surface(
-                surf.V, surf.F, vertices=vertices, seed=seed, target_bases=surf.target_bases,
-                params=params, time=_target_times(time, surf, mesh),
-                user_times=time_opt is not None or time_file is not None,
-                progress=(lambda line: print(f"[design {surf.name}] remesh {line}",
-                                             file=sys.stderr, flush=True)) if progress else None)
+            def search(factor=1.0, p=params, say=None):
+                return remesh_surface(
+                    surf.V * factor, surf.F, vertices=vertices, seed=seed,
+                    target_bases=surf.target_bases, params=p, time=t_target,
+                    user_times=time_opt is not None or time_file is not None,
+                    progress=say)
+            V0, F0, remesh_info = search(say=(lambda line: print(
+                f"[design {surf.name}] remesh {line}", file=sys.stderr, flush=True))
+                if progress else None)
+            rerun = lambda f, p: search(f, p)[2]  # the refusals' measured alternatives
         clock.step("remesh")
         results = compare_flattenings(V0, F0, params=params)
         comparison = {k: r.metrics for k, r in results.items()}
@@ -439,9 +409,15 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
             "inside its domain; the reference's stencils cover 80-88 %)"
             + (f"; {remesh_info['rim']['why']}"
                if (remesh_info.get("rim") or {}).get("fallback") else ""))
+    report.warnings.extend(remesh_info.get("warnings") or [])
+    extent = float(np.ptp(surf.V, axis=0).max())
     if (remesh_info.get("remeshed")
             and lay.central_length.max() > params.max_cell_length):
-        report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params)))
+        report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params,
+                                                         rerun, extent)))
+    elif remesh_info.get("remeshed") and vertices is None \
+            and not remesh_info.get("at_size", True):
+        raise size_refusal(remesh_info, params, rerun, extent)
     report.raise_if_failed()
 
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -438,7 +438,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     need fewer clamped thicknesses.
     Shortening the longest flat cells mostly enlarges the smallest target cells, which lowers
     the 3D scaling at a given vertex count; the count search of
-    :func:`pysolver.design.remesh.remesh_surface` then restores the size with more vertices.
+    :func:`pysolver.design.count_search.remesh_surface` then restores the size with more vertices.
     A negative ``opt_s3_weight`` credits that back (the default -0.7: measured figures in
     :class:`pysolver.params.StencilSearch`).  With ``pin`` the objective is the longest flat
     cell per unit of 3D scaling, ``log lmax - log s3``, and ``opt_pin_weight (log s3)^2`` (exact

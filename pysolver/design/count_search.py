@@ -1,0 +1,610 @@
+"""The vertex-count search: which stencil of a target surface to print.
+
+A stencil's 3D size is not chosen directly: the layout's 3D rule scales it until its
+tightest cell just keeps its bumpers (``pipeline.md`` §2.5), so the vertex count N fixes the
+shell's size.  :func:`remesh_surface` searches N so that the shell keeps the size asked for
+(3D scaling about 1) with every flat cell printable (``UnitCell.max_cell_length``):
+
+1. **Secant steps** on the 3D scaling (about ``sqrt(N)``) toward 1, from the paper's estimate
+   ``0.38 A / 7^2`` times ``StencilSearch.count_start``; then another seed when the first
+   leaves no margin, then the next rim inset when nothing is printable
+   (:meth:`CountSearch.secant`).
+2. **The pick** (:func:`_pick`): among candidates that keep the size
+   (:func:`at_size`: 3D scaling within ``[min_scale3d, 1 / min_scale3d]``), the one whose
+   scaling is closest to 1 with its longest flat cell ``margin`` below the limit, else within
+   it.  A stencil that prints only far under the size asked for is never taken silently:
+   the design stage refuses it and names measured alternatives.
+3. **The rim** (:func:`_rim_fallback`): a narrow target whose inset stencil covers too little
+   also gets the stencil reaching the rim, taken if it prints as well.
+4. **The polish** (:meth:`CountSearch.polish`): the pick optimised once more with its 3D
+   scaling held at 1; it is said whether the scaling held.
+5. **The trade** (:func:`_trade`), with a landscape the user gave: fewer, larger cells when
+   they clamp markedly fewer cells, at a kept size.
+
+Every candidate's optimisation rounds (kept or not, and why) are recorded
+(``info["optimisation"]``), and a stencil whose optimisation keeps no round is warned about.
+Nothing is tuned per shape.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import igl
+import numpy as np
+
+from ..errors import InputError
+from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from ..params import tol as TOL
+from .flatten import cetm
+from .layout import build_layout
+from .remesh import (
+    FlatDomain,
+    RimInsetError,
+    estimate_vertices,
+    isotropic_remesh,
+    remove_ears,
+    resample_dense,
+    surface_area,
+)
+from .stencil_opt import estimated_clamping, optimize_stencil
+from .time_landscape import cell_target_times, interpolate_to_stencil
+
+# --------------------------------------------------------------------------------------
+# measuring and choosing stencils
+
+
+def stencil_figures(V, F, params: UnitCell = UNIT_CELL, time=None,
+                    settings: StencilSearch = STENCIL) -> dict:
+    """Layout margins and regularity of a stencil (its CETM layout after both scaling rules).
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    params : UnitCell
+    time : (n,) float, s, optional
+        The time landscape at the stencil's vertices: adds ``clamped_estimate``.
+    settings : StencilSearch
+
+    Returns
+    -------
+    dict
+        ``scale3d``; ``max_cell_length_mm``; (both None, and ``error``, when the layout fails);
+        ``bumper_mm`` [min, max] target bumper length beyond the rim; ``edge_spread``
+        (95th / 5th percentile of the 3D edge length, after scaling), ``min_angle_deg``
+        (smallest 3D triangle angle); with ``time``, ``clamped_estimate``: the fraction of
+        cells whose time the estimate of :func:`~pysolver.design.stencil_opt.estimated_clamping`
+        puts out of reach.
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    E = igl.edges(F)
+    edge = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
+    out = {"edge_spread": round(float(np.percentile(edge, 95) / np.percentile(edge, 5)), 4),
+           "min_angle_deg": round(float(np.degrees(igl.internal_angles(V, F).min())), 2)}
+    try:
+        UV, _, _ = cetm(V, F)
+        lay = build_layout(V, UV, F, params)
+    except InputError as e:
+        out.update(scale3d=None, max_cell_length_mm=None, bumper_mm=None,
+                   error=str(e).splitlines()[0])
+        return out
+    bump = lay.bumpers.length - params.base_r
+    out.update(scale3d=round(float(lay.scale3d), 6),
+               max_cell_length_mm=round(float(lay.central_length.max()), 4),
+               bumper_mm=[round(float(bump.min()), 4), round(float(bump.max()), 4)])
+    if time is not None:
+        c = lay.cells
+        t_star = cell_target_times(np.asarray(time, float), c.verts[:, 0], c.verts[:, 1])
+        out["clamped_estimate"] = round(estimated_clamping(
+            lay.central_length, lay.target_length, c.boundary, t_star, params, settings), 4)
+    return out
+
+
+def _laid_out(c: dict) -> bool:
+    return c.get("max_cell_length_mm") is not None
+
+
+def at_size(c: dict, settings: StencilSearch = STENCIL) -> bool:
+    """Whether a laid-out candidate keeps the size asked for: its 3D scaling within
+    ``[min_scale3d, 1 / min_scale3d]``."""
+    return (_laid_out(c) and settings.min_scale3d <= c["scale3d"]
+            <= 1.0 / settings.min_scale3d)
+
+
+def _pick(tried: dict, params: UnitCell, margin: float,
+          settings: StencilSearch | None = None):
+    """Best candidate: 3D scaling closest to 1 among those whose longest flat cell keeps
+    ``margin`` below the limit; else below the limit; else the shortest longest cell.
+    Given ``settings``, candidates that keep the size asked for (:func:`at_size`) come
+    first: a printable stencil far under the size is never preferred to one at size.
+    Candidates whose layout failed are never picked (None if all failed)."""
+    tried = {k: c for k, c in tried.items() if _laid_out(c)}
+    if not tried:
+        return None
+    pools = [tried]
+    if settings is not None:
+        pools.insert(0, {k: c for k, c in tried.items() if at_size(c, settings)})
+    for pool in pools:
+        for lim in (params.max_cell_length - margin, params.max_cell_length):
+            ok = [k for k, c in pool.items() if c["max_cell_length_mm"] <= lim]
+            if ok:
+                return min(ok, key=lambda k: (round(abs(np.log(pool[k]["scale3d"])), 3),
+                                              pool[k]["max_cell_length_mm"], k))
+    return min(tried, key=lambda k: (tried[k]["max_cell_length_mm"], k))
+
+
+def _covered(V, F, area: float) -> float:
+    """Fraction of the target's area ``area`` (mm^2) the stencil ``V, F`` covers (its own 3D
+    area over the target's; the stencil's flat triangles are chords of the target)."""
+    return round(surface_area(V, F) / area, 4)
+
+
+def _tier(c: dict, params: UnitCell, margin: float) -> int:
+    """0 when the longest flat cell keeps ``margin`` (mm) below the limit, 1 when it is within
+    the limit, 2 otherwise (or when the layout failed)."""
+    if not _laid_out(c):
+        return 2
+    L = c["max_cell_length_mm"]
+    return 0 if L <= params.max_cell_length - margin else 1 if L <= params.max_cell_length else 2
+
+
+def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell,
+                  settings: StencilSearch, search_rim):
+    """The stencil without a rim inset as a measured alternative to an inset stencil.
+
+    When the chosen inset stencil ``best`` covers less than ``settings.min_area_covered`` of
+    the target, ``search_rim()`` searches the counts without an inset; its best candidate
+    replaces ``best`` only if it prints at least as well (:func:`_tier`, never worse than the
+    inset stencil and never beyond the limit).
+
+    Parameters
+    ----------
+    best : (int, int, float)
+        Key (N, seed, inset mm) of the chosen inset stencil in ``tried`` and ``meshes``.
+    tried, meshes : dict
+        Figures (:func:`stencil_figures`) and meshes of every candidate, by key; filled by
+        ``search_rim``.
+    area : float, mm^2
+        The target's area.
+    params : UnitCell
+    settings : StencilSearch
+    search_rim : callable
+        Searches the vertex count with inset 0 (adds its candidates to ``tried``).
+
+    Returns
+    -------
+    best : (int, int, float)
+        The key chosen.
+    rim : dict
+        ``inset_mm``, ``min_area_covered``, ``inset_area_covered`` (of the inset stencil),
+        ``fallback`` (None when not searched, else ``requested``, ``seed``, ``scale3d``,
+        ``max_cell_length_mm``, ``area_covered``, ``taken``) and ``why``.
+    """
+    cov = _covered(*meshes[best][:2], area)
+    rim = {"inset_mm": float(best[2]), "min_area_covered": settings.min_area_covered,
+           "inset_area_covered": cov, "fallback": None}
+    if cov >= settings.min_area_covered:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (at least "
+                      f"{100 * settings.min_area_covered:.0f} %)")
+        return best, rim
+    try:
+        search_rim()
+    except RimInsetError:  # (inset 0 never splits the target; kept for symmetry)
+        pass
+    alt = _pick({k: c for k, c in tried.items() if k[2] == 0.0}, params, settings.margin)
+    if alt is None:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target; no stencil "
+                      "without the inset could be laid out")
+        return best, rim
+    c, c0 = tried[alt], tried[best]
+    taken = _tier(c, params, settings.margin) <= min(_tier(c0, params, settings.margin), 1)
+    rim["fallback"] = {"requested": int(alt[0]), "seed": int(alt[1]),
+                       "scale3d": c["scale3d"], "max_cell_length_mm": c["max_cell_length_mm"],
+                       "area_covered": _covered(*meshes[alt][:2], area), "taken": bool(taken)}
+    if taken:
+        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+                      f"{100 * settings.min_area_covered:.0f} %); the stencil reaching the rim "
+                      f"prints (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
+                      f"{c0['max_cell_length_mm']:.2f} mm with the inset)")
+        rim["inset_mm"] = 0.0
+        return alt, rim
+    rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+                  f"{100 * settings.min_area_covered:.0f} %), but the stencil reaching the rim "
+                  f"prints worse (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
+                  f"{c0['max_cell_length_mm']:.2f} mm with the inset; limit "
+                  f"{params.max_cell_length:.2f} mm, margin {settings.margin:.2f} mm)")
+    return best, rim
+
+
+def _trade(best, V2, F2, chosen, trial, tried, meshes, params, settings, info, progress,
+           seeds=None):
+    """Fewer, larger (faster) cells for a landscape that asks for early times.
+
+    Tries ``settings.trade_counts`` x the chosen count (each of ``seeds``, default the
+    chosen one; same inset) and takes, among every stencil tried with fewer vertices, the
+    one with the lowest estimated clamped fraction among those that are printable with
+    the margin, keep a 3D scaling of at least ``trade_min_scale3d`` and clamp at least
+    ``trade_gain`` fewer cells than the chosen stencil.  Records ``info["trade"]``.
+    """
+    n0, sd, inset = best
+    limit = params.max_cell_length - settings.margin
+    for f in settings.trade_counts:
+        for s in (seeds or [sd]):
+            trial(round(n0 * f), s, inset)
+    est0 = chosen["clamped_estimate"]
+    ok = [k for k, c in tried.items()
+          if k[2] == inset and k[0] < n0 and _laid_out(c)
+          and c["max_cell_length_mm"] <= limit and c["scale3d"] >= settings.trade_min_scale3d
+          and c["clamped_estimate"] <= est0 - settings.trade_gain]
+    record = {"vertices": int(n0), "scale3d": chosen["scale3d"], "clamped_estimate": est0,
+              "tried": [[k[0], k[1], tried[k]["scale3d"], tried[k].get("clamped_estimate")]
+                        for k in sorted(tried) if k[2] == inset and k[0] < n0],
+              "taken": False}
+    if ok:
+        k = min(ok, key=lambda k: (tried[k]["clamped_estimate"], -k[0]))
+        V2, F2, _ = meshes[k]
+        record.update(taken=True, to_vertices=int(k[0]), to_scale3d=tried[k]["scale3d"],
+                      to_clamped_estimate=tried[k]["clamped_estimate"])
+        best, chosen = k, tried[k]
+    info["trade"] = record
+    if progress is not None:
+        after = (f", N={best[0]} ~{100 * chosen['clamped_estimate']:.0f} % at "
+                 f"{chosen['scale3d']:.3f}" if ok else "")
+        progress(("fewer, larger cells for the landscape: " if ok else "kept the count: ")
+                 + f"N={n0} clamps ~{100 * est0:.0f} % of cells at scale3d "
+                 f"{record['scale3d']:.3f}" + after)
+    return best, V2, F2, chosen
+
+
+
+
+# --------------------------------------------------------------------------------------
+# the search
+
+
+class CountSearch:
+    """The vertex-count search over one target: every candidate stencil tried.
+
+    A class because the candidates (figures, meshes, optimised flat points and their
+    optimisation records, by key ``(N, seed, inset mm)``) are shared by the secant steps, the
+    pick, the rim fallback, the polish and the trade.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm -- the target (dense-resampled when needed)
+    F : (m, 3) int
+    time : (n,) float, s, or None -- the landscape at V (None: constant)
+    params : UnitCell
+    settings : StencilSearch
+    method : {"cvt", "pymeshlab"}
+    optimize : bool
+    graded : bool -- the CVT spacing follows the landscape
+    progress : callable or None
+    """
+
+    def __init__(self, V, F, time, *, params: UnitCell, settings: StencilSearch,
+                 method: str, optimize: bool, graded: bool, progress=None):
+        self.V, self.F, self.time = V, F, time
+        self.params, self.settings = params, settings
+        self.method, self.optimize, self.progress = method, optimize, progress
+        self.area = surface_area(V, F)
+        self.tried: dict = {}
+        self.meshes: dict = {}
+        self.flat: dict = {}  # key -> optimised flat points, time at them
+        self.optimisation: dict = {}  # key -> optimise_stencil's info
+        self.dom = None
+        if method == "cvt":
+            self.dom = FlatDomain(V, F, settings, time=time if graded else None)
+            # insets in mm: a fraction of the edge of the smallest regular cell the
+            # min-bumper rule allows (fixed, so that the 3D scaling stays monotone in N)
+            edge = np.sqrt(3) * 2 * (params.base_r + params.min_bumper)
+            self.insets = tuple(round(float(f) * edge, 4) for f in settings.rim_insets)
+        else:
+            self.insets = (0.0,)
+        if not len(self.insets):
+            raise InputError("settings.rim_insets is empty",
+                             fix="give at least one inset (0 = none)")
+
+    def say(self, line: str) -> None:
+        if self.progress is not None:
+            self.progress(line)
+
+    # -- candidates ------------------------------------------------------------------
+    def make(self, n: int, sd: int, inset: float):
+        """The stencil of ``n`` vertices, CVT seed ``sd``, rim inset (mm), optimised.
+
+        Returns
+        -------
+        V2 : (k, 3) float, mm
+        F2 : (f, 3) int
+        before : (V, F) of the stencil before the optimisation
+        """
+        if self.dom is None:  # pymeshlab's isotropic remeshing in 3D
+            L = np.sqrt(2 * self.area / (np.sqrt(3) * n))
+            V2, F2 = remove_ears(*isotropic_remesh(self.V, self.F, L))
+            return V2, F2, (V2, F2)
+        P, F2 = self.dom.stencil(n, seed=sd, inset=inset)
+        before = (self.dom.lift(P), F2)
+        if self.optimize:
+            t_P = None if self.time is None else self.dom.interpolate(self.time, P)
+            P, opt = optimize_stencil(self.dom, P, F2, self.params, self.settings,
+                                      t_vertex=t_P)
+            self.flat[(n, sd, float(inset))] = (P, t_P)
+            self.optimisation[(n, sd, float(inset))] = opt
+        return self.dom.lift(P), F2, before
+
+    def figures(self, V2, F2) -> dict:
+        t2 = None if self.time is None else interpolate_to_stencil(self.time, self.V, self.F,
+                                                                   V2)
+        return stencil_figures(V2, F2, self.params, time=t2, settings=self.settings)
+
+    def trial(self, n, sd, inset) -> int:
+        """Make and measure candidate ``(n, sd, inset)`` once (later calls reuse it)."""
+        n = max(int(n), 8)
+        key = (n, int(sd), float(inset))
+        if key in self.tried:
+            return n
+        V2, F2, before = self.make(n, int(sd), inset)
+        c = self.tried[key] = self.figures(V2, F2)
+        self.meshes[key] = (V2, F2, before)
+        what = (f"scale3d {c['scale3d']:.3f}, longest flat cell {c['max_cell_length_mm']:.2f} mm"
+                if _laid_out(c) else f"no layout ({c['error']})")
+        if c.get("clamped_estimate") is not None:
+            what += f", ~{100 * c['clamped_estimate']:.0f} % of cells clamped"
+        self.say(f"N={n} seed={sd} rim inset {inset:g} mm: {what}")
+        opt = self.optimisation.get(key)
+        if opt is not None and opt["rounds"] == 0:
+            why = opt["history"][0]["why"] if opt["history"] else "no interior vertex"
+            self.say(f"warning: N={n} seed={sd}: the stencil optimisation kept no round ({why})")
+        return n
+
+    # -- the count -------------------------------------------------------------------
+    def secant(self, inset: float, start: int, sd0: int) -> int:
+        """Secant steps of N toward a 3D scaling of 1 (``scale3d ~ N^k``, k = 1/2 for a
+        uniform mesh, else the slope of the last two); returns the last N tried."""
+        st = self.settings
+        pts = []  # (log N, log scale3d)
+        n = self.trial(start, sd0, inset)
+        for _ in range(st.count_steps):
+            s3 = self.tried[(n, sd0, float(inset))]["scale3d"]
+            if s3 is None or abs(np.log(s3)) < st.count_tolerance:
+                break
+            pts.append((np.log(n), np.log(s3)))
+            k = 0.5
+            if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > st.count_secant_min:
+                k = float(np.clip((pts[-1][1] - pts[-2][1]) / (pts[-1][0] - pts[-2][0]),
+                                  0.25, 1.0))
+            n = self.trial(round(n * s3 ** (-1.0 / k)), sd0, inset)
+        return n
+
+    def search_inset(self, inset: float, vertices, seeds, start: list) -> None:
+        """All candidates of one rim inset: the given count with every seed, or the secant
+        steps, ``candidates`` around their result and the other seeds when the first
+        leaves no margin (``start`` holds the count to start from, updated)."""
+        st, limit = self.settings, self.params.max_cell_length
+        if vertices is not None:
+            for sd in seeds:
+                self.trial(int(vertices), sd, inset)
+            return
+        n = start[0] = self.secant(inset, start[0], seeds[0])
+        for f in st.candidates:
+            self.trial(round(n * f), seeds[0], inset)
+        here = {k: c for k, c in self.tried.items() if k[2] == float(inset)}
+        best = _pick(here, self.params, st.margin, st)
+        if best is None or here[best]["max_cell_length_mm"] > limit - st.margin \
+                or not at_size(here[best], st):
+            for sd in seeds[1:]:  # another seed only when the first leaves no margin
+                self.trial(best[0] if best else n, sd, inset)
+
+    def search(self, vertices, seeds, start: int):
+        """Every inset in turn until one gives a candidate printable with the margin at
+        size, then the rim fallback; returns the key picked and the rim record."""
+        st, limit = self.settings, self.params.max_cell_length
+        start = [start]
+        for inset in self.insets:
+            try:
+                self.search_inset(inset, vertices, seeds, start)
+            except RimInsetError:
+                continue
+            if any(at_size(c, st) and c["max_cell_length_mm"] <= limit - st.margin
+                   for c in self.tried.values()):
+                break
+        best = _pick(self.tried, self.params, st.margin, st)
+        rim = None
+        if best is not None and best[2] > 0:
+            def rim_search():
+                if not any(k[2] == 0.0 for k in self.tried):
+                    self.search_inset(0.0, vertices, seeds, start)
+            best, rim = _rim_fallback(best, self.tried, self.meshes, self.area, self.params,
+                                      st, rim_search)
+            self.say(f"rim: {rim['why']}")
+        return best, rim
+
+    def polish(self, best):
+        """The chosen stencil optimised again with its 3D scaling held at 1 (the longest flat
+        cell per unit of scaling); kept when it is nearer the target's size at no longer cell
+        (or still printable, with no longer cell per unit of scaling).
+
+        Returns
+        -------
+        V2 : (k, 3) float, mm -- the stencil kept
+        chosen : dict -- its figures
+        record : dict -- ``scale3d``, ``max_cell_length_mm`` of the polished stencil,
+            ``kept``, ``held`` (its scaling within ``polish_tolerance`` of 1), ``rounds``
+        """
+        st, limit = self.settings, self.params.max_cell_length
+        V2, F2, _ = self.meshes[best]
+        chosen = self.tried[best]
+        P, t_P = self.flat[best]
+        P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P, pin=True)
+        Vp = self.dom.lift(P)
+        fig = self.figures(Vp, F2)
+        L0 = chosen["max_cell_length_mm"]
+        if _laid_out(fig) and abs(np.log(fig["scale3d"])) <= abs(np.log(chosen["scale3d"])) \
+                and (fig["max_cell_length_mm"] <= max(L0, limit - st.margin)
+                     or (fig["max_cell_length_mm"] <= limit and fig["max_cell_length_mm"]
+                         / fig["scale3d"] <= L0 / chosen["scale3d"])):
+            V2, chosen = Vp, fig
+        held = abs(np.log(chosen["scale3d"])) <= st.polish_tolerance
+        record = {"scale3d": fig["scale3d"], "max_cell_length_mm": fig["max_cell_length_mm"],
+                  "kept": chosen is fig, "held": bool(held), "rounds": opt["history"]}
+        what = (f"scale3d {fig['scale3d']:.3f}, longest flat cell "
+                f"{fig['max_cell_length_mm']:.2f} mm" if _laid_out(fig) else "no layout")
+        self.say(f"N={best[0]} seed={best[1]} held at scale 1: {what} "
+                 + ("(kept)" if chosen is fig else "(dropped)")
+                 + ("" if held else f"; could not hold the scaling at 1 (the stencil kept "
+                                    f"is at {chosen['scale3d']:.3f})"))
+        return V2, chosen, record
+
+    def records(self) -> list:
+        """Every candidate's optimisation rounds, for ``design.json``."""
+        return [{"vertices": k[0], "seed": k[1], "rim_inset_mm": k[2],
+                 "rounds_kept": v["rounds"], "rounds": v["history"]}
+                for k, v in sorted(self.optimisation.items())]
+
+
+def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
+                   params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL,
+                   method: str = "cvt", dense: bool | None = None, optimize: bool = True,
+                   time=None, user_times: bool = False, progress=None):
+    """Remesh a target surface into a stencil, searching the vertex count.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    vertices : int, optional
+        Vertex count N; otherwise searched (module docstring).
+    seed : int, optional
+        Seed of the CVT initialisation; otherwise ``settings.seeds`` seeds are tried.
+    target_bases : int, optional
+        Start of the search (about 2 N); default ``count_start`` x the paper's estimate.
+    params : UnitCell
+    settings : StencilSearch
+    method : {"cvt", "pymeshlab"}
+    dense : bool, optional
+        Resample the input finely with pymeshlab first (default: when the input's
+        triangles are poor, min angle < 15 deg, or it has fewer than 2000 faces).
+    optimize : bool
+        Run the stencil optimisation (:mod:`pysolver.design.stencil_opt`).
+    time : (n,) float, s, optional
+        The time landscape at the vertices of V; the optimisation then also evens the
+        cells' speeds against it (``StencilSearch.opt_timing_weight``).
+    user_times : bool
+        The landscape's seconds are the user's (not mapped later onto what the cells can
+        reach): the CVT spacing follows it (``StencilSearch.timing_grading``, redone
+        without when that is not printable), and with the vertex count searched, fewer
+        vertices are also tried (``StencilSearch.trade_counts``) and taken when they clamp
+        markedly fewer cells by the estimate, at a 3D scaling of at least
+        ``trade_min_scale3d``; recorded in ``info["timing_grading"]`` and ``info["trade"]``.
+    progress : callable, optional
+        Called with one line per tried candidate.
+
+    Returns
+    -------
+    V2 : (k, 3) float, mm
+    F2 : (f, 3) int
+    info : dict
+        ``vertices``, ``requested``, ``seed``, ``rim_inset_mm``, ``estimate_paper``,
+        ``at_size`` (:func:`at_size` of the stencil returned: False when no printable stencil
+        keeps the size asked for; the design stage then refuses it), ``optimisation``
+        (:meth:`CountSearch.records`), ``warnings``,
+        ``scale3d``, ``max_cell_length_mm``, ``before_optimisation`` / ``after_optimisation``
+        (:func:`stencil_figures` of the chosen stencil), ``candidates``
+        [[N, seed, inset, scale3d, longest flat cell], ...], ``polish`` (the last pass at
+        scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``, ``held``, ``rounds``) and
+        ``rim`` (the rim inset chosen and why: ``inset_mm``, ``area_covered`` of the returned
+        stencil, ``fallback`` and ``why``, see :func:`_rim_fallback`), ``timing_grading``
+        (``grading``, ``taken``: whether the spacing followed the landscape,
+        ``StencilSearch.timing_grading``) and, with ``user_times``, ``trade``
+        (:func:`_trade`).
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    call = dict(V=V, F=F, vertices=vertices, seed=seed, target_bases=target_bases,
+                params=params, method=method, dense=dense, optimize=optimize, time=time,
+                user_times=user_times, progress=progress)
+    A = surface_area(V, F)
+    info = {"remeshed": True, "method": method, "area_mm2": round(A, 2),
+            "estimate_paper": estimate_vertices(A)}
+    if method not in ("cvt", "pymeshlab"):
+        raise InputError(f"remesh method {method!r}", fix="use 'cvt' or 'pymeshlab'")
+    if dense is None:
+        minang = np.degrees(igl.internal_angles(V, F).min())
+        dense = minang < settings.dense_min_angle_deg or len(F) < settings.dense_min_faces
+    if time is not None:
+        time = np.asarray(time, float)
+        if time.shape != (len(V),):
+            raise InputError(f"time has shape {time.shape}, expected ({len(V)},): one value "
+                             "per target vertex", fix="give the time landscape per vertex of V")
+    if time is not None and np.ptp(time) <= TOL.time:
+        time = None  # a constant landscape: programming picks the constant itself
+    if dense:
+        V2, F2 = resample_dense(V, F, settings.dense_faces)
+        if time is not None:
+            time = interpolate_to_stencil(time, V, F, V2)
+        V, F = V2, F2
+        info["dense_resampled_faces"] = int(len(F))
+    graded = method == "cvt" and user_times and time is not None and settings.timing_grading > 0
+    search = CountSearch(V, F, time, params=params, settings=settings, method=method,
+                         optimize=optimize, graded=graded, progress=progress)
+    seeds = ([int(seed)] if seed is not None
+             else [0] if method == "pymeshlab"  # (it has no seed)
+             else list(range(settings.seeds)))
+    start = (int(target_bases / 2) if target_bases
+             else round(settings.count_start * estimate_vertices(A)))
+    best, rim = search.search(vertices, seeds, start)
+    if best is None:
+        why = "; ".join(sorted({c["error"] for c in search.tried.values() if "error" in c}))
+        why = why or "every rim inset splits the target"
+        raise InputError(f"no stencil of this target could be laid out ({why})",
+                         fix="check the target (it may fold sharply or be too small for 4 mm "
+                             "bases), or give --vertices")
+    V2, F2, before = search.meshes[best]
+    chosen = search.tried[best]
+    if best in search.flat and settings.opt_pin_weight > 0:
+        V2, chosen, info["polish"] = search.polish(best)
+    if user_times and time is not None and vertices is None and _laid_out(chosen):
+        best, V2, F2, chosen = _trade(best, V2, F2, chosen, search.trial, search.tried,
+                                      search.meshes, params, settings, info, progress,
+                                      seeds=seeds)
+    limit = params.max_cell_length
+    if graded and not (chosen["max_cell_length_mm"] <= limit
+                       and chosen["scale3d"] >= settings.trade_min_scale3d):
+        # the graded spacing asked for cells the limit does not allow: the search again,
+        # spaced by the target alone
+        search.say(f"time-graded stencil: longest flat cell {chosen['max_cell_length_mm']:.2f}"
+                   f" mm, scale3d {chosen['scale3d']:.3f}: searching again without")
+        V2, F2, again = remesh_surface(**call, settings=replace(settings, timing_grading=0.0))
+        again["timing_grading"] = {"grading": settings.timing_grading, "taken": False,
+                                   "max_cell_length_mm": chosen["max_cell_length_mm"],
+                                   "scale3d": chosen["scale3d"]}
+        return V2, F2, again
+    info["timing_grading"] = {"grading": settings.timing_grading if graded else 0.0,
+                              "taken": bool(graded)}
+    if rim is None:
+        rim = {"inset_mm": float(best[2]), "area_covered": _covered(V2, F2, A),
+               "fallback": None, "why": ("the stencil reaches the target's rim" if best[2] <= 0
+                                         else "the inset stencil covers enough of the target")}
+    else:
+        rim["area_covered"] = _covered(V2, F2, A)  # of the final stencil (polished, traded)
+    records = search.records()
+    info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
+                rim_inset_mm=float(best[2]), rim=rim, scale3d=chosen["scale3d"],
+                max_cell_length_mm=chosen["max_cell_length_mm"],
+                at_size=bool(at_size(chosen, settings)),
+                before_optimisation=stencil_figures(*before, params) if optimize else None,
+                after_optimisation=chosen,
+                candidates=[[k[0], k[1], k[2], v["scale3d"], v["max_cell_length_mm"]]
+                            for k, v in sorted(search.tried.items())],
+                optimisation=records,
+                warnings=[f"the stencil optimisation kept no round for the stencil chosen "
+                          f"(N={best[0]} seed={best[1]}: {r['rounds'][0]['why']})"
+                          for r in records if (r["vertices"], r["seed"], r["rim_inset_mm"])
+                          == best and r["rounds_kept"] == 0 and r["rounds"]])
+    return V2, F2, info
+
+
+__all__ = ["stencil_figures", "at_size", "CountSearch", "remesh_surface"]
