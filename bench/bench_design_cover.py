@@ -127,7 +127,7 @@ def main() -> int:
         m = load_input(src / "cover_src.obj", scale=1.0, validate=False)
         V = m.V - m.V.mean(axis=0)
         V = V * (106.0 / np.ptp(V, axis=0).max())
-        ref = load_input(src / "cover_reference_stencil.obj", validate=False)
+        ref = load_input(src / "cover_reference_stencil.obj", validate=False, stencil=True)
         t_ref = np.loadtxt(src / "cover_reference_time_landscape.csv", delimiter=",",
                            skiprows=1, usecols=-1, ndmin=1)
         t_src = carry_landscape(ref.V, ref.F, t_ref, V, m.F)

@@ -3,7 +3,7 @@
 Reads ``../shared/reference-shapes`` (beside the clone in CI, not project data, so this is a
 benchmark and not a test; a clone on its own skips it with a message):
 
-1. ``design cover_reference_stencil.obj --min-bumper 0.1 --time-file
+1. ``design cover_reference_stencil.obj --stencil --min-bumper 0.1 --time-file
    cover_reference_time_landscape.csv`` (the landscape is per stencil vertex: used as
    given), figures: 3D and flat scaling (bar: both <= 1.001), smallest printed flat gap;
 2. ``program`` (the landscape is only checked, not remapped), then the Pearson correlation
@@ -58,8 +58,8 @@ def main() -> int:
         t0 = time.perf_counter()
         params = unit_cell_options(min_bumper=0.1)
         summary = run_design(files["stencil.obj"], tmp / "cover", params=params,
-                             time_file=files["time_landscape.csv"], progress=False,
-                             plots=False)
+                             time_file=files["time_landscape.csv"], stencil=True,
+                             progress=False, plots=False)
         t_design = time.perf_counter() - t0
         program_design(tmp / "cover", progress=False, picture=False)
         t_program = time.perf_counter() - t0 - t_design

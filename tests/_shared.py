@@ -1,9 +1,23 @@
-"""Small helpers shared by several test files (meshes, section measurements)."""
+"""Small helpers shared by several test files (meshes, section measurements, fits)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 import trimesh
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+"""``../shared`` beside the checkout: test inputs that are not project data (present in CI)."""
+
+
+def shared_file(*parts: str) -> Path:
+    """A file of ``../shared``; the test is skipped, saying so, where it is absent."""
+    p = SHARED.joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"needs {p} (../shared beside the checkout, as in CI)")
+    return p
 
 
 def flat_grid(n: int = 8, size: float = 40.0):
@@ -46,3 +60,28 @@ def section_width(seg, m, w):
     if not (np.any(s > 0) and np.any(s < 0)):
         return None
     return s[s > 0].min() - s[s < 0].max()
+
+
+FIT_RTOL = 1e-6
+"""A fresh material fit against the committed one, relative to the largest |coefficient| of
+each part.  The fit's last bits move with the CPU's code path and the BLAS kernel (measured:
+about 1e-8 relative); 1e-6 is far below the fit's own error (residual RMS 0.05-0.1 mm) and far
+above those bits."""
+
+
+def assert_fit_matches(fresh: dict, committed: dict, rtol: float = FIT_RTOL) -> None:
+    """A fresh bracket-model file dict reproduces the committed one: same grid and options,
+    force polynomials (per power of x) and creep coefficients within ``rtol``."""
+    assert fresh["grid"] == committed["grid"]
+    assert fresh["fit"]["options"] == committed["fit"]["options"]
+    a = np.asarray(fresh["force_coefficients"]["data"], float)
+    b = np.asarray(committed["force_coefficients"]["data"], float)
+    assert a.shape == b.shape
+    k = a.shape[-1]
+    err = np.abs(a - b).reshape(-1, k).max(axis=0)            # per power of x, N mm^-k
+    scale = np.abs(b).reshape(-1, k).max(axis=0)
+    assert np.all(err <= rtol * scale), (err, scale)
+    for part in ("dry", "wet"):
+        c0 = np.asarray(committed["creep_model"][part]["coefficients"], float)
+        c1 = np.asarray(fresh["creep_model"][part]["coefficients"], float)
+        assert np.abs(c1 - c0).max() <= rtol * np.abs(c0).max(), part

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _shared import assert_fit_matches
 
 from pysolver.design import run_design
 from pysolver.fitting.material_fit import fit_material
@@ -30,8 +31,6 @@ from pysolver.temporal import program as temporal
 
 REPO = Path(__file__).resolve().parent.parent
 REMOVED = "0.50_6"  # dry specimen h = 0.5 mm, l = 6 mm (and its wet series 0.5_6_*)
-FRESH_FIT_RTOL = 1e-9
-"""Fresh fit vs committed coefficients, relative to the largest |coefficient| of each power."""
 COMMITTED_BYTES = Path(DEFAULT_MODEL_PATH).read_bytes()
 """The committed model as it was when this module was imported (before any fit ran)."""
 
@@ -105,25 +104,15 @@ def test_shipped_measurements_are_the_committed_models_inputs():
 
 def test_committed_model_is_a_fresh_fit_of_the_shipped_data(tmp_path):
     """``make material`` (fit_material with the default options) reproduces the committed model:
-    same grid, coefficients within FRESH_FIT_RTOL of each power's largest magnitude, same
-    recorded inputs and fit options."""
+    same grid, coefficients within ``FIT_RTOL`` (1e-6) of each power's largest magnitude (a
+    fit on another CPU differs in its last bits), same recorded inputs and fit options."""
     out = tmp_path / "fresh.json"
     fit_material(out_path=out, report_dir=tmp_path / "report", progress=False,
                  evaluate_options=False)
     fresh, committed = json.loads(out.read_text()), json.loads(COMMITTED_BYTES)
-    assert fresh["grid"] == committed["grid"]
-    a = np.asarray(fresh["force_coefficients"]["data"], float)
-    b = np.asarray(committed["force_coefficients"]["data"], float)
-    assert a.shape == b.shape == (8, 21, 21, 4)
-    err = np.abs(a - b).reshape(-1, 4).max(axis=0)            # per power of x, N mm^-k
-    scale = np.abs(b).reshape(-1, 4).max(axis=0)
-    assert np.all(err <= FRESH_FIT_RTOL * scale), (err, scale)
+    assert np.shape(fresh["force_coefficients"]["data"]) == (8, 21, 21, 4)
+    assert_fit_matches(fresh, committed)
     assert fresh["provenance"]["inputs_sha256"] == committed["provenance"]["inputs_sha256"]
-    assert fresh["fit"]["options"] == committed["fit"]["options"]
-    for part in ("dry", "wet"):
-        c0 = np.asarray(committed["creep_model"][part]["coefficients"], float)
-        c1 = np.asarray(fresh["creep_model"][part]["coefficients"], float)
-        assert np.abs(c1 - c0).max() <= FRESH_FIT_RTOL * np.abs(c0).max(), part
 
 
 def test_material_option_changes_thicknesses(user_fit, tmp_path):

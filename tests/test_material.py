@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _shared import assert_fit_matches
 
 from pysolver.errors import InputError
 from pysolver.fitting.material_fit import (
@@ -247,15 +248,13 @@ def test_committed_model_residuals_on_measurements(model):
 
 @pytest.mark.slow
 def test_refit_reproduces_committed_model(model):
-    """Fitting the shipped data again gives the committed coefficients exactly (deterministic
-    chain; the file stores 12 significant digits)."""
+    """Fitting the shipped data again gives the committed coefficients, to ``FIT_RTOL`` (the
+    chain is deterministic on one machine; another CPU moves its last bits)."""
     meas = load_measurements()
     res = run_chain(meas, FitOptions(), progress=False)
     d = model_file_dict(res, meas)
     committed = json.loads(DEFAULT_MODEL_PATH.read_text())
-    assert d["force_coefficients"] == committed["force_coefficients"]
-    assert d["creep_model"] == committed["creep_model"]
-    assert d["fit"]["options"] == committed["fit"]["options"]
+    assert_fit_matches(d, committed)
     assert res.residuals["dry_model"]["rms_mm"] < DRY_RMS_MAX_MM
     assert res.residuals["wet_model"]["rms_mm"] < WET_RMS_MAX_MM
 

@@ -3,19 +3,16 @@ split at narrow necks, and the paper's cover ordered as its authors ordered it."
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import shapely
 import triangle
+from _shared import shared_file
 from scipy.stats import spearmanr
 
 from pysolver.design.mesh_input import load_input
 from pysolver.design.sequencing import facing_pairs, sequencing_landscape, surface_parts
 from pysolver.params import SEQUENCING
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "reference-shapes"
 
 
 def _strip(gap: float, arm: float = 40.0, width: float = 20.0, h: float = 1.5):
@@ -98,10 +95,9 @@ def test_flat_and_open_targets_get_no_sequence():
 def test_cover_petals_close_in_the_papers_order():
     """On the reference's own cover stencil, the landscape drawn from the target alone
     orders the petals as the paper's authors did (their landscape: 30, 48 and 78 s)."""
-    src = SHARED / "cover_reference_stencil.obj"
-    assert src.exists(), f"{src} missing: the tests need ../shared beside the checkout"
-    m = load_input(src, validate=False)
-    t_ref = np.loadtxt(SHARED / "cover_reference_time_landscape.csv", skiprows=1)
+    src = shared_file("reference-shapes", "cover_reference_stencil.obj")
+    m = load_input(src, validate=False, stencil=True)
+    t_ref = np.loadtxt(src.parent / "cover_reference_time_landscape.csv", skiprows=1)
     t, info = sequencing_landscape(m.V, m.F)
     assert t is not None and len(t) == len(t_ref)
     assert np.corrcoef(t, t_ref)[0, 1] >= 0.9

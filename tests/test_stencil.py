@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
-from pathlib import Path
 
 import autograd.numpy as anp
 import igl
 import numpy as np
 import pytest
+from _shared import shared_file
 from autograd import grad
 
 from pysolver.design import count_search, remesh, run_design, stencil_opt, surfaces
@@ -20,8 +20,6 @@ from pysolver.design.mesh_input import load_input
 from pysolver.errors import InputError
 from pysolver.geometry import face_adjacency, face_centroids, signed_areas_2d, unit_cells
 from pysolver.params import STENCIL, UNIT_CELL
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "reference-shapes"
 
 
 @pytest.fixture(scope="module")
@@ -260,8 +258,7 @@ def test_pick_prefers_size_among_printable_and_never_a_failed_layout():
 def test_paper_cover_designs_printable_from_its_target(tmp_path):
     """The paper's petalled shell (reference: 567 bases, flat cells 5.6-8.44 mm) from its
     unitless target surface, at the reference's size and 0.1 mm minimal bumper."""
-    src = SHARED / "cover_src.obj"
-    assert src.exists(), f"{src} missing: the tests need ../shared beside the checkout"
+    src = shared_file("reference-shapes", "cover_src.obj")
     m = load_input(src, scale=38.5)
     V = m.V - m.V.mean(axis=0)
     V *= 106.0 / np.ptp(V, axis=0).max()

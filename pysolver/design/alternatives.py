@@ -18,6 +18,7 @@ from ..errors import InputError
 from ..params import REFERENCE_MIN_BUMPER_MM, STENCIL, StencilSearch, UnitCell
 from ..params import tol as TOL
 from .count_search import at_size, stencil_figures
+from .feasibility import describe_bound, target_bound
 
 
 def _describe(info: dict) -> str:
@@ -70,7 +71,7 @@ def try_smaller_size(search, extent_mm: float, factor: float, params: UnitCell):
 
 
 def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=None,
-                           extent_mm=None) -> str:
+                           extent_mm=None, target=None) -> str:
     """What would make an unprintable remeshed stencil printable, measured, for the error's fix.
 
     Tries the same stencil at the reference's 0.1 mm minimal bumper, a smaller size (when the
@@ -88,12 +89,17 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=Non
         See :func:`try_smaller_size`.
     extent_mm : float, mm, optional
         The target's largest extent (with ``search``).
+    target : (V, F), optional
+        The target surface: the fix then starts with its measured bound
+        (:func:`pysolver.design.feasibility.target_bound`).
 
     Returns
     -------
     fix : str
     """
     lines = []
+    if target is not None:
+        lines.append(describe_bound(target_bound(*target, params), params))
     low = REFERENCE_MIN_BUMPER_MM
     if params.min_bumper > low + TOL.rel:
         alt = stencil_figures(V, F, replace(params, min_bumper=low))

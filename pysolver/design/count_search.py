@@ -43,6 +43,7 @@ from .remesh import (
     RimInsetError,
     estimate_vertices,
     isotropic_remesh,
+    needs_dense,
     remove_ears,
     resample_dense,
     surface_area,
@@ -532,8 +533,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     if method not in ("cvt", "pymeshlab"):
         raise InputError(f"remesh method {method!r}", fix="use 'cvt' or 'pymeshlab'")
     if dense is None:
-        minang = np.degrees(igl.internal_angles(V, F).min())
-        dense = minang < settings.dense_min_angle_deg or len(F) < settings.dense_min_faces
+        dense = needs_dense(V, F, settings)
     if time is not None:
         time = np.asarray(time, float)
         if time.shape != (len(V),):

@@ -414,7 +414,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     if (remesh_info.get("remeshed")
             and lay.central_length.max() > params.max_cell_length):
         report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params,
-                                                         rerun, extent)))
+                                                         rerun, extent, (surf.V, surf.F))))
     elif remesh_info.get("remeshed") and vertices is None \
             and not remesh_info.get("at_size", True):
         raise size_refusal(remesh_info, params, rerun, extent)

@@ -179,6 +179,14 @@ def _keep_orientation(V2, F2, V, F):
     return V2, F2
 
 
+def needs_dense(V, F, settings: StencilSearch = STENCIL) -> bool:
+    """Whether a target is resampled before flattening: its smallest triangle angle under
+    ``dense_min_angle_deg`` or fewer than ``dense_min_faces`` faces."""
+    minang = np.degrees(igl.internal_angles(np.asarray(V, float),
+                                            np.asarray(F, dtype=np.int64)).min())
+    return bool(minang < settings.dense_min_angle_deg or len(F) < settings.dense_min_faces)
+
+
 def resample_dense(V, F, faces: int = STENCIL.dense_faces):
     """Resample a user mesh to about ``faces`` well-shaped triangles (pymeshlab)."""
     A = surface_area(V, F)
@@ -452,5 +460,6 @@ def edge_for_count(area: float, perimeter: float, n: int) -> float:
 
 
 __all__ = ["surface_area", "time_spacing_log", "estimate_vertices", "remove_ears",
-           "remove_flaps", "isotropic_remesh", "resample_dense", "triangulate_flat",
+           "remove_flaps", "isotropic_remesh", "needs_dense", "resample_dense",
+           "triangulate_flat",
            "FlatDomain", "edge_for_count"]

@@ -1,0 +1,110 @@
+"""The measured bound on the longest flat cell of any conformal stencil of a target
+(:mod:`pysolver.design.feasibility`), against closed forms on a plate and a cylinder."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pysolver.design import surfaces
+from pysolver.design.feasibility import (
+    cell_scale_curvature,
+    conformal_bound,
+    describe_bound,
+    min_cell_length,
+    shortest_cell,
+    worst_cell_curvature,
+)
+from pysolver.params import UNIT_CELL
+
+P = UNIT_CELL
+
+
+def _plate(width=80.0, height=60.0):
+    P2, F = surfaces._dense(np.array([[0, 0], [width, 0], [width, height], [0, height]],
+                                     float))
+    return np.c_[P2, np.zeros(len(P2))], F
+
+
+def _cylinder(radius, width=70.0, height=60.0):
+    """A plate rolled around the y axis; also its unrolled coordinates."""
+    V, F = _plate(width, height)
+    a = V[:, 0] / radius
+    return np.c_[radius * np.sin(a), V[:, 1], radius * (1 - np.cos(a))], F, V
+
+
+def _fixed_point(kappa):
+    D = shortest_cell(P)
+    for _ in range(200):
+        t = kappa * D / 2
+        D = 2 * np.cos(t) * (P.base_r + P.layer_h * np.tan(t) + P.min_bumper)
+    return D, kappa * D / 2
+
+
+def test_shortest_cell_grows_with_curvature():
+    assert min_cell_length(np.array([0.0]))[0] == pytest.approx(2 * (P.base_r + P.min_bumper))
+    k = np.array([0.0, 0.02, 0.05, 0.1])
+    D = min_cell_length(k)
+    assert np.all(np.diff(D) > 0)
+    for kk, d in zip(k, D, strict=True):
+        assert d == pytest.approx(_fixed_point(kk)[0], rel=1e-9)
+    assert np.isinf(min_cell_length(np.array([1.0]))[0])  # a 1 mm radius: no cell fits
+
+
+def test_worst_cell_curvature_of_sphere_and_cylinder():
+    # three cell directions 60 deg apart at their best orientation: a sphere folds every
+    # cell by k, a cylinder at least one by 3/4 k (directions at 30, 90, 150 deg)
+    got = worst_cell_curvature(np.array([0.1, 0.1, 0.1]), np.array([0.1, 0.0, -0.1]))
+    np.testing.assert_allclose(got[:2], [0.1, 0.075], rtol=1e-3)
+    assert 0.05 <= got[2] <= 0.1  # a saddle: some direction keeps a fold
+
+
+def test_curvature_at_cell_scale_of_a_cylinder():
+    V, F, flat = _cylinder(40.0)
+    k1, k2, d1 = cell_scale_curvature(V, F, shortest_cell(P))
+    # away from the rim (a ball there is cut by it)
+    inner = np.all((flat[:, :2] > 10) & (flat[:, :2] < [60, 50]), axis=1)
+    np.testing.assert_allclose(np.abs(k1[inner]), 1 / 40.0, rtol=0.05)
+    assert np.abs(k2[inner]).max() < 0.1 / 40.0
+    assert np.abs(d1[inner][:, 1]).max() < 0.1  # the curved direction runs across y
+
+
+def test_bound_on_a_flat_plate_is_the_shortest_cell():
+    """No curvature, no conformal stretch: the shortest cell, contracted only by the gap."""
+    V, F = _plate()
+    b = conformal_bound(V, F, P)
+    want = shortest_cell(P) * (1 + P.min_gap / P.max_cell_length)
+    assert b["bound_mm"] == pytest.approx(want, rel=0.01)
+    assert b["contraction"] == pytest.approx(1.0, abs=0.01) and b["printable"]
+    assert b["fold_deg"] < 0.5
+
+
+def test_bound_on_a_cylinder_is_its_folded_cell():
+    """Developable: no conformal stretch; every cell folds by the curvature at 3/4."""
+    R = 15.0
+    V, F, _ = _cylinder(R, width=60.0)
+    b = conformal_bound(V, F, P)
+    D, t = _fixed_point(0.75 / R)
+    want = D * (1 / np.cos(t) + P.layer_h * 0.75 / R + P.min_gap / P.max_cell_length)
+    assert b["bound_mm"] == pytest.approx(want, rel=0.03)
+    assert b["contraction"] < 1.05  # (the rim's scale moves it a little)
+    assert b["fold_deg"] == pytest.approx(np.degrees(2 * t), rel=0.15)  # (a max: rim noise)
+    # a smaller bumper lowers it; a limit under it makes the target unprintable, and says so
+    assert conformal_bound(V, F, replace(P, min_bumper=0.1))["bound_mm"] < b["bound_mm"]
+    low = replace(P, max_cell_length=want * 0.95)
+    lb = conformal_bound(V, F, low)
+    assert not lb["printable"]
+    assert "no stencil of it prints" in describe_bound(lb, low)
+    assert "does not exclude" in describe_bound(b, P)
+
+
+def test_boundary_scale_only_lowers_the_bound():
+    """The flattening's free boundary scale is a minimum over a family that contains the
+    fixed rim (u = 0): never above it; on a dome it is strictly lower."""
+    s = surfaces.builtin("dome")
+    b = conformal_bound(s.V, s.F, P)
+    assert b["bound_mm"] <= b["bound_rim_fixed_mm"] + 1e-9
+    assert b["bound_mm"] < b["bound_rim_fixed_mm"]
+    assert b["contraction"] > 1.05  # a cap must be stretched to lie flat
