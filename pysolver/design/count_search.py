@@ -328,13 +328,27 @@ class CountSearch:
             return V2, F2, (V2, F2)
         P, F2 = self.dom.stencil(n, seed=sd, inset=inset)
         before = (self.dom.lift(P), F2)
-        if self.optimize:
+        if self.optimize and not self.hopeless(*before):
             t_P = None if self.time is None else self.dom.interpolate(self.time, P)
             P, opt = optimize_stencil(self.dom, P, F2, self.params, self.settings,
                                       t_vertex=t_P)
             self.flat[(n, sd, float(inset))] = (P, t_P)
             self.optimisation[(n, sd, float(inset))] = opt
         return self.dom.lift(P), F2, before
+
+    def hopeless(self, V2, F2) -> bool:
+        """Whether a stencil before optimisation is so far from the size or the limit that
+        the optimisation (which moves them by a few per cent) cannot make it the pick:
+        ``|log scale3d| > hopeless_log_scale`` or a longest flat cell over
+        ``hopeless_cell_factor`` times the limit.  Its figures are then taken as they are,
+        for the secant steps only."""
+        st = self.settings
+        c = stencil_figures(V2, F2, self.params, settings=st)
+        if not _laid_out(c):
+            return True
+        return (abs(np.log(c["scale3d"])) > st.hopeless_log_scale
+                or c["max_cell_length_mm"] > st.hopeless_cell_factor
+                * self.params.max_cell_length)
 
     def figures(self, V2, F2) -> dict:
         t2 = None if self.time is None else interpolate_to_stencil(self.time, self.V, self.F,
@@ -354,8 +368,10 @@ class CountSearch:
                 if _laid_out(c) else f"no layout ({c['error']})")
         if c.get("clamped_estimate") is not None:
             what += f", ~{100 * c['clamped_estimate']:.0f} % of cells clamped"
-        self.say(f"N={n} seed={sd} rim inset {inset:g} mm: {what}")
         opt = self.optimisation.get(key)
+        if self.optimize and self.dom is not None and opt is None:
+            what += " (not optimised: hopeless)"
+        self.say(f"N={n} seed={sd} rim inset {inset:g} mm: {what}")
         if opt is not None and opt["rounds"] == 0:
             why = opt["history"][0]["why"] if opt["history"] else "no interior vertex"
             self.say(f"warning: N={n} seed={sd}: the stencil optimisation kept no round ({why})")
