@@ -93,7 +93,7 @@ def test_bound_on_a_cylinder_is_its_folded_cell():
     assert b["fold_deg"] == pytest.approx(np.degrees(2 * t), rel=0.15)  # (a max: rim noise)
     # a smaller bumper lowers it; a limit under it makes the target unprintable, and says so
     assert conformal_bound(V, F, replace(P, min_bumper=0.1))["bound_mm"] < b["bound_mm"]
-    low = replace(P, max_cell_length=want * 0.95)
+    low = replace(P, max_cell_length=b["bound_rim_fixed_mm"] * 0.95)
     lb = conformal_bound(V, F, low)
     assert not lb["printable"]
     assert "no stencil of it prints" in describe_bound(lb, low)

@@ -338,7 +338,7 @@ class CountSearch:
 
     def hopeless(self, V2, F2) -> bool:
         """Whether a stencil before optimisation is so far from the size or the limit that
-        the optimisation (which moves them by a few per cent) cannot make it the pick:
+        the optimisation (which moves them by up to about a fifth) cannot make it the pick:
         ``|log scale3d| > hopeless_log_scale`` or a longest flat cell over
         ``hopeless_cell_factor`` times the limit.  Its figures are then taken as they are,
         for the secant steps only."""

@@ -169,12 +169,13 @@ def conformal_bound(V, F, params: UnitCell = UNIT_CELL, *, rim_mm: float | None 
     Returns
     -------
     dict
-        ``bound_mm`` (the least longest flat cell, boundary scale optimised),
-        ``bound_rim_fixed_mm`` (with the rim's scale kept, as the layout's flattening does),
-        ``contraction`` (``e^{u_max - u_min}`` over the region, cell-scale), ``fold_deg``
-        (largest cell fold the curvature forces), ``shortest_cell_mm`` (``D_min`` range),
-        ``limit_mm``, ``printable`` (``bound_mm <= max_cell_length``), ``where`` (the
-        point, mm, that sets the bound).
+        ``bound_mm`` (the least longest flat cell, boundary scale optimised: any conformal
+        stencil), ``bound_rim_fixed_mm`` (with the rim's scale kept, as the layout's
+        flattening, CETM with u = 0 on the rim, does), ``contraction`` (``e^{u_max - u_min}``
+        over the region, cell-scale, boundary scale optimised), ``fold_deg`` (largest cell
+        fold the curvature forces), ``shortest_cell_mm`` (``D_min`` range), ``limit_mm``,
+        ``printable`` (``bound_rim_fixed_mm <= max_cell_length``: not excluded for the
+        layout morphshell makes), ``where`` (the point, mm, that sets the bound).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -220,7 +221,7 @@ def conformal_bound(V, F, params: UnitCell = UNIT_CELL, *, rim_mm: float | None 
             "shortest_cell_mm": [round(float(Dmin[keep].min()), 3),
                                  round(float(Dmin[keep].max()), 3)],
             "limit_mm": params.max_cell_length,
-            "printable": bool(np.exp(best) <= params.max_cell_length),
+            "printable": bool(np.exp(fixed) <= params.max_cell_length),
             "where": V[i].round(1).tolist()}
 
 
@@ -240,14 +241,15 @@ def describe_bound(b: dict, params: UnitCell = UNIT_CELL) -> str:
         return (f"the target bends too tightly for any cell to keep its bumpers near "
                 f"({', '.join(f'{x:.1f}' for x in b['where'])}) mm")
     most = params.max_cell_length / shortest_cell(params)
-    head = (f"measured bound: any conformal stencil of this target has a flat cell of at least "
-            f"{b['bound_mm']:.2f} mm (its cells must contract {b['contraction']:.2f} times "
-            f"more in one place than in another, and fold by up to {b['fold_deg']:.0f} deg; "
-            f"a cell can contract at most {most:.2f} times at {params.min_bumper:g} mm "
-            f"bumpers)")
+    head = (f"measured bound: every stencil of this target has a flat cell of at least "
+            f"{b['bound_rim_fixed_mm']:.2f} mm in morphshell's conformal layout (rim scale "
+            f"kept), {b['bound_mm']:.2f} mm in the best conformal layout; its cells must "
+            f"contract {b['contraction']:.2f} times more in one place than in another and "
+            f"fold by up to {b['fold_deg']:.0f} deg, and a cell can contract at most "
+            f"{most:.2f} times at {params.min_bumper:g} mm bumpers")
     if b["printable"]:
         return head + "; the bound does not exclude a printable stencil"
-    return head + f", over the {params.max_cell_length:g} mm limit: no stencil of it prints " \
+    return head + f": over the {params.max_cell_length:g} mm limit, no stencil of it prints " \
         "with this unit cell"
 
 
