@@ -608,7 +608,7 @@ def check_landscape(landscape, n_vertices: int) -> np.ndarray:
                          "vertices", fix="give one time in seconds per stencil vertex")
     bad = np.flatnonzero(~np.isfinite(land) | (land < 0) | (land > LIMITS.max_landscape_s))
     if bad.size:
-        raise InputError(f"vertex {bad[0]}: time {land[bad[0]]!r} s is outside 0-"
+        raise InputError(f"vertex {bad[0]}: time {float(land[bad[0]])!r} s is outside 0-"
                          f"{LIMITS.max_landscape_s:g} s ({bad.size} such vertices)",
                          fix=f"give times from 0 to {LIMITS.max_landscape_s:g} s")
     return land

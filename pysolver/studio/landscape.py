@@ -34,7 +34,7 @@ MAX_EDITS = 10000
 EDIT_TOOLS = {"brush": ("set", "add", "subtract", "smooth"), "keyframes": ("harmonic",),
               "reset": ("build",)}
 """The edit log's tools and their modes (``studio_landscape.json``)."""
-_EDIT_NUMBERS = {"value": (-MAX_TIME_S, MAX_TIME_S), "radius": (0.0, 1000.0),
+_EDIT_NUMBERS = {"value": (-MAX_TIME_S, MAX_TIME_S), "radius": (1e-3, 1000.0),
                  "falloff": (0.0, 1.0), "vertices": (0, 10 ** 7), "keyframes": (0, MAX_KEYFRAMES)}
 
 

@@ -65,8 +65,13 @@ from ..build import build_parts, morph_viewer, report_figures, viewer_assets
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, MODEL_LIMITS
 from ..tables import read_record, read_stencil, read_table
-from .landscape import Feasibility, harmonic_landscape, keyframe_values, parse_keyframes, \
-    parse_landscape
+from .landscape import (
+    Feasibility,
+    harmonic_landscape,
+    keyframe_values,
+    parse_keyframes,
+    parse_landscape,
+)
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 MAX_BODY_BYTES = LIMITS.studio_max_body_bytes
@@ -206,9 +211,10 @@ class Job:
 
     STAGE = re.compile(r"^\[morphshell\] .*?: (\w+) \.\.\.$")
     FRACTION = re.compile(r"(?:step |\[|refine |\| ?)(\d+)/(\d+)")
-    DEFAULT_S = {"program": 3.0, "simulate": 20.0, "simulate_contact": 20.0, "refine": 25.0,
-                 "render": 40.0, "report": 10.0}
-    """Expected seconds of a stage the build did not time (its own times come first)."""
+    DEFAULT_S = {"start": 4.0, "program": 3.0, "simulate": 20.0, "simulate_contact": 20.0,
+                 "refine": 25.0, "render": 40.0, "report": 10.0}
+    """Expected seconds of a stage the build did not time (its own times come first);
+    ``start`` is the subprocess loading the stages."""
 
     def __init__(self):
         self.lock = threading.Lock()
@@ -235,7 +241,7 @@ class Job:
         times = summ.get("timings_s") or {}
         opts = summ.get("options") or {}
         run = summ.get("run") or {}
-        plan = ["program", "simulate"] + (["refine"] if opts.get("refine") else [])
+        plan = ["start", "program", "simulate"] + (["refine"] if opts.get("refine") else [])
         plan += ["render"] if run.get("render", (build.folder / "stl").is_dir()) else []
         plan += ["report"]
         expect = {s: float(times.get(s) or self.DEFAULT_S[s]) for s in self.DEFAULT_S}
@@ -259,7 +265,7 @@ class Job:
         env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
         cmd = [sys.executable, "-m", "pysolver.studio.rerun"]
         done_s = 0.0           # expected seconds of the finished stages
-        stage, t_stage, frac = None, time.time(), 0.0
+        stage, t_stage, frac = "start", time.time(), 0.0
         tail: list[str] = []
         t0 = time.time()
         try:
@@ -279,13 +285,12 @@ class Job:
                 tail = (tail + [line])[-40:]
                 m = self.STAGE.match(line)
                 if m and m.group(1) in self.DEFAULT_S:
-                    if stage is not None:
-                        done_s += expect[stage]
+                    done_s += expect[stage]
                     stage, t_stage, frac = m.group(1), time.time(), 0.0
                     if stage not in plan:     # contact switched on: one more simulation
                         plan.insert(plan.index("report") if "report" in plan else len(plan),
                                     stage)
-                elif stage is not None:
+                elif stage != "start":
                     f = self.FRACTION.search(line)
                     if f and stage != "refine" or (f and line.startswith("[temporal]")):
                         frac = max(frac, min(int(f.group(1)) / max(int(f.group(2)), 1), 1.0))
@@ -337,6 +342,7 @@ class Job:
 
 class StudioServer(ThreadingHTTPServer):
     daemon_threads = True
+    request_queue_size = 128   # a burst of requests waits to be served, never a reset
 
     def __init__(self, folders, port: int = 0, token: str | None = None):
         self.builds = [Build(Path(f).resolve()) for f in folders]
@@ -354,6 +360,11 @@ class StudioServer(ThreadingHTTPServer):
                 raise InputError(f"port {port}: permission denied (ports below 1024 need "
                                  "root)", fix="use a port from 1024 to 65535, or 0") from None
             raise
+
+    def handle_error(self, request, client_address):
+        # a browser closing its connection is not worth a traceback on the terminal
+        if not isinstance(sys.exc_info()[1], (ConnectionError, TimeoutError)):
+            super().handle_error(request, client_address)
 
     @property
     def origin(self) -> str:
@@ -471,7 +482,7 @@ class Handler(BaseHTTPRequestHandler):
             try:
                 payload = json.loads(data.decode("utf-8") or "{}",
                                      parse_constant=_refuse_constant)
-            except (UnicodeDecodeError, ValueError) as e:
+            except (UnicodeDecodeError, ValueError, RecursionError) as e:
                 return self._error(HTTPStatus.BAD_REQUEST, f"the request body is not JSON "
                                                            f"({e})", "send a JSON object")
         try:

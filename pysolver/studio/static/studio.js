@@ -71,6 +71,7 @@
       return {ok: !msg, value: v, message: msg};
     }
     inp.addEventListener("input", function () { rule.changed(); });
+    inp.addEventListener("change", function () { rule.changed(); });
     return {check: check, input: inp};
   }
 
@@ -454,9 +455,11 @@
       if (k.problem) bad++; else { k.time = parseFloat(k.raw); good.push({vertex: k.vertex, time: k.time}); }
     });
     this.listKeyframes();
+    function done() { $("kf-list").setAttribute("data-done", String(seq)); }
     if (!good.length) {
       status(bad ? "every keyframe row has a problem (marked): the landscape is unchanged" :
         "no keyframe: the landscape is unchanged", "idle");
+      done();
       return Promise.resolve();
     }
     return api("/api/build/" + this.build.id + "/keyframes", {keyframes: good}).then(function (r) {
@@ -464,8 +467,10 @@
       setError("keyframes", null);
       self.st.land = Float64Array.from(r.landscape);
       self.st.edits.push({tool: "keyframes", mode: "harmonic", keyframes: good.length});
-      self.changed(good.length + " keyframe(s) interpolated" + (bad ? "; " + bad + " marked row(s) skipped" : ""));
-    }).catch(function (e) { setError("keyframes", e.message); });
+      var p = self.changed(good.length + " keyframe(s) interpolated" + (bad ? "; " + bad + " marked row(s) skipped" : ""));
+      done();
+      return p;
+    }).catch(function (e) { setError("keyframes", e.message); done(); });
   };
   Editor.prototype.listKeyframes = function () {
     var tb = $("kf-list"), self = this;
@@ -684,9 +689,11 @@
         el("td", {text: typeof then === "string" ? then : fmt(then, f[3])}, tr);
         var td = el("td", {}, tr);
         if (f[2] !== null && isFinite(now) && isFinite(then) && now !== null && then !== null) {
-          var dlt = now - then, better = dlt * f[2] > 0;
-          td.textContent = (dlt > 0 ? "+" : "") + dlt.toFixed(f[3]) + (dlt === 0 ? "" : better ? " better" : " worse");
-          td.className = dlt === 0 ? "" : better ? "better" : "worse";
+          var dlt = now - then, same = Math.abs(dlt) < 0.5 * Math.pow(10, -f[3]);
+          var better = dlt * f[2] > 0;
+          td.textContent = same ? "no change" : (dlt > 0 ? "+" : "") + dlt.toFixed(f[3]) +
+            (better ? " better" : " worse");
+          td.className = same ? "" : better ? "better" : "worse";
         } else if (f[0] === "verdict" && now !== then) {
           td.textContent = then + " -> " + now;
         }
