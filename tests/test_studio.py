@@ -30,6 +30,7 @@ from pysolver.studio.landscape import (
     parse_keyframes,
     parse_landscape,
 )
+from pysolver.studio.shots import drag_on_editor, type_into
 from pysolver.tables import read_stencil, read_table, tables_sha256
 
 WAIT_S = 120  # upper bound of an explicit wait (software WebGL and a run on a busy 2-core machine)
@@ -234,6 +235,11 @@ def test_an_error_reply_never_leaves_a_body_to_be_read_as_a_second_request(serve
         assert reply.count(b"HTTP/1.1 ") == 1, reply[:400]      # one request, one answer
         assert reply.split(b" ")[1] in (b"413", b"415")
         assert b"Connection: close" in reply and not reply.endswith(b"<still open>")
+    # nor a body on a GET
+    get = (f"GET /api/builds HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+           f"X-Morphshell-Token: {server.token}\r\nContent-Length: {len(inner)}\r\n\r\n")
+    reply = _raw(server, get.encode() + inner)
+    assert reply.count(b"HTTP/1.1 ") == 1 and reply.split(b" ")[1] == b"400"
     assert server.job.snapshot()["state"] == "idle"              # nothing was started
 
 
@@ -447,36 +453,17 @@ def _land(driver) -> np.ndarray:
     return np.asarray(driver.execute_script("return Array.from(studio.editor.st.land)"), float)
 
 
-def _set(driver, box, value):
-    """Type into an input as a user does (select all, delete, type: real input events)."""
-    from selenium.webdriver.common.keys import Keys
-
-    el = driver.find_element("id", box)
-    el.send_keys(Keys.CONTROL, "a")
-    el.send_keys(Keys.BACKSPACE)
-    if value:
-        el.send_keys(value)
-
-
 def _brush(driver, mode, value, radius, falloff="0.5"):
     driver.execute_script("var m = document.getElementById('brush-mode'); m.value = arguments[0];"
                           "m.dispatchEvent(new Event('change'));", mode)
     for box, v in (("brush-value", value), ("brush-radius", radius), ("brush-falloff", falloff)):
         if not (box == "brush-value" and mode == "smooth"):   # smooth takes no value
-            _set(driver, box, v)
+            type_into(driver, box, v)
 
 
 def _stroke(driver, vertex, dx=40, dy=8):
     """Drag on the editor's canvas from the screen point of a stencil vertex."""
-    from selenium.webdriver.common.action_chains import ActionChains
-
-    canvas = driver.find_element("css selector", "#editor-view canvas")
-    x, y = driver.execute_script("return studio.editor.screenOf(arguments[0])", vertex)
-    r = driver.execute_script("var r = arguments[0].getBoundingClientRect();"
-                              "return [r.left, r.top, r.width, r.height]", canvas)
-    ActionChains(driver).move_to_element_with_offset(
-        canvas, x - r[0] - r[2] / 2, y - r[1] - r[3] / 2).click_and_hold().move_by_offset(
-        dx // 2, dy // 2).move_by_offset(dx - dx // 2, dy - dy // 2).release().perform()
+    drag_on_editor(driver, vertex, dx, dy)
 
 
 def _centre(folder) -> tuple[np.ndarray, int]:
@@ -549,11 +536,11 @@ def test_a_bad_value_shows_its_message_and_clears_after_it_is_fixed(server, smal
         _stroke(d, c)                                    # no silent 5 mm: nothing is painted
         assert _land(d).tobytes() == before.tobytes()
         assert "did not paint" in d.find_element("id", "error").text
-        _set(d, "brush-radius", "")
+        type_into(d, "brush-radius", "")
         assert "radius: give a number" in err.text
-        _set(d, "brush-radius", "5000")
+        type_into(d, "brush-radius", "5000")
         assert "5000 mm is more than 1000 mm" in err.text
-        _set(d, "brush-radius", "8")
+        type_into(d, "brush-radius", "8")
         assert err.text == ""
         _stroke(d, c)
         _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes"),

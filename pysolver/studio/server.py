@@ -379,6 +379,7 @@ class StudioServer(ThreadingHTTPServer):
 class Handler(BaseHTTPRequestHandler):
     server: StudioServer
     protocol_version = "HTTP/1.1"
+    timeout = 60   # s: a client that stops sending mid-request is dropped
     error_content_type = "text/plain; charset=utf-8"
     error_message_format = "%(code)d %(message)s: %(explain)s\n"
 
@@ -462,6 +463,10 @@ class Handler(BaseHTTPRequestHandler):
             data = self._read_body()
             if data is None:
                 return None
+        elif self.headers.get("Transfer-Encoding") or self.headers.get(
+                "Content-Length", "0").strip() != "0":
+            # a body on a GET would stay on the connection: refused, and the connection closed
+            return self._error(HTTPStatus.BAD_REQUEST, f"a {self.command} request has no body")
         if not self._host_ok():
             return self._error(HTTPStatus.FORBIDDEN, "bad Host header (the studio answers "
                                                      "only to 127.0.0.1 and localhost)")
@@ -491,8 +496,8 @@ class Handler(BaseHTTPRequestHandler):
             return self._error(HTTPStatus.BAD_REQUEST, e.problem, e.fix)
         except Busy as e:
             return self._error(HTTPStatus.CONFLICT, e.problem, e.fix)
-        except MorphshellError as e:
-            return self._error(HTTPStatus.CONFLICT, e.problem, e.fix)
+        except MorphshellError as e:   # e.g. a model file the build names is broken
+            return self._error(HTTPStatus.UNPROCESSABLE_ENTITY, e.problem, e.fix)
         except Exception as e:  # noqa: BLE001 - a bug: tell the browser, keep serving
             return self._error(HTTPStatus.INTERNAL_SERVER_ERROR,
                                f"internal error ({type(e).__name__}: {e}); this is a bug")

@@ -103,17 +103,22 @@ def _element_png(driver, css: str) -> bytes:
     return el.screenshot_as_png
 
 
-def _type(driver, box: str, value: str) -> None:
+def type_into(driver, box: str, value: str) -> None:
+    """Type ``value`` into the input ``#box`` as a user does (select all, delete, type: the
+    page sees real input events); an empty value leaves the box empty."""
     # optional: a browser only for screenshots and browser tests
     from selenium.webdriver.common.keys import Keys
 
     el = driver.find_element("id", box)
     el.send_keys(Keys.CONTROL, "a")
     el.send_keys(Keys.BACKSPACE)
-    el.send_keys(value)
+    if value:
+        el.send_keys(value)
 
 
-def _drag(driver, vertex: int, dx: int, dy: int) -> None:
+def drag_on_editor(driver, vertex: int, dx: int, dy: int) -> None:
+    """Drag with the left button on the studio editor's canvas, from the screen point of
+    stencil vertex ``vertex`` by (``dx``, ``dy``) px, in two moves."""
     # optional: a browser only for screenshots and browser tests
     from selenium.webdriver.common.action_chains import ActionChains
 
@@ -169,13 +174,13 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
             # a bad value first: its message, and painting refused until it is fixed
             d.execute_script("var m = document.getElementById('brush-mode'); m.value = 'add';"
                              "m.dispatchEvent(new Event('change'));")
-            _type(d, "brush-value", "8")
-            _type(d, "brush-radius", "0")
-            _drag(d, centre, 40, 10)
+            type_into(d, "brush-value", "8")
+            type_into(d, "brush-radius", "0")
+            drag_on_editor(d, centre, 40, 10)
             save(_element_png(d, ".tools"), "studio-error.png")
             # a slower region: +8 s in a 12 mm brush, then the reachable band and a hover
-            _type(d, "brush-radius", "12")
-            _drag(d, centre, 60, 14)
+            type_into(d, "brush-radius", "12")
+            drag_on_editor(d, centre, 60, 14)
             _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute(
                 "data-strokes"), "the stroke")
             _wait(d, lambda d: d.find_element("id", "feas").get_attribute("data-seq") == str(
@@ -243,6 +248,8 @@ def main(argv=None) -> int:
         return 2
     return 0
 
+
+__all__ = ["studio_shots", "chromium_driver", "have_browser", "type_into", "drag_on_editor"]
 
 if __name__ == "__main__":
     sys.exit(main())
