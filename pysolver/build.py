@@ -502,7 +502,7 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
         raise InputError(f"{folder} was built without temporal programming (--no-program): a "
                          "landscape has nothing to program", fix="build it with programming")
     V, _, _ = tables.read_stencil(folder / "stencil.obj")
-    land = check_landscape(landscape, len(V))
+    land = tables.round_sig9(check_landscape(landscape, len(V)))   # as time_landscape.csv keeps it
     claim_output(folder, what="build folder")
     name = folder.name
     material, refine = opts.get("material"), int(opts.get("refine") or 0)

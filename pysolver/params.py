@@ -421,6 +421,10 @@ class Limits:
     max_landscape_s : float, s
         Largest time a landscape from the studio may ask for (the material models cover
         about 120 s; the temporal stage clamps or refuses what they cannot reach).
+    studio_max_radius_mm : float, mm
+        Largest brush radius of the studio (larger than any shell: the whole target).
+    studio_max_edits : int
+        Most keyframes in one request, and most edits recorded with one run.
     studio_max_body_bytes : int, bytes
         Largest request body the studio reads (a landscape of 5000 vertices is ~60 kB).
     studio_job_timeout_s : float, s
@@ -448,6 +452,8 @@ class Limits:
     render_startup_timeout_s: float = 120.0
     probe_timeout_s: float = 120.0
     max_landscape_s: float = 1000.0
+    studio_max_radius_mm: float = 1000.0
+    studio_max_edits: int = 10000
     studio_max_body_bytes: int = 4 << 20
     studio_job_timeout_s: float = 6 * 3600.0
 

@@ -699,6 +699,13 @@ def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, 
                            rtol=1e-8)
         assert _land(d).tobytes() == read_table(small_build, "time_landscape")[
             "time_s"].tobytes()
+        # the landscape, its provenance and the summary come from the same run
+        edits = json.loads((small_build / "studio_landscape.json").read_text())["edits"]
+        assert [(e["tool"], e["mode"], e["value"]) for e in edits] == [("brush", "add", 5)]
+        edited = json.loads((small_build / "summary.json").read_text())["edited"]
+        assert edited["landscape_sha256"] == hashlib.sha256(
+            read_table(small_build, "time_landscape")["time_s"].astype("<f8").tobytes()
+        ).hexdigest()
         got = d.execute_script("return studio.viewers[0].getView()")
         assert got["theta"] == pytest.approx(view["theta"])
         assert d.execute_script("return [studio.viewers[0].frame, studio.viewers[0].picked]") \

@@ -27,14 +27,13 @@ from ..temporal.membrane_model import load_membrane_model
 
 MAX_TIME_S = LIMITS.max_landscape_s
 """Largest time a keyframe or a landscape may ask for (s)."""
-MAX_KEYFRAMES = 10000
-"""Most keyframes in one request."""
-MAX_EDITS = 10000
-"""Most edits recorded with one run (the provenance of the landscape)."""
+MAX_KEYFRAMES = MAX_EDITS = LIMITS.studio_max_edits
+"""Most keyframes in one request, and most edits recorded with one run."""
 EDIT_TOOLS = {"brush": ("set", "add", "subtract", "smooth"), "keyframes": ("harmonic",),
               "reset": ("build",)}
 """The edit log's tools and their modes (``studio_landscape.json``)."""
-_EDIT_NUMBERS = {"value": (-MAX_TIME_S, MAX_TIME_S), "radius": (1e-3, 1000.0),
+_EDIT_NUMBERS = {"value": (-MAX_TIME_S, MAX_TIME_S),
+                 "radius": (1e-3, LIMITS.studio_max_radius_mm),
                  "falloff": (0.0, 1.0), "vertices": (0, 10 ** 7), "keyframes": (0, MAX_KEYFRAMES)}
 
 

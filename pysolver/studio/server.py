@@ -64,7 +64,7 @@ import numpy as np
 from ..build import build_parts, morph_viewer, report_figures, viewer_assets
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, MODEL_LIMITS
-from ..tables import read_record, read_stencil, read_table
+from ..tables import LANDSCAPE_SOURCE, read_record, read_stencil, read_table
 from .landscape import (
     Feasibility,
     harmonic_landscape,
@@ -158,7 +158,9 @@ class Build:
                     "h_bottom": _jsonable(cells["thickness_bottom_mm"]),
                     "t_done": done},
                 "feasibility": self._feas_json(ev),
-                "source": read_record(self.folder / "studio_landscape.json")}
+                "limits": {"max_time_s": LIMITS.max_landscape_s,
+                           "max_radius_mm": LIMITS.studio_max_radius_mm},
+                "source": read_record(self.folder / LANDSCAPE_SOURCE)}
 
     @staticmethod
     def _feas_json(ev) -> dict:

@@ -4,6 +4,7 @@
 (function () {
   "use strict";
 
+  // the server's limits (pysolver.params.Limits), sent with each build's target
   var MAX_TIME = 1000, MAX_RADIUS = 1000;
   var studio = {viewers: [], builds: [], editor: null, token: null, job: null};
   window.studio = studio;
@@ -150,6 +151,7 @@
     this.build = build;
     return api("/api/build/" + build.id + "/target").then(function (d) {
       self.target = d;
+      MAX_TIME = d.limits.max_time_s; MAX_RADIUS = d.limits.max_radius_mm;
       var V = new Float32Array(d.V), F = new Uint32Array(d.F);
       self.V = V; self.F = F; self.nv = V.length / 3;
       if (self.mesh) { self.scene.remove(self.mesh); self.scene.remove(self.marks); }
