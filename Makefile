@@ -102,7 +102,8 @@ studio: $(STAMP)
 	  (MS_ARGS=; $(PY) -m pysolver.cli build "$$MS_SOURCE" $(BUILD_OPTS)) || test $$? = 3; \
 	$(PY) -m pysolver.cli studio "build/$$MS_NAME" $$MS_ARGS
 
-# README screenshots of the studio and the report: docs/img/studio.png, docs/img/report.png
+# Screenshots of the studio (paint, a bad value, the run's progress, the results, the target
+# ghost; a run on a copy of build/<shape>, which is not changed) and of the report: docs/img/
 studio-shots: $(STAMP)
 	@$(RUN) test -f "build/$$MS_NAME/report/index.html" || \
 	  $(PY) -m pysolver.cli build "$$MS_SOURCE" $(BUILD_OPTS) || test $$? = 3; \

@@ -42,6 +42,7 @@ from sim.report import (
     make_report,
     print_verdict,
 )
+from sim.report.fabrication import parts_made_from, stl_inventory
 from sim.report.plots import start_pyvista_probe
 from sim.viewer import ASSETS as VIEWER_ASSETS
 from sim.viewer import STATIC_DIR as VIEWER_DIR
@@ -49,6 +50,7 @@ from sim.viewer import viewer_data
 
 from . import tables
 from .atomic import (
+    STAMP_NAME,
     atomic_dir,
     atomic_write_text,
     build_lock,
@@ -74,7 +76,7 @@ from .render import (
     start_self_check,
 )
 from .render.scad_io import SCAD_DIR
-from .tables import read_bases, read_cells
+from .tables import read_bases, read_cells, read_record
 from .temporal import (
     COMPLETION_TOL_MM,
     REFINE_DAMPING,
@@ -341,100 +343,310 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     staging = staging_dir(out)
     summary: dict = {"shape": name, "source": str(source), "options": all_opts,
                      "inputs_sha256": digest, "stages": {}, "timings_s": {},
-                     "stage_inputs": {}}
+                     "stage_inputs": {},
+                     "run": {"render": bool(render), "renderer": renderer, "solver": solver}}
     t_build = _now()
     with build_lock(out):
         recover_stale(out)
         _prepare_staging(staging, digest, progress)
-        stages = summary["stages"]
-
-        def stage(key: str, fn, *a, **kw):
-            _log(f"{name}: {key} ...", progress)
-            t0 = _now()
-            try:
-                res = fn(*a, **kw)
-            except MorphshellError as e:  # say which stage, and what was (not) kept
-                kept = (f"the previous complete build in {out} is unchanged"
-                        if out.exists() else f"nothing was written to {out}")
-                if keep_failed:
-                    kept += f"; this build's partial files are in {staging}"
-                else:
-                    remove_staging(staging)
-                    kept += ("; this build's partial files were removed (add --debug to "
-                             "keep them)")
-                problem, fix = e.problem, e.fix
-                if not keep_failed:  # name files of the removed folder by their own names
-                    problem, fix = (m and m.replace(f"{staging}/", "").replace(
-                        str(staging), "the design folder") for m in (problem, fix))
-                raise type(e)(f"{key} stage: {problem}\n  ({kept})", fix=fix) from e
-            summary["timings_s"][key] = round(_now() - t0, 3)
-            stages[key] = res if isinstance(res, dict) else {}
-            _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
-            return res
-
-        if render:  # the renderer's self-check runs on the core the next stages leave idle
-            start_self_check(staging, renderer=renderer)
-        if simulate:  # so does the report's probe of off-screen rendering (a subprocess)
-            start_pyvista_probe()
+        stage = _stage_runner(summary, name, out, staging, keep_failed, progress)
+        _start_checks(staging, render=render, simulate=simulate, renderer=renderer)
         stage("design", run_design, source, staging, progress=progress, **design_opts)
-        if program:
-            # A shape's own landscape gives the order of completion; its seconds are mapped
-            # onto what the material can achieve.  A user's landscape is only checked.
-            stage("program", program_design, staging, material=material, progress=progress,
-                  fit_landscape=time is None and time_file is None)
-        if simulate:
-            kw = {} if t_end is None else {"t_end": t_end}
-            sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
-            stage("simulate", simulate_design, staging, material=material, progress=progress,
-                  solver=solver, **sim_kw)
-            physics = None
+        # A shape's own landscape gives the order of completion; its seconds are mapped onto
+        # what the material can achieve.  A user's landscape is only checked.
+        _later_stages(stage, staging, name, summary, program=program, simulate=simulate,
+                      render=render, refine=refine, material=material, t_end=t_end, dt=dt,
+                      solver=solver, renderer=renderer, jobs=jobs,
+                      fit_landscape=time is None and time_file is None, progress=progress)
+        _finish(summary, staging, out, t_build, material=material, t_end=t_end, dt=dt,
+                render=render, simulate=simulate, progress=progress)
+    return _closing(summary, name, out, progress)
 
-            def simulate_with_contact_if_needed(after: str):
-                """Contact from here on when the frames just written collide."""
-                nonlocal physics
-                physics, hit = _contact_if_needed(staging, name, progress)
-                if physics is not None:
-                    stages[after]["contact"] = {"switched_on": True, "collisions": hit}
-                    stage("simulate_contact", simulate_design, staging, material=material,
-                          progress=progress, solver=solver, physics=physics, **sim_kw)
 
-            simulate_with_contact_if_needed("simulate")
-            if refine and program:
-                hook = {"simulate": functools.partial(
-                    simulate_design, solver=solver, **({} if dt is None else {"dt": dt}),
-                    **({} if physics is None else {"physics": physics}))}
-                stage("refine", refine_design, staging, iterations=refine, material=material,
-                      progress=progress, **kw, **hook)
-                if physics is None:  # the refined thicknesses may bring far parts together
-                    simulate_with_contact_if_needed("refine")
-        if render:  # after refinement, so the STLs carry the final thicknesses
-            stage("render", render_design, staging, jobs=jobs, progress=progress,
-                  renderer=renderer)
-        if simulate:
-            stage("report", make_report, staging, progress=progress,
-                  build_info={k: summary[k] for k in ("source", "options", "inputs_sha256")})
-        summary["stage_inputs"] = _stage_inputs(staging, material=material, t_end=t_end, dt=dt)
-        summary["kept"] = _keep_skipped_outputs(out, staging, summary["stage_inputs"],
-                                                render=render, simulate=simulate,
-                                                progress=progress)
-        summary["timings_s"]["total"] = round(_now() - t_build, 3)
-        summary["versions"] = tool_versions()
-        summary["figures"] = _key_figures(staging, stages)
-        summary["output"] = str(out)
-        atomic_write_text(staging / "summary.json",
-                          json.dumps(summary, indent=2, sort_keys=True, default=_json_default)
-                          + "\n")
-        (staging / ".inputs_sha256").unlink(missing_ok=True)
-        write_stamp(staging)
-        public_mode(staging, recursive=True)
-        replace_dir(staging, out)
-        remove_staging(staging)
+def _stage_runner(summary: dict, name: str, out: Path, staging: Path, keep_failed: bool,
+                  progress: bool):
+    """``stage(key, fn, *a, **kw)``: run one stage into ``summary`` (result, seconds), and on
+    a :class:`MorphshellError` remove the staging folder (unless ``keep_failed``) and raise
+    it again naming the stage and what was (not) kept."""
+    stages = summary["stages"]
+
+    def stage(key: str, fn, *a, **kw):
+        _log(f"{name}: {key} ...", progress)
+        t0 = _now()
+        try:
+            res = fn(*a, **kw)
+        except MorphshellError as e:  # say which stage, and what was (not) kept
+            kept = (f"the previous complete build in {out} is unchanged"
+                    if out.exists() else f"nothing was written to {out}")
+            if keep_failed:
+                kept += f"; this build's partial files are in {staging}"
+            else:
+                remove_staging(staging)
+                kept += ("; this build's partial files were removed (add --debug to "
+                         "keep them)")
+            problem, fix = e.problem, e.fix
+            if not keep_failed:  # name files of the removed folder by their own names
+                problem, fix = (m and m.replace(f"{staging}/", "").replace(
+                    str(staging), "the design folder") for m in (problem, fix))
+            raise type(e)(f"{key} stage: {problem}\n  ({kept})", fix=fix) from e
+        summary["timings_s"][key] = round(_now() - t0, 3)
+        stages[key] = res if isinstance(res, dict) else {}
+        _log(f"{name}: {key} done in {summary['timings_s'][key]:.1f} s", progress)
+        return res
+
+    return stage
+
+
+def _start_checks(staging: Path, *, render: bool, simulate: bool, renderer) -> None:
+    """Start the renderer's self-check and the report's off-screen rendering probe: they run
+    on the core the first stages leave idle."""
+    if render:
+        start_self_check(staging, renderer=renderer)
+    if simulate:  # a subprocess
+        start_pyvista_probe()
+
+
+def _later_stages(stage, staging: Path, name: str, summary: dict, *, program: bool,
+                  simulate: bool, render: bool, refine: int, material, t_end, dt, solver,
+                  renderer, jobs, fit_landscape: bool, progress: bool) -> None:
+    """The stages after the design stage, into ``staging``: program -> simulate [-> contact]
+    [-> refine] -> render -> report (:func:`build` and :func:`rebuild` run the same ones)."""
+    stages = summary["stages"]
+    if program:
+        stage("program", program_design, staging, material=material, progress=progress,
+              fit_landscape=fit_landscape)
+    if simulate:
+        kw = {} if t_end is None else {"t_end": t_end}
+        sim_kw = dict(kw) if dt is None else dict(kw, dt=dt)
+        stage("simulate", simulate_design, staging, material=material, progress=progress,
+              solver=solver, **sim_kw)
+        physics = None
+
+        def simulate_with_contact_if_needed(after: str):
+            """Contact from here on when the frames just written collide."""
+            nonlocal physics
+            physics, hit = _contact_if_needed(staging, name, progress)
+            if physics is not None:
+                stages[after]["contact"] = {"switched_on": True, "collisions": hit}
+                stage("simulate_contact", simulate_design, staging, material=material,
+                      progress=progress, solver=solver, physics=physics, **sim_kw)
+
+        simulate_with_contact_if_needed("simulate")
+        if refine and program:
+            hook = {"simulate": functools.partial(
+                simulate_design, solver=solver, **({} if dt is None else {"dt": dt}),
+                **({} if physics is None else {"physics": physics}))}
+            stage("refine", refine_design, staging, iterations=refine, material=material,
+                  progress=progress, **kw, **hook)
+            if physics is None:  # the refined thicknesses may bring far parts together
+                simulate_with_contact_if_needed("refine")
+    if render:  # after refinement, so the STLs carry the final thicknesses
+        stage("render", render_design, staging, jobs=jobs, progress=progress,
+              renderer=renderer)
+    if simulate:
+        stage("report", make_report, staging, progress=progress,
+              build_info={k: summary[k] for k in ("source", "options", "inputs_sha256")})
+
+
+def _finish(summary: dict, staging: Path, out: Path, t_build: float, *, material, t_end, dt,
+            render: bool, simulate: bool, progress: bool) -> None:
+    """Write ``summary.json`` into the finished staging folder, stamp it and move it to
+    ``out`` (replacing the previous build)."""
+    summary["stage_inputs"] = _stage_inputs(staging, material=material, t_end=t_end, dt=dt)
+    summary["kept"] = _keep_skipped_outputs(out, staging, summary["stage_inputs"],
+                                            render=render, simulate=simulate,
+                                            progress=progress)
+    summary["timings_s"]["total"] = round(_now() - t_build, 3)
+    summary["versions"] = tool_versions()
+    summary["figures"] = _key_figures(staging, summary["stages"])
+    summary["output"] = str(out)
+    atomic_write_text(staging / "summary.json",
+                      json.dumps(summary, indent=2, sort_keys=True, default=_json_default)
+                      + "\n")
+    (staging / ".inputs_sha256").unlink(missing_ok=True)
+    write_stamp(staging)
+    public_mode(staging, recursive=True)
+    replace_dir(staging, out)
+    remove_staging(staging)
+
+
+def _closing(summary: dict, name: str, out: Path, progress: bool) -> dict:
+    """Say that the build is complete, print the verdict and set ``exit_code``."""
+    stages = summary["stages"]
     _log(f"{name}: build complete in {summary['timings_s']['total']:.1f} s -> {out}", progress)
     if "report" in stages:
         print_verdict(stages["report"], out / "report")
     verdict = stages.get("report", {}).get("verdict")
     summary["exit_code"] = EXIT_CHECK_FAILED if verdict == "FAIL" else EXIT_OK
     return summary
+
+
+# ------------------------------------------------------------------------------------------
+# a build again from an edited time landscape (the studio's "Run")
+
+REBUILD_DROPPED = ("summary.json", "temporal.json", "temporal_feasibility.png", STAMP_NAME,
+                   ".inputs_sha256")
+"""Top-level files of a build that a rebuild does not carry over (the later stages write
+them again); its subfolders (``sim/``, ``report/``, ``scad/``, ``stl/``, ``tolerance/``) are
+all made from the old tables and are not carried over either."""
+
+
+def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = True) -> dict:
+    """Build a design folder again from a new time landscape, through the same stages as
+    :func:`build` after the design stage, with the options that build recorded
+    (``summary.json``): program (the landscape is the user's: checked, never rescaled),
+    simulate (+ contact when parts pass through each other), refine (the build's
+    ``--refine``), render (when the build rendered), report.
+
+    The stages run in the staging folder, on a copy of the design stage's files with the new
+    ``time_landscape.csv``; the folder is replaced only when all have finished.  A failed
+    stage leaves the folder as it was (nothing of the edit is saved) and raises.
+
+    Parameters
+    ----------
+    folder : path-like
+        A folder made by ``morphshell build`` (with ``summary.json``).
+    landscape : (n_vertices,) float, s
+        Requested completion time per stencil vertex.
+    source : dict, optional
+        How the landscape was made, written as ``studio_landscape.json`` (the report's
+        provenance); JSON-serialisable.
+    progress : bool
+        Progress lines on stderr (``[morphshell] <name>: <stage> ...``, as a build).
+
+    Returns
+    -------
+    summary : dict
+        The new ``summary.json`` plus ``exit_code`` (3 when the report's verdict is FAIL).
+
+    Raises
+    ------
+    InputError
+        Not a build folder, a landscape of the wrong length or with times outside
+        ``[0, LIMITS.max_landscape_s]``, files morphshell did not write in the folder, or a
+        stage refusing the landscape (the folder is then unchanged).
+    """
+    folder = Path(folder).absolute()
+    old = read_record(folder / "summary.json")
+    if not isinstance(old, dict) or not isinstance(old.get("options"), dict):
+        raise InputError(f"{folder / 'summary.json'} is missing or unreadable: only a folder "
+                         "made by 'morphshell build' can be built again from a landscape",
+                         fix=f"build it first: morphshell build <shape> --out {folder}")
+    opts, run = old["options"], old.get("run") or {}
+    if not opts.get("program", True):
+        raise InputError(f"{folder} was built without temporal programming (--no-program): a "
+                         "landscape has nothing to program", fix="build it with programming")
+    V, _, _ = tables.read_stencil(folder / "stencil.obj")
+    land = tables.round_sig9(check_landscape(landscape, len(V)))   # as time_landscape.csv keeps it
+    claim_output(folder, what="build folder")
+    name = folder.name
+    material, refine = opts.get("material"), int(opts.get("refine") or 0)
+    t_end, dt = opts.get("t_end"), opts.get("dt")
+    render = bool(run.get("render", (folder / "stl").is_dir()))
+    renderer = run.get("renderer") or old.get("stages", {}).get("render", {}).get("renderer")
+    solver = run.get("solver") or "fast"
+    validate_model_files(material, unit=tables.read_unit_cell(folder))
+    land_sha = hashlib.sha256(land.astype("<f8").tobytes()).hexdigest()
+    edit = {"made_by": "morphshell studio", "edited_from_tables_sha256":
+            tables.tables_sha256(folder), **(source or {})}
+    digest = hashlib.sha256(f"{old.get('inputs_sha256')}\0{land_sha}".encode()).hexdigest()
+    summary: dict = {"shape": old.get("shape", name), "source": old.get("source"),
+                     "options": opts, "inputs_sha256": digest,
+                     "stages": {k: v for k, v in old.get("stages", {}).items() if k == "design"},
+                     "timings_s": {k: v for k, v in old.get("timings_s", {}).items()
+                                   if k == "design"},
+                     "stage_inputs": {}, "run": {"render": render, "renderer": renderer,
+                                                 "solver": solver},
+                     "edited": {"by": "morphshell studio", "landscape_sha256": land_sha,
+                                "from_inputs_sha256": old.get("inputs_sha256"),
+                                "before": report_figures(folder)}}
+    t_build = _now()
+    staging = staging_dir(folder)
+    with build_lock(folder):
+        recover_stale(folder)
+        _prepare_staging(staging, digest, progress)
+        for p in folder.iterdir():
+            if p.is_file() and not p.is_symlink() and p.name not in REBUILD_DROPPED:
+                shutil.copy2(p, staging / p.name)
+        tables.write_table(staging / tables.FILENAMES["time_landscape"], "time_landscape",
+                           {"vertex_id": np.arange(len(land)), "time_s": land})
+        atomic_write_text(staging / tables.LANDSCAPE_SOURCE, json.dumps(edit, indent=1) + "\n")
+        stage = _stage_runner(summary, name, folder, staging, False, progress)
+        _start_checks(staging, render=render, simulate=True, renderer=renderer)
+        _later_stages(stage, staging, name, summary, program=True, simulate=True,
+                      render=render, refine=refine, material=material, t_end=t_end, dt=dt,
+                      solver=solver, renderer=renderer, jobs=None, fit_landscape=False,
+                      progress=progress)
+        _finish(summary, staging, folder, t_build, material=material, t_end=t_end, dt=dt,
+                render=render, simulate=True, progress=progress)
+    return _closing(summary, name, folder, progress)
+
+
+def report_figures(folder) -> dict | None:
+    """The headline figures of a build's report (``report/report.json``), None without one.
+
+    Returns
+    -------
+    dict or None
+        ``verdict``, ``reasons`` (list of ``{level, check, message}``), ``timing_rms_s``,
+        ``spearman``, ``n_clamped``, ``n_never_complete`` (due by the end and never
+        complete), ``n_cells``, ``shape_rms_mm``, ``shape_rms_pct``, ``refine_rounds``,
+        ``parts_fresh`` (the STLs match the tables; None without STLs) and ``tables_sha256``.
+    """
+    r = read_record(Path(folder) / "report" / "report.json")
+    if not isinstance(r, dict) or not isinstance(r.get("metrics"), dict):
+        return None
+    m = r["metrics"]
+    tm, sh = m.get("timing") or {}, m.get("shape") or {}
+    tb = m.get("tables") or {}
+    parts = tb.get("parts") or {}
+    return {"verdict": r.get("verdict"), "reasons": r.get("reasons") or [],
+            "timing_rms_s": tm.get("rms_s"), "spearman": tm.get("spearman"),
+            "n_clamped": tm.get("n_clamped"), "n_never_complete": tm.get("n_never_due"),
+            "n_cells": tm.get("n_cells"), "shape_rms_mm": sh.get("rms_mm"),
+            "shape_rms_pct": sh.get("rms_pct"),
+            "refine_rounds": (r.get("provenance") or {}).get("refine_rounds"),
+            "parts_fresh": parts.get("fresh") if parts.get("n_stl") else None,
+            "tables_sha256": tb.get("sha256")}
+
+
+def build_parts(folder) -> dict:
+    """The printable parts of a build: whether they match its tables
+    (:func:`sim.report.fabrication.parts_made_from`) and, when they do, the STL list
+    (:func:`sim.report.fabrication.stl_inventory`: name, bytes, triangles, size, purpose).
+
+    Returns
+    -------
+    dict
+        ``made_from`` and ``stls`` (empty when the STLs are stale or absent).
+    """
+    made = parts_made_from(folder)
+    return {"made_from": made, "stls": stl_inventory(folder, made)}
+
+
+def check_landscape(landscape, n_vertices: int) -> np.ndarray:
+    """A time landscape from outside (the studio): ``n_vertices`` finite times in
+    ``[0, LIMITS.max_landscape_s]`` s.
+
+    Raises
+    ------
+    InputError
+        Naming the first bad value and the rule.
+    """
+    try:
+        land = np.asarray(landscape, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError("the landscape is not a list of numbers",
+                         fix="give one time in seconds per stencil vertex") from None
+    if land.shape != (n_vertices,):
+        raise InputError(f"the landscape has {land.size} values, the stencil {n_vertices} "
+                         "vertices", fix="give one time in seconds per stencil vertex")
+    bad = np.flatnonzero(~np.isfinite(land) | (land < 0) | (land > LIMITS.max_landscape_s))
+    if bad.size:
+        raise InputError(f"vertex {bad[0]}: time {float(land[bad[0]])!r} s is outside 0-"
+                         f"{LIMITS.max_landscape_s:g} s ({bad.size} such vertices)",
+                         fix=f"give times from 0 to {LIMITS.max_landscape_s:g} s")
+    return land
 
 
 # ----------------------------------------------------------------------------------------------

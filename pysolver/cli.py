@@ -42,7 +42,7 @@ stages (each reads and writes plain files in a design folder, build/<shape>/):
   fit-membrane  fit the linearised membrane model from FEM samples
   specimens     printable unit-cell test specimens from the same SCAD modules
   shapes        list the built-in shapes
-  studio        browser front end: morph viewer, time-landscape editor, builds side by side
+  studio        browser front end: paint the time landscape, build it again, compare builds
   tolerance     Monte Carlo over print and material scatter: P(PASS), spreads (on Dask)
   sweep         build a grid or list of design variants from a TOML spec (on Dask)
 """
@@ -233,7 +233,8 @@ def _parser() -> argparse.ArgumentParser:
 
     add("shapes", help="list the built-in shapes")
 
-    p = add("studio", help="browser front end: morph viewer, time-landscape editor")
+    p = add("studio", help="browser front end: paint the time landscape, build it again, "
+                           "compare")
     p.add_argument("dirs", nargs="*", metavar="DIR",
                    help="build folders, shown side by side (default: every build/<name>)")
     p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: any free)")

@@ -418,6 +418,17 @@ class Limits:
         as dead.
     probe_timeout_s : float, s
         Time the off-screen rendering probe of the report's pictures may take.
+    max_landscape_s : float, s
+        Largest time a landscape from the studio may ask for (the material models cover
+        about 120 s; the temporal stage clamps or refuses what they cannot reach).
+    studio_max_radius_mm : float, mm
+        Largest brush radius of the studio (larger than any shell: the whole target).
+    studio_max_edits : int
+        Most keyframes in one request, and most edits recorded with one run.
+    studio_max_body_bytes : int, bytes
+        Largest request body the studio reads (a landscape of 5000 vertices is ~60 kB).
+    studio_job_timeout_s : float, s
+        Longest a studio run (a rebuild) may take before it is stopped.
     """
 
     max_vertices: int = 5000
@@ -440,6 +451,11 @@ class Limits:
     render_part_timeout_s: float = 300.0
     render_startup_timeout_s: float = 120.0
     probe_timeout_s: float = 120.0
+    max_landscape_s: float = 1000.0
+    studio_max_radius_mm: float = 1000.0
+    studio_max_edits: int = 10000
+    studio_max_body_bytes: int = 4 << 20
+    studio_job_timeout_s: float = 6 * 3600.0
 
 
 LIMITS = Limits()

@@ -662,6 +662,29 @@ def model_inputs_hash(folder, params) -> str:
     return h.hexdigest()
 
 
+TABLE_FILES = ("stencil.obj", "design.json", *FILENAMES.values())
+"""The design folder's tables: what the later stages' outputs are made from."""
+LANDSCAPE_SOURCE = "studio_landscape.json"
+"""How the landscape of a build edited in the studio was made (the report's provenance)."""
+PARTS_RECORD = "stl/parts.json"
+"""Written with the STLs: the :func:`tables_sha256` of the tables they were made from and each
+STL's sha256 (the report lists the STLs only while both match)."""
+
+
+def tables_sha256(folder) -> str:
+    """sha256 of a design folder's tables (:data:`TABLE_FILES`; a missing file counts as
+    empty), recorded by every output made from them (``sim/frames.npz``, ``stl/parts.json``,
+    ``report/report.json``) so that the report can tell parts or frames made from other
+    tables (an edited landscape, a later ``program``) from its own."""
+    folder = Path(folder)
+    h = hashlib.sha256()
+    for name in TABLE_FILES:
+        p = folder / name
+        data = p.read_bytes() if p.is_file() else b""
+        h.update(f"{name}\0{len(data)}\0".encode() + data)
+    return h.hexdigest()
+
+
 def write_model(folder, arrays: dict, inputs_sha256: str) -> Path:
     """Write ``model.npz`` (uncompressed, fixed zip timestamps: same arrays, same bytes).
 
@@ -733,4 +756,5 @@ __all__ = ["SCHEMAS", "FILENAMES", "write_table", "read_table", "read_bases", "r
            "read_bumpers", "read_time_landscape", "read_support_frame", "write_stencil",
            "read_stencil", "Design", "read_design", "check_design", "round_sig9",
            "design_unit_cell", "read_unit_cell", "read_record", "MODEL_FILE", "MODEL_ARRAYS",
-           "write_model", "read_model", "model_inputs_hash", "check_thickness"]
+           "write_model", "read_model", "model_inputs_hash", "check_thickness", "TABLE_FILES",
+           "tables_sha256", "PARTS_RECORD", "LANDSCAPE_SOURCE"]

@@ -1,14 +1,19 @@
-"""``morphshell studio``: landscape editing maths, the server's guards, and end-to-end
+"""``morphshell studio``: landscape requests and maths, the server's guards (token, origin,
+bodies, busy builds), the rebuild behind *Run*, the parts' freshness, and end-to-end
 browser tests in a real headless chromium (Debian's, driven by Selenium).
 
-The browser tests use one small build (``regular``, no STLs, 20 s simulated) and check
-the DOM state and the WebGL canvas pixels, waiting on explicit DOM conditions.
+The browser tests use one small build (``regular``, one refinement round, no STLs, 20 s
+simulated) and check the DOM state, the editor's landscape and the WebGL canvas pixels,
+waiting on explicit DOM conditions.
 """
 
 from __future__ import annotations
 
+import hashlib
 import http.client
 import json
+import shutil
+import socket
 import threading
 
 import igl
@@ -20,13 +25,15 @@ from _shared import flat_grid
 from pysolver.errors import InputError
 from pysolver.studio.landscape import (
     Feasibility,
-    constraint_values,
     harmonic_landscape,
-    parse_constraints,
+    keyframe_values,
+    parse_keyframes,
+    parse_landscape,
 )
-from pysolver.tables import read_stencil, read_table
+from pysolver.studio.shots import drag_on_editor, type_into
+from pysolver.tables import read_stencil, read_table, tables_sha256
 
-WAIT_S = 90  # upper bound of an explicit wait (software WebGL on a busy 2-core machine)
+WAIT_S = 120  # upper bound of an explicit wait (software WebGL and a run on a busy 2-core machine)
 
 
 # ------------------------------------------------------------------------------ maths
@@ -34,7 +41,7 @@ WAIT_S = 90  # upper bound of an explicit wait (software WebGL on a busy 2-core 
 
 def test_harmonic_landscape_fixes_keyframes_and_is_harmonic_between():
     V, F = flat_grid(9, 40.0)
-    b, bc = constraint_values(V, [(0, 30.0), (80, 90.0)], [])
+    b, bc = keyframe_values([(0, 30.0), (80, 90.0)])
     t = harmonic_landscape(V, F, b, bc)
     assert t[0] == pytest.approx(30.0) and t[80] == pytest.approx(90.0)
     L = igl.cotmatrix(V, F)
@@ -45,30 +52,54 @@ def test_harmonic_landscape_fixes_keyframes_and_is_harmonic_between():
     assert 30.0 < t[40] < 90.0 and t[40] == pytest.approx(60.0, abs=1e-6)
 
 
-def test_brush_fixes_every_vertex_within_its_radius_and_keyframes_win():
-    V, F = flat_grid(9, 40.0)   # 5 mm spacing
-    b, bc = constraint_values(V, [(40, 10.0)], [(40, 5.01, 70.0)])
-    # vertex 40 (the centre) and its 4 neighbours at 5 mm
-    assert sorted(b.tolist()) == [31, 39, 40, 41, 49]
-    assert dict(zip(b.tolist(), bc.tolist(), strict=True))[40] == 10.0
-    assert set(bc.tolist()) == {10.0, 70.0}
+def test_a_later_keyframe_on_the_same_vertex_wins():
+    b, bc = keyframe_values([(3, 10.0), (5, 20.0), (3, 40.0)])
+    assert b.tolist() == [3, 5] and bc.tolist() == [40.0, 20.0]
 
 
-@pytest.mark.parametrize("payload", [
-    [], {"keyframes": [{"vertex": 99, "time": 5}]}, {"keyframes": [{"vertex": 1, "time": -1}]},
-    {"keyframes": [{"vertex": 1.5, "time": 5}]}, {"keyframes": [{"vertex": True, "time": 5}]},
-    {"keyframes": [{"vertex": 1, "time": float("nan")}]}, {"oops": []},
-    {"brushes": [{"vertex": 1, "radius": 0, "time": 5}]}, {"keyframes": "1,2"},
+@pytest.mark.parametrize("payload, words", [
+    ([], "must be a JSON object"),
+    ({"keyframes": [{"vertex": 99, "time": 5}]}, "vertex 99 is outside 0-9"),
+    ({"keyframes": [{"vertex": 1, "time": -1}]}, "time -1 s is outside 0-1000 s"),
+    ({"keyframes": [{"vertex": 1, "time": 5000}]}, "time 5000 s is outside 0-1000 s"),
+    ({"keyframes": [{"vertex": 1.5, "time": 5}]}, "vertex 1.5 is not a whole number"),
+    ({"keyframes": [{"vertex": True, "time": 5}]}, "vertex True is not a whole number"),
+    ({"keyframes": [{"vertex": 1, "time": float("nan")}]}, "time nan is not a number"),
+    ({"keyframes": [{"vertex": 1}]}, "keyframe 0: no time"),
+    ({"oops": []}, "unknown key(s) ['oops']"),
+    # unknown keys inside a keyframe are refused too, as documented
+    ({"keyframes": [{"vertex": 1, "time": 5, "weight": 2}]},
+     "keyframe 0: unknown key(s) ['weight']"),
+    ({"keyframes": "1,2"}, "'keyframes' must be a list"),
 ])
-def test_bad_constraints_are_refused(payload):
-    with pytest.raises(InputError):
-        parse_constraints(payload, 10)
+def test_bad_keyframes_are_refused_with_the_rule_they_break(payload, words):
+    with pytest.raises(InputError) as e:
+        parse_keyframes(payload, 10)
+    assert words in e.value.problem
 
 
-def test_no_keyframe_is_refused():
-    V, F = flat_grid(4)
-    with pytest.raises(InputError):
-        harmonic_landscape(V, F, [], [])
+@pytest.mark.parametrize("payload, words", [
+    ({"landscape": [1.0] * 9}, "9 values, the stencil 10"),
+    ({"landscape": [1.0] * 9 + [2000.0]}, "vertex 9: time 2000.0 s is outside"),
+    ({"landscape": [1.0] * 9 + [True]}, "list of numbers"),
+    ({"landscape": [1.0] * 10, "edits": []}, "unknown key(s) ['edits']"),
+])
+def test_bad_landscapes_are_refused(payload, words):
+    with pytest.raises(InputError) as e:
+        parse_landscape(payload, 10)
+    assert words in e.value.problem
+
+
+def test_the_edit_log_is_checked():
+    land, log = parse_landscape({"landscape": [5.0] * 10, "edits": [
+        {"tool": "brush", "mode": "add", "value": 3, "radius": 8, "falloff": 0.5,
+         "vertices": 4}]}, 10, edits=True)
+    assert land.tolist() == [5.0] * 10 and log[0]["mode"] == "add"
+    for bad in ({"tool": "brush", "mode": "erase"}, {"tool": "script", "mode": "set"},
+                {"tool": "brush", "mode": "set", "note": "x"},
+                {"tool": "brush", "mode": "set", "radius": 0}):
+        with pytest.raises(InputError):
+            parse_landscape({"landscape": [5.0] * 10, "edits": [bad]}, 10, edits=True)
 
 
 # ------------------------------------------------------------------------------ a small build
@@ -79,73 +110,307 @@ def small_build(tmp_path_factory):
     from pysolver.build import build
 
     out = tmp_path_factory.mktemp("studio") / "regular"
-    build("regular", out=out, refine=0, render=False, t_end=20.0, progress=False)
+    build("regular", out=out, refine=1, render=False, t_end=20.0, progress=False)
     return out
 
 
-@pytest.fixture(scope="module")
-def server(small_build):
+def _copy(build_dir, tmp_path, name="regular"):
+    dst = tmp_path / "copy" / name
+    shutil.copytree(build_dir, dst, symlinks=True)
+    return dst
+
+
+def _files(folder) -> dict:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _serve(folders, **kw):
     from pysolver.studio.server import StudioServer, resolve_folders
 
-    srv = StudioServer(resolve_folders([small_build, small_build]))
-    th = threading.Thread(target=srv.serve_forever, daemon=True)
-    th.start()
-    yield srv
+    srv = StudioServer(resolve_folders(folders), **kw)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    return srv
+
+
+def _stop(srv):
     srv.shutdown()
     srv.server_close()
 
 
-def _request(srv, method, path, body=None, host=None, ctype="application/json"):
+@pytest.fixture(scope="module")
+def server(small_build):
+    srv = _serve([small_build, small_build])
+    yield srv
+    _stop(srv)
+
+
+def _request(srv, method, path, body=None, host=None, ctype="application/json", token=True,
+             headers=None, raw_body=None):
+    from pysolver.studio.server import TOKEN_HEADER
+
     port = srv.server_address[1]
     c = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
-    headers = {"Host": host or f"127.0.0.1:{port}"}
-    if body is not None:
-        headers["Content-Type"] = ctype
-    c.request(method, path, body=None if body is None else json.dumps(body), headers=headers)
+    h = {"Host": host or f"127.0.0.1:{port}"}
+    if token:
+        h[TOKEN_HEADER] = srv.token if token is True else token
+    if body is not None or raw_body is not None:
+        h["Content-Type"] = ctype
+    h.update(headers or {})
+    data = raw_body if raw_body is not None else None if body is None else json.dumps(body)
+    c.request(method, path, body=data, headers=h)
     r = c.getresponse()
-    data = r.read()
+    out = r.read()
     c.close()
-    return r.status, data
+    return r.status, out
+
+
+def _raw(srv, data: bytes) -> bytes:
+    """Send raw bytes on one connection; everything the server answers until it closes."""
+    s = socket.create_connection(("127.0.0.1", srv.server_address[1]), timeout=10)
+    s.sendall(data)
+    out = b""
+    try:
+        while chunk := s.recv(65536):
+            out += chunk
+    except TimeoutError:
+        out += b"<still open>"
+    s.close()
+    return out
+
+
+# ------------------------------------------------------------------------------ guards
 
 
 def test_server_serves_only_its_whitelist(server):
     assert _request(server, "GET", "/")[0] == 200
     assert _request(server, "GET", "/static/three.min.js")[0] == 200
     for path in ("/static/../server.py", "/static/%2e%2e/server.py", "/etc/passwd",
-                 "/static/", "/api/build/7/viewer", "/api/build/x/target"):
+                 "/static/", "/api/build/7/viewer", "/api/build/x/target",
+                 "/api/build/0/stl/../cells.csv", "/api/build/0/stl/top.stl"):
         assert _request(server, "GET", path)[0] in (400, 404), path
     # a page on another origin that resolves to 127.0.0.1 (DNS rebinding) is refused
     assert _request(server, "GET", "/api/builds", host="evil.example:80")[0] == 403
-    # a cross-site form post (not JSON) is refused
-    st, _ = _request(server, "POST", "/api/build/0/save", body={}, ctype="text/plain")
-    assert st == 415
 
 
-def test_save_never_overwrites_a_file_morphshell_did_not_make(server, tmp_path):
-    from pysolver.studio.server import Build
+def test_every_api_call_needs_the_token(server):
+    assert "#token=" + server.token in server.url and len(server.token) >= 32
+    assert _request(server, "GET", "/api/builds")[0] == 200
+    for token in (False, "wrong", server.token[:-1]):
+        st, body = _request(server, "GET", "/api/builds", token=token)
+        assert st == 403 and b"token" in body
+        assert _request(server, "POST", "/api/build/0/preview", body={"landscape": []},
+                        token=token)[0] == 403
+    # a token in the query string opens read-only downloads only
+    q = f"?token={server.token}"
+    assert _request(server, "GET", "/api/builds" + q, token=False)[0] == 403
+    assert _request(server, "GET", "/api/build/0/report" + q, token=False)[0] == 200
 
-    folder = tmp_path / "mine"
-    folder.mkdir()
-    for name in ("stencil.obj", "cells.csv", "time_landscape.csv", "temporal.json"):
-        (folder / name).write_bytes((server.builds[0].folder / name).read_bytes())
-    before = (folder / "time_landscape.csv").read_bytes()
-    with pytest.raises(InputError, match="not made by morphshell"):
-        Build(folder).save({"keyframes": [{"vertex": 0, "time": 50.0}]})
-    assert (folder / "time_landscape.csv").read_bytes() == before
+
+def test_another_origin_is_refused(server):
+    port = server.server_address[1]
+    for origin in ("http://evil.example", f"http://127.0.0.1:{port + 1}", "null"):
+        st, _ = _request(server, "GET", "/api/builds", headers={"Origin": origin})
+        assert st == 403, origin
+    assert _request(server, "GET", "/api/builds",
+                    headers={"Origin": f"http://127.0.0.1:{port}"})[0] == 200
+    assert _request(server, "GET", "/api/builds",
+                    headers={"Sec-Fetch-Site": "cross-site"})[0] == 403
+
+
+def test_an_error_reply_never_leaves_a_body_to_be_read_as_a_second_request(server):
+    """Request smuggling: a no-cors text/plain fetch (415) or a too-large body (413) used to
+    be answered without reading the body, which was then parsed as a second request on the
+    kept-alive connection."""
+    port = server.server_address[1]
+    body = json.dumps({"landscape": [30.0]}).encode()
+    inner = (f"POST /api/build/0/preview HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+             f"Content-Type: application/json\r\nX-Morphshell-Token: {server.token}\r\n"
+             f"Content-Length: {len(body)}\r\n\r\n").encode() + body
+    for ctype, length in (("text/plain", len(inner)), ("application/json", 1 << 40)):
+        outer = (f"POST /api/build/0/run HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+                 f"X-Morphshell-Token: {server.token}\r\n"
+                 f"Content-Type: {ctype}\r\nContent-Length: {length}\r\n\r\n").encode()
+        reply = _raw(server, outer + inner)
+        assert reply.count(b"HTTP/1.1 ") == 1, reply[:400]      # one request, one answer
+        assert reply.split(b" ")[1] in (b"413", b"415")
+        assert b"Connection: close" in reply and not reply.endswith(b"<still open>")
+    # nor a body on a GET
+    get = (f"GET /api/builds HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+           f"X-Morphshell-Token: {server.token}\r\nContent-Length: {len(inner)}\r\n\r\n")
+    reply = _raw(server, get.encode() + inner)
+    assert reply.count(b"HTTP/1.1 ") == 1 and reply.split(b" ")[1] == b"400"
+    assert server.job.snapshot()["state"] == "idle"              # nothing was started
+
+
+@pytest.mark.parametrize("headers, raw, words", [
+    ({"Content-Length": "abc"}, b"{}", b"is not a whole number"),
+    ({}, b"{not json", b"is not JSON"),
+    ({}, b'{"landscape": NaN}', b"is not JSON"),
+    ({}, b"[" * 100000 + b"]" * 100000, b"is not JSON"),
+    ({}, b"\xff\xfe", b"is not JSON"),
+    ({}, b'["landscape"]', b"must be a JSON object"),
+    ({}, b'{"keyframes": [{"vertex": 0, "time": 5, "weight": 1}]}', b"unknown key"),
+])
+def test_malformed_requests_get_named_messages(server, headers, raw, words):
+    path = "/api/build/0/keyframes" if b"keyframes" in raw else "/api/build/0/preview"
+    port = server.server_address[1]
+    h = {"Host": f"127.0.0.1:{port}", "Content-Type": "application/json",
+         "X-Morphshell-Token": server.token, "Content-Length": str(len(raw)), **headers}
+    head = f"POST {path} HTTP/1.1\r\n" + "".join(f"{k}: {v}\r\n" for k, v in h.items())
+    reply = _raw(server, head.encode() + b"\r\n" + raw)
+    status = reply.split(b" ")[1]
+    assert status == b"400", reply[:300]
+    assert words in reply and b"internal error" not in reply
+
+
+def test_a_busy_port_is_named(small_build):
+    from pysolver.cli import main
+    from pysolver.studio.server import StudioServer
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    s.listen()
+    port = s.getsockname()[1]
+    try:
+        with pytest.raises(InputError, match=f"port {port} on 127.0.0.1 is in use"):
+            StudioServer([small_build], port=port)
+        assert main(["studio", str(small_build), "--port", str(port), "--no-browser"]) == 2
+    finally:
+        s.close()
+
+
+def test_concurrent_runs_queue_or_get_409_never_500(small_build):
+    """30 concurrent Runs of one build: one starts, the others are told it is busy."""
+    srv = _serve([small_build])
+    release = threading.Event()
+    started = []
+
+    def fake_run(build, req, plan, expect):   # the real job is a rebuild: hold it here
+        started.append(json.loads(req)["landscape"][0])
+        release.wait(30)
+        srv.job._set(state="done", progress=1.0)
+
+    srv.job._run = fake_run
+    try:
+        land = read_table(small_build, "time_landscape")["time_s"].tolist()
+        codes = [None] * 30
+
+        def go(k):
+            codes[k] = _request(srv, "POST", "/api/build/0/run",
+                                body={"landscape": [land[0] + k] + land[1:], "edits": []})[0]
+
+        threads = [threading.Thread(target=go, args=(k,)) for k in range(30)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        assert sorted(codes) == [200] + [409] * 29, codes
+        assert len(started) == 1
+        assert _request(srv, "GET", "/api/job")[0] == 200
+    finally:
+        release.set()
+        _stop(srv)
+
+
+# ------------------------------------------------------------------------------ rebuild
 
 
 def test_preview_feasibility_is_the_temporal_stage_s(server, small_build):
     V, _, F = read_stencil(small_build / "stencil.obj")
     a, b = int(np.argmin(V[:, 0])), int(np.argmax(V[:, 0]))
-    body = {"keyframes": [{"vertex": a, "time": 35.0}, {"vertex": b, "time": 60.0}]}
-    st, data = _request(server, "POST", "/api/build/0/preview", body=body)
+    st, data = _request(server, "POST", "/api/build/0/keyframes",
+                        body={"keyframes": [{"vertex": a, "time": 15.0},
+                                            {"vertex": b, "time": 60.0}]})
     assert st == 200
     r = json.loads(data)
-    land = harmonic_landscape(V, F, [a, b], [35.0, 60.0])
+    land = harmonic_landscape(V, F, [a, b], [15.0, 60.0])
     ev = Feasibility(small_build).evaluate(land)
-    assert np.allclose(r["landscape"], land, atol=1e-3)
+    assert np.allclose(r["landscape"], land, atol=1e-9)
     assert r["feasibility"]["clamped"] == ev["clamped"].astype(int).tolist()
     assert r["feasibility"]["n_clamped"] > 0    # this landscape asks for too early a finish
+    st, data = _request(server, "POST", "/api/build/0/preview", body={"landscape": r["landscape"]})
+    assert st == 200 and json.loads(data)["feasibility"]["clamped"] == r["feasibility"]["clamped"]
+
+
+def test_frames_record_the_tables_they_were_simulated_from(small_build):
+    # also after the refinement, which keeps its best round's cells.csv and frames
+    z = np.load(small_build / "sim" / "frames.npz")
+    assert str(z["tables_sha256"]) == tables_sha256(small_build)
+
+
+def test_an_unedited_rebuild_keeps_the_refinement(small_build, tmp_path):
+    """Run on an unchanged landscape is the build again: the same program stage, the same
+    refinement rounds, the same thicknesses (the studio used to drop the refinement)."""
+    from pysolver.build import rebuild
+
+    f = _copy(small_build, tmp_path)
+    land = read_table(f, "time_landscape")["time_s"]
+    summary = rebuild(f, land, source={"edits": []}, progress=False)
+    before = json.loads((small_build / "sim" / "refine.json").read_text())
+    after = json.loads((f / "sim" / "refine.json").read_text())
+    assert after["rounds"] == before["rounds"] == 1
+    for key in ("thickness_top_mm", "thickness_bottom_mm"):
+        assert np.allclose(read_table(f, "cells")[key], read_table(small_build, "cells")[key],
+                           atol=1e-6)
+    assert after["history"][-1]["rms_incl_never_s"] == pytest.approx(
+        before["history"][-1]["rms_incl_never_s"], abs=1e-3)
+    assert summary["edited"]["before"]["verdict"] == json.loads(
+        (small_build / "report" / "report.json").read_text())["verdict"]
+    assert "studio" in json.loads((f / "report" / "report.json").read_text())[
+        "provenance"]["landscape"]
+
+
+def test_a_failed_stage_saves_nothing_of_the_edit(small_build, tmp_path):
+    from pysolver.build import rebuild
+
+    f = _copy(small_build, tmp_path)
+    before = _files(f)
+    n = len(read_stencil(f / "stencil.obj")[0])
+    with pytest.raises(InputError, match="mostly infeasible"):
+        rebuild(f, np.full(n, 900.0), progress=False)
+    assert _files(f) == before
+    assert sorted(p.name for p in f.parent.iterdir()) == ["regular"]   # no staging left
+
+
+def _binary_stl(path):
+    tri = np.array([[[0, 0, 0], [10, 0, 0], [0, 10, 0]], [[0, 0, 0], [0, 10, 0], [0, 0, 5]]],
+                   np.float32)
+    rec = np.zeros(len(tri), np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]))
+    rec["v"] = tri
+    path.write_bytes(b"\0" * 80 + np.uint32(len(tri)).tobytes() + rec.tobytes())
+
+
+def _fake_parts(folder):
+    """An STL and its record, as the render stage writes them (made from the tables now)."""
+    (folder / "stl").mkdir()
+    _binary_stl(folder / "stl" / "top.stl")
+    (folder / "stl" / "parts.json").write_text(json.dumps(
+        {"tables_sha256": tables_sha256(folder), "files": {"top.stl": hashlib.sha256(
+            (folder / "stl" / "top.stl").read_bytes()).hexdigest()}}))
+
+
+def test_the_report_never_lists_parts_older_than_its_tables(small_build, tmp_path):
+    from pysolver.build import build_parts
+    from sim.report import make_report
+
+    f = _copy(small_build, tmp_path)
+    _fake_parts(f)
+    assert build_parts(f)["made_from"]["fresh"]
+    assert [s["name"] for s in build_parts(f)["stls"]] == ["stl/top.stl"]
+    cells = read_table(f, "cells")       # a later program stage: other thicknesses
+    cells["thickness_top_mm"] = cells["thickness_top_mm"] + 0.01
+    from pysolver.tables import write_table
+
+    write_table(f / "cells.csv", "cells", cells)
+    parts = build_parts(f)
+    assert not parts["made_from"]["fresh"] and parts["stls"] == []
+    assert "other tables" in parts["made_from"]["problem"]
+    r = make_report(f, progress=False)
+    checks = {x["check"]: x["level"] for x in r["reasons"]}
+    assert checks["parts"] == "WARN" and checks["tables"] == "FAIL"
+    assert r["stls"] == [] and r["fabrication"]["steps"][0]["title"] == "Render again"
+    assert "Do not print" in (f / "report" / "index.html").read_text()
 
 
 # ------------------------------------------------------------------------------ browser
@@ -173,167 +438,275 @@ def _open(driver, server):
     _wait(driver, lambda d: d.find_element("tag name", "body").get_attribute("data-ready"),
           "the studio to load")
     assert driver.find_element("tag name", "body").get_attribute("data-ready") == "1", \
-        driver.find_element("id", "status").text
+        driver.find_element("id", "error").text
+    _wait(driver, _latest_preview, "the first preview")
+
+
+def _keyframes_done(driver) -> bool:
+    """The landscape shown is the interpolation of the latest keyframes, and its preview."""
+    return driver.execute_script(
+        "return document.getElementById('kf-list').getAttribute('data-done')"
+        " === String(studio.editor.kfSeq)") and _latest_preview(driver)
+
+
+def _land(driver) -> np.ndarray:
+    return np.asarray(driver.execute_script("return Array.from(studio.editor.st.land)"), float)
+
+
+def _brush(driver, mode, value, radius, falloff="0.5"):
+    driver.execute_script("var m = document.getElementById('brush-mode'); m.value = arguments[0];"
+                          "m.dispatchEvent(new Event('change'));", mode)
+    for box, v in (("brush-value", value), ("brush-radius", radius), ("brush-falloff", falloff)):
+        if not (box == "brush-value" and mode == "smooth"):   # smooth takes no value
+            type_into(driver, box, v)
+
+
+def _stroke(driver, vertex, dx=40, dy=8):
+    """Drag on the editor's canvas from the screen point of a stencil vertex."""
+    drag_on_editor(driver, vertex, dx, dy)
+
+
+def _centre(folder) -> tuple[np.ndarray, int]:
+    V = read_stencil(folder / "stencil.obj")[0]
+    return V, int(np.argmin(np.linalg.norm(V - V.mean(axis=0), axis=1)))
 
 
 @browser
-def test_viewer_loads_and_the_slider_changes_the_frame(server):
+def test_a_stroke_changes_only_the_painted_region(server, small_build):
+    V, c = _centre(small_build)
+    with chrome() as d:
+        _open(d, server)
+        before = _land(d)
+        _brush(d, "add", "10", "10", "0.5")
+        _stroke(d, c)
+        _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes"),
+              "the stroke")
+        after = _land(d)
+        st = d.execute_script("return studio.editor.lastStroke")
+        P = np.asarray(st["points"], float)
+        # (the page has the stencil as float32, rounded to 1e-5 mm: 1e-3 mm of margin)
+        dist = np.linalg.norm(V[:, None, :] - P[None], axis=2).min(axis=1)
+        changed = after != before
+        assert 3 <= changed.sum() < len(V) / 2
+        # bit for bit the same value beyond the brush's radius of every point of the drag
+        assert not changed[dist > 10.0 + 1e-3].any()
+        assert changed[dist < 10.0 - 1e-3].all()
+        inner = dist < 5.0 - 1e-3                          # falloff 0.5: weight 1 inside r/2
+        assert inner.sum() >= 1 and np.allclose((after - before)[inner], 10.0, atol=1e-9)
+        assert (after - before).min() >= 0 and (after - before).max() <= 10.0 + 1e-9
+        _wait(d, _latest_preview, "the painted landscape's feasibility")
+
+
+@browser
+def test_undo_restores_the_landscape_byte_for_byte(server, small_build):
+    V, c = _centre(small_build)
+    far = int(np.argmax(np.linalg.norm(V - V[c], axis=1)))
+    built = read_table(small_build, "time_landscape")["time_s"]
+    with chrome() as d:
+        _open(d, server)
+        assert _land(d).tobytes() == built.tobytes()
+        _brush(d, "set", "45", "9")
+        _stroke(d, c)
+        _brush(d, "smooth", "", "20", "1")
+        _stroke(d, far, dx=-30)
+        _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes")
+              == "2", "two strokes")
+        painted = _land(d)
+        assert painted.tobytes() != built.tobytes()
+        d.find_element("id", "undo").click()
+        d.find_element("id", "undo").click()
+        assert _land(d).tobytes() == built.tobytes()
+        assert d.find_element("id", "undo").get_attribute("disabled") == "true"
+        d.find_element("id", "redo").click()
+        d.find_element("id", "redo").click()
+        assert _land(d).tobytes() == painted.tobytes()
+
+
+@browser
+def test_a_bad_value_shows_its_message_and_clears_after_it_is_fixed(server, small_build):
+    from selenium.webdriver.common.keys import Keys
+
+    V, c = _centre(small_build)
+    with chrome() as d:
+        _open(d, server)
+        before = _land(d)
+        _brush(d, "add", "5", "0")
+        err = d.find_element("id", "brush-error")
+        assert "radius must be more than 0 mm" in err.text
+        _stroke(d, c)                                    # no silent 5 mm: nothing is painted
+        assert _land(d).tobytes() == before.tobytes()
+        assert "did not paint" in d.find_element("id", "error").text
+        type_into(d, "brush-radius", "")
+        assert "radius: give a number" in err.text
+        type_into(d, "brush-radius", "5000")
+        assert "5000 mm is more than 1000 mm" in err.text
+        type_into(d, "brush-radius", "8")
+        assert err.text == ""
+        _stroke(d, c)
+        _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes"),
+              "the stroke")
+        assert (_land(d) != before).any()
+        assert d.find_element("id", "error").text == ""   # the error went with its cause
+        # a keyframe row whose time is cleared is marked (not kept at its old value) and
+        # does not block the others
+        d.find_element("css selector", "input[name=tool][value=keyframe]").click()
+        d.execute_script("studio.editor.st.keyframes = [{vertex: 0, time: 30, raw: '30'},"
+                         " {vertex: arguments[0], time: 40, raw: '40'}];"
+                         " studio.editor.interpolate();", c)
+        _wait(d, _keyframes_done, "two keyframes")
+        box = d.find_elements("css selector", "#kf-list input")[1]
+        box.send_keys(Keys.CONTROL, "a")
+        box.send_keys(Keys.BACKSPACE, Keys.TAB)     # the row is drawn again on change
+        _wait(d, _keyframes_done, "the keyframes without the cleared one")
+        problems = d.execute_script("return Array.from(document.querySelectorAll("
+                                    "'#kf-list tr')).map(function (r) {"
+                                    " return r.getAttribute('data-problem'); })")
+        assert problems == [None, "no time"]
+        assert np.allclose(_land(d), 30.0)                # the good row still interpolates
+        box = d.find_elements("css selector", "#kf-list input")[1]
+        box.send_keys("50\t")
+        _wait(d, lambda d: _keyframes_done(d) and not d.find_elements(
+            "css selector", "#kf-list tr.bad"), "the row to be fixed")
+        assert _land(d)[c] == pytest.approx(50.0)
+
+
+@browser
+def test_a_click_on_the_rim_places_a_keyframe_or_says_why(server, small_build):
+    V, _ = _centre(small_build)
+    rim = int(np.argmax(V[:, 0]))
+    with chrome() as d:
+        _open(d, server)
+        d.find_element("css selector", "input[name=tool][value=keyframe]").click()
+        x, y = d.execute_script("return studio.editor.screenOf(arguments[0])", rim)
+        d.execute_script("studio.editor.clickAt(arguments[0], arguments[1])", x, y)
+        _wait(d, lambda d: d.find_element("id", "kf-list").get_attribute("data-count") == "1",
+              "a keyframe on the rim")
+        assert int(d.find_element("css selector", "#kf-list tr").get_attribute(
+            "data-vertex")) == rim
+        d.execute_script("studio.editor.clickAt(arguments[0] + 200, arguments[1] - 300)", x, y)
+        status = d.find_element("id", "status")
+        assert status.get_attribute("data-state") == "error"
+        assert "no vertex under the pointer" in status.text
+
+
+@browser
+def test_the_ghost_toggles_and_builds_side_by_side_share_scale_and_time(server):
     from selenium.webdriver.common.keys import Keys
 
     with chrome() as d:
         _open(d, server)
-        n = d.execute_script("return studio.viewers.length")
-        assert n == 2                                          # two builds side by side
-        first = d.execute_script("return studio.viewers[0].pixelStats()")
-        assert first["ink"] > 0.02, "the canvas is blank: WebGL did not draw the shell"
-        slider = d.find_elements("css selector", "#viewer-0 .mv-slider")[0]
-        nf = int(slider.get_attribute("max")) + 1
-        assert nf > 10
-        slider.send_keys(Keys.END)                             # a real key press on the slider
-        _wait(d, lambda d: d.find_element("id", "viewer-0").get_attribute("data-frame")
-              == str(nf - 1), "the last frame to be drawn")
-        last = d.execute_script("return studio.viewers[0].pixelStats()")
-        assert last["checksum"] != first["checksum"]           # other pixels on the canvas
-        assert abs(last["ink"] - first["ink"]) > 1e-3
-        label = d.find_element("css selector", "#viewer-0 .mv-time").text
-        t_end = float(np.load(server.builds[0].folder / "sim" / "frames.npz")["t"][-1])
-        assert label == f"t = {t_end:.1f} s"
-        # the second viewer follows the first one's camera
-        d.execute_script("var v = studio.viewers[0]; v.orbit.theta += 0.7; v.orbit.update(true);")
-        views = d.execute_script("return studio.viewers.map(function (v) { return v.getView(); })")
-        assert views[0]["theta"] == pytest.approx(views[1]["theta"])
-        # a click on a base lists its unit cells with their rows
-        d.execute_script("studio.viewers[0].selectBase(5)")
-        rows = d.find_elements("css selector", "#viewer-0 .mv-cells tr[data-cell]")
-        cells = read_table(server.builds[0].folder, "cells")
-        mine = np.flatnonzero((cells["base_a"] == 5) | (cells["base_b"] == 5))
-        assert sorted(int(r.get_attribute("data-cell")) for r in rows) == mine.tolist()
+        assert d.execute_script("return studio.viewers.length") == 2
+        v0 = d.find_element("id", "viewer-0")
+        assert v0.get_attribute("data-ghost") == "1"
+        on = d.execute_script("return studio.viewers[0].pixelStats()")
+        assert on["ink"] > 0.02, "the canvas is blank: WebGL did not draw the shell"
+        d.find_element("css selector", "#viewer-0 .mv-ghost").click()
+        assert v0.get_attribute("data-ghost") == "0"
+        off = d.execute_script("return studio.viewers[0].pixelStats()")
+        assert off["checksum"] != on["checksum"] and off["ink"] < on["ink"]
+        # one time slider: the end of the first is the end of the second
+        d.find_elements("css selector", "#viewer-0 .mv-slider")[0].send_keys(Keys.END)
+        _wait(d, lambda d: d.execute_script(
+            "return studio.viewers.every(function (v) { return v.frame === v.nf - 1; })"),
+            "both viewers at the last frame")
+        # one colour scale and one mode
+        d.execute_script("var s = document.querySelector('#viewer-1 .mv-mode');"
+                         "s.value = 'thickness'; s.dispatchEvent(new Event('change'));")
+        modes = d.execute_script("return studio.viewers.map(function (v) { return v.mode; })")
+        ranges = d.execute_script("return studio.viewers.map(function (v) { return v.range; })")
+        assert modes == ["thickness", "thickness"] and ranges[0] == ranges[1]
+        # hover on a base: its cells' t*, completion, thicknesses
+        d.execute_script("var v = studio.viewers[0], b = new THREE.Vector3();"
+                         "var m = new THREE.Matrix4(); v.bases.getMatrixAt(3, m);"
+                         "b.setFromMatrixPosition(m); b.project(v.camera);"
+                         "var r = v.canvas.getBoundingClientRect();"
+                         "v.hoverAt(r.left + (b.x + 1) / 2 * r.width,"
+                         "          r.top + (1 - b.y) / 2 * r.height);")
+        tip = d.find_element("css selector", "#viewer-0 .mv-tip")
+        assert "t*" in tip.text and "h " in tip.text
 
 
 @browser
-def test_two_keyframes_save_and_program(server, small_build):
-    from selenium.webdriver.common.action_chains import ActionChains
+def test_the_parts_are_listed_with_a_3d_preview_and_a_download(small_build, tmp_path):
+    f = _copy(small_build, tmp_path, "withparts")
+    _fake_parts(f)
+    srv = _serve([f])
+    try:
+        with chrome() as d:
+            _open(d, srv)
+            _wait(d, lambda d: d.find_element("id", "parts").get_attribute("data-count") == "1",
+                  "the parts list")
+            d.find_element("css selector", "#parts-table .part-3d").click()
+            _wait(d, lambda d: d.find_element("id", "part-view").get_attribute("data-triangles")
+                  == "2", "the STL's 3D preview")
+            href = d.find_element("css selector", "#parts-table .part-download").get_attribute(
+                "href")
+            st, data = _request(srv, "GET", href.split(str(srv.server_address[1]), 1)[1],
+                                token=False)
+            assert st == 200 and data == (f / "stl" / "top.stl").read_bytes()
+    finally:
+        _stop(srv)
 
-    V, _, F = read_stencil(small_build / "stencil.obj")
-    a, b = int(np.argmin(V[:, 0])), int(np.argmax(V[:, 0]))
-    before = int(read_table(small_build, "cells")["clamped"].sum())
+
+@browser
+def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, small_build):
+    """Last in the file: it builds the shared build again."""
+    V, c = _centre(small_build)
+    old = json.loads((small_build / "report" / "report.json").read_text())
     with chrome() as d:
         _open(d, server)
-        d.find_element("id", "clear").click()      # keyframes of an earlier save are listed
-        _wait(d, lambda d: d.find_element("id", "kf-list").get_attribute("data-count") == "0",
-              "an empty keyframe list")
-        canvas = d.find_element("css selector", "#editor-view canvas")
-        time_box = d.find_element("id", "kf-time")
-        for k, (v, t) in enumerate(((a, 35), (b, 60)), start=1):
-            time_box.clear()
-            time_box.send_keys(str(t))
-            # click a little inside the boundary vertex (towards the centre), so the ray
-            # hits a triangle of which it is the nearest corner
-            x, y = d.execute_script(
-                "var e = studio.editor, V = e.V, v = arguments[0], c = [0, 0, 0];"
-                "for (var i = 0; i < e.nv; i++)"
-                "  for (var j = 0; j < 3; j++) c[j] += V[3*i+j] / e.nv;"
-                "var p = new THREE.Vector3(0.92*V[3*v] + 0.08*c[0], 0.92*V[3*v+1] + 0.08*c[1],"
-                " 0.92*V[3*v+2] + 0.08*c[2]).project(e.camera);"
-                "var r = e.canvas.getBoundingClientRect();"
-                "return [(p.x + 1) / 2 * r.width, (1 - p.y) / 2 * r.height];", v)
-            ActionChains(d).move_to_element_with_offset(
-                canvas, x - canvas.size["width"] / 2, y - canvas.size["height"] / 2
-            ).click().perform()
-            _wait(d, lambda d, k=k: d.find_element("id", "kf-list").get_attribute("data-count")
-                  == str(k), f"keyframe {k}")
-        placed = [(int(r.get_attribute("data-vertex")), float(r.get_attribute("data-time")))
-                  for r in d.find_elements("css selector", "#kf-list tr")]
-        assert placed == [(a, 35.0), (b, 60.0)]
-        _wait(d, _latest_preview, "the live feasibility of both keyframes")
-        live = int(d.find_element("id", "feas").get_attribute("data-n-clamped"))
-        land = harmonic_landscape(V, F, [a, b], [35.0, 60.0])
-        assert live == int(Feasibility(small_build).evaluate(land)["clamped"].sum()) > 0
+        d.execute_script("var v = studio.viewers[0]; v.orbit.theta += 0.9; v.orbit.update(true);"
+                         "v.setFrame(7); v.selectBase(4);")
+        view = d.execute_script("return studio.viewers[0].getView()")
+        _brush(d, "add", "5", "8")
+        _stroke(d, c)
+        _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes"),
+              "the stroke")
+        painted = _land(d)
+        d.find_element("id", "run").click()
+        _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute("data-state")
+              == "running", "the run to start")
+        assert d.find_element("id", "run").get_attribute("disabled") == "true"
+        seen = []
 
-        d.find_element("id", "save").click()
-        _wait(d, lambda d: d.find_element("id", "status").get_attribute("data-state")
-              in ("saved", "error"), "the save")
-        assert d.find_element("id", "status").get_attribute("data-state") == "saved"
-        saved = read_table(small_build, "time_landscape")
-        assert saved["vertex_id"].tolist() == list(range(len(V)))
-        assert saved["time_s"][a] == pytest.approx(35.0, abs=1e-6)
-        assert saved["time_s"][b] == pytest.approx(60.0, abs=1e-6)
-        assert np.allclose(saved["time_s"], land, atol=1e-6)
+        def finished(d):
+            seen.append(float(d.find_element("id", "progress").get_attribute("value")))
+            return d.find_element("id", "progress-text").get_attribute("data-state") in (
+                "done", "error")
 
-        d.find_element("id", "program").click()
-        _wait(d, lambda d: d.find_element("id", "status").get_attribute("data-state")
-              in ("done", "error"), "the program stage")
-        assert d.find_element("id", "status").get_attribute("data-state") == "done", \
-            d.find_element("id", "status").text
-        after = read_table(small_build, "cells")["clamped"]
-        shown = int(d.find_element("id", "feas").get_attribute("data-programmed-clamped"))
-        assert shown == int(after.sum()) == live != before
+        _wait(d, finished, "the run")
+        assert d.find_element("id", "progress-text").get_attribute("data-state") == "done", \
+            d.find_element("id", "error").text
         assert float(d.find_element("id", "progress").get_attribute("value")) == 1.0
-        # the red/blue points on the target are the programmed cells
-        n_points = d.execute_script(
-            "return studio.editor.marks.geometry.getAttribute('position').count")
-        assert n_points == int(after.sum())
-
-
-@browser
-def test_brush_fixes_a_region(server, small_build):
-    V, _, _ = read_stencil(small_build / "stencil.obj")
-    centre = int(np.argmin(np.linalg.norm(V - V.mean(axis=0), axis=1)))
-    with chrome() as d:
-        _open(d, server)
-        d.find_element("id", "clear").click()      # keyframes of an earlier save are listed
-        _wait(d, lambda d: d.find_element("id", "kf-list").get_attribute("data-count") == "0",
-              "an empty keyframe list")
-        d.find_element("css selector", "input[name=tool][value=brush]").click()
-        for box, value in (("brush-radius", "9"), ("kf-time", "44")):
-            el = d.find_element("id", box)
-            el.clear()
-            el.send_keys(value)
-        x, y = d.execute_script("return studio.editor.screenOf(arguments[0])", centre)
-        canvas = d.find_element("css selector", "#editor-view canvas")
-        from selenium.webdriver.common.action_chains import ActionChains
-
-        ActionChains(d).move_to_element_with_offset(
-            canvas, x - canvas.location["x"] - canvas.size["width"] / 2,
-            y - canvas.location["y"] - canvas.size["height"] / 2).click().perform()
-        _wait(d, _latest_preview, "the brushed landscape")
-        row = d.find_element("css selector", "#kf-list tr")
-        v = int(row.get_attribute("data-vertex"))
-        assert row.text.startswith("brush 9 mm")
-        land = np.asarray(d.execute_script("return studio.editor.landscape"), float)
-        inside = np.linalg.norm(V - V[v], axis=1) <= 9.0
-        assert inside.sum() >= 3 and np.allclose(land[inside], 44.0)
-        assert np.allclose(land, 44.0)       # one fixed time: the whole landscape is 44 s
-
-
-def test_program_and_simulate_job_reloads_the_viewer(server, small_build):
-    """Last in the file: it re-simulates the shared build."""
-    st, data = _request(server, "GET", "/api/build/0/viewer")
-    before = json.loads(data)
-    frames = small_build / "sim" / "frames.npz"
-    mtime = frames.stat().st_mtime_ns
-    st, data = _request(server, "POST", "/api/build/0/run", body={"stages": "program+simulate"})
-    assert st == 200 and json.loads(data)["state"] == "running"
-    st, _ = _request(server, "POST", "/api/build/0/run", body={"stages": "program"})
-    assert st == 400                               # one job at a time
-    seen = []
-    done = threading.Event()
-
-    def poll():
-        while True:
-            j = json.loads(_request(server, "GET", "/api/job")[1])
-            seen.append(j["progress"])
-            if j["state"] != "running":
-                done.job = j
-                done.set()
-                return
-            done.wait(0.3)
-
-    poll()
-    assert done.job["state"] == "done", done.job
-    assert seen == sorted(seen) and seen[-1] == 1.0 and len(set(seen)) > 3   # progress moves
-    assert frames.stat().st_mtime_ns != mtime
-    after = json.loads(_request(server, "GET", "/api/build/0/viewer")[1])
-    # the build's own t_end (20 s) and step: the same frame times as before
-    assert after["t"] == before["t"] and after["t"][-1] == 20.0
-    assert (small_build / "report" / "index.html").stat().st_mtime_ns > mtime
+        assert seen == sorted(seen) and len({x for x in seen if 0 < x < 1}) >= 3  # it moved
+        assert d.find_element("id", "run").get_attribute("disabled") is None
+        _wait(d, lambda d: d.find_element("id", "results").get_attribute("data-state")
+              == "shown", "the results")
+        new = json.loads((small_build / "report" / "report.json").read_text())
+        assert d.find_element("id", "verdict").get_attribute("data-verdict") == new["verdict"]
+        reasons = [li.text for li in d.find_elements("css selector", "#reasons li")]
+        assert [r for r in reasons if new["reasons"] and new["reasons"][0]["message"] in r] \
+            or not new["reasons"]
+        rows = {r.get_attribute("data-key"): [td.text for td in
+                                              r.find_elements("tag name", "td")]
+                for r in d.find_elements("css selector", "#figures tr[data-key]")}
+        assert rows["shape_rms_mm"][1] == f"{new['metrics']['shape']['rms_mm']:.2f}"
+        assert rows["shape_rms_mm"][2] == f"{old['metrics']['shape']['rms_mm']:.2f}"  # before
+        assert rows["n_clamped"][1] == str(new["metrics"]["timing"]["n_clamped"])
+        assert d.find_element("id", "report-link").get_attribute("hidden") is None
+        # the build is the painted landscape now, and the viewer kept its camera and frame
+        assert np.allclose(read_table(small_build, "time_landscape")["time_s"], painted,
+                           rtol=1e-8)
+        assert _land(d).tobytes() == read_table(small_build, "time_landscape")[
+            "time_s"].tobytes()
+        # the landscape, its provenance and the summary come from the same run
+        edits = json.loads((small_build / "studio_landscape.json").read_text())["edits"]
+        assert [(e["tool"], e["mode"], e["value"]) for e in edits] == [("brush", "add", 5)]
+        edited = json.loads((small_build / "summary.json").read_text())["edited"]
+        assert edited["landscape_sha256"] == hashlib.sha256(
+            read_table(small_build, "time_landscape")["time_s"].astype("<f8").tobytes()
+        ).hexdigest()
+        got = d.execute_script("return studio.viewers[0].getView()")
+        assert got["theta"] == pytest.approx(view["theta"])
+        assert d.execute_script("return [studio.viewers[0].frame, studio.viewers[0].picked]") \
+            == [7, 4]

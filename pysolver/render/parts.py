@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import os
 import resource
 import shutil
@@ -65,6 +66,7 @@ from ..errors import ExternalToolError, InputError, MorphshellError
 from ..geometry import print_transform, rotvec_to_matrix
 from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
 from ..params import tol as TOL
+from ..tables import PARTS_RECORD, tables_sha256
 from . import fast as render_fast
 from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files
 
@@ -752,6 +754,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
         if progress:
             print(f"[render] {msg}", file=sys.stderr, flush=True)
 
+    made_from = tables_sha256(design_dir)   # recorded with the STLs (stl/parts.json)
     design = read_design(design_dir)
     t0 = time.perf_counter()
     with atomic_dir(design_dir / "scad") as tmp:
@@ -825,6 +828,12 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
             m = outputs[key] = m.simplify(EXPORT_SIMPLIFY_MM)
             from_manifold(m).export(str(tmp / STL_FILES[key]), file_type="stl")
             info[key] = describe_stl(tmp / STL_FILES[key], m)
+        # what the STLs were made from: the report lists them only while the tables match
+        (tmp / Path(PARTS_RECORD).name).write_text(json.dumps(
+            {"made_by": "morphshell render", "tables_sha256": made_from,
+             "files": {STL_FILES[k]: hashlib.sha256((tmp / STL_FILES[k]).read_bytes())
+                       .hexdigest() for k in outputs}},
+            indent=1, sort_keys=True) + "\n")
     t_export = time.perf_counter() - t0
     for layer in LAYERS:
         if info[layer]["bodies"] != 1:

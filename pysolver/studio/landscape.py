@@ -1,11 +1,12 @@
-"""Time-landscape editing for the studio: keyframes and brushes -> a smooth landscape,
-and its feasibility from the temporal stage's own computation.
+"""Time-landscape editing for the studio: the requests' validation, keyframes -> a smooth
+landscape, and a landscape's feasibility from the temporal stage's own computation.
 
-A *keyframe* fixes the time at one stencil vertex; a *brush* fixes it at every vertex
-within a radius (mm, straight-line distance in the target shape) of a centre vertex.
-Between the fixed vertices the landscape is harmonic on the target stencil (Laplace's
-equation with the cotangent Laplacian, ``igl.harmonic``): smooth, no overshoot (the
-maximum principle keeps it within the fixed times).
+The studio edits the landscape in the browser (brush strokes change the current landscape
+where they pass; ``studio.js``) and sends it whole, one time per stencil vertex, to be
+previewed or built.  A *keyframe* fixes the time at one stencil vertex; the keyframe tool
+replaces the landscape by the harmonic interpolation of its keyframes on the target stencil
+(Laplace's equation with the cotangent Laplacian, ``igl.harmonic``): smooth, no overshoot
+(the maximum principle keeps it within the keyframe times).
 """
 
 from __future__ import annotations
@@ -17,90 +18,157 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables, temporal
+from ..build import check_landscape
 from ..design.time_landscape import cell_target_times
 from ..errors import InputError
-from ..params import tol as TOL
+from ..params import LIMITS
 from ..temporal import program_cells
 from ..temporal.membrane_model import load_membrane_model
 
-MAX_TIME_S = 1000.0
-"""Largest keyframe time accepted (s); the material models cover about 120 s."""
-MAX_CONSTRAINTS = 10000
-"""Most keyframes + brushes in one request."""
+MAX_TIME_S = LIMITS.max_landscape_s
+"""Largest time a keyframe or a landscape may ask for (s)."""
+MAX_KEYFRAMES = MAX_EDITS = LIMITS.studio_max_edits
+"""Most keyframes in one request, and most edits recorded with one run."""
+EDIT_TOOLS = {"brush": ("set", "add", "subtract", "smooth"), "keyframes": ("harmonic",),
+              "reset": ("build",)}
+"""The edit log's tools and their modes (``studio_landscape.json``)."""
+_EDIT_NUMBERS = {"value": (-MAX_TIME_S, MAX_TIME_S),
+                 "radius": (1e-3, LIMITS.studio_max_radius_mm),
+                 "falloff": (0.0, 1.0), "vertices": (0, 10 ** 7), "keyframes": (0, MAX_KEYFRAMES)}
 
 
-def parse_constraints(payload, n_vertices: int) -> tuple[list, list]:
-    """Validate the editor's keyframes and brushes (untrusted JSON).
+def _object(item, what: str, allowed) -> dict:
+    """``item`` as a JSON object with only ``allowed`` keys."""
+    if not isinstance(item, dict):
+        raise InputError(f"{what} must be a JSON object, got {type(item).__name__}",
+                         fix=f"send {{{', '.join(repr(k) for k in allowed)}}}")
+    bad = sorted(set(item) - set(allowed))
+    if bad:
+        raise InputError(f"{what}: unknown key(s) {bad}",
+                         fix=f"use only {', '.join(repr(k) for k in allowed)}")
+    return item
+
+
+def _number(item: dict, key: str, lo: float, hi: float, what: str, unit: str = "",
+            integer: bool = False):
+    """``item[key]`` as a finite number in ``[lo, hi]``; the message says which rule broke."""
+    v = item.get(key)
+    kind = "a whole number" if integer else "a number"
+    ok = isinstance(v, int) if integer else isinstance(v, (int, float))
+    if v is None or isinstance(v, bool) or not ok or not math.isfinite(v):
+        raise InputError(f"{what}: {key} {v!r} is not {kind}" if key in item
+                         else f"{what}: no {key}",
+                         fix=f"give {key} as {kind} from {lo:g} to {hi:g}{unit}")
+    if not lo <= v <= hi:
+        raise InputError(f"{what}: {key} {v:g}{unit} is outside {lo:g}-{hi:g}{unit}",
+                         fix=f"give {key} from {lo:g} to {hi:g}{unit}")
+    return int(v) if integer else float(v)
+
+
+def _list(payload: dict, key: str, most: int) -> list:
+    v = payload.get(key, [])
+    if not isinstance(v, list):
+        raise InputError(f"'{key}' must be a list, got {type(v).__name__}")
+    if len(v) > most:
+        raise InputError(f"{len(v)} {key}", fix=f"send at most {most}")
+    return v
+
+
+def parse_keyframes(payload, n_vertices: int) -> list[tuple[int, float]]:
+    """Validate the keyframe tool's request (untrusted JSON).
 
     Parameters
     ----------
     payload : dict
-        ``{"keyframes": [{"vertex": int, "time": float}], "brushes": [{"vertex": int,
-        "radius": float (mm), "time": float (s)}]}``.
+        ``{"keyframes": [{"vertex": int, "time": float (s)}, ...]}``.
     n_vertices : int
 
     Returns
     -------
-    keyframes : list of (int, float)
-    brushes : list of (int, float, float)
+    list of (int, float) -- vertex id, time (s)
 
     Raises
     ------
     InputError
-        Not a mapping, unknown keys, a vertex outside ``0..n_vertices-1``, a time outside
-        ``[0, MAX_TIME_S]`` s or a radius outside ``(0, 1000]`` mm.
+        Not an object, unknown keys (also inside a keyframe), a vertex outside
+        ``0..n_vertices-1``, a time that is not a number or outside ``[0, MAX_TIME_S]`` s.
     """
-    if not isinstance(payload, dict):
-        raise InputError("the landscape request must be a JSON object",
-                         fix='send {"keyframes": [...], "brushes": [...]}')
-    bad = sorted(set(payload) - {"keyframes", "brushes"})
-    if bad:
-        raise InputError(f"unknown key(s) {bad} in the landscape request",
-                         fix="use only 'keyframes' and 'brushes'")
-    kfs, brs = payload.get("keyframes") or [], payload.get("brushes") or []
-    if not isinstance(kfs, list) or not isinstance(brs, list):
-        raise InputError("'keyframes' and 'brushes' must be lists")
-    if len(kfs) + len(brs) > MAX_CONSTRAINTS:
-        raise InputError(f"{len(kfs) + len(brs)} keyframes and brushes",
-                         fix=f"use at most {MAX_CONSTRAINTS}")
-
-    def number(item, key, lo, hi, what, integer=False):
-        v = item.get(key) if isinstance(item, dict) else None
-        ok = isinstance(v, int) if integer else isinstance(v, (int, float))
-        if isinstance(v, bool) or not ok or not math.isfinite(v) or not lo <= v <= hi:
-            raise InputError(f"{what}: {key} = {v!r} is not a number in [{lo}, {hi}]",
-                             fix=f"give {key} as a number between {lo} and {hi}")
-        return int(v) if integer else float(v)
-
-    out_k = [(number(k, "vertex", 0, n_vertices - 1, f"keyframe {i}", True),
-              number(k, "time", 0.0, MAX_TIME_S, f"keyframe {i}")) for i, k in enumerate(kfs)]
-    out_b = [(number(b, "vertex", 0, n_vertices - 1, f"brush {i}", True),
-              number(b, "radius", TOL.merge, 1000.0, f"brush {i}"),
-              number(b, "time", 0.0, MAX_TIME_S, f"brush {i}")) for i, b in enumerate(brs)]
-    return out_k, out_b
+    payload = _object(payload, "the keyframe request", ("keyframes",))
+    out = []
+    for i, k in enumerate(_list(payload, "keyframes", MAX_KEYFRAMES)):
+        k = _object(k, f"keyframe {i}", ("vertex", "time"))
+        out.append((_number(k, "vertex", 0, n_vertices - 1, f"keyframe {i}", integer=True),
+                    _number(k, "time", 0.0, MAX_TIME_S, f"keyframe {i}", " s")))
+    return out
 
 
-def constraint_values(V, keyframes, brushes) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed vertices and their times; later keyframes/brushes win on shared vertices.
+def parse_landscape(payload, n_vertices: int, *, edits: bool = False):
+    """Validate a landscape request (untrusted JSON): preview or run.
 
     Parameters
     ----------
-    V : (n, 3) float, mm -- target stencil vertices
+    payload : dict
+        ``{"landscape": [s per stencil vertex]}``, and with ``edits`` also ``"edits"``: the
+        edit log, a list of ``{"tool", "mode", "value", "radius", "falloff", "vertices",
+        "keyframes"}`` (tools and modes :data:`EDIT_TOOLS`; the numbers optional).
+    n_vertices : int
+    edits : bool
+        Accept (and return) the edit log.
+
+    Returns
+    -------
+    landscape : (n_vertices,) float, s
+    edits : list of dict (only with ``edits=True``)
+
+    Raises
+    ------
+    InputError
+        Unknown keys, a landscape of the wrong length or with a time outside
+        ``[0, MAX_TIME_S]`` s, or a malformed edit.
+    """
+    payload = _object(payload, "the landscape request",
+                      ("landscape", "edits") if edits else ("landscape",))
+    if "landscape" not in payload:
+        raise InputError("the request has no 'landscape'",
+                         fix="send one time in seconds per stencil vertex")
+    land = payload["landscape"]
+    if not isinstance(land, list) or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                                         for v in land):
+        raise InputError("'landscape' must be a list of numbers (s)",
+                         fix="send one time in seconds per stencil vertex")
+    land = check_landscape(land, n_vertices)
+    if not edits:
+        return land
+    log = []
+    for i, e in enumerate(_list(payload, "edits", MAX_EDITS)):
+        e = _object(e, f"edit {i}", ("tool", "mode", *_EDIT_NUMBERS))
+        tool, mode = e.get("tool"), e.get("mode")
+        if tool not in EDIT_TOOLS or mode not in EDIT_TOOLS[tool]:
+            raise InputError(f"edit {i}: tool {tool!r} mode {mode!r} is not a studio edit",
+                             fix="tools and modes: " + "; ".join(
+                                 f"{t}: {', '.join(m)}" for t, m in EDIT_TOOLS.items()))
+        rec = {"tool": tool, "mode": mode}
+        for key, (lo, hi) in _EDIT_NUMBERS.items():
+            if key in e:
+                rec[key] = _number(e, key, lo, hi, f"edit {i}",
+                                   integer=key in ("vertices", "keyframes"))
+        log.append(rec)
+    return land, log
+
+
+def keyframe_values(keyframes) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed vertices and their times; a later keyframe on the same vertex wins.
+
+    Parameters
+    ----------
     keyframes : list of (vertex, time_s)
-    brushes : list of (vertex, radius_mm, time_s)
 
     Returns
     -------
     b : (k,) int -- fixed vertex ids (sorted)
     bc : (k,) float, s
     """
-    V = np.asarray(V, float)
-    fixed: dict[int, float] = {}
-    for v, r, t in brushes:  # brushes first: a keyframe inside a brush keeps its own time
-        for i in np.flatnonzero(np.linalg.norm(V - V[v], axis=1) <= r):
-            fixed[int(i)] = t
-    for v, t in keyframes:
-        fixed[int(v)] = t
+    fixed = {int(v): float(t) for v, t in keyframes}
     b = np.array(sorted(fixed), dtype=np.int64)
     return b, np.array([fixed[int(i)] for i in b], float)
 
@@ -124,8 +192,8 @@ def harmonic_landscape(V, F, b, bc) -> np.ndarray:
     b = np.asarray(b, np.int64)
     bc = np.asarray(bc, np.float64)
     if b.size == 0:
-        raise InputError("no keyframe: the landscape needs at least one fixed time",
-                         fix="place a keyframe (a vertex and a time) or a brush")
+        raise InputError("no keyframe: the interpolation needs at least one fixed time",
+                         fix="place a keyframe (click the target with the keyframe tool)")
     if b.size == 1 or np.ptp(bc) == 0:
         return np.full(len(V), float(bc[0]))
     t = igl.harmonic(V, F, b, bc.reshape(-1, 1), 1)
@@ -181,5 +249,5 @@ class Feasibility:
                 "clamped": np.asarray(res["clamped"], bool), "side": np.asarray(res["side"])}
 
 
-__all__ = ["parse_constraints", "constraint_values", "harmonic_landscape", "Feasibility",
-           "MAX_TIME_S"]
+__all__ = ["parse_keyframes", "parse_landscape", "keyframe_values", "harmonic_landscape",
+           "Feasibility", "MAX_TIME_S", "EDIT_TOOLS"]

@@ -1,33 +1,54 @@
-"""``morphshell studio``: a local web app to view simulated morphs and edit time landscapes.
+"""``morphshell studio``: a local web app to view simulated morphs, paint time landscapes and
+build them again.
 
-A small :class:`http.server.ThreadingHTTPServer` bound to 127.0.0.1.  It serves a fixed
-set of static files that ship with the package (no CDN, works offline) and JSON
-endpoints over the build folders named on the command line; nothing else of the file
-system is reachable.
+A small :class:`http.server.ThreadingHTTPServer` bound to 127.0.0.1.  It serves a fixed set
+of static files that ship with the package (no CDN, works offline) and JSON endpoints over
+the build folders named on the command line; nothing else of the file system is reachable.
+
+Only its user can drive it (``docs/threat-model.md``, "The studio"):
+
+* a random token per start, in the URL it prints and opens (after ``#``, so it is never sent
+  in a request line or a Referer); every ``/api/`` call carries it in the
+  ``X-Morphshell-Token`` header (a custom header: a page on another origin cannot send it
+  without a CORS preflight, which the studio refuses).  Read-only downloads (a report, an
+  STL) may give it as ``?token=`` instead;
+* the ``Host`` must be ``127.0.0.1:<port>`` or ``localhost:<port>`` (DNS rebinding) and an
+  ``Origin``, when sent, that same origin;
+* POST bodies are ``application/json`` with a ``Content-Length`` of at most
+  ``LIMITS.studio_max_body_bytes``, read whole before anything else; every error reply
+  closes the connection, so no unread byte is ever parsed as a second request;
+* a build runs one job at a time, and the studio one job at a time: a second request gets
+  409 (busy), never a half-done write.
 
 Endpoints (``<i>`` = index of a build folder)::
 
-    GET  /                          the app (index.html)
-    GET  /static/<name>             whitelisted assets (three.js, the viewer, the app)
-    GET  /api/builds                the build folders
-    GET  /api/build/<i>/viewer      the simulated morph (sim/viewer.py JSON)
-    GET  /api/build/<i>/target      target stencil, landscape, cells, feasibility
-    POST /api/build/<i>/preview     keyframes/brushes -> landscape + feasibility
-    POST /api/build/<i>/save        ... and write time_landscape.csv
-    POST /api/build/<i>/run         {"stages": "program" | "program+simulate"}
-    GET  /api/job                   progress of the running stage job
+    GET  /                              the app (index.html)
+    GET  /static/<name>                 whitelisted assets (three.js, the viewer, the app)
+    GET  /api/builds                    the build folders
+    GET  /api/build/<i>/viewer          the simulated morph (sim/viewer.py JSON)
+    GET  /api/build/<i>/target          target stencil, landscape, cells, feasibility
+    GET  /api/build/<i>/results         the report's verdict and figures, and the run's before
+    GET  /api/build/<i>/parts           the STLs (only when made from the current tables)
+    GET  /api/build/<i>/stl/<name>      one STL (download)
+    GET  /api/build/<i>/report          the report (report/index.html)
+    POST /api/build/<i>/preview         {"landscape"} -> feasibility per cell
+    POST /api/build/<i>/keyframes       {"keyframes"} -> harmonic landscape + feasibility
+    POST /api/build/<i>/run             {"landscape", "edits"} -> build it again (a job)
+    GET  /api/job                       progress of the running job
 
-Writes: ``time_landscape.csv`` and ``studio_landscape.json`` (the keyframes and brushes
-it came from), only in a folder morphshell made, and only over files morphshell made.
-Stages run as ``python -m pysolver.cli <stage> <dir>`` subprocesses (the same stage
-functions as a build); their progress lines drive the progress bar.
+The studio writes nothing itself: *Run* is :func:`pysolver.build.rebuild` in a subprocess
+(``python -m pysolver.studio.rerun``), the same stages as ``morphshell build`` after the
+design stage, which replaces the folder only when every stage has finished.
 """
 
 from __future__ import annotations
 
+import errno
+import hmac
 import json
 import os
 import re
+import secrets
 import subprocess
 import sys
 import threading
@@ -36,20 +57,31 @@ import webbrowser
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from .. import tables
-from ..atomic import _manifest, atomic_write_text, write_stamp
-from ..build import morph_viewer, viewer_assets
+from ..build import build_parts, morph_viewer, report_figures, viewer_assets
 from ..errors import InputError, MorphshellError
-from ..tables import read_record, read_stencil, read_table
-from .landscape import Feasibility, constraint_values, harmonic_landscape, parse_constraints
+from ..params import LIMITS, MODEL_LIMITS
+from ..tables import LANDSCAPE_SOURCE, read_record, read_stencil, read_table
+from .landscape import (
+    Feasibility,
+    harmonic_landscape,
+    keyframe_values,
+    parse_keyframes,
+    parse_landscape,
+)
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-MAX_BODY_BYTES = 4 << 20
-LANDSCAPE_SOURCE = "studio_landscape.json"
-"""Keyframes and brushes of the last saved studio landscape (provenance)."""
+MAX_BODY_BYTES = LIMITS.studio_max_body_bytes
+TOKEN_HEADER = "X-Morphshell-Token"
+STL_NAME = re.compile(r"[a-z][a-z0-9_]{0,63}\.stl")
+"""STL names the studio serves (and only those listed in ``stl/``)."""
+
+
+class Busy(MorphshellError):
+    """A job is running: the request would change what it is working on (HTTP 409)."""
 
 
 def _static_files() -> dict:
@@ -68,7 +100,7 @@ def _jsonable(a):
 
 
 class Build:
-    """One build folder: its tables and caches, loaded lazily."""
+    """One build folder: its tables and caches, loaded lazily and dropped after a run."""
 
     def __init__(self, folder: Path):
         self.folder = folder
@@ -81,12 +113,17 @@ class Build:
         return {"id": i, "name": self.folder.name, "path": str(self.folder),
                 "has_frames": (self.folder / "sim" / "frames.npz").is_file()}
 
+    def forget(self) -> None:
+        """Drop the caches (the folder was built again)."""
+        with self.lock:
+            self._feas = None
+            self._viewer = self._viewer_key = None
+
     def viewer(self) -> dict:
         p = self.folder / "sim" / "frames.npz"
         if not p.is_file():
             raise InputError(f"{p}: no simulation in this build",
-                             fix=f"run 'morphshell simulate {self.folder}' or use the "
-                                 "'Program and simulate' button")
+                             fix=f"run 'morphshell simulate {self.folder}' or press Run")
         key = (p.stat().st_mtime_ns, (self.folder / "cells.csv").stat().st_mtime_ns)
         with self.lock:
             if self._viewer_key != key:
@@ -94,231 +131,420 @@ class Build:
                 self._viewer_key = key
             return self._viewer
 
-    def feasibility(self):
+    def feasibility(self) -> Feasibility:
         with self.lock:
             if self._feas is None:
-
                 self._feas = Feasibility(self.folder)
             return self._feas
 
     def stencil(self):
-
         return read_stencil(self.folder / "stencil.obj")
 
     def target(self) -> dict:
-
         V, _, F = self.stencil()
         land = read_table(self.folder, "time_landscape")["time_s"]
         cells = read_table(self.folder, "cells")
         ev = self.feasibility().evaluate(land)
-        src = None
-        p = self.folder / LANDSCAPE_SOURCE
-        if p.is_file():
-            try:
-                src = json.loads(p.read_text())
-            except ValueError:
-                src = None
+        done = None
+        if (self.folder / "sim" / "frames.npz").is_file():
+            done = self.viewer()["cells"]["t_done"]
         return {"V": np.round(V, 5).reshape(-1).tolist(), "F": F.reshape(-1).tolist(),
-                "landscape": _jsonable(land),
+                "landscape": [float(x) for x in land],
                 "vertex_a": cells["vertex_a"].tolist(), "vertex_b": cells["vertex_b"].tolist(),
-                "programmed_clamped": np.asarray(cells.get("clamped", np.zeros(len(land))),
-                                                 int).tolist(),
-                "feasibility": self._feas_json(ev), "source": src}
+                "programmed": {
+                    "t_star": _jsonable(cells["t_star_s"]),
+                    "clamped": np.asarray(cells["clamped"], int).tolist(),
+                    "h_top": _jsonable(cells["thickness_top_mm"]),
+                    "h_bottom": _jsonable(cells["thickness_bottom_mm"]),
+                    "t_done": done},
+                "feasibility": self._feas_json(ev),
+                "limits": {"max_time_s": LIMITS.max_landscape_s,
+                           "max_radius_mm": LIMITS.studio_max_radius_mm},
+                "source": read_record(self.folder / LANDSCAPE_SOURCE)}
 
     @staticmethod
     def _feas_json(ev) -> dict:
+        n = len(ev["clamped"])
+        n_clamped = int(ev["clamped"].sum())
         return {"t_star": _jsonable(ev["t_star"]), "t_min": _jsonable(ev["t_min"]),
                 "t_max": _jsonable(ev["t_max"]), "clamped": ev["clamped"].astype(int).tolist(),
-                "side": np.asarray(ev["side"], int).tolist(),
-                "n_clamped": int(ev["clamped"].sum())}
+                "side": np.asarray(ev["side"], int).tolist(), "n_clamped": n_clamped,
+                "refused": bool(n and n_clamped / n > MODEL_LIMITS.max_clamped_fraction),
+                "max_clamped_fraction": MODEL_LIMITS.max_clamped_fraction}
 
-    def landscape(self, payload):
-
-        V, _, F = self.stencil()
-        kf, br = parse_constraints(payload, len(V))
-        b, bc = constraint_values(V, kf, br)
-        land = harmonic_landscape(V, F, b, bc)
-        return land, kf, br
+    def n_vertices(self) -> int:
+        return len(self.stencil()[0])
 
     def preview(self, payload) -> dict:
-        land, _, _ = self.landscape(payload)
-        return {"landscape": _jsonable(land),
+        land = parse_landscape(payload, self.n_vertices())
+        t0 = time.perf_counter()
+        feas = self._feas_json(self.feasibility().evaluate(land))
+        feas["seconds"] = round(time.perf_counter() - t0, 4)
+        return {"feasibility": feas}
+
+    def keyframes(self, payload) -> dict:
+        V, _, F = self.stencil()
+        b, bc = keyframe_values(parse_keyframes(payload, len(V)))
+        land = harmonic_landscape(V, F, b, bc)
+        return {"landscape": [float(x) for x in land],
                 "feasibility": self._feas_json(self.feasibility().evaluate(land))}
 
-    def save(self, payload) -> dict:
+    def results(self) -> dict:
+        now = report_figures(self.folder)
+        edited = (read_record(self.folder / "summary.json") or {}).get("edited") or {}
+        has_report = (self.folder / "report" / "index.html").is_file()
+        return {"now": now, "before": edited.get("before") if edited else None,
+                "edited": bool(edited), "report": has_report}
 
-        land, kf, br = self.landscape(payload)
-        owned = _manifest(self.folder)
-        if owned is None:
-            raise InputError(f"{self.folder} was not made by morphshell (no .morphshell-build "
-                             "stamp): the studio writes only into build folders",
-                             fix="build the shape with 'morphshell build' and open that folder")
-        for name in (tables.FILENAMES["time_landscape"], LANDSCAPE_SOURCE):
-            if (self.folder / name).exists() and name not in owned:
-                raise InputError(f"{self.folder / name} is not a morphshell file; it is kept",
-                                 fix="move it away, then save again")
-        t0 = time.time()
-        path = self.folder / tables.FILENAMES["time_landscape"]
-        tables.write_table(path, "time_landscape",
-                           {"vertex_id": np.arange(len(land)), "time_s": land})
-        atomic_write_text(self.folder / LANDSCAPE_SOURCE, json.dumps(
-            {"made_by": "morphshell studio", "keyframes": [{"vertex": v, "time": t}
-                                                           for v, t in kf],
-             "brushes": [{"vertex": v, "radius": r, "time": t} for v, r, t in br],
-             "interpolation": "harmonic (igl.harmonic, cotangent Laplacian)"}, indent=1) + "\n")
-        write_stamp(self.folder, since=t0 - 1.0)
-        return {"written": str(path), "n_vertices": int(len(land)),
-                "range_s": [float(land.min()), float(land.max())]}
+    def parts(self) -> dict:
+        return build_parts(self.folder)
+
+    def stl(self, name: str) -> Path:
+        listed = {s["name"] for s in self.parts()["stls"]}
+        if not STL_NAME.fullmatch(name) or f"stl/{name}" not in listed:
+            raise InputError(f"no printable part {name!r} in this build",
+                             fix="pick one of the parts listed (stale parts are not served)")
+        return self.folder / "stl" / name
 
 
 class Job:
-    """The one stage job (program, simulate, report) running in subprocesses."""
+    """The one job (a rebuild) running in a subprocess; its progress lines drive one progress
+    bar over every stage, weighted by the stage times of the build being run again."""
 
-    STEP = re.compile(r"step (\d+)/(\d+)")
+    STAGE = re.compile(r"^\[morphshell\] .*?: (\w+) \.\.\.$")
+    FRACTION = re.compile(r"(?:step |\[|refine |\| ?)(\d+)/(\d+)")
+    DEFAULT_S = {"start": 4.0, "program": 3.0, "simulate": 20.0, "simulate_contact": 20.0,
+                 "refine": 25.0, "render": 40.0, "report": 10.0}
+    """Expected seconds of a stage the build did not time (its own times come first);
+    ``start`` is the subprocess loading the stages."""
 
     def __init__(self):
         self.lock = threading.Lock()
         self.state = {"state": "idle", "progress": 0.0, "message": "", "build": None,
-                      "error": None, "log": []}
+                      "error": None, "stage": None, "eta_s": None}
 
     def snapshot(self) -> dict:
         with self.lock:
             return json.loads(json.dumps(self.state))
 
+    def running(self) -> bool:
+        with self.lock:
+            return self.state["state"] == "running"
+
+    def start(self, build: Build, index: int, land, edits) -> None:
+        """Start a rebuild of ``build`` with landscape ``land`` (validated) and its edit log.
+
+        Raises
+        ------
+        Busy
+            A job is already running (this build's or another's).
+        """
+        summ = read_record(build.folder / "summary.json") or {}
+        times = summ.get("timings_s") or {}
+        opts = summ.get("options") or {}
+        run = summ.get("run") or {}
+        plan = ["start", "program", "simulate"] + (["refine"] if opts.get("refine") else [])
+        plan += ["render"] if run.get("render", (build.folder / "stl").is_dir()) else []
+        plan += ["report"]
+        expect = {s: float(times.get(s) or self.DEFAULT_S[s]) for s in self.DEFAULT_S}
+        with self.lock:
+            if self.state["state"] == "running":
+                raise Busy("a run is already going on"
+                           + (" (this build)" if self.state["build"] == index else
+                              f" (build {self.state['build']})"),
+                           fix="wait for it to finish (see the progress bar), then run again")
+            self.state = {"state": "running", "progress": 0.0, "message": "starting",
+                          "build": index, "error": None, "stage": None, "plan": plan,
+                          "eta_s": round(sum(expect[s] for s in plan), 1),
+                          "started": time.time(), "log": []}
+        req = json.dumps({"folder": str(build.folder), "landscape": [float(x) for x in land],
+                          "source": {"edits": edits}})
+        threading.Thread(target=self._run, args=(build, req, plan, expect),
+                         daemon=True).start()
+
+    def _run(self, build: Build, req: str, plan: list, expect: dict):
+        root = str(Path(__file__).resolve().parents[2])
+        env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        cmd = [sys.executable, "-m", "pysolver.studio.rerun"]
+        done_s = 0.0           # expected seconds of the finished stages
+        stage, t_stage, frac = "start", time.time(), 0.0
+        tail: list[str] = []
+        t0 = time.time()
+        try:
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE, text=True, env=env)
+            ticker = threading.Event()
+
+            def tick():   # the bar moves between progress lines too (time / expected time)
+                while not ticker.wait(0.5):
+                    self._progress(plan, expect, done_s, stage, t_stage, frac, None)
+
+            threading.Thread(target=tick, daemon=True).start()
+            proc.stdin.write(req)
+            proc.stdin.close()
+            for line in proc.stderr:
+                line = line.rstrip()
+                tail = (tail + [line])[-40:]
+                m = self.STAGE.match(line)
+                if m and m.group(1) in self.DEFAULT_S:
+                    done_s += expect[stage]
+                    stage, t_stage, frac = m.group(1), time.time(), 0.0
+                    if stage not in plan:     # contact switched on: one more simulation
+                        plan.insert(plan.index("report") if "report" in plan else len(plan),
+                                    stage)
+                elif stage != "start":
+                    f = self.FRACTION.search(line)
+                    if f and stage != "refine" or (f and line.startswith("[temporal]")):
+                        frac = max(frac, min(int(f.group(1)) / max(int(f.group(2)), 1), 1.0))
+                self._progress(plan, expect, done_s, stage, t_stage, frac, line)
+                if time.time() - t0 > LIMITS.studio_job_timeout_s:
+                    proc.kill()
+                    raise MorphshellError(f"the run took longer than "
+                                          f"{LIMITS.studio_job_timeout_s:g} s and was stopped")
+            rc = proc.wait()
+            ticker.set()
+            build.forget()
+            if rc not in (0, 3):   # 3 = the report's FAIL verdict: the build is complete
+                msg = [t for t in tail if "error:" in t] or tail[-3:]
+                raise MorphshellError(" / ".join(msg).replace("morphshell studio run: ", "")
+                                      + "\nNothing of this edit was saved: the build is as "
+                                        "it was, and the edit is still in the editor.")
+            self._set(state="done", progress=1.0, eta_s=0.0, message="done", stage=None,
+                      seconds=round(time.time() - t0, 1))
+        except Exception as e:  # noqa: BLE001 - reported to the browser, not raised
+            self._set(state="error", error=str(e), message="failed", eta_s=None)
+
+    def _progress(self, plan, expect, done_s, stage, t_stage, frac, line):
+        total = sum(expect[s] for s in plan)
+        now = time.time()
+        with self.lock:
+            if self.state["state"] != "running":
+                return
+            if stage is not None:
+                spent = now - t_stage
+                # within a stage: its own count when it prints one, else the time it has
+                # taken of the time it took in the build (never past 95 % on time alone)
+                f = max(frac, min(spent / expect[stage], 0.95))
+                p = (done_s + f * expect[stage]) / total
+                self.state["progress"] = round(max(self.state["progress"], min(p, 0.999)), 4)
+                self.state["stage"] = stage
+                elapsed = now - self.state["started"]
+                left = total * (1 - self.state["progress"])
+                # scale by how fast this run goes compared with the build's own times
+                pace = elapsed / max(total * self.state["progress"], 1e-6)
+                self.state["eta_s"] = round(left * min(max(pace, 0.25), 4.0), 1)
+            if line is not None:
+                self.state["message"] = line[-200:]
+                self.state["log"] = (self.state["log"] + [line[-200:]])[-12:]
+
     def _set(self, **kw):
         with self.lock:
             self.state.update(kw)
 
-    def start(self, build: Build, index: int, stages: str):
-        plan = {"program": [("program", 1.0)],
-                "program+simulate": [("program", 0.08), ("simulate", 0.72), ("report", 0.2)]}
-        if stages not in plan:
-            raise InputError(f"stages = {stages!r}", fix="use 'program' or 'program+simulate'")
-        with self.lock:
-            if self.state["state"] == "running":
-                raise InputError("a stage job is already running",
-                                 fix="wait for it to finish (see the progress bar)")
-            self.state = {"state": "running", "progress": 0.0, "message": "starting",
-                          "build": index, "error": None, "log": [], "stages": stages}
-        threading.Thread(target=self._run, args=(build, plan[stages]), daemon=True).start()
-
-    def _run(self, build: Build, plan):
-        root = str(Path(__file__).resolve().parents[2])
-        env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        done = 0.0
-        try:
-            for stage, weight in plan:
-                cmd = [sys.executable, "-m", "pysolver.cli", stage, str(build.folder)]
-                if stage == "simulate":   # the build's own simulated time and step
-                    cmd.append("--no-resume")
-                    opts = (read_record(build.folder / "summary.json") or {}).get("options", {})
-                    for key, flag in (("t_end", "--t-end"), ("dt", "--dt")):
-                        if isinstance(opts.get(key), (int, float)):
-                            cmd += [flag, repr(float(opts[key]))]
-                self._set(message=f"{stage} ...")
-                proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE,
-                                        text=True, env=env)
-                tail = []
-                for line in proc.stderr:
-                    line = line.rstrip()
-                    tail = (tail + [line])[-20:]
-                    m = self.STEP.search(line)
-                    frac = int(m.group(1)) / max(int(m.group(2)), 1) if m else None
-                    with self.lock:
-                        if frac is not None:
-                            self.state["progress"] = round(done + weight * frac, 4)
-                        self.state["message"] = f"{stage}: {line[-160:]}"
-                proc.stdout.read()
-                rc = proc.wait()
-                if rc not in (0, 3):   # 3 = the report's FAIL verdict: the stage still ran
-                    raise MorphshellError(f"{stage} stage failed (exit {rc}): "
-                                          + " / ".join(tail[-4:]))
-                done += weight
-                self._set(progress=round(done, 4), message=f"{stage} done")
-            with build.lock:
-                build._feas = None          # cells.csv changed
-            self._set(state="done", progress=1.0, message="done")
-        except Exception as e:  # noqa: BLE001 - reported to the browser, not raised
-            self._set(state="error", error=str(e), message=str(e))
-
 
 class StudioServer(ThreadingHTTPServer):
     daemon_threads = True
+    request_queue_size = 128   # a burst of requests waits to be served, never a reset
 
-    def __init__(self, folders, port: int = 0):
+    def __init__(self, folders, port: int = 0, token: str | None = None):
         self.builds = [Build(Path(f).resolve()) for f in folders]
         self.job = Job()
         self.files = _static_files()
-        super().__init__(("127.0.0.1", port), Handler)
+        self.token = token or secrets.token_urlsafe(32)
+        try:
+            super().__init__(("127.0.0.1", port), Handler)
+        except OSError as e:
+            if e.errno == errno.EADDRINUSE:
+                raise InputError(f"port {port} on 127.0.0.1 is in use (another studio or "
+                                 "another program)",
+                                 fix="give another --port, or --port 0 for any free one") from None
+            if e.errno in (errno.EACCES, errno.EPERM):
+                raise InputError(f"port {port}: permission denied (ports below 1024 need "
+                                 "root)", fix="use a port from 1024 to 65535, or 0") from None
+            raise
+
+    def handle_error(self, request, client_address):
+        # a browser closing its connection is not worth a traceback on the terminal
+        if not isinstance(sys.exc_info()[1], (ConnectionError, TimeoutError)):
+            super().handle_error(request, client_address)
+
+    @property
+    def origin(self) -> str:
+        return f"http://127.0.0.1:{self.server_address[1]}"
 
     @property
     def url(self) -> str:
-        return f"http://127.0.0.1:{self.server_address[1]}/"
+        """The URL to open: the origin with the token after ``#`` (never sent to a server)."""
+        return f"{self.origin}/#token={self.token}"
 
 
 class Handler(BaseHTTPRequestHandler):
     server: StudioServer
     protocol_version = "HTTP/1.1"
+    timeout = 60   # s: a client that stops sending mid-request is dropped
+    error_content_type = "text/plain; charset=utf-8"
+    error_message_format = "%(code)d %(message)s: %(explain)s\n"
 
     def log_message(self, fmt, *args):  # quiet: the terminal shows the URL and errors only
         pass
 
-    def _send(self, code, body: bytes, ctype="application/json; charset=utf-8"):
+    # ------------------------------------------------------------------ replies
+    def _send(self, code, body: bytes, ctype="application/json; charset=utf-8", extra=()):
         self.send_response(code)
         self.send_header("Content-Type", ctype)
         self.send_header("Content-Length", str(len(body)))
         self.send_header("Cache-Control", "no-store")
         self.send_header("X-Content-Type-Options", "nosniff")
+        self.send_header("Referrer-Policy", "no-referrer")
+        self.send_header("X-Frame-Options", "DENY")
+        for k, v in extra:
+            self.send_header(k, v)
+        if code >= 400:   # never keep a connection alive after an error
+            self.close_connection = True
+            self.send_header("Connection", "close")
         self.end_headers()
-        self.wfile.write(body)
+        if self.command != "HEAD":
+            self.wfile.write(body)
 
     def _json(self, code, obj):
         self._send(code, json.dumps(obj, separators=(",", ":")).encode())
 
+    def _error(self, code, message, fix=None):
+        self._json(code, {"error": message, **({"fix": fix} if fix else {})})
+
+    # ------------------------------------------------------------------ guards
     def _host_ok(self) -> bool:
         # DNS rebinding guard: only requests addressed to this loopback server
         port = self.server.server_address[1]
         return self.headers.get("Host", "") in (f"127.0.0.1:{port}", f"localhost:{port}")
 
+    def _origin_ok(self) -> bool:
+        origin = self.headers.get("Origin")
+        if origin is None:
+            return self.headers.get("Sec-Fetch-Site", "same-origin") in ("same-origin", "none")
+        port = self.server.server_address[1]
+        return origin in (f"http://127.0.0.1:{port}", f"http://localhost:{port}")
+
+    def _token_ok(self, query_ok: bool) -> bool:
+        sent = self.headers.get(TOKEN_HEADER)
+        if sent is None and query_ok:
+            sent = (parse_qs(urlsplit(self.path).query).get("token") or [None])[0]
+        return sent is not None and hmac.compare_digest(sent.encode(),
+                                                         self.server.token.encode())
+
+    def _read_body(self):
+        """The whole request body, or None after an error reply (413/411/400; the
+        connection is then closed, so no unread byte is parsed as another request)."""
+        if self.headers.get("Transfer-Encoding"):
+            self._error(HTTPStatus.LENGTH_REQUIRED, "chunked request bodies are not accepted",
+                        "send a Content-Length")
+            return None
+        raw = self.headers.get("Content-Length")
+        if raw is None:
+            self._error(HTTPStatus.LENGTH_REQUIRED, "no Content-Length",
+                        "send the JSON body with its Content-Length")
+            return None
+        if not raw.strip().isdigit():
+            self._error(HTTPStatus.BAD_REQUEST, f"Content-Length {raw[:40]!r} is not a "
+                                                "whole number of bytes")
+            return None
+        n = int(raw)
+        if n > MAX_BODY_BYTES:
+            self._error(HTTPStatus.REQUEST_ENTITY_TOO_LARGE,
+                        f"the request body is {n} bytes, more than {MAX_BODY_BYTES}")
+            return None
+        body = self.rfile.read(n)
+        if len(body) != n:
+            self.close_connection = True
+            return None
+        return body
+
+    def _guard(self, fn, *, body: bool):
+        payload = None
+        if body:   # read (or refuse) the body first: nothing is left on the connection
+            data = self._read_body()
+            if data is None:
+                return None
+        elif self.headers.get("Transfer-Encoding") or self.headers.get(
+                "Content-Length", "0").strip() != "0":
+            # a body on a GET would stay on the connection: refused, and the connection closed
+            return self._error(HTTPStatus.BAD_REQUEST, f"a {self.command} request has no body")
+        if not self._host_ok():
+            return self._error(HTTPStatus.FORBIDDEN, "bad Host header (the studio answers "
+                                                     "only to 127.0.0.1 and localhost)")
+        if not self._origin_ok():
+            return self._error(HTTPStatus.FORBIDDEN, "requests from another origin are refused")
+        path = urlsplit(self.path).path
+        if path.startswith("/api/"):
+            download = self.command == "GET" and re.fullmatch(
+                r"/api/build/\d+/(stl/[^/]+|report)", path) is not None
+            if not self._token_ok(query_ok=download):
+                return self._error(HTTPStatus.FORBIDDEN, "missing or wrong studio token",
+                                   "open the URL the studio printed when it started (it "
+                                   "ends in #token=...)")
+        if body:
+            if self.headers.get_content_type() != "application/json":
+                return self._error(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+                                   "the request body must be application/json")
+            try:
+                payload = json.loads(data.decode("utf-8") or "{}",
+                                     parse_constant=_refuse_constant)
+            except (UnicodeDecodeError, ValueError, RecursionError) as e:
+                return self._error(HTTPStatus.BAD_REQUEST, f"the request body is not JSON "
+                                                           f"({e})", "send a JSON object")
+        try:
+            return fn(path, payload) if body else fn(path)
+        except InputError as e:
+            return self._error(HTTPStatus.BAD_REQUEST, e.problem, e.fix)
+        except Busy as e:
+            return self._error(HTTPStatus.CONFLICT, e.problem, e.fix)
+        except MorphshellError as e:   # e.g. a model file the build names is broken
+            return self._error(HTTPStatus.UNPROCESSABLE_ENTITY, e.problem, e.fix)
+        except Exception as e:  # noqa: BLE001 - a bug: tell the browser, keep serving
+            return self._error(HTTPStatus.INTERNAL_SERVER_ERROR,
+                               f"internal error ({type(e).__name__}: {e}); this is a bug")
+
+    def do_GET(self):  # noqa: N802 - http.server's name
+        self._guard(self._get, body=False)
+
+    def do_HEAD(self):  # noqa: N802
+        self._guard(self._get, body=False)
+
+    def do_POST(self):  # noqa: N802
+        self._guard(self._post, body=True)
+
+    def _other(self):
+        # any other method (PUT, DELETE, OPTIONS: a CORS preflight) is refused, its body
+        # unread, and the connection closed
+        self._error(HTTPStatus.METHOD_NOT_ALLOWED, f"method {self.command} is not allowed")
+
+    do_PUT = do_DELETE = do_OPTIONS = do_PATCH = _other  # noqa: N815
+
+    # ------------------------------------------------------------------ routes
     def _build(self, parts):
         try:
-            i = int(parts[2])
+            i = int(parts[2]) if parts[2].isdigit() else -1
         except ValueError:
             i = -1
         if not 0 <= i < len(self.server.builds):
-            raise InputError(f"no build number {parts[2]!r}")
+            raise _NotFound(f"no build number {parts[2][:20]!r}")
         return i, self.server.builds[i]
 
-    def _guard(self, fn):
-        if not self._host_ok():
-            return self._json(HTTPStatus.FORBIDDEN, {"error": "bad Host header"})
+    def _get(self, path):
         try:
-            return fn()
-        except InputError as e:
-            return self._json(HTTPStatus.BAD_REQUEST, {"error": str(e)})
-        except MorphshellError as e:
-            return self._json(HTTPStatus.CONFLICT, {"error": str(e)})
-        except Exception as e:  # noqa: BLE001 - a bug: tell the browser, keep serving
-            return self._json(HTTPStatus.INTERNAL_SERVER_ERROR,
-                              {"error": f"internal error ({type(e).__name__}: {e})"})
+            return self._get_route(path)
+        except _NotFound as e:
+            return self._error(HTTPStatus.NOT_FOUND, str(e))
 
-    def do_GET(self):  # noqa: N802 - http.server's name
-        self._guard(self._get)
-
-    def do_POST(self):  # noqa: N802
-        self._guard(self._post)
-
-    def _get(self):
-        path = self.path.split("?", 1)[0]
+    def _get_route(self, path):
         if path == "/favicon.ico":
             return self._send(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
         if path in ("/", "/index.html"):
             path = "/static/index.html"
         if path.startswith("/static/"):
-            name = path[len("/static/"):]
-            f = self.server.files.get(name)   # a whitelist: no path from the URL is opened
+            f = self.server.files.get(path[len("/static/"):])   # a whitelist: no path opened
             if f is None:
-                return self._json(HTTPStatus.NOT_FOUND, {"error": "not found"})
+                raise _NotFound("not found")
             return self._send(HTTPStatus.OK, f.read_bytes(), _TYPES[f.suffix])
         parts = path.strip("/").split("/")
         if parts == ["api", "builds"]:
@@ -326,39 +552,47 @@ class Handler(BaseHTTPRequestHandler):
                                               enumerate(self.server.builds)])
         if parts == ["api", "job"]:
             return self._json(HTTPStatus.OK, self.server.job.snapshot())
-        if len(parts) == 4 and parts[:2] == ["api", "build"]:
-            _, b = self._build(parts)
-            if parts[3] == "viewer":
-                return self._json(HTTPStatus.OK, b.viewer())
-            if parts[3] == "target":
-                return self._json(HTTPStatus.OK, b.target())
-        return self._json(HTTPStatus.NOT_FOUND, {"error": "not found"})
-
-    def _post(self):
-        if self.headers.get_content_type() != "application/json":
-            return self._json(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
-                              {"error": "send application/json"})
-        n = int(self.headers.get("Content-Length") or 0)
-        if not 0 <= n <= MAX_BODY_BYTES:
-            return self._json(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, {"error": "body too large"})
-        try:
-            payload = json.loads(self.rfile.read(n) or b"{}")
-        except ValueError:
-            raise InputError("the request body is not JSON") from None
-        parts = self.path.split("?", 1)[0].strip("/").split("/")
-        if len(parts) == 4 and parts[:2] == ["api", "build"]:
+        if len(parts) >= 4 and parts[:2] == ["api", "build"]:
             i, b = self._build(parts)
+            what = parts[3]
+            if len(parts) == 4 and what in ("viewer", "target", "results", "parts"):
+                return self._json(HTTPStatus.OK, getattr(b, what)())
+            if len(parts) == 4 and what == "report":
+                p = b.folder / "report" / "index.html"
+                if not p.is_file():
+                    raise _NotFound("this build has no report yet")
+                return self._send(HTTPStatus.OK, p.read_bytes(), _TYPES[".html"])
+            if len(parts) == 5 and what == "stl":
+                p = b.stl(parts[4])
+                return self._send(HTTPStatus.OK, p.read_bytes(), "model/stl", extra=[
+                    ("Content-Disposition",
+                     f'attachment; filename="{b.folder.name}-{p.name}"')])
+        raise _NotFound("not found")
+
+    def _post(self, path, payload):
+        parts = path.strip("/").split("/")
+        if len(parts) == 4 and parts[:2] == ["api", "build"]:
+            try:
+                i, b = self._build(parts)
+            except _NotFound as e:
+                return self._error(HTTPStatus.NOT_FOUND, str(e))
             if parts[3] == "preview":
                 return self._json(HTTPStatus.OK, b.preview(payload))
-            if parts[3] == "save":
-                if self.server.job.snapshot()["state"] == "running":
-                    raise InputError("a stage job is running", fix="save when it has finished")
-                return self._json(HTTPStatus.OK, b.save(payload))
+            if parts[3] == "keyframes":
+                return self._json(HTTPStatus.OK, b.keyframes(payload))
             if parts[3] == "run":
-                stages = payload.get("stages") if isinstance(payload, dict) else None
-                self.server.job.start(b, i, stages)
+                land, edits = parse_landscape(payload, b.n_vertices(), edits=True)
+                self.server.job.start(b, i, land, edits)
                 return self._json(HTTPStatus.OK, self.server.job.snapshot())
-        return self._json(HTTPStatus.NOT_FOUND, {"error": "not found"})
+        return self._error(HTTPStatus.NOT_FOUND, "not found")
+
+
+class _NotFound(Exception):
+    pass
+
+
+def _refuse_constant(name):
+    raise ValueError(f"{name} is not a JSON number")
 
 
 def resolve_folders(dirs) -> list[Path]:
@@ -388,23 +622,28 @@ def serve(dirs, *, port: int = 0, open_browser: bool = True, ready=None) -> None
     Parameters
     ----------
     dirs : list of path-like
-        Build folders (side by side in the viewer; the editor works on the first).
+        Build folders (side by side in the viewer; the editor works on one at a time).
     port : int
         TCP port on 127.0.0.1 (0 = any free port).
     open_browser : bool
-        Open the default browser on the app.
+        Open the default browser on the app (with its token).
     ready : callable, optional
         Called with the server once it listens (tests).
+
+    Raises
+    ------
+    InputError
+        A port outside 0-65535 or in use, or a folder that is not a build.
     """
-    if not 0 <= int(port) <= 65535:
-        raise InputError(f"port = {port}", fix="use a port between 1024 and 65535, or 0")
-    srv = StudioServer(resolve_folders(dirs), port=int(port))
-    print(f"morphshell studio: {srv.url}  ({len(srv.builds)} build(s); Ctrl-C to stop)",
-          file=sys.stderr, flush=True)
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        raise InputError(f"port {port!r} is not a TCP port",
+                         fix="use a port from 1024 to 65535, or 0 for any free one")
+    srv = StudioServer(resolve_folders(dirs), port=port)
+    print(f"morphshell studio: {srv.url}\n  ({len(srv.builds)} build(s); only this URL, with "
+          "its token, can drive the studio; Ctrl-C to stop)", file=sys.stderr, flush=True)
     if ready is not None:
         ready(srv)
     if open_browser:
-
         webbrowser.open(srv.url)
     try:
         srv.serve_forever()
@@ -412,4 +651,4 @@ def serve(dirs, *, port: int = 0, open_browser: bool = True, ready=None) -> None
         srv.server_close()
 
 
-__all__ = ["StudioServer", "serve", "resolve_folders", "LANDSCAPE_SOURCE"]
+__all__ = ["StudioServer", "serve", "resolve_folders", "Busy", "TOKEN_HEADER"]

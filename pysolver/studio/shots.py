@@ -1,9 +1,18 @@
-"""Screenshots of the studio and of the report for the README (``make studio-shots``).
+"""Screenshots of the studio and of the report for the docs (``make studio-shots``).
 
-Runs the studio on a build folder in this process, drives Debian's headless chromium
-(Selenium with the system chromedriver; nothing is downloaded), places two keyframes in
-the editor without saving them (the build is not changed), and captures the page; then
-opens the build's ``report/index.html`` from ``file://`` and captures its top.
+Runs the studio in this process on a *copy* of a build folder (``build/.studio-shots-*``, so
+the build itself is not changed and the part cache is shared), drives Debian's headless
+chromium (Selenium with the system chromedriver; nothing is downloaded) through what a user
+does, and captures each step:
+
+* ``studio-paint.png``: a stroke that makes a region slower, coloured by reachable band,
+  with a cell's details on hover;
+* ``studio-error.png``: a bad brush radius and its message (painting refused);
+* ``studio-progress.png``: the run's progress bar with its stage and ETA;
+* ``studio-results.png``: the verdict after the run, compared with the build before, and
+  the parts with a 3D preview;
+* ``studio-ghost.png``: the morph's last frame with the target's translucent ghost;
+* ``studio.png``: the whole page; ``report.png``: the top of the build's report.
 
     python -m pysolver.studio.shots build/petal docs/img
 """
@@ -17,6 +26,7 @@ import shutil
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 from ..errors import InputError
@@ -62,7 +72,7 @@ def chromium_driver(width: int, height: int, profile, *, extra=()):
     return webdriver.Chrome(service=Service(str(CHROMEDRIVER), env=env), options=opts)
 
 
-def _wait(driver, cond, what, timeout=120):
+def _wait(driver, cond, what, timeout=180):
     # optional: a browser only for screenshots and browser tests
     from selenium.webdriver.support.ui import WebDriverWait
 
@@ -87,8 +97,49 @@ def _save_small(png: bytes, path: Path, width: int) -> Path:
     return path
 
 
-def studio_shots(build_dir, out_dir, *, width: int = 1100) -> list[Path]:
-    """Write ``studio.png`` and ``report.png`` of ``build_dir`` into ``out_dir``."""
+def _element_png(driver, css: str) -> bytes:
+    el = driver.find_element("css selector", css)
+    driver.execute_script("arguments[0].scrollIntoView({block: 'start'})", el)
+    return el.screenshot_as_png
+
+
+def type_into(driver, box: str, value: str) -> None:
+    """Type ``value`` into the input ``#box`` as a user does (select all, delete, type: the
+    page sees real input events); an empty value leaves the box empty."""
+    # optional: a browser only for screenshots and browser tests
+    from selenium.webdriver.common.keys import Keys
+
+    el = driver.find_element("id", box)
+    el.send_keys(Keys.CONTROL, "a")
+    el.send_keys(Keys.BACKSPACE)
+    if value:
+        el.send_keys(value)
+
+
+def drag_on_editor(driver, vertex: int, dx: int, dy: int) -> None:
+    """Drag with the left button on the studio editor's canvas, from the screen point of
+    stencil vertex ``vertex`` by (``dx``, ``dy``) px, in two moves."""
+    # optional: a browser only for screenshots and browser tests
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    canvas = driver.find_element("css selector", "#editor-view canvas")
+    x, y = driver.execute_script("return studio.editor.screenOf(arguments[0])", vertex)
+    r = driver.execute_script("var r = arguments[0].getBoundingClientRect();"
+                              "return [r.left, r.top, r.width, r.height]", canvas)
+    ActionChains(driver).move_to_element_with_offset(
+        canvas, x - r[0] - r[2] / 2, y - r[1] - r[3] / 2).click_and_hold().move_by_offset(
+        dx // 2, dy // 2).move_by_offset(dx - dx // 2, dy - dy // 2).release().perform()
+
+
+def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
+    """Write the studio's screenshots (module docstring) of a copy of ``build_dir``.
+
+    Returns
+    -------
+    dict
+        ``files`` (paths written), ``preview_ms`` (round trip of the live feasibility after a
+        stroke, in the browser) and ``run_s`` (the run, a rebuild, as the studio timed it).
+    """
     build_dir = Path(build_dir)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -96,40 +147,87 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> list[Path]:
     if not report.is_file():
         raise InputError(f"{report}: no report in this build",
                          fix=f"build it first: morphshell build <shape> --out {build_dir}")
-    srv = StudioServer(resolve_folders([build_dir]))
+    # the copy lives beside the build, so that the render stage finds the same part cache
+    work = Path(tempfile.mkdtemp(prefix=".studio-shots-", dir=build_dir.resolve().parent))
+    copy = work / build_dir.resolve().name
+    shutil.copytree(build_dir, copy, symlinks=True)
+    srv = StudioServer(resolve_folders([copy]))
     threading.Thread(target=srv.serve_forever, daemon=True).start()
     profile = tempfile.mkdtemp(prefix="morphshell-shots-")
-    out = []
+    files, out = [], {}
+
+    def save(png, name):
+        files.append(_save_small(png, out_dir / name, width))
+
     try:
-        d = chromium_driver(1400, 1500, profile, extra=("--hide-scrollbars",))
+        d = chromium_driver(1400, 1700, profile, extra=("--hide-scrollbars",))
         try:
             d.get(srv.url)
             _wait(d, lambda d: d.find_element("tag name", "body").get_attribute("data-ready"),
                   "the studio")
-            # a frame in the middle of the morph, a picked base, two keyframes (not saved)
-            d.execute_script(
-                "var v = studio.viewers[0]; if (v) { v.setFrame(Math.round(v.nf * 0.12));"
-                " v.selectBase(Math.floor(v.data.n_bases / 2)); }"
-                "var e = studio.editor, V = e.V, lo = 0, hi = 0;"
-                "for (var i = 0; i < e.nv; i++) { if (V[3*i] < V[3*lo]) lo = i;"
-                " if (V[3*i] > V[3*hi]) hi = i; }"
-                "e.keyframes = [{kind: 'keyframe', vertex: lo, time: 20},"
-                " {kind: 'keyframe', vertex: hi, time: 45}]; e.listKeyframes(); e.update();")
-            _wait(d, lambda d: d.find_element("id", "feas").get_attribute("data-seq"),
-                  "the live feasibility")
-            out.append(_save_small(d.get_screenshot_as_png(), out_dir / "studio.png", width))
+            centre = d.execute_script(
+                "var e = studio.editor, V = e.V, c = [0, 0, 0], best = 0, bd = Infinity;"
+                "for (var i = 0; i < e.nv; i++)"
+                "  for (var j = 0; j < 3; j++) c[j] += V[3*i+j] / e.nv;"
+                "for (i = 0; i < e.nv; i++) { var dd = Math.hypot(V[3*i]-c[0], V[3*i+1]-c[1],"
+                " V[3*i+2]-c[2]); if (dd < bd) { bd = dd; best = i; } } return best;")
+            # a bad value first: its message, and painting refused until it is fixed
+            d.execute_script("var m = document.getElementById('brush-mode'); m.value = 'add';"
+                             "m.dispatchEvent(new Event('change'));")
+            type_into(d, "brush-value", "8")
+            type_into(d, "brush-radius", "0")
+            drag_on_editor(d, centre, 40, 10)
+            save(_element_png(d, ".tools"), "studio-error.png")
+            # a slower region: +8 s in a 12 mm brush, then the reachable band and a hover
+            type_into(d, "brush-radius", "12")
+            drag_on_editor(d, centre, 60, 14)
+            _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute(
+                "data-strokes"), "the stroke")
+            _wait(d, lambda d: d.find_element("id", "feas").get_attribute("data-seq") == str(
+                d.execute_script("return studio.editor.seq")), "the live feasibility")
+            out["preview_ms"] = int(d.find_element("id", "feas").get_attribute("data-ms"))
+            d.execute_script("var s = document.getElementById('colour-mode'); s.value = 'band';"
+                             "s.dispatchEvent(new Event('change'));"
+                             "var p = studio.editor.screenOf(arguments[0]);"
+                             "studio.editor.hover(p[0] + 3, p[1] + 3);", centre)
+            save(_element_png(d, "#editor-section"), "studio-paint.png")
+            save(d.get_screenshot_as_png(), "studio.png")
+            # the run: the progress bar through every stage, then the results
+            d.find_element("id", "run").click()
+            _wait(d, lambda d: d.execute_script(
+                "return !!(studio.job && studio.job.stage === 'simulate'"
+                " && studio.job.progress > 0.2)"), "the run's simulation", timeout=600)
+            save(_element_png(d, ".tools"), "studio-progress.png")
+            _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute(
+                "data-state") in ("done", "error"), "the run", timeout=1800)
+            if d.find_element("id", "progress-text").get_attribute("data-state") != "done":
+                raise InputError("the studio's run failed: "
+                                 + d.find_element("id", "error").text)
+            out["run_s"] = d.execute_script("return studio.job.seconds")
+            _wait(d, lambda d: d.find_element("id", "results").get_attribute("data-state")
+                  == "shown", "the results")
+            d.find_element("css selector", "#parts-table tr[data-name='top.stl'] .part-3d").click()
+            _wait(d, lambda d: d.find_element("id", "part-view").get_attribute("data-part"),
+                  "the part's 3D preview")
+            save(_element_png(d, "#results-section"), "studio-results.png")
+            d.execute_script("var v = studio.viewers[0]; v.setFrame(v.nf - 1); v.setGhost(true);"
+                             "v.setColorMode('distance');")
+            time.sleep(0.5)
+            save(_element_png(d, "#viewer-section"), "studio-ghost.png")
             d.get(report.resolve().as_uri())
             _wait(d, lambda d: d.execute_script(
                 "return !!(window.morphViewer && window.morphViewer.renderCount > 0)"),
                 "the report's viewer")
             d.execute_script("window.morphViewer.setFrame(Math.round(window.morphViewer.nf*0.2))")
-            out.append(_save_small(d.get_screenshot_as_png(), out_dir / "report.png", width))
+            save(d.get_screenshot_as_png(), "report.png")
         finally:
             d.quit()
     finally:
         srv.shutdown()
         srv.server_close()
         shutil.rmtree(profile, ignore_errors=True)
+        shutil.rmtree(work, ignore_errors=True)
+    out["files"] = files
     return out
 
 
@@ -140,13 +238,18 @@ def main(argv=None) -> int:
     ap.add_argument("out_dir", nargs="?", default="docs/img")
     a = ap.parse_args(argv)
     try:
-        for p in studio_shots(a.build_dir, a.out_dir):
+        res = studio_shots(a.build_dir, a.out_dir)
+        for p in res["files"]:
             print(f"{p} ({p.stat().st_size // 1000} kB)")
+        print(f"live feasibility after a stroke: {res['preview_ms']} ms; run: "
+              f"{res['run_s']} s")
     except InputError as e:
         print(f"studio-shots: error: {e}", file=sys.stderr)
         return 2
     return 0
 
+
+__all__ = ["studio_shots", "chromium_driver", "have_browser", "type_into", "drag_on_editor"]
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -47,6 +47,8 @@ key                         shape                  meaning
 ``flat_base_center``        (m, 3)                 flat base centres, mm
 ``flat_membrane_vertices``  (v, 3)                 flat membrane vertices, mm
 ``membrane_base``           (v,)                   base a vertex is attached to (-1 = free)
+``tables_sha256``           ()                     :func:`pysolver.tables.tables_sha256` of the
+                                                   tables simulated (the report checks it)
 ==========================  =====================  =============================================
 
 Any base point ``p`` given in the flat shell frame is at ``c + R (p - c_flat)`` in a frame.
@@ -75,6 +77,7 @@ from pysolver.mechanics.model import ShellModel, load_model
 from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newton
 from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
+from pysolver.tables import tables_sha256
 
 from .collisions import completion_times, read_completion_frames
 from .contact import BaseContact
@@ -668,6 +671,7 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     """
     folder = Path(design_dir)
     mat = _resolve_material(material)  # a bad model file is refused before anything else
+    made_from = tables_sha256(folder)   # the tables these frames are simulated from
     model = load_model(folder, physics=settings.get("physics", PHYSICS_OFF))
     st = SimSettings(t_end=float(t_end), dt=float(dt), checkpoint_every=checkpoint_every,
                      **settings)
@@ -700,6 +704,7 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
                              checkpoint=ckpt if checkpoint_every else None,
                              fingerprint=fingerprint, frames_path=frames_path)
     frames = sim.frames_dict()
+    frames["tables_sha256"] = np.array(made_from)
     _atomic_savez(frames_path, frames)
     with contextlib.suppress(FileNotFoundError):
         ckpt.unlink()

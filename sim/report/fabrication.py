@@ -21,7 +21,7 @@ import numpy as np
 from pysolver.params import FABRICATION, SIM, UNIT_CELL
 from pysolver.params import MEMBRANE_MODEL_FILE as MODEL_PATH
 from pysolver.params import tol as TOL
-from pysolver.tables import read_record
+from pysolver.tables import LANDSCAPE_SOURCE, PARTS_RECORD, read_record, tables_sha256
 
 STL_PURPOSE = {
     "top.stl": "top layer (bases, bumpers, brackets): print brackets-down; glued to the "
@@ -53,6 +53,19 @@ def _version(dist):
         return importlib.metadata.version(dist)
     except importlib.metadata.PackageNotFoundError:
         return "not installed"
+
+
+def _studio_edits(record: dict) -> str:
+    """The edits of a studio landscape record, counted by tool (``LANDSCAPE_SOURCE``)."""
+    edits = record.get("edits")
+    if not isinstance(edits, list) or not edits:
+        return "no recorded edit (the landscape as it was)"
+    counts: dict[str, int] = {}
+    for e in edits:
+        if isinstance(e, dict):
+            key = " ".join(str(e[k]) for k in ("tool", "mode") if isinstance(e.get(k), str))
+            counts[key or "edit"] = counts.get(key or "edit", 0) + 1
+    return ", ".join(f"{n} x {k}" for k, n in sorted(counts.items()))
 
 
 def provenance(folder, build_info=None) -> dict:
@@ -89,11 +102,10 @@ def provenance(folder, build_info=None) -> dict:
     temporal = (read_record(folder / "temporal.json") or {}).get("summary", {})
     refine = read_record(folder / "sim" / "refine.json") or {}
     sim_sum = read_record(folder / "sim" / "summary.json") or {}
-    studio = read_record(folder / "studio_landscape.json")
+    studio = read_record(folder / LANDSCAPE_SOURCE)
     time_opt = dopt.get("time", opts.get("time"))
-    if studio is not None:
-        land = (f"edited in morphshell studio: {len(studio.get('keyframes', []))} keyframe(s), "
-                f"{len(studio.get('brushes', []))} brush(es), {studio.get('interpolation', '')}")
+    if isinstance(studio, dict):
+        land = "edited in morphshell studio: " + _studio_edits(studio)
     elif time_opt is None:  # the shape's own, a --time-file, or the automatic sequencing
         land = (design.get("summary", {}).get("time", {}).get("source")
                 or "the shape's own landscape")
@@ -169,8 +181,54 @@ def _stl_stats(path: Path):
     return len(m.faces), (m.bounds[1] - m.bounds[0]).tolist()
 
 
-def stl_inventory(folder) -> list[dict]:
-    """Every STL of ``<folder>/stl``: name, bytes, triangles, size (mm) and what it is for."""
+def parts_made_from(folder) -> dict:
+    """Whether the STLs of ``<folder>/stl`` were made from the folder's current tables.
+
+    The render stage records the :func:`pysolver.tables.tables_sha256` of the tables it read
+    and the sha256 of every STL in ``stl/parts.json`` (:data:`pysolver.tables.PARTS_RECORD`).
+    The STLs are *fresh* when that record exists, its tables hash is the folder's, and every
+    STL is the one recorded: a later ``program``, a studio edit or a hand-edited table makes
+    them stale, and they must not be printed.
+
+    Returns
+    -------
+    dict
+        ``tables_sha256`` (the folder's now), ``recorded_sha256`` (None without a record),
+        ``n_stl``, ``fresh`` (bool; True when there is no STL at all) and ``problem`` (str or
+        None: what is stale and why).
+    """
+    folder = Path(folder)
+    now = tables_sha256(folder)
+    stls = sorted(p.name for p in (folder / "stl").glob("*.stl"))
+    rec = read_record(folder / PARTS_RECORD)
+    recorded = rec.get("tables_sha256") if isinstance(rec, dict) else None
+    out = {"tables_sha256": now, "recorded_sha256": recorded, "n_stl": len(stls),
+           "fresh": True, "problem": None}
+    if not stls:
+        return out
+    files = rec.get("files") if isinstance(rec, dict) else None
+    if not isinstance(files, dict) or not isinstance(recorded, str):
+        problem = (f"{PARTS_RECORD} is missing: nothing says which tables the STLs were "
+                   "made from")
+    elif recorded != now:
+        problem = ("the STLs were made from other tables than the folder's now (cells.csv or "
+                   "the landscape changed after the render stage)")
+    else:
+        changed = sorted(set(stls) ^ set(files)) + [
+            n for n in stls if n in files and sha256_file(folder / "stl" / n) != files[n]]
+        problem = (f"{', '.join('stl/' + n for n in changed[:3])} changed after the render "
+                   "stage" if changed else None)
+    out.update(fresh=problem is None, problem=problem)
+    return out
+
+
+def stl_inventory(folder, made_from=None) -> list[dict]:
+    """Every STL of ``<folder>/stl``: name, bytes, triangles, size (mm) and what it is for;
+    empty when they are stale (``made_from``: :func:`parts_made_from`, computed when None):
+    parts older than the tables are never listed."""
+    made_from = parts_made_from(folder) if made_from is None else made_from
+    if not made_from["fresh"]:
+        return []
     out = []
     for p in sorted((Path(folder) / "stl").glob("*.stl")):
         n, size = _stl_stats(p)
@@ -365,8 +423,9 @@ def top_layer_side(target_centres, normals) -> str:
 
 
 def fabrication_steps(*, n_align, align_ids, side, template, fab=FABRICATION,
-                      tau=SIM.tau, t_span=None) -> list[tuple[str, str]]:
-    """The fabrication sheet of one shell (SI Note 5), as (title, text) steps."""
+                      tau=SIM.tau, t_span=None, parts_problem=None) -> list[tuple[str, str]]:
+    """The fabrication sheet of one shell (SI Note 5), as (title, text) steps;
+    ``parts_problem`` (:func:`parts_made_from`'s ``problem``) puts a render step first."""
     pin = fab.pin_diameter_mm
     hole = 2 * UNIT_CELL.align_r
     dev = template["device_d_mm"]
@@ -374,7 +433,10 @@ def fabrication_steps(*, n_align, align_ids, side, template, fab=FABRICATION,
                                        f"({dev:.0f} mm) with the margins: use a larger one.")
     span = "" if t_span is None else f" Expect the first cells at ~{t_span[0]:.0f} s and the " \
                                      f"last at ~{t_span[1]:.0f} s (timeline below)."
-    return [
+    first = [] if not parts_problem else [
+        ("Render again", f"Do not print the STLs now in stl/: {parts_problem}. Render them "
+                         "from these tables first (morphshell render DIR).")]
+    return first + [
         ("Print", "Print stl/top.stl and stl/bottom.stl brackets-down, each with its support "
                   "frame (stl/support_frame_*.stl) and the marker dots (stl/markers_*.stl) in a "
                   "second colour. Remove the overhang support material (scrape, then blow "
@@ -403,6 +465,6 @@ def fabrication_steps(*, n_align, align_ids, side, template, fab=FABRICATION,
     ]
 
 
-__all__ = ["provenance", "stl_inventory", "stretch_template", "template_svg", "template_pdf",
-           "timeline",
+__all__ = ["provenance", "stl_inventory", "parts_made_from", "stretch_template", "template_svg",
+           "template_pdf", "timeline",
            "top_layer_side", "fabrication_steps", "sha256_file", "STL_PURPOSE"]

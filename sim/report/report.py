@@ -40,7 +40,7 @@ from pysolver.errors import InputError
 from pysolver.geometry import fold_angles_deg, rigid_fit
 from pysolver.params import UNIT_CELL, ReportThresholds
 from pysolver.params import tol as TOL
-from pysolver.tables import Design, read_design, read_table
+from pysolver.tables import Design, read_design, read_table, tables_sha256
 
 from ..model.collisions import base_collisions, membrane_collisions, never_due
 from ..model.collisions import completion_times as collision_completion_times
@@ -489,6 +489,15 @@ def decide(metrics: dict, th: Thresholds):
     elif so["n_nonconverged"]:
         add("WARN", "solver", f"{so['n_nonconverged']} step(s) stopped before the Newton "
                               f"tolerance, residual <= {th.residual_fail_N:g} N")
+    tb = metrics.get("tables")
+    if tb is not None:
+        if tb["frames_sha256"] is not None and tb["frames_sha256"] != tb["sha256"]:
+            add("FAIL", "tables", "the simulation was made from other tables than the design "
+                                  "folder's now (a later program stage or an edit): this "
+                                  "check is not about these tables; simulate again")
+        if not tb["parts"]["fresh"]:
+            add("WARN", "parts", tb["parts"]["problem"] + ": they are not listed and must not "
+                                 "be printed; render again (morphshell render DIR)")
     levels = {r["level"] for r in reasons}
     verdict = "FAIL" if "FAIL" in levels else "WARN" if "WARN" in levels else "PASS"
     order = {"FAIL": 0, "WARN": 1}
@@ -664,6 +673,11 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     metrics = {"n_bases": sd.n_bases, "n_cells": sd.n_cells, "n_frames": int(len(t)),
                "t_end_s": float(t[-1]),
                "stopped_early": bool(np.asarray(fr.get("stopped_early", False)).any())}
+    # what this report is made from: the tables now, and those the frames and STLs came from
+    frames_made = fr.get("tables_sha256")
+    metrics["tables"] = {"sha256": tables_sha256(folder),
+                         "frames_sha256": None if frames_made is None else str(frames_made),
+                         "parts": fab.parts_made_from(folder)}
     n_ok = _n_valid_frames(fr)
     if n_ok < len(t):
         metrics["nonfinite"] = {"frame": n_ok, "time_s": float(t[n_ok])}
@@ -793,7 +807,8 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
 
         # ---- standing alone: viewer, fabrication sheet, template, STLs, provenance
         t0 = time.perf_counter()
-        extra = _standalone(sd, tm, tmp, folder, build_info, viewer_frames)
+        extra = _standalone(sd, tm, tmp, folder, build_info, viewer_frames,
+                            metrics["tables"]["parts"])
         files.update(extra.pop("files"))
         lap("standalone", t0)
         pr.step("viewer, fabrication sheet, provenance")
@@ -950,7 +965,7 @@ def _f(x, fmt="{:.3g}"):
     return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
 
-def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
+def _standalone(sd, tm, tmp, folder, build_info, viewer_frames, parts) -> dict:
     """Viewer data, stretch template, STL list, fabrication sheet and provenance."""
     files = {}
     viewer = viewer_data(sd, tm["t_done"], max_frames=int(viewer_frames))
@@ -977,7 +992,7 @@ def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
         side=fab.top_layer_side(sd.target, sd.target_normals),
         template=template or {"device_d_mm": max(fab.FABRICATION.star_diameters_mm),
                               "fits": True},
-        t_span=span)
+        t_span=span, parts_problem=parts["problem"])
     fabrication = {"steps": [{"title": a, "text": b} for a, b in steps],
                    "timeline": fab.timeline(t_star, t_done, cell_xyz,
                                             sd.cells.get("clamped")),
@@ -985,7 +1000,8 @@ def _standalone(sd, tm, tmp, folder, build_info, viewer_frames) -> dict:
                    "template": None if template is None else {
                        k: template[k] for k in ("device_d_mm", "fits", "tau", "sheet_mm",
                                                 "marker_radius_mm", "shell_radius_mm")}}
-    return {"files": files, "viewer": viewer, "stls": fab.stl_inventory(folder),
+    return {"files": files, "viewer": viewer,
+            "stls": fab.stl_inventory(folder, parts),
             "provenance": fab.provenance(folder, build_info), "fabrication": fabrication}
 
 
@@ -1201,7 +1217,12 @@ def _fabrication_html(r, tmp) -> str:
 
 def _stls_html(r) -> str:
     stls = r.get("stls") or []
-    if not stls:
+    parts = ((r.get("metrics") or {}).get("tables") or {}).get("parts") or {}
+    if not parts.get("fresh", True):
+        body = (f"<p class='FAIL'><b>Not listed: {html.escape(parts['problem'])}.</b> Do not "
+                "print the STLs in <code>stl/</code>; render them again "
+                "(<code>morphshell render DIR</code>).</p>")
+    elif not stls:
         body = "<p>No STL in this build (rendering skipped: <code>--no-render</code>).</p>"
     else:
         body = _table([(s["name"], _fmt_bytes(s["bytes"]), s["triangles"],

@@ -2,9 +2,12 @@
  * picking.  One copy, used by the HTML report (inlined) and by `morphshell studio`.
  * Needs three.js as the global THREE (sim/static/three.min.js, MIT).  No network.
  *
- *   var v = new MorphViewer(element, data, {onPick: fn});   // data: sim/viewer.py
- *   v.setFrame(k); v.play(); v.pause(); v.setColorMode("completion");
- *   v.getView() / v.setView(view)  (camera; MorphViewer.link([v1, v2]) keeps them equal)
+ *   var v = new MorphViewer(element, data, {onPick: fn, ghost: true});   // data: sim/viewer.py
+ *   v.setFrame(k); v.setTime(t); v.play(); v.pause(); v.setColorMode("completion");
+ *   v.setGhost(on)   (the target surface, translucent, where the aligned frames should end)
+ *   v.getView() / v.setView(view)  (camera)
+ *   MorphViewer.link([v1, v2])   one camera, one time slider and one colour scale
+ *   MorphViewer.partView(element, stlArrayBuffer, {width, height})   an STL in 3D
  */
 (function (global) {
   "use strict";
@@ -69,11 +72,14 @@
   function Orbit(camera, dom, onChange) {
     this.camera = camera; this.dom = dom; this.onChange = onChange;
     this.target = new THREE.Vector3(); this.radius = 100; this.theta = 0.6; this.phi = 1.0;
+    // what a pointer-down does: "turn", "pan" or null (another tool handles it)
+    this.modeOf = function (e) { return (e.button === 2 || e.shiftKey) ? "pan" : "turn"; };
     var self = this, last = null, mode = null;
     dom.addEventListener("contextmenu", function (e) { e.preventDefault(); });
     dom.addEventListener("pointerdown", function (e) {
+      mode = self.modeOf(e);
+      if (!mode) { last = null; return; }
       last = [e.clientX, e.clientY, e.clientX, e.clientY];
-      mode = (e.button === 2 || e.shiftKey) ? "pan" : "turn";
       if (dom.setPointerCapture) dom.setPointerCapture(e.pointerId);
     });
     dom.addEventListener("pointermove", function (e) {
@@ -182,6 +188,12 @@
     this.select = el("select", {"class": "mv-mode", "aria-label": "colour by"}, bar);
     for (var m in MODES) el("option", {value: m, text: MODES[m].label}, this.select);
     this.select.value = this.mode;
+    if (data.target) {
+      var gl = el("label", {"class": "mv-ghost-label", title: "the target surface, " +
+        "translucent: where the aligned shell should end"}, bar);
+      this.ghostBox = el("input", {"class": "mv-ghost", type: "checkbox"}, gl);
+      gl.appendChild(document.createTextNode(" target"));
+    }
     this.legend = el("div", {"class": "mv-legend"}, container);
     this.info = el("div", {"class": "mv-info", text: "click a base to see its unit cells"},
       container);
@@ -207,14 +219,38 @@
         roughness: 0.9, depthWrite: false}));
       this.scene.add(this.membrane);
     }
+    if (data.target) {   // the target stencil: frames are aligned to it (sim/viewer.py)
+      var tg = new THREE.BufferGeometry();
+      tg.setAttribute("position", new THREE.BufferAttribute(positions(data.target.V), 3));
+      tg.setIndex(new THREE.BufferAttribute(u32(data.target.F), 1));
+      tg.computeVertexNormals();
+      this.ghost = new THREE.Mesh(tg, new THREE.MeshStandardMaterial({
+        color: 0x3a8fd8, side: THREE.DoubleSide, transparent: true, opacity: 0.28,
+        roughness: 0.9, depthWrite: false}));
+      this.ghost.renderOrder = 2;
+      this.scene.add(this.ghost);
+    }
     var self = this;
     this.orbit = new Orbit(this.camera, this.canvas, function (notify) {
       self.requestRender();
       if (notify) self.listeners.forEach(function (f) { f(self.getView(), self); });
     });
     this.fit();
+    this.setGhost(!!opts.ghost);
     this.setColorMode(this.mode);
     this.setFrame(0);
+    if (this.ghostBox) {
+      this.ghostBox.addEventListener("change", function () {
+        self.setGhost(self.ghostBox.checked);
+        (self.group || []).forEach(function (o) { if (o !== self) o.setGhost(self.ghostBox.checked); });
+      });
+    }
+    this.tip = el("div", {"class": "mv-tip"}, this.view);
+    this.canvas.addEventListener("pointermove", function (e) {
+      if (e.buttons) { self.tip.style.display = "none"; return; }
+      self.hoverAt(e.clientX, e.clientY);
+    });
+    this.canvas.addEventListener("pointerleave", function () { self.tip.style.display = "none"; });
 
     this.playBtn.addEventListener("click", function () {
       if (self.playing) self.pause(); else self.play();
@@ -274,6 +310,29 @@
     this.slider.value = String(k);
     this.timeLabel.textContent = "t = " + this.data.t[k].toFixed(1) + " s";
     this.requestRender();
+    if (this.group && !this._syncing) {   // one time slider for the linked viewers
+      var t = this.data.t[k], self = this;
+      this.group.forEach(function (o) {
+        if (o === self) return;
+        o._syncing = true;
+        try { o.setTime(t); } finally { o._syncing = false; }
+      });
+    }
+  };
+
+  // the frame nearest to time t (s)
+  MorphViewer.prototype.setTime = function (t) {
+    var ts = this.data.t, best = 0;
+    for (var i = 1; i < ts.length; i++) if (Math.abs(ts[i] - t) < Math.abs(ts[best] - t)) best = i;
+    this.setFrame(best);
+  };
+
+  MorphViewer.prototype.setGhost = function (on) {
+    if (!this.ghost) return;
+    this.ghost.visible = !!on;
+    if (this.ghostBox) this.ghostBox.checked = !!on;
+    this.root.setAttribute("data-ghost", on ? "1" : "0");
+    this.requestRender();
   };
 
   MorphViewer.prototype.fieldValues = function () {
@@ -285,13 +344,7 @@
   };
 
   MorphViewer.prototype.colorBases = function () {
-    var mode = MODES[this.mode], vals = this.fieldValues(), rg;
-    if (mode.perFrame) {   // one scale for the whole morph
-      if (!this._distRange) this._distRange = range(Array.prototype.slice.call(this.distance));
-      rg = this._distRange;
-    } else {
-      rg = range(vals);
-    }
+    var mode = MODES[this.mode], vals = this.fieldValues(), rg = this.scaleOf(this.mode);
     if (mode.symmetric) { var a = Math.max(Math.abs(rg[0]), Math.abs(rg[1])); rg = [-a, a]; }
     var col = new THREE.Color();
     for (var b = 0; b < vals.length; b++) {
@@ -305,6 +358,23 @@
     this.range = rg;
     this.drawLegend(mode, rg);
     this.requestRender();
+  };
+
+  // the colour range of a mode: over the whole morph (distance), and over every linked viewer
+  MorphViewer.prototype.ownRange = function (mode) {
+    if (MODES[mode].perFrame) {
+      if (!this._distRange) this._distRange = range(Array.prototype.slice.call(this.distance));
+      return this._distRange;
+    }
+    return range(this.data.base_fields[mode]);
+  };
+  MorphViewer.prototype.scaleOf = function (mode) {
+    var list = this.group || [this], lo = Infinity, hi = -Infinity;
+    list.forEach(function (v) {
+      var r = v.ownRange(mode);
+      lo = Math.min(lo, r[0]); hi = Math.max(hi, r[1]);
+    });
+    return [lo, hi];
   };
 
   MorphViewer.prototype.drawLegend = function (mode, rg) {
@@ -321,6 +391,14 @@
     if (!MODES[mode]) return;
     this.mode = mode; this.select.value = mode;
     this.colorBases();
+    var self = this;
+    if (this.group && !this._syncing) {   // one colour scale: the same mode everywhere
+      this.group.forEach(function (o) {
+        if (o === self) return;
+        o._syncing = true;
+        try { o.setColorMode(mode); } finally { o._syncing = false; }
+      });
+    }
   };
 
   MorphViewer.prototype.play = function () {
@@ -361,6 +439,25 @@
     this.selectBase(hit.length ? hit[0].instanceId : null);
   };
 
+  // per-cell details of the base under the pointer, in a tooltip
+  MorphViewer.prototype.hoverAt = function (x, y) {
+    var hit = hits(this.canvas, this.camera, this.bases, x, y), tip = this.tip;
+    if (!hit.length) { tip.style.display = "none"; this.root.removeAttribute("data-hover"); return; }
+    var b = hit[0].instanceId, c = this.data.cells, rows = this.cellsOfBase(b);
+    function f(v, d) { return finite(v) ? v.toFixed(d) : "never"; }
+    tip.innerHTML = "";
+    el("div", {text: "base " + b}, tip);
+    rows.forEach(function (i) {
+      el("div", {text: "cell " + i + ": t* " + f(c.t_star[i], 1) + " s, done " +
+        f(c.t_done[i], 1) + " s, h " + f(c.h_top[i], 3) + "/" + f(c.h_bottom[i], 3) + " mm" +
+        (c.clamped[i] ? ", clamped" : "")}, tip);
+    });
+    var r = this.canvas.getBoundingClientRect();
+    tip.style.left = (x - r.left + 14) + "px"; tip.style.top = (y - r.top + 10) + "px";
+    tip.style.display = "block";
+    this.root.setAttribute("data-hover", String(b));
+  };
+
   MorphViewer.prototype.cellsOfBase = function (b) {
     var c = this.data.cells, out = [];
     for (var i = 0; i < c.base_a.length; i++) if (c.base_a[i] === b || c.base_b[i] === b) out.push(i);
@@ -399,14 +496,51 @@
   };
   MorphViewer.prototype.onView = function (f) { this.listeners.push(f); };
 
-  // one camera for several viewers (side by side builds)
+  // one camera, one time slider and one colour scale for several viewers (side by side)
   MorphViewer.link = function (viewers) {
     viewers.forEach(function (v) {
+      v.group = viewers;
       v.onView(function (view, src) {
         viewers.forEach(function (o) { if (o !== src) o.setView(view); });
       });
     });
-    if (viewers.length > 1) viewers.slice(1).forEach(function (o) { o.setView(viewers[0].getView()); });
+    if (viewers.length > 1) {
+      viewers.slice(1).forEach(function (o) { o.setView(viewers[0].getView()); });
+      viewers[0].setColorMode(viewers[0].mode);     // every viewer on the shared scale
+      viewers[0].setFrame(viewers[0].frame);
+    }
+  };
+
+  // A printable part (binary STL) in 3D, with the orbit camera: {renderer, mesh, render()}
+  function parseStl(buffer) {
+    var dv = new DataView(buffer), n = buffer.byteLength >= 84 ? dv.getUint32(80, true) : -1;
+    if (n < 0 || 84 + 50 * n !== buffer.byteLength) throw new Error("not a binary STL");
+    var pos = new Float32Array(9 * n);
+    for (var i = 0; i < n; i++) {
+      for (var k = 0; k < 9; k++) pos[9 * i + k] = dv.getFloat32(84 + 50 * i + 12 + 4 * k, true);
+    }
+    return pos;
+  }
+  MorphViewer.partView = function (container, buffer, opts) {
+    opts = opts || {};
+    var obj = {}, w = opts.width || 480, h = opts.height || 320;
+    stage(obj, container, w, h, {ground: 0x778899, sky: 1.8, sun: 1.2, sunY: -1});
+    var g = new THREE.BufferGeometry();
+    g.setAttribute("position", new THREE.BufferAttribute(parseStl(buffer), 3));
+    g.computeVertexNormals();
+    g.computeBoundingSphere();
+    obj.mesh = new THREE.Mesh(g, new THREE.MeshStandardMaterial({color: 0xd9a441,
+      roughness: 0.7, flatShading: true}));
+    obj.scene.add(obj.mesh);
+    obj.render = function () { obj.renderer.render(obj.scene, obj.camera); };
+    obj.orbit = new Orbit(obj.camera, obj.canvas, function () { obj.render(); });
+    var bs = g.boundingSphere;
+    obj.orbit.target.copy(bs.center);
+    obj.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.02;
+    obj.orbit.theta = -Math.PI / 2 + 0.4; obj.orbit.phi = 0.7;
+    obj.orbit.update(false);
+    obj.triangles = g.getAttribute("position").count / 3;
+    return obj;
   };
 
   // canvas pixels (for tests): fraction of non-white pixels and a checksum

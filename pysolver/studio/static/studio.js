@@ -1,34 +1,89 @@
-/* morphshell studio: morph viewers side by side and the time-landscape editor.
- * Talks only to the local server that served this page (same origin, JSON). */
+/* morphshell studio: paint the time landscape on the target, build it again, and compare.
+ * Talks only to the local server that served this page (same origin, JSON, with the token
+ * from the URL's #token=...). */
 (function () {
   "use strict";
 
-  var studio = {viewers: [], builds: [], editor: null};
+  // the server's limits (pysolver.params.Limits), sent with each build's target
+  var MAX_TIME = 1000, MAX_RADIUS = 1000;
+  var studio = {viewers: [], builds: [], editor: null, token: null, job: null};
   window.studio = studio;
 
   function $(id) { return document.getElementById(id); }
+  function tokenFromUrl() {
+    var m = /(?:^|[#&])token=([A-Za-z0-9_\-]+)/.exec(location.hash || "");
+    return m ? m[1] : null;
+  }
+  function headers(json) {
+    var h = {"X-Morphshell-Token": studio.token || ""};
+    if (json) h["Content-Type"] = "application/json";
+    return h;
+  }
   function api(path, body) {
-    var opt = body === undefined ? {} : {method: "POST", body: JSON.stringify(body),
-      headers: {"Content-Type": "application/json"}};
+    var opt = body === undefined ? {headers: headers(false)} :
+      {method: "POST", body: JSON.stringify(body), headers: headers(true)};
     return fetch(path, opt).then(function (r) {
       return r.json().then(function (j) {
-        if (!r.ok) throw new Error(j.error || ("HTTP " + r.status));
+        if (!r.ok) {
+          var e = new Error((j.error || ("HTTP " + r.status)) + (j.fix ? " (fix: " + j.fix + ")" : ""));
+          e.status = r.status;
+          throw e;
+        }
         return j;
       });
     });
   }
+  function withToken(path) { return path + "?token=" + encodeURIComponent(studio.token || ""); }
   function status(text, state) {
     var s = $("status");
     s.textContent = text;
     s.setAttribute("data-state", state || "idle");
   }
+  // errors of actions (run, preview, keyframes): shown until the next success of that kind
+  var errors = {};
+  function showErrors() {
+    var box = $("error"), keys = Object.keys(errors).filter(function (k) { return errors[k]; });
+    box.textContent = keys.map(function (k) { return errors[k]; }).join(" | ");
+    box.setAttribute("data-kinds", keys.join(" "));
+  }
+  function setError(kind, text) { errors[kind] = text || null; showErrors(); }
+  function fmt(v, d) { return (v === null || v === undefined || !isFinite(v)) ? "n/a" : Number(v).toFixed(d); }
+  function el(tag, attrs, parent) {
+    var e = document.createElement(tag);
+    for (var k in attrs || {}) {
+      if (k === "text") e.textContent = attrs[k]; else e.setAttribute(k, attrs[k]);
+    }
+    if (parent) parent.appendChild(e);
+    return e;
+  }
+
+  // a number input checked as the user types: the message says what is wrong, and goes
+  // away when the value is fixed (never a silent replacement)
+  function numberField(id, errId, rule) {
+    var inp = $(id);
+    function check() {
+      var raw = inp.value.trim(), msg = null, v = parseFloat(raw);
+      if (inp.disabled) msg = null;
+      else if (raw === "" || !isFinite(v) || !/^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$/.test(raw)) {
+        msg = rule.name + ": give a number" + (raw === "" ? "" : " (\"" + raw + "\" is not one)");
+      } else msg = rule.check(v);
+      inp.classList.toggle("bad", !!msg);
+      inp.setAttribute("aria-invalid", msg ? "true" : "false");
+      return {ok: !msg, value: v, message: msg};
+    }
+    inp.addEventListener("input", function () { rule.changed(); });
+    inp.addEventListener("change", function () { rule.changed(); });
+    return {check: check, input: inp};
+  }
 
   // ---------------------------------------------------------------- viewers
   function loadViewers() {
     var box = $("viewers");
-    box.innerHTML = "";
-    studio.viewers.forEach(function (v) { v.renderer.dispose(); });
-    studio.viewers = [];
+    var keep = {};   // camera, time, picked base, colour mode and ghost survive a reload
+    studio.viewers.forEach(function (v) {
+      keep[v.buildId] = {view: v.getView(), t: v.data.t[v.frame], picked: v.picked,
+        mode: v.mode, ghost: v.ghost ? v.ghost.visible : true};
+    });
     var withFrames = studio.builds.filter(function (b) { return b.has_frames; });
     var width = withFrames.length > 1 ? 520 : 760;
     return Promise.all(withFrames.map(function (b) {
@@ -36,14 +91,28 @@
         return {b: b, data: data};
       });
     })).then(function (list) {
+      studio.viewers.forEach(function (v) { v.renderer.dispose(); });
+      studio.viewers = [];
+      box.innerHTML = "";
       list.forEach(function (x) {
         var div = document.createElement("div");
         div.id = "viewer-" + x.b.id;
         box.appendChild(div);
-        studio.viewers.push(new MorphViewer(div, x.data, {width: width, title: x.b.name}));
+        var k = keep[x.b.id];
+        var v = new MorphViewer(div, x.data, {width: width, title: x.b.name,
+          ghost: k ? k.ghost : true, mode: k ? k.mode : undefined});
+        v.buildId = x.b.id;
+        studio.viewers.push(v);
       });
       MorphViewer.link(studio.viewers);
-      if (!list.length) box.textContent = "no simulated build (run Program and simulate)";
+      studio.viewers.forEach(function (v) {
+        var k = keep[v.buildId];
+        if (!k) return;
+        v.setView(k.view);
+        v.setTime(k.t);
+        if (k.picked !== null && k.picked < v.data.n_bases) v.selectBase(k.picked);
+      });
+      if (!list.length) box.textContent = "no simulated build (press Run)";
       box.setAttribute("data-loaded", String(Date.now()));
     });
   }
@@ -51,21 +120,40 @@
   // ---------------------------------------------------------------- editor
   function Editor(container) {
     this.container = container;
-    this.keyframes = [];   // {kind: "keyframe"|"brush", vertex, time, radius}
-    var w = 640, h = 440;
+    this.states = {};     // per build: landscape, undo/redo, edit log, keyframes
+    var w = 640, h = 460, self = this;
     MorphViewer.stage(this, container, w, h, {ground: 0x778899, sky: 2.0, sun: 1.0, sunY: -1});
-    var self = this;
     this.orbit = new MorphViewer.Orbit(this.camera, this.canvas, function () { self.render(); });
-    MorphViewer.onClick(this.canvas, function (x, y) { self.clickAt(x, y); });
+    this.orbit.modeOf = function (e) {
+      var tool = self.tool();
+      if (e.shiftKey) return "pan";
+      if (e.button === 2) return "turn";
+      if (e.button !== 0) return null;
+      if (tool === "look") return "turn";
+      if (tool === "brush" && !self.hitPoint(e.clientX, e.clientY)) return "turn";  // off the target
+      return null;
+    };
+    this.canvas.addEventListener("pointerdown", function (e) { self.pointerDown(e); });
+    this.canvas.addEventListener("pointermove", function (e) { self.pointerMove(e); });
+    this.canvas.addEventListener("pointerup", function (e) { self.pointerUp(e); });
+    this.canvas.addEventListener("pointerleave", function () { $("hover").style.display = "none"; });
+    MorphViewer.onClick(this.canvas, function (x, y) {
+      if (self.tool() === "keyframe") self.clickAt(x, y);
+    });
   }
 
-  Editor.prototype.load = function (build) {
+  Editor.prototype.tool = function () {
+    return document.querySelector("input[name=tool]:checked").value;
+  };
+
+  Editor.prototype.load = function (build, keepCamera) {
     var self = this;
     this.build = build;
     return api("/api/build/" + build.id + "/target").then(function (d) {
       self.target = d;
+      MAX_TIME = d.limits.max_time_s; MAX_RADIUS = d.limits.max_radius_mm;
       var V = new Float32Array(d.V), F = new Uint32Array(d.F);
-      self.V = V; self.nv = V.length / 3;
+      self.V = V; self.F = F; self.nv = V.length / 3;
       if (self.mesh) { self.scene.remove(self.mesh); self.scene.remove(self.marks); }
       var g = new THREE.BufferGeometry();
       g.setAttribute("position", new THREE.BufferAttribute(V, 3));
@@ -73,167 +161,136 @@
       g.setIndex(new THREE.BufferAttribute(F, 1));
       g.computeVertexNormals();
       self.mesh = new THREE.Mesh(g, new THREE.MeshStandardMaterial({vertexColors: true,
-        side: THREE.DoubleSide, roughness: 0.8, flatShading: false}));
+        side: THREE.DoubleSide, roughness: 0.8}));
       self.scene.add(self.mesh);
-      // one point per unit cell, at the middle of its shared stencil edge
-      var nc = d.vertex_a.length, P = new Float32Array(3 * nc);
-      for (var c = 0; c < nc; c++) {
+      // neighbours (smoothing) and the middle of each cell's shared edge (marks, hover)
+      var nb = [], i, c;
+      for (i = 0; i < self.nv; i++) nb.push({});
+      for (i = 0; i < F.length; i += 3) {
         for (var k = 0; k < 3; k++) {
-          P[3 * c + k] = 0.5 * (V[3 * d.vertex_a[c] + k] + V[3 * d.vertex_b[c] + k]);
+          var a = F[i + k], b = F[i + (k + 1) % 3];
+          nb[a][b] = 1; nb[b][a] = 1;
         }
       }
+      self.neighbours = nb.map(function (o) { return Object.keys(o).map(Number); });
+      var nc = d.vertex_a.length, P = new Float32Array(3 * nc);
+      self.cellsOf = [];
+      for (i = 0; i < self.nv; i++) self.cellsOf.push([]);
+      for (c = 0; c < nc; c++) {
+        for (var j = 0; j < 3; j++) P[3 * c + j] = 0.5 * (V[3 * d.vertex_a[c] + j] + V[3 * d.vertex_b[c] + j]);
+        self.cellsOf[d.vertex_a[c]].push(c); self.cellsOf[d.vertex_b[c]].push(c);
+      }
       d.mid = P;
-      self.marks = new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({size: 9, vertexColors: true,
-        sizeAttenuation: false, transparent: true, depthTest: false}));
+      self.marks = new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({
+        size: 8, vertexColors: true, sizeAttenuation: false, transparent: true, depthTest: false}));
       self.scene.add(self.marks);
       if (!self.kfGroup) { self.kfGroup = new THREE.Group(); self.scene.add(self.kfGroup); }
+      if (!self.strokeMark) {
+        self.strokeMark = new THREE.Mesh(new THREE.SphereGeometry(1, 20, 14),
+          new THREE.MeshBasicMaterial({color: 0x111111, wireframe: true, transparent: true, opacity: 0.35}));
+        self.strokeMark.visible = false;
+        self.scene.add(self.strokeMark);
+      }
       g.computeBoundingSphere();
-      var bs = g.boundingSphere;
-      self.orbit.target.copy(bs.center);
-      self.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.05;
-      self.orbit.theta = -Math.PI / 2 + 0.5; self.orbit.phi = 0.8;
+      if (!keepCamera || self.fittedFor !== build.id) {
+        var bs = g.boundingSphere;
+        self.orbit.target.copy(bs.center);
+        self.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.05;
+        self.orbit.theta = -Math.PI / 2 + 0.5; self.orbit.phi = 0.8;
+        self.fittedFor = build.id;
+      }
       self.orbit.update(false);
-      if (self.sourceOf !== build.id && !self.keyframes.length && d.source) {
-        (d.source.keyframes || []).forEach(function (k) {
-          self.keyframes.push({kind: "keyframe", vertex: k.vertex, time: k.time});
-        });
-        (d.source.brushes || []).forEach(function (b) {
-          self.keyframes.push({kind: "brush", vertex: b.vertex, time: b.time, radius: b.radius});
-        });
+      self.buildLand = Float64Array.from(d.landscape);
+      var st = keepCamera ? null : self.states[build.id];
+      if (!st) {
+        st = self.states[build.id] = {land: Float64Array.from(d.landscape), undo: [], redo: [],
+          edits: [], keyframes: []};
       }
-      self.sourceOf = build.id;
-      self.show(d.landscape, d.feasibility, d.programmed_clamped);
+      self.st = st;
+      self.scale = null;
+      self.feas = d.feasibility;
       self.listKeyframes();
+      self.paint();
+      self.updateButtons();
+      return self.preview();
     });
   };
 
-  Editor.prototype.payload = function () {
-    var kf = [], br = [];
-    this.keyframes.forEach(function (k) {
-      if (k.kind === "brush") br.push({vertex: k.vertex, radius: k.radius, time: k.time});
-      else kf.push({vertex: k.vertex, time: k.time});
-    });
-    return {keyframes: kf, brushes: br};
+  // ------------------------------------------------ history: undo restores byte for byte
+  Editor.prototype.snapshot = function () {
+    var st = this.st;
+    return {land: Float64Array.from(st.land), edits: st.edits.slice(),
+      keyframes: st.keyframes.map(function (k) { return Object.assign({}, k); })};
+  };
+  Editor.prototype.restore = function (s) {
+    this.st.land = Float64Array.from(s.land);
+    this.st.edits = s.edits.slice();
+    this.st.keyframes = s.keyframes.map(function (k) { return Object.assign({}, k); });
+  };
+  Editor.prototype.remember = function () {
+    this.st.undo.push(this.snapshot());
+    this.st.redo = [];
+  };
+  Editor.prototype.undo = function () {
+    if (!this.st.undo.length) return;
+    this.st.redo.push(this.snapshot());
+    this.restore(this.st.undo.pop());
+    this.changed("undone");
+  };
+  Editor.prototype.redo = function () {
+    if (!this.st.redo.length) return;
+    this.st.undo.push(this.snapshot());
+    this.restore(this.st.redo.pop());
+    this.changed("redone");
+  };
+  Editor.prototype.reset = function () {
+    this.remember();
+    this.st.land = Float64Array.from(this.buildLand);
+    this.st.keyframes = [];
+    this.st.edits.push({tool: "reset", mode: "build"});
+    this.changed("back to the build's landscape");
+  };
+  Editor.prototype.changed = function (what) {
+    this.listKeyframes();
+    this.paint();
+    this.updateButtons();
+    if (what) status(what, "idle");
+    return this.preview();
+  };
+  Editor.prototype.dirty = function () { return this.st && this.st.undo.length > 0; };
+  Editor.prototype.updateButtons = function () {
+    var busy = studio.job && studio.job.state === "running";
+    $("undo").disabled = !this.st.undo.length || busy;
+    $("redo").disabled = !this.st.redo.length || busy;
+    $("run").disabled = !!busy;
+    $("reset").disabled = !!busy;
+    this.container.setAttribute("data-undo", String(this.st.undo.length));
   };
 
-  Editor.prototype.show = function (land, feas, programmed) {
-    this.landscape = land; this.feas = feas;
-    if (programmed) this.programmed = programmed;
-    var lo = Infinity, hi = -Infinity, i;
-    for (i = 0; i < land.length; i++) { lo = Math.min(lo, land[i]); hi = Math.max(hi, land[i]); }
-    if (hi - lo < 1e-6) { lo -= 1; hi += 1; }
-    var col = this.mesh.geometry.getAttribute("color");
-    for (i = 0; i < land.length; i++) {
-      var c = MorphViewer.cmap("viridis", (land[i] - lo) / (hi - lo));
-      col.setXYZ(i, c[0], c[1], c[2]);
-    }
-    col.needsUpdate = true;
-    // only the cells that cannot reach their time get a point: red too early, blue too late
-    var mid = this.target.mid, pts = [], cols = [], nearly = 0, late = 0;
-    for (i = 0; i < feas.side.length; i++) {
-      var s = feas.side[i];
-      if (!s) continue;
-      pts.push(mid[3 * i], mid[3 * i + 1], mid[3 * i + 2]);
-      if (s < 0) { cols.push(0.9, 0.05, 0.05); nearly++; } else { cols.push(0.1, 0.3, 1.0); late++; }
-    }
-    var pg = this.marks.geometry;
-    pg.setAttribute("position", new THREE.BufferAttribute(new Float32Array(pts), 3));
-    pg.setAttribute("color", new THREE.BufferAttribute(new Float32Array(cols), 3));
-    pg.computeBoundingSphere();
-    var f = $("feas");
-    var progN = (this.programmed || []).reduce(function (a, b) { return a + b; }, 0);
-    f.setAttribute("data-n-clamped", String(feas.n_clamped));
-    f.setAttribute("data-programmed-clamped", String(progN));
-    f.textContent = feas.n_clamped + " of " + feas.side.length + " cells cannot reach their " +
-      "time (" + nearly + " too early, red; " + late + " too late, blue). Programmed " +
-      "(cells.csv): " + progN + " clamped.";
-    var leg = $("legend-editor");
-    leg.innerHTML = "";
-    var stops = [];
-    for (i = 0; i <= 10; i++) {
-      var cc = MorphViewer.cmap("viridis", i / 10);
-      stops.push("rgb(" + cc.map(function (x) { return Math.round(255 * x); }).join(",") +
-        ") " + (10 * i) + "%");
-    }
-    leg.appendChild(document.createTextNode("landscape " + lo.toFixed(1) + " s "));
-    var ramp = document.createElement("span");
-    ramp.className = "mv-ramp";
-    ramp.style.background = "linear-gradient(90deg," + stops.join(",") + ")";
-    leg.appendChild(ramp);
-    leg.appendChild(document.createTextNode(" " + hi.toFixed(1) + " s"));
-    this.drawKeyframes();
-    this.render();
-  };
-
-  Editor.prototype.drawKeyframes = function () {
-    var g = this.kfGroup, V = this.V, self = this;
-    while (g.children.length) g.remove(g.children[0]);
-    this.keyframes.forEach(function (k) {
-      var r = k.kind === "brush" ? k.radius : 1.2;
-      var m = new THREE.Mesh(new THREE.SphereGeometry(k.kind === "brush" ? 1.0 : 1.2, 16, 12),
-        new THREE.MeshBasicMaterial({color: 0x111111}));
-      m.position.set(V[3 * k.vertex], V[3 * k.vertex + 1], V[3 * k.vertex + 2]);
-      g.add(m);
-      if (k.kind === "brush") {
-        var ring = new THREE.Mesh(new THREE.SphereGeometry(r, 24, 16),
-          new THREE.MeshBasicMaterial({color: 0x111111, wireframe: true, transparent: true,
-            opacity: 0.25}));
-        ring.position.copy(m.position);
-        g.add(ring);
-      }
-    });
-    self.render();
-  };
-
-  Editor.prototype.listKeyframes = function () {
-    var tb = $("kf-list"), self = this;
-    tb.innerHTML = "";
-    this.keyframes.forEach(function (k, i) {
-      var tr = document.createElement("tr");
-      tr.setAttribute("data-vertex", String(k.vertex));
-      tr.setAttribute("data-time", String(k.time));
-      [k.kind + (k.kind === "brush" ? " " + k.radius + " mm" : ""), String(k.vertex)]
-        .forEach(function (t) { var td = document.createElement("td"); td.textContent = t; tr.appendChild(td); });
-      var td = document.createElement("td"), inp = document.createElement("input");
-      inp.type = "number"; inp.value = String(k.time); inp.min = "0"; inp.max = "1000";
-      inp.addEventListener("change", function () {
-        var v = parseFloat(inp.value);
-        if (isFinite(v)) { k.time = v; tr.setAttribute("data-time", String(v)); self.update(); }
-      });
-      td.appendChild(inp); tr.appendChild(td);
-      var del = document.createElement("button");
-      del.type = "button"; del.textContent = "x"; del.title = "remove";
-      del.addEventListener("click", function () { self.keyframes.splice(i, 1); self.listKeyframes(); self.update(); });
-      td = document.createElement("td"); td.appendChild(del); tr.appendChild(td);
-      tb.appendChild(tr);
-    });
-    tb.setAttribute("data-count", String(this.keyframes.length));
-  };
-
-  Editor.prototype.update = function () {
-    var self = this, seq = (this.seq = (this.seq || 0) + 1);
-    if (!this.keyframes.length) {
-      return this.load(this.build);
-    }
-    return api("/api/build/" + this.build.id + "/preview", this.payload()).then(function (r) {
-      if (seq !== self.seq) return;   // a newer edit is on its way
-      self.show(r.landscape, r.feasibility);
-      $("feas").setAttribute("data-seq", String(seq));
-    }).catch(function (e) { status(e.message, "error"); });
-  };
-
-  Editor.prototype.vertexAt = function (x, y) {
+  // ------------------------------------------------ picking
+  Editor.prototype.hitPoint = function (x, y) {
+    if (!this.mesh) return null;
     var hit = MorphViewer.hits(this.canvas, this.camera, this.mesh, x, y);
-    if (!hit.length) return null;
-    var f = hit[0].face, V = this.V, best = null, bd = Infinity;
-    [f.a, f.b, f.c].forEach(function (v) {
-      var d = Math.hypot(V[3 * v] - hit[0].point.x, V[3 * v + 1] - hit[0].point.y,
-        V[3 * v + 2] - hit[0].point.z);
-      if (d < bd) { bd = d; best = v; }
-    });
-    return best;
+    return hit.length ? hit[0] : null;
   };
-
+  // the vertex under a client point: the nearest corner of the triangle hit, else (a click
+  // on the rim, where the ray can miss the surface) the nearest vertex within 10 px on screen
+  Editor.prototype.vertexAt = function (x, y) {
+    var hit = this.hitPoint(x, y), V = this.V, best = null, bd = Infinity;
+    if (hit) {
+      var f = hit.face;
+      [f.a, f.b, f.c].forEach(function (v) {
+        var d = Math.hypot(V[3 * v] - hit.point.x, V[3 * v + 1] - hit.point.y, V[3 * v + 2] - hit.point.z);
+        if (d < bd) { bd = d; best = v; }
+      });
+      return {vertex: best, px: 0};
+    }
+    for (var v = 0; v < this.nv; v++) {
+      var s = this.screenOf(v), d = Math.hypot(s[0] - x, s[1] - y);
+      if (d < bd) { bd = d; best = v; }
+    }
+    return bd <= 10 ? {vertex: best, px: bd} : {vertex: null, px: bd};
+  };
   // client coordinates of a vertex (tests click there)
   Editor.prototype.screenOf = function (v) {
     var p = new THREE.Vector3(this.V[3 * v], this.V[3 * v + 1], this.V[3 * v + 2]);
@@ -242,18 +299,348 @@
     return [r.left + (p.x + 1) / 2 * r.width, r.top + (1 - p.y) / 2 * r.height];
   };
 
+  // ------------------------------------------------ brush
+  Editor.prototype.brush = function () {
+    var mode = $("brush-mode").value, out = {mode: mode}, errs = [];
+    [["value", studio.fields.value], ["radius", studio.fields.radius],
+      ["falloff", studio.fields.falloff]].forEach(function (p) {
+      var r = p[1].check();
+      if (!r.ok) errs.push(r.message); else out[p[0]] = r.value;
+    });
+    $("brush-error").textContent = errs.join("; ");
+    out.ok = !errs.length;
+    return out;
+  };
+  // weight of a vertex at distance d from a dab: 1 inside (1 - falloff) r, then a smooth
+  // step down to 0 at r
+  function weight(d, r, falloff) {
+    if (d >= r) return 0;
+    var inner = r * (1 - falloff);
+    if (d <= inner) return 1;
+    var u = (d - inner) / (r - inner);
+    return 1 - u * u * (3 - 2 * u);
+  }
+  Editor.prototype.pointerDown = function (e) {
+    if (this.tool() !== "brush" || e.button !== 0 || e.shiftKey) return;
+    var hit = this.hitPoint(e.clientX, e.clientY);
+    if (!hit) return;   // off the target: the orbit turns the view
+    var b = this.brush();
+    if (!b.ok) {
+      setError("brush", "the brush did not paint: " + $("brush-error").textContent);
+      return;
+    }
+    setError("brush", null);
+    var st = this.st, n = this.nv, i;
+    this.stroke = {b: b, L0: Float64Array.from(st.land), W: new Float64Array(n), points: [],
+      before: this.snapshot()};
+    if (b.mode === "smooth") {   // two rounds of neighbour averaging of the landscape
+      var S = Float64Array.from(st.land);
+      for (var it = 0; it < 2; it++) {
+        var T = new Float64Array(n);
+        for (i = 0; i < n; i++) {
+          var nb = this.neighbours[i], s = 0;
+          for (var k = 0; k < nb.length; k++) s += S[nb[k]];
+          T[i] = nb.length ? 0.5 * S[i] + 0.5 * s / nb.length : S[i];
+        }
+        S = T;
+      }
+      this.stroke.S = S;
+    }
+    if (this.canvas.setPointerCapture) this.canvas.setPointerCapture(e.pointerId);
+    this.dab(hit.point);
+  };
+  Editor.prototype.pointerMove = function (e) {
+    if (this.stroke) {
+      var hit = this.hitPoint(e.clientX, e.clientY);
+      if (hit) this.dab(hit.point);
+      return;
+    }
+    if (!e.buttons) this.hover(e.clientX, e.clientY);
+  };
+  Editor.prototype.pointerUp = function () {
+    var sk = this.stroke;
+    if (!sk) return;
+    this.stroke = null;
+    this.strokeMark.visible = false;
+    var n = 0;
+    for (var i = 0; i < this.nv; i++) if (sk.W[i] > 0) n++;
+    if (!n) {
+      this.restore(sk.before);
+      status("the stroke reached no vertex of the target (radius " + sk.b.radius +
+        " mm): nothing changed; use a larger radius", "error");
+      this.paint();
+      return;
+    }
+    this.st.undo.push(sk.before);
+    this.st.redo = [];
+    var rec = {tool: "brush", mode: sk.b.mode, radius: sk.b.radius, falloff: sk.b.falloff,
+      vertices: n};
+    if (sk.b.mode !== "smooth") rec.value = sk.b.value;
+    this.st.edits.push(rec);
+    this.lastStroke = {points: sk.points, radius: sk.b.radius, falloff: sk.b.falloff,
+      mode: sk.b.mode, value: sk.b.value, before: Array.from(sk.L0), vertices: n};
+    this.container.setAttribute("data-strokes", String((this.strokes = (this.strokes || 0) + 1)));
+    status(sk.b.mode + ": " + n + " vertices changed" + (this.held ? "; " + this.held : ""), "idle");
+    this.updateButtons();
+    this.preview();
+  };
+  Editor.prototype.dab = function (p) {
+    var sk = this.stroke, b = sk.b, V = this.V, pts = [[p.x, p.y, p.z]];
+    var last = sk.points.length ? sk.points[sk.points.length - 1] : null;
+    if (last) {   // dabs at most a third of the radius apart along the drag
+      var gap = Math.hypot(p.x - last[0], p.y - last[1], p.z - last[2]);
+      var steps = Math.min(64, Math.floor(gap / (b.radius / 3)));
+      pts = [];
+      for (var s = 1; s <= steps; s++) {
+        var u = s / (steps + 1);
+        pts.push([last[0] + u * (p.x - last[0]), last[1] + u * (p.y - last[1]), last[2] + u * (p.z - last[2])]);
+      }
+      pts.push([p.x, p.y, p.z]);
+    }
+    var W = sk.W, L0 = sk.L0, land = this.st.land, held = 0, i;
+    pts.forEach(function (q) {
+      sk.points.push(q);
+      for (var v = 0; v < W.length; v++) {
+        var d = Math.hypot(V[3 * v] - q[0], V[3 * v + 1] - q[1], V[3 * v + 2] - q[2]);
+        var w = weight(d, b.radius, b.falloff);
+        if (w > W[v]) W[v] = w;
+      }
+    });
+    // the stroke's result from the landscape before it: a vertex keeps its value exactly
+    // unless the brush reached it (weight > 0), however often the drag passes
+    for (i = 0; i < W.length; i++) {
+      if (!(W[i] > 0)) continue;
+      var goal = b.mode === "set" ? b.value : b.mode === "add" ? L0[i] + b.value :
+        b.mode === "subtract" ? L0[i] - b.value : sk.S[i];
+      var t = L0[i] + W[i] * (goal - L0[i]);
+      if (t < 0) { t = 0; held++; } else if (t > MAX_TIME) { t = MAX_TIME; held++; }
+      land[i] = t;
+    }
+    this.held = held ? held + " vertices held at the limit (0-" + MAX_TIME + " s)" : "";
+    this.strokeMark.position.set(p.x, p.y, p.z);
+    this.strokeMark.scale.setScalar(b.radius);
+    this.strokeMark.visible = true;
+    this.paint();
+    this.previewSoon();
+  };
+
+  // ------------------------------------------------ keyframes
   Editor.prototype.clickAt = function (x, y) {
-    var v = this.vertexAt(x, y);
-    if (v === null) return;
-    var t = parseFloat($("kf-time").value);
-    if (!isFinite(t)) { status("set a time first", "error"); return; }
-    var tool = document.querySelector("input[name=tool]:checked").value;
-    var k = {kind: tool, vertex: v, time: t};
-    if (tool === "brush") k.radius = parseFloat($("brush-radius").value) || 5;
-    this.keyframes = this.keyframes.filter(function (o) { return !(o.kind === k.kind && o.vertex === v); });
-    this.keyframes.push(k);
+    var at = this.vertexAt(x, y);
+    if (at.vertex === null) {
+      status("no vertex under the pointer (the nearest is " + Math.round(at.px) +
+        " px away): click on the target surface", "error");
+      return;
+    }
+    var r = studio.fields.kfTime.check();
+    if (!r.ok) { $("kf-error").textContent = r.message; status("keyframe not placed: " + r.message, "error"); return; }
+    this.remember();
+    var v = at.vertex;
+    this.st.keyframes = this.st.keyframes.filter(function (o) { return o.vertex !== v; });
+    this.st.keyframes.push({vertex: v, time: r.value, raw: String(r.value)});
+    status("keyframe at vertex " + v + (at.px ? " (the rim vertex nearest the click, " +
+      Math.round(at.px) + " px)" : ""), "idle");
+    this.interpolate();
+  };
+  function keyframeProblem(k) {
+    var raw = String(k.raw).trim(), v = parseFloat(raw);
+    if (raw === "") return "no time";
+    if (!isFinite(v) || !/^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$/.test(raw)) return "\"" + raw + "\" is not a number";
+    if (v < 0 || v > MAX_TIME) return "time " + v + " s is outside 0-" + MAX_TIME + " s";
+    return null;
+  }
+  // the landscape through the keyframes that are valid (bad rows are marked and skipped)
+  Editor.prototype.interpolate = function () {
+    var self = this, good = [], bad = 0, seq = (this.kfSeq = (this.kfSeq || 0) + 1);
+    this.st.keyframes.forEach(function (k) {
+      k.problem = keyframeProblem(k);
+      if (k.problem) bad++; else { k.time = parseFloat(k.raw); good.push({vertex: k.vertex, time: k.time}); }
+    });
     this.listKeyframes();
-    this.update();
+    function done() { $("kf-list").setAttribute("data-done", String(seq)); }
+    if (!good.length) {
+      status(bad ? "every keyframe row has a problem (marked): the landscape is unchanged" :
+        "no keyframe: the landscape is unchanged", "idle");
+      done();
+      return Promise.resolve();
+    }
+    return api("/api/build/" + this.build.id + "/keyframes", {keyframes: good}).then(function (r) {
+      if (seq !== self.kfSeq) return;
+      setError("keyframes", null);
+      self.st.land = Float64Array.from(r.landscape);
+      self.st.edits.push({tool: "keyframes", mode: "harmonic", keyframes: good.length});
+      var p = self.changed(good.length + " keyframe(s) interpolated" + (bad ? "; " + bad + " marked row(s) skipped" : ""));
+      done();
+      return p;
+    }).catch(function (e) { setError("keyframes", e.message); done(); });
+  };
+  Editor.prototype.listKeyframes = function () {
+    var tb = $("kf-list"), self = this;
+    tb.innerHTML = "";
+    (this.st ? this.st.keyframes : []).forEach(function (k, i) {
+      var tr = el("tr", {"data-vertex": String(k.vertex), "data-time": String(k.raw)}, tb);
+      if (k.problem) { tr.className = "bad"; tr.title = k.problem; tr.setAttribute("data-problem", k.problem); }
+      el("td", {text: String(k.vertex)}, tr);
+      var td = el("td", {}, tr), inp = el("input", {type: "text", inputmode: "decimal", value: String(k.raw),
+        "aria-label": "time of keyframe " + i}, td);
+      if (k.problem) el("span", {"class": "row-error", text: " " + k.problem}, td);
+      inp.addEventListener("change", function () {
+        self.remember();
+        k.raw = inp.value;      // an empty box is a row without a time, never the old value
+        self.interpolate();
+      });
+      var del = el("button", {type: "button", text: "x", title: "remove"}, el("td", {}, tr));
+      del.addEventListener("click", function () {
+        self.remember();
+        self.st.keyframes.splice(i, 1);
+        self.interpolate();
+        self.listKeyframes();
+      });
+    });
+    tb.setAttribute("data-count", String(this.st ? this.st.keyframes.length : 0));
+    this.drawKeyframes();
+  };
+  Editor.prototype.drawKeyframes = function () {
+    var g = this.kfGroup, V = this.V;
+    if (!g) return;
+    while (g.children.length) g.remove(g.children[0]);
+    (this.st ? this.st.keyframes : []).forEach(function (k) {
+      var m = new THREE.Mesh(new THREE.SphereGeometry(1.2, 16, 12),
+        new THREE.MeshBasicMaterial({color: k.problem ? 0xcc0000 : 0x111111}));
+      m.position.set(V[3 * k.vertex], V[3 * k.vertex + 1], V[3 * k.vertex + 2]);
+      g.add(m);
+    });
+    this.render();
+  };
+
+  // ------------------------------------------------ preview: feasibility of the landscape
+  Editor.prototype.previewSoon = function () {
+    var self = this;
+    if (this._soon) return;
+    this._soon = setTimeout(function () { self._soon = null; self.preview(); }, 150);
+  };
+  Editor.prototype.preview = function () {
+    var self = this, seq = (this.seq = (this.seq || 0) + 1), t0 = performance.now();
+    return api("/api/build/" + this.build.id + "/preview", {landscape: Array.from(this.st.land)})
+      .then(function (r) {
+        if (seq !== self.seq) return;   // a newer edit is on its way
+        setError("preview", null);
+        self.feas = r.feasibility;
+        self.paint();
+        var f = $("feas");
+        f.setAttribute("data-seq", String(seq));
+        f.setAttribute("data-ms", String(Math.round(performance.now() - t0)));
+      }).catch(function (e) { if (seq === self.seq) setError("preview", e.message); });
+  };
+
+  // ------------------------------------------------ drawing
+  var BAND = {early: [0.85, 0.12, 0.1], late: [0.12, 0.3, 0.95], both: [0.6, 0.1, 0.7],
+    ok: [0.2, 0.68, 0.32]};
+  Editor.prototype.paint = function () {
+    if (!this.mesh || !this.st) return;
+    var land = this.st.land, feas = this.feas, i, lo = Infinity, hi = -Infinity;
+    for (i = 0; i < land.length; i++) { lo = Math.min(lo, land[i]); hi = Math.max(hi, land[i]); }
+    // a scale that only grows while painting (colours do not shift under the brush)
+    if (!this.scale || this.scale.build !== this.build.id) this.scale = {lo: lo, hi: hi, build: this.build.id};
+    this.scale.lo = Math.min(this.scale.lo, lo); this.scale.hi = Math.max(this.scale.hi, hi);
+    var slo = this.scale.lo, shi = this.scale.hi;
+    if (shi - slo < 1e-6) { slo -= 1; shi += 1; }
+    var mode = $("colour-mode").value, col = this.mesh.geometry.getAttribute("color");
+    for (i = 0; i < land.length; i++) {
+      var c;
+      if (mode === "band" && feas) {
+        var early = false, late = false;
+        this.cellsOf[i].forEach(function (k) {
+          if (feas.side[k] < 0) early = true; else if (feas.side[k] > 0) late = true;
+        });
+        c = early && late ? BAND.both : early ? BAND.early : late ? BAND.late : BAND.ok;
+      } else {
+        c = MorphViewer.cmap("viridis", (land[i] - slo) / (shi - slo));
+      }
+      col.setXYZ(i, c[0], c[1], c[2]);
+    }
+    col.needsUpdate = true;
+    this.container.setAttribute("data-colour", mode);
+    if (feas) this.drawMarks(feas);
+    this.drawLegend(mode, slo, shi);
+    this.render();
+  };
+  Editor.prototype.drawMarks = function (feas) {
+    var mid = this.target.mid, pts = [], cols = [], early = 0, late = 0, i;
+    for (i = 0; i < feas.side.length; i++) {
+      var s = feas.side[i];
+      if (!s) continue;
+      pts.push(mid[3 * i], mid[3 * i + 1], mid[3 * i + 2]);
+      var c = s < 0 ? BAND.early : BAND.late;
+      cols.push(c[0], c[1], c[2]);
+      if (s < 0) early++; else late++;
+    }
+    var pg = this.marks.geometry;
+    pg.setAttribute("position", new THREE.BufferAttribute(new Float32Array(pts), 3));
+    pg.setAttribute("color", new THREE.BufferAttribute(new Float32Array(cols), 3));
+    pg.computeBoundingSphere();
+    var f = $("feas"), n = feas.side.length;
+    var progN = this.target.programmed.clamped.reduce(function (a, b) { return a + b; }, 0);
+    f.setAttribute("data-n-clamped", String(feas.n_clamped));
+    f.setAttribute("data-programmed-clamped", String(progN));
+    f.setAttribute("data-refused", feas.refused ? "1" : "0");
+    f.textContent = feas.n_clamped + " of " + n + " cells cannot reach their time (" + early +
+      " too early, " + late + " too late); " + (n - feas.n_clamped) + " within reach. Built " +
+      "now: " + progN + " clamped." + (feas.refused ? " The program stage would refuse this " +
+      "landscape: more than " + Math.round(100 * feas.max_clamped_fraction) + " % of the " +
+      "cells cannot reach their time." : "");
+    f.className = feas.refused ? "refused" : "";
+  };
+  Editor.prototype.drawLegend = function (mode, lo, hi) {
+    var leg = $("legend-editor");
+    leg.innerHTML = "";
+    if (mode === "band") {
+      [["too early", BAND.early], ["too late", BAND.late], ["both", BAND.both], ["within reach", BAND.ok]]
+        .forEach(function (p) {
+          var sw = el("span", {"class": "swatch"}, leg);
+          sw.style.background = "rgb(" + p[1].map(function (x) { return Math.round(255 * x); }).join(",") + ")";
+          leg.appendChild(document.createTextNode(" " + p[0] + " "));
+        });
+      return;
+    }
+    var stops = [];
+    for (var i = 0; i <= 10; i++) {
+      var cc = MorphViewer.cmap("viridis", i / 10);
+      stops.push("rgb(" + cc.map(function (x) { return Math.round(255 * x); }).join(",") + ") " + (10 * i) + "%");
+    }
+    leg.appendChild(document.createTextNode("requested time " + lo.toFixed(1) + " s "));
+    var ramp = el("span", {"class": "mv-ramp"}, leg);
+    ramp.style.background = "linear-gradient(90deg," + stops.join(",") + ")";
+    leg.appendChild(document.createTextNode(" " + hi.toFixed(1) + " s"));
+  };
+
+  // per-cell details of the cell nearest the pointer
+  Editor.prototype.hover = function (x, y) {
+    var tip = $("hover"), hit = this.hitPoint(x, y);
+    if (!hit || !this.feas) { tip.style.display = "none"; return; }
+    var mid = this.target.mid, best = -1, bd = Infinity, p = hit.point;
+    for (var c = 0; c < mid.length / 3; c++) {
+      var d = Math.hypot(mid[3 * c] - p.x, mid[3 * c + 1] - p.y, mid[3 * c + 2] - p.z);
+      if (d < bd) { bd = d; best = c; }
+    }
+    if (best < 0) return;
+    this.showCell(best, x, y);
+  };
+  Editor.prototype.showCell = function (c, x, y) {
+    var tip = $("hover"), f = this.feas, pr = this.target.programmed;
+    var side = f.side[c] < 0 ? "too early" : f.side[c] > 0 ? "too late" : "within reach";
+    tip.innerHTML = "";
+    el("b", {text: "cell " + c}, tip);
+    el("div", {text: "requested t* " + fmt(f.t_star[c], 1) + " s: " + side + " (reachable " +
+      fmt(f.t_min[c], 1) + "-" + fmt(f.t_max[c], 1) + " s)"}, tip);
+    el("div", {text: "as built: t* " + fmt(pr.t_star[c], 1) + " s, simulated completion " +
+      (pr.t_done ? (pr.t_done[c] === null ? "never" : fmt(pr.t_done[c], 1) + " s") : "not simulated") +
+      ", h top " + fmt(pr.h_top[c], 3) + " / bottom " + fmt(pr.h_bottom[c], 3) + " mm, " +
+      (pr.clamped[c] ? "clamped" : "not clamped")}, tip);
+    var r = this.canvas.getBoundingClientRect();
+    tip.style.left = (x - r.left + 14) + "px"; tip.style.top = (y - r.top + 10) + "px";
+    tip.style.display = "block";
+    tip.setAttribute("data-cell", String(c));
   };
 
   Editor.prototype.render = function () {
@@ -261,69 +648,248 @@
     this.container.setAttribute("data-renders", String((this.renders = (this.renders || 0) + 1)));
   };
 
-  // ---------------------------------------------------------------- actions
-  function save() {
-    var ed = studio.editor;
-    if (!ed.keyframes.length) { status("place a keyframe first", "error"); return Promise.resolve(); }
-    status("saving ...", "busy");
-    return api("/api/build/" + ed.build.id + "/save", ed.payload()).then(function (r) {
-      status("saved " + r.written + " (" + r.range_s[0].toFixed(1) + "-" +
-        r.range_s[1].toFixed(1) + " s)", "saved");
-    }).catch(function (e) { status(e.message, "error"); });
+  Editor.prototype.csv = function () {
+    var lines = ["vertex_id,time_s"];
+    this.st.land.forEach(function (t, i) { lines.push(i + "," + t); });
+    return lines.join("\n") + "\n";
+  };
+
+  // ---------------------------------------------------------------- results and parts
+  var FIGURES = [
+    ["verdict", "verdict", null, 0],
+    ["timing_rms_s", "timing RMS error (s)", -1, 2],
+    ["spearman", "Spearman (completion order)", 1, 3],
+    ["n_clamped", "clamped cells", -1, 0],
+    ["n_never_complete", "cells that never complete", -1, 0],
+    ["shape_rms_mm", "final shape error, RMS (mm)", -1, 2],
+    ["shape_rms_pct", "final shape error (% of size)", -1, 1],
+    ["refine_rounds", "refinement rounds", null, 0],
+  ];
+  function loadResults() {
+    var b = studio.editor.build, box = $("results");
+    return api("/api/build/" + b.id + "/results").then(function (r) {
+      box.innerHTML = "";
+      var link = $("report-link");
+      link.hidden = !r.report;
+      link.href = withToken("/api/build/" + b.id + "/report");
+      if (!r.now) { box.textContent = "no report in this build yet (press Run)"; box.setAttribute("data-state", "none"); return; }
+      var v = el("div", {"class": "verdict " + r.now.verdict, text: r.now.verdict, id: "verdict"}, box);
+      v.setAttribute("data-verdict", r.now.verdict);
+      var ul = el("ul", {id: "reasons"}, box);
+      (r.now.reasons || []).forEach(function (x) {
+        el("li", {"class": x.level, text: x.level + " [" + x.check + "] " + x.message}, ul);
+      });
+      if (!(r.now.reasons || []).length) el("li", {text: "every check passed"}, ul);
+      var tab = el("table", {id: "figures"}, box), head = el("tr", {}, tab);
+      (r.before ? ["", "this build", "the run before", "change"] : ["", "this build"])
+        .forEach(function (h) { el("th", {text: h}, head); });
+      FIGURES.forEach(function (f) {
+        var tr = el("tr", {"data-key": f[0]}, tab), now = r.now[f[0]], then = r.before ? r.before[f[0]] : undefined;
+        el("td", {text: f[1]}, tr);
+        el("td", {text: typeof now === "string" ? now : fmt(now, f[3])}, tr);
+        if (!r.before) return;
+        el("td", {text: typeof then === "string" ? then : fmt(then, f[3])}, tr);
+        var td = el("td", {}, tr);
+        if (f[2] !== null && isFinite(now) && isFinite(then) && now !== null && then !== null) {
+          var dlt = now - then, same = Math.abs(dlt) < 0.5 * Math.pow(10, -f[3]);
+          var better = dlt * f[2] > 0;
+          td.textContent = same ? "no change" : (dlt > 0 ? "+" : "") + dlt.toFixed(f[3]) +
+            (better ? " better" : " worse");
+          td.className = same ? "" : better ? "better" : "worse";
+        } else if (f[0] === "verdict" && now !== then) {
+          td.textContent = then + " -> " + now;
+        }
+      });
+      if (r.now.parts_fresh === false) el("p", {"class": "FAIL", text: "The STLs do not match the tables: do not print them."}, box);
+      box.setAttribute("data-state", "shown");
+      box.setAttribute("data-verdict", r.now.verdict);
+    }).catch(function (e) { box.textContent = e.message; box.setAttribute("data-state", "error"); });
   }
 
-  function run(stages) {
-    var ed = studio.editor;
-    var go = ed.keyframes.length ? save() : Promise.resolve();
-    return go.then(function () {
-      if ($("status").getAttribute("data-state") === "error") return;
-      return api("/api/build/" + ed.build.id + "/run", {stages: stages}).then(poll);
-    }).catch(function (e) { status(e.message, "error"); });
+  function loadParts() {
+    var b = studio.editor.build, box = $("parts");
+    return api("/api/build/" + b.id + "/parts").then(function (r) {
+      box.innerHTML = "";
+      if (!r.made_from.fresh) {
+        el("p", {"class": "FAIL", text: "Not listed: " + r.made_from.problem + ". Press Run to make them again."}, box);
+      } else if (!r.stls.length) {
+        el("p", {text: "No STL in this build (it was built with --no-render)."}, box);
+      }
+      var tab = el("table", {id: "parts-table"}, box), head = el("tr", {}, tab);
+      ["file", "size", "triangles", "what it is for", ""].forEach(function (h) { el("th", {text: h}, head); });
+      r.stls.forEach(function (s) {
+        var name = s.name.replace(/^stl\//, ""), tr = el("tr", {"data-name": name}, tab);
+        el("td", {text: name}, tr);
+        el("td", {text: (s.bytes / 1e6).toFixed(2) + " MB"}, tr);
+        el("td", {text: String(s.triangles)}, tr);
+        el("td", {text: s.purpose}, tr);
+        var td = el("td", {}, tr);
+        var show = el("button", {type: "button", text: "3D", "class": "part-3d"}, td);
+        show.addEventListener("click", function () { previewPart(b, name); });
+        var a = el("a", {href: withToken("/api/build/" + b.id + "/stl/" + name), download: b.name + "-" + name,
+          text: "download", "class": "part-download"}, td);
+        a.setAttribute("data-name", name);
+      });
+      box.setAttribute("data-count", String(r.stls.length));
+    }).catch(function (e) { box.textContent = e.message; });
   }
 
-  function poll() {
-    return api("/api/job").then(function (j) {
-      $("progress").value = j.progress;
-      if (j.state === "running") {
-        status(j.message, "running");
-        return new Promise(function (res) { setTimeout(res, 400); }).then(poll);
-      }
-      if (j.state === "error") { status(j.error, "error"); return; }
-      status("reloading ...", "running");
-      var reload = [studio.editor.load(studio.editor.build)];
-      if (j.stages === "program+simulate") {
-        reload.push(api("/api/builds").then(function (b) { studio.builds = b; return loadViewers(); }));
-      }
-      return Promise.all(reload).then(function () { status(j.stages + ": done", "done"); });
+  function previewPart(b, name) {
+    var box = $("part-view");
+    box.innerHTML = "loading " + name + " ...";
+    return fetch("/api/build/" + b.id + "/stl/" + name, {headers: headers(false)}).then(function (r) {
+      if (!r.ok) return r.json().then(function (j) { throw new Error(j.error); });
+      return r.arrayBuffer();
+    }).then(function (buf) {
+      box.innerHTML = "";
+      el("div", {"class": "mv-title", text: name + " (drag to turn)"}, box);
+      var pv = MorphViewer.partView(box, buf, {width: 520, height: 340});
+      pv.render();
+      box.setAttribute("data-part", name);
+      box.setAttribute("data-triangles", String(pv.triangles));
+      studio.partView = pv;
+    }).catch(function (e) { box.textContent = name + ": " + e.message; });
+  }
+
+  // ---------------------------------------------------------------- run (a build again)
+  function run() {
+    var ed = studio.editor;
+    setError("run", null);
+    $("run").disabled = true;
+    return api("/api/build/" + ed.build.id + "/run",
+      {landscape: Array.from(ed.st.land), edits: ed.st.edits}).then(function (j) {
+      studio.job = j;
+      ed.updateButtons();
+      return poll();
+    }).catch(function (e) {
+      setError("run", "Run refused: " + e.message);
+      ed.updateButtons();
     });
   }
 
+  function eta(s) {
+    if (s === null || s === undefined) return "";
+    return s < 60 ? "about " + Math.max(1, Math.round(s)) + " s left" :
+      "about " + Math.round(s / 60) + " min left";
+  }
+  function poll() {
+    return api("/api/job").then(function (j) {
+      studio.job = j;
+      var bar = $("progress"), text = $("progress-text");
+      bar.value = j.progress;
+      bar.setAttribute("data-value", String(j.progress));
+      studio.editor.updateButtons();
+      if (j.state === "running") {
+        var k = j.plan ? j.plan.indexOf(j.stage) + 1 : 0;
+        text.textContent = (j.stage ? j.stage + " (stage " + k + " of " + j.plan.length + ")" : "starting") +
+          ", " + Math.round(100 * j.progress) + " %, " + eta(j.eta_s);
+        text.setAttribute("data-state", "running");
+        return new Promise(function (res) { setTimeout(res, 400); }).then(poll);
+      }
+      if (j.state === "error") {
+        text.textContent = "the run failed";
+        text.setAttribute("data-state", "error");
+        setError("run", j.error);
+        return;
+      }
+      if (j.state !== "done") return;
+      text.textContent = "done in " + fmt(j.seconds, 0) + " s; reloading";
+      var ed = studio.editor;
+      return api("/api/builds").then(function (b) {
+        studio.builds = b;
+        ed.states[ed.build.id] = null;     // the build's landscape is now the edited one
+        return Promise.all([ed.load(b[ed.build.id], true), loadViewers(), loadResults(), loadParts()]);
+      }).then(function () {
+        text.textContent = "done in " + fmt(j.seconds, 0) + " s";
+        text.setAttribute("data-state", "done");
+        status("built again: see the results", "done");
+      });
+    }).catch(function (e) { setError("run", e.message); });
+  }
+
+  // ---------------------------------------------------------------- start
   function init() {
+    studio.token = tokenFromUrl();
+    if (!studio.token) {
+      $("token-missing").hidden = false;
+      document.body.setAttribute("data-ready", "error");
+      return;
+    }
+    var ed;
+    studio.fields = {
+      value: numberField("brush-value", "brush-error", {name: "value", changed: function () { ed && ed.brush(); },
+        check: function (v) {
+          var mode = $("brush-mode").value;
+          if (v < 0) return (mode === "set" ? "time" : "seconds") + " must be 0 or more (a negative change is the subtract mode)";
+          if (v > MAX_TIME) return (mode === "set" ? "time" : "seconds") + " " + v + " s is more than " + MAX_TIME + " s";
+          return null;
+        }}),
+      radius: numberField("brush-radius", "brush-error", {name: "radius", changed: function () { ed && ed.brush(); },
+        check: function (v) {
+          if (v <= 0) return "radius must be more than 0 mm";
+          if (v > MAX_RADIUS) return "radius " + v + " mm is more than " + MAX_RADIUS + " mm";
+          return null;
+        }}),
+      falloff: numberField("brush-falloff", "brush-error", {name: "falloff", changed: function () { ed && ed.brush(); },
+        check: function (v) { return v < 0 || v > 1 ? "falloff " + v + " is outside 0-1 (0 a hard edge, 1 smooth from the centre)" : null; }}),
+      kfTime: numberField("kf-time", "kf-error", {name: "keyframe time", changed: function () {
+        var r = studio.fields.kfTime.check();
+        $("kf-error").textContent = r.ok ? "" : r.message;
+      }, check: function (v) { return v < 0 || v > MAX_TIME ? "time " + v + " s is outside 0-" + MAX_TIME + " s" : null; }}),
+    };
+    $("brush-mode").addEventListener("change", function () {
+      var m = $("brush-mode").value;
+      $("brush-value").disabled = m === "smooth";
+      $("brush-value-label").textContent = m === "set" ? "time" : m === "smooth" ? "(no value)" : "seconds";
+      ed && ed.brush();
+    });
     api("/api/builds").then(function (builds) {
       studio.builds = builds;
       $("builds-note").textContent = builds.map(function (b) { return b.path; }).join(" | ");
       var sel = $("edit-build");
       builds.forEach(function (b) {
-        var o = document.createElement("option");
-        o.value = String(b.id); o.textContent = b.name; sel.appendChild(o);
+        el("option", {value: String(b.id), text: b.name}, sel);
       });
-      studio.editor = new Editor($("editor-view"));
+      ed = studio.editor = new Editor($("editor-view"));
       sel.addEventListener("change", function () {
-        studio.editor.keyframes = [];
-        studio.editor.listKeyframes();
-        studio.editor.load(builds[parseInt(sel.value, 10)]);
+        var b = builds[parseInt(sel.value, 10)];
+        Promise.all([ed.load(b), loadResults(), loadParts()]);
       });
-      $("save").addEventListener("click", save);
-      $("program").addEventListener("click", function () { run("program"); });
-      $("run").addEventListener("click", function () { run("program+simulate"); });
-      $("clear").addEventListener("click", function () {
-        studio.editor.keyframes = []; studio.editor.listKeyframes(); studio.editor.update();
+      $("undo").addEventListener("click", function () { ed.undo(); });
+      $("redo").addEventListener("click", function () { ed.redo(); });
+      $("reset").addEventListener("click", function () { ed.reset(); });
+      $("colour-mode").addEventListener("change", function () { ed.paint(); });
+      $("download").addEventListener("click", function () {
+        var a = el("a", {href: URL.createObjectURL(new Blob([ed.csv()], {type: "text/csv"})),
+          download: ed.build.name + "-time_landscape.csv"});
+        a.click();
       });
-      return Promise.all([loadViewers(), studio.editor.load(builds[0])]);
+      document.querySelectorAll("input[name=tool]").forEach(function (r) {
+        r.addEventListener("change", function () {
+          $("brush-box").disabled = ed.tool() !== "brush";
+          $("kf-box").disabled = ed.tool() !== "keyframe";
+        });
+      });
+      $("kf-box").disabled = true;
+      document.addEventListener("keydown", function (e) {
+        if (!(e.ctrlKey || e.metaKey) || e.target.tagName === "INPUT") return;
+        if (e.key === "z" && !e.shiftKey) { e.preventDefault(); ed.undo(); }
+        if (e.key === "y" || (e.key === "z" && e.shiftKey)) { e.preventDefault(); ed.redo(); }
+      });
+      window.addEventListener("beforeunload", function (e) {
+        if (ed.dirty() && !(studio.job && studio.job.state === "running")) { e.preventDefault(); e.returnValue = ""; }
+      });
+      $("run").addEventListener("click", run);
+      return Promise.all([loadViewers(), ed.load(builds[0])]).then(function () {
+        return Promise.all([loadResults(), loadParts(), api("/api/job").then(function (j) {
+          studio.job = j;
+          if (j.state === "running") poll();   // a run started before a reload: follow it
+        })]);
+      });
     }).then(function () {
       document.body.setAttribute("data-ready", "1");
     }).catch(function (e) {
-      status(e.message, "error");
+      setError("load", e.message);
       document.body.setAttribute("data-ready", "error");
     });
   }

@@ -1,0 +1,40 @@
+"""The studio's *Run*, in its own process: a build of an edited time landscape.
+
+    python -m pysolver.studio.rerun < request.json
+
+The request (stdin, JSON) is ``{"folder": path, "landscape": [s per stencil vertex],
+"source": {...}}``; :func:`pysolver.build.rebuild` runs the stages after the design stage
+with the build's own options and replaces the folder only when all have finished.  Its
+progress lines go to stderr (the studio's progress bar reads them).  Exit codes as the
+command line: 0 done, 3 done with a FAIL verdict, 2 bad input (nothing saved), 1 a bug.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import traceback
+
+from ..build import rebuild
+from ..errors import EXIT_INTERNAL, MorphshellError
+
+
+def main() -> int:
+    try:
+        req = json.loads(sys.stdin.read())
+        summary = rebuild(req["folder"], req["landscape"], source=req.get("source"))
+    except MorphshellError as e:
+        print(f"morphshell studio run: error: {e}", file=sys.stderr, flush=True)
+        return e.exit_code
+    except Exception as e:  # a bug: the traceback goes to the studio's log
+        traceback.print_exc()
+        print(f"morphshell studio run: internal error ({type(e).__name__}: {e})",
+              file=sys.stderr, flush=True)
+        return EXIT_INTERNAL
+    return int(summary.get("exit_code", 0))
+
+
+__all__ = ["main"]
+
+if __name__ == "__main__":
+    sys.exit(main())
