@@ -52,12 +52,13 @@ from .atomic import (
     atomic_write_text,
     build_lock,
     claim_output,
+    open_staging,
     public_mode,
     recover_stale,
     remove_staging,
     replace_dir,
+    seal,
     staging_dir,
-    write_stamp,
 )
 from .design import check_design_options, run_design
 from .design.surfaces import BUILTIN_SHAPES, check_spec
@@ -389,8 +390,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         atomic_write_text(staging / "summary.json",
                           json.dumps(summary, indent=2, sort_keys=True, default=_json_default)
                           + "\n")
-        (staging / ".inputs_sha256").unlink(missing_ok=True)
-        write_stamp(staging)
+        seal(staging)
         public_mode(staging, recursive=True)
         replace_dir(staging, out)
         remove_staging(staging)
@@ -766,15 +766,10 @@ def _now() -> float:
 
 
 def _prepare_staging(staging: Path, digest: str, progress: bool) -> None:
-    """Reuse the staging folder of an interrupted build with the same inputs, else start clean."""
-    marker = staging / ".inputs_sha256"
-    if staging.exists():
-        if marker.exists() and marker.read_text().strip() == digest:
-            _log(f"resuming the interrupted build in {staging}", progress)
-            return
-        remove_staging(staging)
-    staging.mkdir(parents=True)
-    marker.write_text(digest + "\n")
+    """Reuse the staging folder of an interrupted build with the same inputs, else start
+    clean (:func:`pysolver.atomic.open_staging`: recognised by the stamp inside)."""
+    if open_staging(staging, inputs_sha256=digest):
+        _log(f"resuming the interrupted build in {staging}", progress)
 
 
 # outputs of the stages a build may skip, and what they are computed from

@@ -14,12 +14,17 @@ import dataclasses
 import errno
 import functools
 import sys
-import time
 import traceback
 import warnings
 from pathlib import Path
 
-from .atomic import STAMP_NAME, claim_output, claim_output_file, write_stamp
+from .atomic import (
+    build_lock,
+    check_design_folder,
+    claim_output,
+    claim_output_file,
+    claim_result_folder,
+)
 from .errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERNAL,
@@ -283,12 +288,13 @@ def _run(args: argparse.Namespace) -> int:
     progress = not getattr(args, "quiet", False)
     if hasattr(args, "dir"):
         args.dir = _design_dir(args.dir)
-        t0 = time.time()
-        try:
+        if args.command == "tolerance":  # reads the folder; writes its own result folder
             return _run_stage(args, progress)
-        finally:  # files this stage wrote into a stamped design folder are morphshell's
-            if (args.dir / STAMP_NAME).is_file():
-                write_stamp(args.dir, since=t0 - 1.0)
+        # a stage writes into the design folder in place: only into a folder morphshell
+        # made (whose stamp records what it wrote), one stage or build at a time
+        check_design_folder(args.dir)
+        with build_lock(args.dir):
+            return _run_stage(args, progress)
     return _run_command(args, progress)
 
 
@@ -404,9 +410,8 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         return EXIT_OK
     if cmd == "specimens":
         from .specimens import make_specimens  # lazy: the stage loads when its subcommand runs
-        out = claim_output(args.out, what="--out folder")
+        out = claim_result_folder(args.out, what="--out folder")
         make_specimens(out, jobs=args.jobs)
-        write_stamp(out)
         return EXIT_OK
     if cmd == "studio":
         from .studio import serve  # lazy: the stage loads when its subcommand runs

@@ -43,17 +43,6 @@ SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|inproc|ucx)://[A-Za-z0-9_.:\[\]/-]{
 RESULT_FORMAT = "morphshell.task_result"
 
 
-def is_result_file(path) -> bool:
-    """Whether ``path`` is a task result this module wrote (JSON with our format tag)."""
-    p = Path(path)
-    if p.suffix != ".json":
-        return False
-    try:
-        return json.loads(p.read_text()).get("format") == RESULT_FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
 def _soft_import_distributed():
     """``distributed`` is a declared dependency; a broken install fails here with the fix."""
     try:
@@ -171,7 +160,6 @@ class ResultStore:
         return d.get("result")
 
     def save(self, task: Task, result) -> None:
-        self.folder.mkdir(parents=True, exist_ok=True)
         text = json.dumps({"format": RESULT_FORMAT, "key": task.key,
                            "fingerprint": task.fingerprint, "result": result},
                           sort_keys=True, allow_nan=True)

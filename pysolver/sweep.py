@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_file, atomic_write_text, claim_result_folder, write_stamp
+from .atomic import atomic_file, atomic_write_text, claim_result_folder
 from .build import build
 from .distributed import (
     ResultStore,
@@ -58,7 +58,6 @@ from .distributed import (
     check_workers,
     code_fingerprint,
     fingerprint,
-    is_result_file,
     run_tasks,
 )
 from .errors import InputError, MorphshellError
@@ -328,15 +327,9 @@ def _plot(path: Path, rows: list) -> None:
 
 
 def _claim(out: Path) -> Path:
-    """The sweep folder: new, stamped by morphshell, or holding only our results/builds."""
-
-    def ours(p: Path) -> bool:
-        rel = p.relative_to(out).parts
-        if rel[0] == "builds":
-            return True  # each build folder is checked by build() itself (claim_output)
-        return rel[0] == "results" and is_result_file(p)
-
-    return claim_result_folder(out, ours, what="sweep folder")
+    """The sweep folder: new, or morphshell's (every file in it recorded as written; each
+    build folder in it is checked again by build() itself)."""
+    return claim_result_folder(out, what="sweep folder")
 
 
 def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
@@ -361,8 +354,6 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
     scheduler, workers = check_scheduler(scheduler), check_workers(workers)
     spec = load_spec(spec_path)
     out = _claim(Path(out) if out is not None else BUILD_ROOT / f"sweep-{spec['name']}")
-    out.mkdir(parents=True, exist_ok=True)
-    write_stamp(out, since=time.time() + 1e9)
     tasks = []
     code = code_fingerprint()
     for v in spec["variants"]:
@@ -389,7 +380,6 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
             r[k] = Path(val).name if (k in FILE_OPTIONS and val and _is_file_like(val)) else val
         rows.append(r)
     write_table(out, rows, spec["name"])
-    write_stamp(out)
     if progress:
         n_ok = sum(r.get("verdict") in ("PASS", "WARN", "FAIL") for r in rows)
         print(f"sweep: {n_ok}/{len(rows)} variants built -> {out / 'index.html'}",

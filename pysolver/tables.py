@@ -19,13 +19,13 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_file, atomic_write_text
 from .errors import InputError, refuse_first
 from .geometry import unit_cells
 from .params import UNIT_CELL, check_unit_cell
@@ -121,10 +121,7 @@ def write_table(path, kind: str, data: dict) -> Path:
     kinds = list(schema.values())
     for r in range(n):
         lines.append(",".join(_fmt(cols[k][r], kinds[k]) for k in range(len(kinds))))
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w", newline="\n") as fh:
-        fh.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -269,10 +266,7 @@ def write_stencil(path, V, UV, F) -> Path:
     lines += ["v {:.9g} {:.9g} {:.9g}".format(*tuple(p)) for p in V + 0.0]
     lines += ["vt {:.9g} {:.9g}".format(*tuple(p)) for p in UV + 0.0]
     lines += ["f {} {} {}".format(*(f + 1)) for f in F]
-    tmp = path.with_suffix(".obj.tmp")
-    with open(tmp, "w", newline="\n") as fh:
-        fh.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -673,15 +667,13 @@ def write_model(folder, arrays: dict, inputs_sha256: str) -> Path:
     if missing:
         raise InputError(f"write_model: missing array(s) {missing}")
     path = Path(folder) / MODEL_FILE
-    tmp = path.with_suffix(path.suffix + ".tmp")
     items = [(k, np.ascontiguousarray(arrays[k])) for k in MODEL_ARRAYS]
     items.append(("inputs_sha256", np.array(inputs_sha256)))
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
+    with atomic_file(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
         for name, a in items:
             with zf.open(zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0)),
                          "w") as fh:
                 np.lib.format.write_array(fh, a, allow_pickle=False)
-    os.replace(tmp, path)
     return path
 
 

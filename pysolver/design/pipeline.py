@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import sys
 import time as _time
 from dataclasses import replace
@@ -24,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
+from ..atomic import atomic_write_text
 from ..errors import InputError
 from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell, check_unit_cell
 from ..params import tol as TOL
@@ -548,11 +548,8 @@ def _json_default(o):
 
 
 def _write_json(path: Path, data: dict):
-    tmp = path.with_suffix(".json.tmp")
-    with open(tmp, "w", newline="\n") as fh:
-        json.dump(data, fh, indent=1, sort_keys=False, default=_json_default)
-        fh.write("\n")
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=False,
+                                       default=_json_default) + "\n")
 
 
 __all__ = ["run_design", "check_design_options", "unit_cell_options",

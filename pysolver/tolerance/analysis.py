@@ -76,7 +76,7 @@ from pathlib import Path
 import numpy as np
 
 from pysolver import distributed
-from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
+from pysolver.atomic import atomic_write_text, claim_result_folder
 from pysolver.build import check_sim_span, simulate_and_check
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
@@ -414,10 +414,8 @@ def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
 
 
 def _claim(folder: Path) -> Path:
-    """The tolerance folder: new, or morphshell's (its stamp, or our result files)."""
-    return claim_result_folder(
-        folder, lambda p: p.parent.name == "samples" and distributed.is_result_file(p),
-        what="tolerance folder")
+    """The tolerance folder: new, or morphshell's (every file in it recorded as written)."""
+    return claim_result_folder(folder, what="tolerance folder")
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
@@ -702,8 +700,6 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                               distributed.fingerprint(payload.sha, p, settings, code))
              for p in perts]
     store = distributed.ResultStore(out / "samples")
-    out.mkdir(parents=True, exist_ok=True)
-    write_stamp(out, since=time.time() + 1e9)  # claim the folder before the first result
     results, stats = distributed.run_tasks(tasks, store, client=client, scheduler=scheduler,
                                            workers=workers, progress=progress,
                                            label="tolerance", on_result=on_result)
@@ -738,7 +734,6 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     if report:
 
         write_report(out, summary, folder, main, nominal)
-    write_stamp(out)
     if progress:
         f = summary["figures"]
         most = f.get("most_influential", "-")

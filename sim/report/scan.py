@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
-from pysolver.atomic import atomic_write_text
+from pysolver.atomic import atomic_file, atomic_write_text, make_dirs
 from pysolver.errors import InputError
 from pysolver.geometry import rigid_fit
 from pysolver.params import tol as TOL
@@ -359,7 +359,8 @@ def _plot(path, P, M, reg, title):
     ax2.set_ylabel("matched pairs")
     ax2.set_title("matched-pair distances")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
     return path
 
@@ -417,7 +418,7 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
     out["pairs"] = [[int(a), int(ids[b]), float(d)] for (a, b), d in
                     zip(reg["pairs"], reg["dist"], strict=True)]
     out_dir = Path(out_dir) if out_dir is not None else folder / "scan_report"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(out_dir)
     stem = scan_path.stem
     png = _plot(out_dir / f"scan_{stem}.png", P, M, reg,
                 f"{scan_path.name} vs simulated {chosen} markers: mean {out['mean_mm']:.2f} mm")
