@@ -966,6 +966,24 @@ def atomic_dir(dst, *, keep_on_error: bool = False):
     replace_dir(tmp, dst)
 
 
+@contextlib.contextmanager
+def output_folder(dst):
+    """Where to write the folder ``dst``: ``dst`` itself when it is a private folder being
+    made (a build's staging folder), else a private temporary that becomes ``dst`` when the
+    block succeeds (:func:`atomic_dir`; ``dst`` must pass :func:`claim_output`).
+
+    Yields
+    ------
+    pathlib.Path
+    """
+    dst = Path(dst)
+    if dst.is_dir() and not dst.is_symlink() and _is_private(read_stamp(dst)):
+        yield dst
+    else:
+        with atomic_dir(dst) as tmp:
+            yield tmp
+
+
 def write_stamp(folder, *, since: float | None = None) -> None:
     """Kept for callers of the former API, which stamped files after the fact.  Files are
     now recorded when they are written (:func:`atomic_file`), so this only seals a private

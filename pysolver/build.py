@@ -63,7 +63,7 @@ from .atomic import (
 from .design import check_design_options, run_design
 from .design.surfaces import BUILTIN_SHAPES, check_spec
 from .design.time_landscape import read_time_file
-from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
+from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError, check_input_file
 from .material.model import DEFAULT_MODEL_PATH, check_bracket_geometry, load_bracket_model
 from .params import DEFAULT_REFINE, LIMITS, MODEL_LIMITS, REPORT, SIM, UNIT_CELL
 from .render import (
@@ -111,6 +111,8 @@ def shape_name(source: str) -> str:
     p = Path(source)
     if p.is_file():
         return p.stem
+    if p.exists() and not p.is_dir():
+        check_input_file(p, "mesh file")  # a FIFO or a device: named, never read
     if p.is_dir():
         raise InputError(f"{source!r} is a directory, not a mesh file.",
                          fix="give the path of a mesh file (OBJ, STL, PLY, OFF) or a built-in "

@@ -60,7 +60,7 @@ from .distributed import (
     fingerprint,
     run_tasks,
 )
-from .errors import InputError, MorphshellError
+from .errors import InputError, MorphshellError, read_input
 from .params import TOLERANCE_RUN
 
 BUILD_ROOT = Path("build")
@@ -127,7 +127,7 @@ def load_spec(path) -> dict:
     """
     p = Path(path)
     try:
-        text = p.read_bytes().decode("utf-8")
+        text = read_input(p, "sweep spec").decode("utf-8")
         spec = tomllib.loads(text)
     except OSError as e:
         raise InputError(f"sweep spec {p}: {e.strerror}", fix="give an existing TOML file") \
@@ -333,7 +333,7 @@ def _claim(out: Path) -> Path:
 
 
 def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
-              progress: bool = True) -> dict:
+              progress: bool = True, dashboard: bool = False) -> dict:
     """Build every variant of a sweep spec on Dask and write the table.
 
     Parameters
@@ -342,7 +342,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
         TOML spec (module docstring).
     out : path-like, optional
         Output folder (default ``build/sweep-<name>``).
-    scheduler, workers, client
+    scheduler, workers, client, dashboard
         Dask cluster (:func:`pysolver.distributed.dask_client`).
     progress : bool
 
@@ -361,7 +361,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
         for k in FILE_OPTIONS:
             if k in v and (k != "shape" or _is_file_like(v[k])):
                 f = Path(v[k])
-                files[k] = (f.name, f.read_bytes())
+                files[k] = (f.name, read_input(f, f"{k} file"))
         opts = {k: val for k, val in v.items() if k not in files}
         opts["name"] = v["name"]
         dest = str(out / "builds" / v["name"])
@@ -370,7 +370,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
                                       code)))
     results, stats = run_tasks(tasks, ResultStore(out / "results"), client=client,
                                scheduler=scheduler, workers=workers, progress=progress,
-                               label="sweep")
+                               label="sweep", dashboard=dashboard)
     rows = []
     for v in spec["variants"]:
         r = dict(results.get(v["name"], {"variant": v["name"], "verdict": "ERROR",
@@ -381,7 +381,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
         rows.append(r)
     write_table(out, rows, spec["name"])
     if progress:
-        n_ok = sum(r.get("verdict") in ("PASS", "WARN", "FAIL") for r in rows)
+        n_ok = sum(r.get("verdict") != "ERROR" for r in rows)
         print(f"sweep: {n_ok}/{len(rows)} variants built -> {out / 'index.html'}",
               file=sys.stderr, flush=True)
     return {"rows": rows, "out": str(out), "run": stats.to_dict()}

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_file, atomic_write_text
-from .errors import InputError, refuse_first
+from .errors import InputError, check_input_file, refuse_first
 from .geometry import unit_cells
 from .params import UNIT_CELL, check_unit_cell
 from .params import tol as TOL
@@ -147,6 +147,7 @@ def read_table(path, kind: str) -> dict[str, np.ndarray]:
         where = (f"{path.parent}: no such design folder" if not path.parent.exists()
                  else f"{path}: file not found")
         raise InputError(where, fix="run the design stage first (morphshell design <shape>)")
+    check_input_file(path, f"{kind} table")
     try:
         with open(path) as fh:
             text = fh.read()
@@ -314,6 +315,7 @@ def read_stencil(path):
     if not path.exists():
         raise InputError(f"{path}: file not found",
                          fix="run the design stage first (morphshell design <shape>)")
+    check_input_file(path, "stencil")
     V, T, F, FT = [], [], [], []
     with open(path, errors="replace") as fh:
         for ln, line in enumerate(fh, start=1):
@@ -370,7 +372,10 @@ def read_stencil(path):
             UV = T
         else:
             raise InputError(f"{path}: {len(T)} vt for {len(V)} v and faces without vt indices",
-                             fix="give one vt per v (row-aligned) or v/vt face indices")
+                             fix="for a stencil, give one vt per v (row-aligned) or v/vt face "
+                                 "indices; for a plain target mesh, delete its vt lines (e.g. "
+                                 "grep -v '^vt ' in.obj > target.obj), which a mesh does not "
+                                 "need")
     _check_stencil(V, UV if UV is not None else np.zeros((len(V), 2)), F, str(path))
     return V, UV, F
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
-from ..atomic import atomic_write_text
+from ..atomic import atomic_write_text, output_folder
 from ..errors import InputError
 from ..params import LIMITS, REFERENCE_MIN_BUMPER_MM, UNIT_CELL, UnitCell, check_unit_cell
 from ..params import tol as TOL
@@ -285,7 +285,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         PLY, OFF; one connected disk-like surface in mm) or a stencil OBJ (v = target,
         vt = flat, row-aligned; its vertex and face order is kept).
     out_dir : str or Path
-        Design folder (created if needed); files are written atomically one by one.
+        Design folder: new, empty, or one morphshell made (:func:`pysolver.atomic.claim_output`);
+        it appears complete or not at all (:func:`pysolver.atomic.output_folder`).
     vertices : int, optional
         Stencil vertex count N (default: searched to minimise the stencil scaling).
     time : None, float, str or array
@@ -424,33 +425,34 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params)))
     report.raise_if_failed()
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_design_tables(out_dir, lay, coll, t_vertex, t_star, th, params)
-    clock.step("write")
+    # the folder appears whole, or not at all (in place in a build's private staging)
+    with output_folder(out_dir) as out_dir:
+        write_design_tables(out_dir, lay, coll, t_vertex, t_star, th, params)
+        clock.step("write")
 
-    summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
-                       flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
-    if plots:
+        summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
+                           flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
+        if plots:
 
-        pics = write_design_plots(lay, out_dir, t_vertex, th)
-        clock.step("plots")
-        summary["pictures"] = [p.name for p in pics]
-    summary["timings_s"] = dict(clock.t)
-    options = {
-        "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
-        "vertices": vertices, "seed": seed,
-        "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
-                 else "array"),
-        "time_file": time_file_info,
-        "sequencing": sequence,
-        "scale": scale, "size_mm": size, "input_scale": input_scale,
-        "flattening": flattening, "thickness_mm": thickness,
-        "central_length_mm": cl, "stencil_order": stencil_order,
-        "params": params.to_dict(),
-        "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
-        "alignment_bases": [int(i) for i in lay.alignment],
-    }
-    _write_json(out_dir / "design.json", {"options": options, "summary": summary})
+            pics = write_design_plots(lay, out_dir, t_vertex, th)
+            clock.step("plots")
+            summary["pictures"] = [p.name for p in pics]
+        summary["timings_s"] = dict(clock.t)
+        options = {
+            "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
+            "vertices": vertices, "seed": seed,
+            "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
+                     else "array"),
+            "time_file": time_file_info,
+            "sequencing": sequence,
+            "scale": scale, "size_mm": size, "input_scale": input_scale,
+            "flattening": flattening, "thickness_mm": thickness,
+            "central_length_mm": cl, "stencil_order": stencil_order,
+            "params": params.to_dict(),
+            "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
+            "alignment_bases": [int(i) for i in lay.alignment],
+        }
+        _write_json(out_dir / "design.json", {"options": options, "summary": summary})
     return summary
 
 

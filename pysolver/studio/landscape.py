@@ -47,7 +47,7 @@ def parse_constraints(payload, n_vertices: int) -> tuple[list, list]:
     Raises
     ------
     InputError
-        Not a mapping, unknown keys, a vertex outside ``0..n_vertices-1``, a time outside
+        Not a mapping, unknown keys (also inside a keyframe or a brush), a vertex outside ``0..n_vertices-1``, a time outside
         ``[0, MAX_TIME_S]`` s or a radius outside ``(0, 1000]`` mm.
     """
     if not isinstance(payload, dict):
@@ -72,6 +72,13 @@ def parse_constraints(payload, n_vertices: int) -> tuple[list, list]:
                              fix=f"give {key} as a number between {lo} and {hi}")
         return int(v) if integer else float(v)
 
+    for what, items, keys in (("keyframe", kfs, {"vertex", "time"}),
+                              ("brush", brs, {"vertex", "radius", "time"})):
+        for i, item in enumerate(items):
+            extra = sorted(map(str, set(item) - keys)) if isinstance(item, dict) else []
+            if extra:
+                raise InputError(f"{what} {i}: unknown key(s) {extra}",
+                                 fix=f"give a {what} as {{{', '.join(sorted(keys))}}} only")
     out_k = [(number(k, "vertex", 0, n_vertices - 1, f"keyframe {i}", True),
               number(k, "time", 0.0, MAX_TIME_S, f"keyframe {i}")) for i, k in enumerate(kfs)]
     out_b = [(number(b, "vertex", 0, n_vertices - 1, f"brush {i}", True),

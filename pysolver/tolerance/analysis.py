@@ -613,7 +613,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                        sensitivity: int | None = None, t_end: float = SIM.t_end,
                        dt: float = SIM.dt, material=None, out=None, scheduler=None,
                        workers=None, client=None, progress: bool = True, report: bool = True,
-                       on_result=None) -> dict:
+                       on_result=None, dashboard: bool = False) -> dict:
     """Monte Carlo tolerance analysis of a programmed design folder.
 
     Parameters
@@ -636,7 +636,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         Bracket model file (default: the committed one).
     out : path-like, optional
         Output folder (default ``<design_dir>/tolerance``).
-    scheduler, workers, client
+    scheduler, workers, client, dashboard
         Dask cluster (:func:`pysolver.distributed.dask_client`).
     progress, report : bool
         Progress lines; write ``report.html`` and pictures.
@@ -702,6 +702,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     store = distributed.ResultStore(out / "samples")
     results, stats = distributed.run_tasks(tasks, store, client=client, scheduler=scheduler,
                                            workers=workers, progress=progress,
+                                           dashboard=dashboard,
                                            label="tolerance", on_result=on_result)
     if stats.failed:
         raise MorphshellError(

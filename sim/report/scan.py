@@ -27,6 +27,7 @@ registers both layers and keeps the one with the lower truncated error.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 from pathlib import Path
@@ -38,7 +39,7 @@ from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
 from pysolver.atomic import atomic_file, atomic_write_text, make_dirs
-from pysolver.errors import InputError
+from pysolver.errors import InputError, check_input_file, read_input
 from pysolver.geometry import rigid_fit
 from pysolver.params import tol as TOL
 from pysolver.tables import read_table
@@ -102,6 +103,7 @@ def read_points(path):
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: file not found", fix="give the path of the scan point set")
+    check_input_file(path, "scan file")  # a FIFO or a device would block the reader
     ext = path.suffix.lower()
     if ext == ".obj":
         # hand-written: an OBJ of bare vertices is not a mesh for trimesh (it loads as empty)
@@ -119,7 +121,8 @@ def read_points(path):
         import trimesh  # heavy: trimesh loads only for STL work
 
         try:
-            geom = trimesh.load(path, process=False)
+            geom = trimesh.load(io.BytesIO(read_input(path, "scan file")), file_type="ply",
+                                process=False)  # (no resolver: names in it are not opened)
         except Exception as e:
             raise InputError(f"{path}: cannot read PLY ({type(e).__name__}: {e})") from None
         P = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
