@@ -271,7 +271,7 @@ def seal(folder) -> None:
             p.unlink()  # a temporary stamp of a killed step, in this private folder
         elif kind == "file" and p.name != STAMP_NAME:
             files[rel] = list(file_digest(p))
-    keep = {k: old[k] for k in ("for", "token") if k in old}
+    keep = {k: old[k] for k in ("for", "token", "pid") if k in old}
     with _folder_lock(folder):
         _store(folder, {"files": files, "dirs": sorted(dirs), "prev": {}, "pending": {},
                         **keep}, read_stamp(folder))
@@ -406,6 +406,8 @@ def _audit_in(d: Path, owner: Path, m: dict, out: list) -> None:
             if d == owner and (e.name == STAMP_NAME
                                or e.name == f"{STAMP_NAME}.{m.get('next')}.tmp"):
                 continue
+            if _is_lock_file(p):
+                continue  # the lock of a subfolder's build (removed when released)
             why = _entry_state(p, rel, m)
             if why:
                 out.append((p, why))
@@ -732,7 +734,8 @@ def _remove_ours(folder: Path) -> list[Path]:
             elif e.is_file(follow_symlinks=False) and d == owner and (
                     e.name == STAMP_NAME or e.name == f"{STAMP_NAME}.{man.get('next')}.tmp"):
                 continue
-            elif e.is_file(follow_symlinks=False) and _entry_state(p, rel, man) is None:
+            elif e.is_file(follow_symlinks=False) and (_entry_state(p, rel, man) is None
+                                                       or _stale_lock(p)):
                 p.unlink()
             else:
                 kept.append(p)
@@ -833,9 +836,8 @@ def recover_stale(dst) -> list[Path]:
         if not _TEMP_NAME.match(p.name) or _temporary_of(p) != dst.name:
             continue
         m = read_stamp(p) or {}
-        if m.get("role") in ("tmp", "old") and _pid_alive(m.get("pid")) \
-                and m.get("pid") != os.getpid():
-            continue
+        if m.get("pid") != os.getpid() and _pid_alive(m.get("pid")):
+            continue  # another process's, still at work
         if ".old-" in p.name:
             olds.append((m.get("created", 0.0), p))
         else:
@@ -854,6 +856,32 @@ def recover_stale(dst) -> list[Path]:
 _LOCK_TEXT = re.compile(r"^(pid \d+)?$")
 
 
+def _is_lock_file(p: Path) -> bool:
+    """A lock file of :func:`build_lock`: named so, a regular file holding only ``pid N``."""
+    if not p.name.endswith(LOCK_SUFFIX):
+        return False
+    try:
+        fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return False
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        return (stat.S_ISREG(st.st_mode) and st.st_size <= 64
+                and _LOCK_TEXT.match(f.read(64).decode("ascii", "replace").strip()) is not None)
+
+
+def _stale_lock(p: Path) -> bool:
+    """A lock file of ours that no live process holds."""
+    if not _is_lock_file(p):
+        return False
+    try:
+        with open(p, "rb") as f:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+    except OSError:
+        return False
+
+
 def clean_stale_siblings(dst) -> list[Path]:
     """Remove the lock files no live process holds, and other outputs' staging folders that
     are unlocked and older than :data:`STALE_STAGING_S`, in ``dst``'s parent folder.  Both
@@ -863,15 +891,7 @@ def clean_stale_siblings(dst) -> list[Path]:
     parent = dst.parent
     done = []
     for lock in sorted(q for q in parent.iterdir() if q.name.endswith(LOCK_SUFFIX)):
-        if lock == lock_path(dst) or lock.is_symlink() or not lock.is_file():
-            continue
-        with contextlib.suppress(OSError), open(lock, "r+") as f:
-            if os.fstat(f.fileno()).st_size > 64 or not _LOCK_TEXT.match(f.read().strip()):
-                continue  # not a lock file of ours
-            try:
-                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                continue  # a live build
+        if lock != lock_path(dst) and _stale_lock(lock):  # (a live build holds its lock)
             lock.unlink()
             done.append(lock)
     now = time.time()

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .atomic import atomic_write_text
-from .errors import InputError
+from .errors import InputError, read_input
 from .params import TOLERANCE_RUN
 
 KEY_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,120}$")
@@ -152,7 +152,7 @@ class ResultStore:
         """
         p = self.path(task.key)
         try:
-            d = json.loads(p.read_text())
+            d = json.loads(read_input(p, "task result"))
         except (OSError, ValueError):
             return None
         if (not isinstance(d, dict) or d.get("format") != RESULT_FORMAT

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_file, atomic_write_text
-from .errors import InputError, check_input_file, refuse_first
+from .errors import InputError, check_input_file, read_input, refuse_first
 from .geometry import unit_cells
 from .params import UNIT_CELL, check_unit_cell
 from .params import tol as TOL
@@ -449,7 +449,7 @@ def read_design(folder, check: bool = True) -> Design:
     meta = {}
     if (folder / "design.json").exists():
         try:
-            meta = json.loads((folder / "design.json").read_text())
+            meta = json.loads(read_input(folder / "design.json", "design record"))
         except json.JSONDecodeError as e:
             raise InputError(f"{folder / 'design.json'}: invalid JSON ({e})") from None
     d = Design(folder, V, UV, F, bases, cells, bumpers, tl["time_s"],
@@ -506,8 +506,8 @@ def read_record(path) -> dict | None:
     """A JSON record of a design folder (``design.json``, ``summary.json``, ...) for display:
     its content, or ``None`` if the file is missing, unreadable or not JSON."""
     try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
+        return json.loads(read_input(path, "record"))
+    except (OSError, ValueError):  # (InputError is a ValueError)
         return None
 
 
@@ -517,7 +517,7 @@ def read_unit_cell(folder):
     if not path.is_file():
         return design_unit_cell({})
     try:
-        meta = json.loads(path.read_text())
+        meta = json.loads(read_input(path, "design record"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: invalid JSON ({e})", fix="re-run the design stage") from None
     return design_unit_cell(meta, str(path))

@@ -19,22 +19,6 @@ import numpy as np
 import pytest
 
 from pysolver import atomic
-from pysolver.atomic import (
-    STAMP_NAME,
-    atomic_dir,
-    atomic_file,
-    atomic_write_text,
-    audit,
-    build_lock,
-    claim_output,
-    foreign_files,
-    open_staging,
-    read_stamp,
-    recover_stale,
-    replace_dir,
-    staging_dir,
-    start_stamp,
-)
 from pysolver.cli import main
 from pysolver.errors import EXIT_BAD_INPUT, InputError
 
@@ -77,19 +61,19 @@ def test_a_users_file_is_never_adopted_by_a_failed_stage(design, capsys):
     scan.write_text("x,y,z\n0,0,0\n1,0,0\n0,1,0\n")
     rc, msg = _cli(["compare-scan", design, scan], capsys)
     assert rc == EXIT_BAD_INPUT, msg
-    assert "scan.csv" not in read_stamp(design)["files"]
+    assert "scan.csv" not in atomic.read_stamp(design)["files"]
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     _refused(rc, msg, r"scan\.csv: not written by morphshell", r"Fix: .*never deletes")
     assert scan.read_text().startswith("x,y,z")
 
 
 def test_every_file_is_recorded_with_its_hash_and_size(design):
-    m = read_stamp(design)
+    m = atomic.read_stamp(design)
     assert m["version"] == atomic.STAMP_VERSION
     for rel, (sha, size) in m["files"].items():
         p = design / rel
         assert (_sha(p), p.stat().st_size) == (sha, size), rel
-    assert audit(design) == []
+    assert atomic.audit(design) == []
 
 
 def test_an_edited_file_is_neither_overwritten_nor_deleted(design, capsys):
@@ -105,7 +89,7 @@ def test_an_edited_file_is_neither_overwritten_nor_deleted(design, capsys):
 
 
 def test_stage_commands_do_not_ignore_ownership_when_the_stamp_is_gone(design, capsys):
-    (design / STAMP_NAME).unlink()
+    (design / atomic.STAMP_NAME).unlink()
     before = {p.name: _sha(p) for p in design.iterdir() if p.is_file()}
     for stage in ("program", "simulate", "report", "render"):
         rc, msg = _cli([stage, design], capsys)
@@ -115,8 +99,8 @@ def test_stage_commands_do_not_ignore_ownership_when_the_stamp_is_gone(design, c
 
 
 def test_an_older_stamp_without_hashes_is_not_trusted(design, capsys):
-    names = sorted(read_stamp(design)["files"])
-    (design / STAMP_NAME).write_text(json.dumps({"made_by": "morphshell", "files": names}))
+    names = sorted(atomic.read_stamp(design)["files"])
+    (design / atomic.STAMP_NAME).write_text(json.dumps({"made_by": "morphshell", "files": names}))
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     _refused(rc, msg, r"made by an older morphshell that did not record file contents")
     assert (design / "cells.csv").is_file()
@@ -136,9 +120,9 @@ def test_empty_subfolders_are_the_users(tmp_path, design, capsys):
 
 def test_a_copy_of_an_own_subfolder_is_the_users(design, capsys):
     """A copy keeps the stamp inside, but the build folder's manifest does not list it."""
-    with atomic_dir(design / "stl") as tmp:
+    with atomic.atomic_dir(design / "stl") as tmp:
         (tmp / "top.stl").write_text("solid top\nendsolid top\n")
-    assert "stl" in read_stamp(design)["dirs"]
+    assert "stl" in atomic.read_stamp(design)["dirs"]
     shutil.copytree(design / "stl", design / "stl-printed")
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     _refused(rc, msg, r"stl-printed: a folder morphshell did not make")
@@ -177,7 +161,7 @@ def test_a_planted_link_at_a_temporary_name_is_never_followed(tmp_path, design, 
     assert rc in (0, EXIT_BAD_INPUT), msg
 
 
-@pytest.mark.parametrize("where", ["cells.csv", "sim", STAMP_NAME])
+@pytest.mark.parametrize("where", ["cells.csv", "sim", atomic.STAMP_NAME])
 def test_links_in_the_folder_are_refused_not_followed(tmp_path, design, capsys, where):
     victim = tmp_path / "victim"
     victim.mkdir()
@@ -215,42 +199,42 @@ def test_a_killed_write_leaves_the_old_file_and_a_rebuild_works(design, capsys):
     holds the old file or the new one, and both are morphshell's."""
     cells = design / "cells.csv"
     old = _sha(cells)
-    cm = atomic_file(cells)
+    cm = atomic.atomic_file(cells)
     tmp = cm.__enter__()                              # a kill: no __exit__, no clean-up
     tmp.write_text("half")
     assert _sha(cells) == old
-    cm2 = atomic_file(design / "sim" / "checkpoint.npz")
+    cm2 = atomic.atomic_file(design / "sim" / "checkpoint.npz")
     np.savez(cm2.__enter__(), k=np.arange(3))         # a killed simulate's checkpoint
-    assert audit(design) == []
+    assert atomic.audit(design) == []
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     assert rc == 0, msg
-    assert not list(design.glob(".*tmp*")) and audit(design) == []
+    assert not list(design.glob(".*tmp*")) and atomic.audit(design) == []
 
 
 def test_a_full_disk_leaves_the_old_file_and_no_temporary(design):
     cells = design / "cells.csv"
     old = cells.read_bytes()
     with pytest.raises(OSError, match="No space left"):
-        with atomic_file(cells) as tmp:
+        with atomic.atomic_file(cells) as tmp:
             tmp.write_text("partial")
             raise OSError(28, "No space left on device")
     assert cells.read_bytes() == old
-    assert sorted(p.name for p in design.iterdir() if p.name.startswith(".")) == [STAMP_NAME]
-    assert audit(design) == []
+    assert sorted(p.name for p in design.iterdir() if p.name.startswith(".")) == [atomic.STAMP_NAME]
+    assert atomic.audit(design) == []
 
 
 def test_a_rename_killed_after_the_record_is_still_recognised(design):
     """The new hash is recorded before the rename, the old one kept as ``prev``."""
     cells = design / "cells.csv"
-    m = read_stamp(design)
+    m = atomic.read_stamp(design)
     new = b"cell_id\n"
     rec = [hashlib.sha256(new).hexdigest(), len(new)]
     with atomic._folder_lock(design):
         atomic._store(design, dict(m, files={**m["files"], "cells.csv": rec},
                                    prev={"cells.csv": m["files"]["cells.csv"]}), m)
-    assert audit(design) == []                        # still the old file: ours
+    assert atomic.audit(design) == []                        # still the old file: ours
     cells.write_bytes(new)
-    assert audit(design) == []                        # the new one: ours too
+    assert atomic.audit(design) == []                        # the new one: ours too
 
 
 # ---------------------------------------------------------------- stale runs
@@ -259,7 +243,7 @@ def test_a_rename_killed_after_the_record_is_still_recognised(design):
 def test_stale_run_folders_are_recognised_by_their_stamp_not_their_name(tmp_path):
     parent = tmp_path / "build"
     dst = parent / "petal"
-    with atomic_dir(dst) as tmp:
+    with atomic.atomic_dir(dst) as tmp:
         (tmp / "summary.json").write_text("old complete\n")
     # the state after replace_dir's first rename: the old folder moved aside, dst absent
     tok = atomic._token()
@@ -275,8 +259,8 @@ def test_stale_run_folders_are_recognised_by_their_stamp_not_their_name(tmp_path
         (parent / name / "mine.txt").write_text("keep me\n")
     forged = parent / f".petal.tmp-{atomic._token()}"   # a copy of a build, renamed
     shutil.copytree(aside / "petal", forged)
-    with build_lock(dst):
-        done = recover_stale(dst)
+    with atomic.build_lock(dst):
+        done = atomic.recover_stale(dst)
     assert (dst / "summary.json").read_text() == "old complete\n"
     assert not aside.exists() and not killed.exists() and len(done) == 3
     names = sorted(p.name for p in parent.iterdir())
@@ -291,9 +275,9 @@ def test_staging_is_recognised_by_stamp_and_kept_for_a_week(tmp_path, monkeypatc
     parent.mkdir()
     now = time.time()
     monkeypatch.setattr(atomic.time, "time", lambda: now - 8 * 24 * 3600)
-    open_staging(staging_dir(parent / "old"), inputs_sha256="a")       # 8 days old
+    atomic.open_staging(atomic.staging_dir(parent / "old"), inputs_sha256="a")       # 8 days old
     monkeypatch.setattr(atomic.time, "time", lambda: now - 2 * 24 * 3600)
-    open_staging(staging_dir(parent / "recent"), inputs_sha256="b")    # 2 days old
+    atomic.open_staging(atomic.staging_dir(parent / "recent"), inputs_sha256="b")    # 2 days old
     monkeypatch.setattr(atomic.time, "time", lambda: now)
     mine = parent / ".notes.morphshell-staging"                          # the user's
     mine.mkdir()
@@ -305,17 +289,17 @@ def test_staging_is_recognised_by_stamp_and_kept_for_a_week(tmp_path, monkeypatc
                                                         ".recent.morphshell-staging"]
     assert atomic.STALE_STAGING_S == 7 * 24 * 3600
     with pytest.raises(InputError, match="not a staging folder of morphshell's"):
-        open_staging(staging_dir(parent / "notes"), inputs_sha256="c")
+        atomic.open_staging(atomic.staging_dir(parent / "notes"), inputs_sha256="c")
     assert (mine / "n.txt").is_file()
 
 
 def test_a_users_file_in_a_replaced_folder_is_kept(tmp_path):
     dst = tmp_path / "out"
-    with atomic_dir(dst) as tmp:
+    with atomic.atomic_dir(dst) as tmp:
         (tmp / "a.txt").write_text("a\n")
     new = tmp_path / "new"
     new.mkdir()
-    start_stamp(new)
+    atomic.start_stamp(new)
     atomic.seal(new)
     real_claim = atomic.claim_output
 
@@ -327,7 +311,7 @@ def test_a_users_file_in_a_replaced_folder_is_kept(tmp_path):
     atomic.claim_output = late
     try:
         with pytest.warns(UserWarning, match="kept 1 file"):
-            replace_dir(new, dst)
+            atomic.replace_dir(new, dst)
     finally:
         atomic.claim_output = real_claim
     kept = list(tmp_path.glob(".out.old-*/out/late.txt"))
@@ -339,12 +323,12 @@ def test_nested_and_result_folders(tmp_path):
     out.mkdir()
     (out / "a.csv").write_text("x\n")
     with pytest.raises(InputError, match="not a morphshell build folder"):
-        claim_output(out)
+        atomic.claim_output(out)
     (out / "a.csv").unlink()
-    start_stamp(out)
-    atomic_write_text(out / "a.csv", "x\n")
-    atomic_write_text(out / "sub" / "b.csv", "y\n")   # a folder made in place is recorded
-    assert read_stamp(out)["dirs"] == ["sub"] and foreign_files(out) == []
+    atomic.start_stamp(out)
+    atomic.atomic_write_text(out / "a.csv", "x\n")
+    atomic.atomic_write_text(out / "sub" / "b.csv", "y\n")   # a folder made in place is recorded
+    assert atomic.read_stamp(out)["dirs"] == ["sub"] and atomic.foreign_files(out) == []
     (out / "sub" / "c.csv").write_text("user\n")
-    assert foreign_files(out) == [out / "sub" / "c.csv"]
-    assert claim_output(out / "sub2") == out / "sub2"
+    assert atomic.foreign_files(out) == [out / "sub" / "c.csv"]
+    assert atomic.claim_output(out / "sub2") == out / "sub2"

@@ -47,8 +47,9 @@ def parse_constraints(payload, n_vertices: int) -> tuple[list, list]:
     Raises
     ------
     InputError
-        Not a mapping, unknown keys (also inside a keyframe or a brush), a vertex outside ``0..n_vertices-1``, a time outside
-        ``[0, MAX_TIME_S]`` s or a radius outside ``(0, 1000]`` mm.
+        Not a mapping, unknown keys (also inside a keyframe or a brush), a vertex outside
+        ``0..n_vertices-1``, a time outside ``[0, MAX_TIME_S]`` s or a radius outside
+        ``(0, 1000]`` mm.
     """
     if not isinstance(payload, dict):
         raise InputError("the landscape request must be a JSON object",
