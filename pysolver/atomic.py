@@ -352,13 +352,14 @@ def _entry_state(p: Path, rel: str, m: dict) -> str | None:
         if m.get("legacy"):
             return "made by an older morphshell that did not record file contents"
         return "not written by morphshell"
+    known = [list(rec), list(m["prev"].get(rel) or [None, None])]
     try:
+        if os.lstat(p).st_size not in (known[0][1], known[1][1]):
+            return "changed since morphshell wrote it"  # (no need to read it)
         got = list(file_digest(p))
     except OSError as e:
         return f"cannot be read ({e.strerror})"
-    if got == list(rec) or got == list(m["prev"].get(rel) or []):
-        return None
-    return "changed since morphshell wrote it"
+    return None if got in known else "changed since morphshell wrote it"
 
 
 def audit(folder) -> list[tuple[Path, str]]:
@@ -568,6 +569,19 @@ def make_dirs(folder) -> Path:
     return folder
 
 
+def _drop_dead_temporaries(owner: Path, m: dict) -> dict:
+    """Remove the temporary files that writers killed before their rename left in ``owner``
+    (recorded as pending by a process that is gone); returns the manifest without them."""
+    dead = {k for k, pid in m["pending"].items()
+            if pid != os.getpid() and not _pid_alive(pid)}
+    for k in dead:
+        p = owner / k
+        with contextlib.suppress(OSError):
+            if stat.S_ISREG(os.lstat(p).st_mode):
+                p.unlink()
+    return dict(m, pending={k: v for k, v in m["pending"].items() if k not in dead})
+
+
 def _check_replaceable(path: Path, owner: Path, m: dict) -> None:
     """Refuse to write ``path`` when something not morphshell's is there."""
     rel = path.relative_to(owner).as_posix()
@@ -628,7 +642,7 @@ def atomic_file(path):
                 break
             continue
         with _folder_lock(owner):
-            m = read_stamp(owner)
+            m = _drop_dead_temporaries(owner, read_stamp(owner))
             _check_replaceable(path, owner, m)
             rel_tmp = tmp.relative_to(owner).as_posix()
             # recorded before it exists: a kill right after leaves a file morphshell knows
