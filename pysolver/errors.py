@@ -10,6 +10,9 @@ The CLI prints the message without a traceback and exits with
 
 from __future__ import annotations
 
+import os
+import stat
+
 EXIT_OK = 0
 EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
@@ -112,9 +115,6 @@ def read_input(path, what: str = "input file", max_bytes: int | None = None) -> 
     InputError
         Missing, unreadable, not a regular file, or too large.
     """
-    import os
-    import stat
-
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
@@ -144,9 +144,6 @@ def check_input_file(path, what: str = "input file") -> None:
     ------
     InputError
     """
-    import os
-    import stat
-
     try:
         st = os.stat(path)
     except OSError:
