@@ -49,7 +49,6 @@ $(foreach v,$(USER_VARS),$(eval override $(v) := $$(value $(v))))
 # Each of them reaches the recipes as MS_<NAME> (shape and SURFACE together as MS_SOURCE).
 # (The eval expands $(X) once, as `:=` does: the value stays text.)
 export MS_SOURCE   := $(if $(SURFACE),$(SURFACE),$(shape))
-export MS_NAME     := $(notdir $(basename $(MS_SOURCE)))
 $(foreach v,$(filter-out shape SURFACE,$(USER_VARS)),$(eval export MS_$(v) := $$($(v))))
 unexport $(USER_VARS)
 
@@ -60,7 +59,12 @@ DESIGN_OPTS := $${MS_MATERIAL:+--material "$$MS_MATERIAL"} \
               $${MS_TIME:+--time "$$MS_TIME"} $${MS_TIMEFILE:+--time-file "$$MS_TIMEFILE"} \
               $${MS_REFINE:+--refine "$$MS_REFINE"}
 BUILD_OPTS := $(DESIGN_OPTS) $${MS_JOBS:+--jobs "$$MS_JOBS"} $$MS_ARGS
-RUN        := set -f;
+# The build folder's name, as pysolver.build.shape_name gives it (a mesh file's stem, else the
+# shape as given), set by the shell as MS_NAME: make's own $(basename) and $(notdir) would split
+# a path with spaces into words and cut "dome:size=1.5" at its dot.
+SHAPE_NAME := MS_NAME="$$MS_SOURCE"; if [ -f "$$MS_NAME" ]; then MS_NAME="$${MS_NAME\#\#*/}"; \
+              MS_NAME="$${MS_NAME%.*}"; fi;
+RUN        := set -f; $(SHAPE_NAME)
 DASK_OPTS  := $${MS_SCHEDULER:+--scheduler "$$MS_SCHEDULER"} \
               $${MS_WORKERS:+--workers "$$MS_WORKERS"}
 

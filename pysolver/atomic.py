@@ -1,45 +1,72 @@
-"""Output folders: ownership, atomic replacement, permissions and build locks.
+"""Output folders: ownership by content, atomic replacement, permissions and build locks.
 
-morphshell never deletes or overwrites a file it did not make.  Every folder it
-writes carries a stamp file, :data:`STAMP_NAME`, listing the files it wrote
-there (its manifest).  An output path is accepted (:func:`claim_output`) only when
-it does not exist, is an empty folder, or is a stamped folder holding nothing but
-the files its manifests list; a file, a symbolic link, a foreign folder or a
-folder that contains the build's own input is refused with the fix.
+morphshell never deletes or overwrites a file it did not make.  "Made" is decided by
+content, recorded when the file is written, never after the fact:
 
-Every stage writes into a temporary folder beside its destination and moves it
-into place only when it has finished, so an interrupted run (Ctrl-C, kill)
-leaves either the previous complete result or nothing, never a mix.  A lock file
-beside each output folder keeps two builds of the same shape from clobbering each
-other; builds of different shapes lock different files and run concurrently.
-Locks and staging folders left by killed processes are cleaned by the next run.
+* Every folder morphshell writes carries a stamp file, :data:`STAMP_NAME` (JSON), its
+  manifest: for each file it wrote, the path relative to the folder, the SHA-256 and the
+  size of what it wrote (``files``), and the subfolders it made (``dirs``).
+* A file is morphshell's only when the manifest lists it with the hash and size it has now.
+  A file the manifest does not list, or whose content changed since (a user's edit, a copy
+  dropped in under the same name), is the user's: it is never deleted or overwritten, and
+  the run that would do so is refused naming the file and the fix.  The same holds for
+  folders: an unlisted folder (even an empty one), a symbolic link, a FIFO or a device.
+* Writing into a folder in place (a stage command on a design folder, the studio's Save,
+  a sweep's results) goes through :func:`atomic_file`, the one writer of the project: a
+  unique temporary file beside the destination (``O_EXCL``, never following a link),
+  its hash recorded in the manifest, then one atomic rename.  The manifest is updated
+  under a lock on the folder, so concurrent writers never lose each other's records.
+* Whole folders (a build, ``stl/``, ``report/``) are made in a private temporary folder
+  (mode 0700) beside the destination, sealed (every file hashed into its manifest) and
+  renamed into place (:func:`atomic_dir`, :func:`replace_dir`); the previous folder is
+  moved aside and only the files its manifest vouches for are deleted.
+* The temporary, moved-aside and staging folders morphshell leaves after a kill are
+  recognised by the stamp inside them (what they were made for, a random token that is
+  also in their name, their owner), never by their name alone; a user's
+  ``.petal.tmp-notes`` or ``.petal.old-2023`` is left alone.
+
+Only the private temporary folders are trusted as a whole: they are made with mode 0700
+under a random name, and nothing but the running command writes into them.
 
 Outputs follow the umask like ordinary files (0644 files and 0755 folders under the
-usual umask 022), although they are written through ``tempfile``, whose files are
-private (0600/0700) by design.
+usual umask 022), although the temporary files and folders are private.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
+import hashlib
 import json
 import os
+import re
+import secrets
 import shutil
-import tempfile
+import stat
 import time
+import warnings
 from pathlib import Path
 
 from .errors import InputError
 
 STAMP_NAME = ".morphshell-build"
-"""Stamp file of every folder morphshell writes: JSON with the relative paths of the
-files it wrote (``files``)."""
+"""Stamp file of every folder morphshell writes: its manifest (module docstring)."""
 
+STAMP_VERSION = 2
 LOCK_SUFFIX = ".morphshell-lock"
 STAGING_SUFFIX = ".morphshell-staging"
-STALE_STAGING_S = 24 * 3600.0
-"""Staging folders of other shapes, left by killed builds, are removed after this long."""
+STALE_STAGING_S = 7 * 24 * 3600.0
+"""Staging folders of other outputs, left by killed builds, are removed after a week (when
+their stamp says they are morphshell's and this user's, and no build holds their lock)."""
+
+_PRIVATE_ROLES = ("tmp", "work", "old", "staging")
+_NEVER_OURS = "move it out of the folder (or give another --out), then re-run; " \
+              "morphshell never deletes or overwrites files it did not make"
+
+
+class _Warning(UserWarning):
+    """A file of the user's was found where morphshell cleans up; it was kept."""
 
 
 # ---------------------------------------------------------------- permissions
@@ -54,81 +81,354 @@ def _umask() -> int:
 
 def public_mode(path, *, recursive: bool = False) -> None:
     """Give ``path`` the mode an ordinary ``open``/``mkdir`` would have under the current
-    umask (``tempfile`` makes private 0600 files and 0700 folders)."""
+    umask (temporary files and folders are private, 0600/0700).  Symbolic links are never
+    followed."""
     mask = _umask()
     path = Path(path)
     paths = [path]
-    if recursive and path.is_dir():
-        paths += list(path.rglob("*"))
+    if recursive and path.is_dir() and not path.is_symlink():
+        paths += [Path(r) / n for r, ds, fs in os.walk(path) for n in ds + fs]
     for p in paths:
-        if p.is_symlink():
+        try:
+            fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        except OSError:
+            continue  # a symbolic link (ELOOP), or gone
+        try:
+            st = os.fstat(fd)
+            if stat.S_ISDIR(st.st_mode) or stat.S_ISREG(st.st_mode):
+                os.fchmod(fd, (0o777 if stat.S_ISDIR(st.st_mode) else 0o666) & ~mask)
+        finally:
+            os.close(fd)
+
+
+# ---------------------------------------------------------------- hashes and stamps
+
+
+def file_digest(path) -> tuple[str, int]:
+    """SHA-256 (hex) and size in bytes of the regular file ``path`` (never through a link).
+
+    Raises
+    ------
+    OSError
+        ``path`` is a link, not a regular file, or cannot be read.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+            raise OSError(errno.EINVAL, "not a regular file", str(path))
+        h, n = hashlib.sha256(), 0
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+            n += len(chunk)
+    return h.hexdigest(), n
+
+
+def _token() -> str:
+    return secrets.token_hex(8)
+
+
+def read_stamp(folder) -> dict | None:
+    """The manifest of ``folder`` (module docstring), or None when it has no stamp.
+
+    A stamp of an older morphshell (a bare list of names, no hashes) is returned with
+    ``legacy`` set: its files cannot be told from the user's.
+    """
+    p = Path(folder) / STAMP_NAME
+    try:
+        fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return None
+    try:
+        with os.fdopen(fd, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                return None
+            data = json.loads(f.read(64 << 20))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("made_by") not in ("morphshell",
+                                                                 "morphshell studio"):
+        return None
+    if data.get("version") != STAMP_VERSION or not isinstance(data.get("files"), dict):
+        return {"legacy": True, "files": {}, "dirs": [], "prev": {}, "pending": {}}
+    for key, kind in (("dirs", list), ("prev", dict), ("pending", dict)):
+        if not isinstance(data.get(key), kind):
+            data[key] = kind()
+    return data
+
+
+def _is_private(m: dict | None) -> bool:
+    """A stamp of a folder that is still being made (its files are not recorded yet)."""
+    return m is not None and m.get("role") in _PRIVATE_ROLES
+
+
+def _write_new(path: Path, data: bytes) -> None:
+    """Create ``path`` (which must not exist, not even as a link) holding ``data``."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC,
+                 0o600)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+    finally:
+        os.close(fd)
+
+
+def _store(folder: Path, data: dict, old: dict | None, *, keep: str | None = None) -> None:
+    """Replace ``folder``'s stamp by ``data``; call it holding :func:`_folder_lock`.
+
+    The stamp's own temporary file is named by a token the previous stamp chose
+    (``next``), so a temporary stamp left by a kill is recognised as morphshell's."""
+    tok = (old or {}).get("next") or _token()
+    data = dict(data, made_by="morphshell", version=STAMP_VERSION, next=_token())
+    # pending temporary files that are gone need no record any more
+    data["pending"] = {k: v for k, v in data.get("pending", {}).items()
+                       if k == keep or os.path.lexists(folder / k)}
+    text = json.dumps(data, indent=0, sort_keys=True) + "\n"
+    tmp = folder / f"{STAMP_NAME}.{tok}.tmp"
+    try:
+        _write_new(tmp, text.encode())
+    except FileExistsError:  # the temporary stamp of a killed run: ours (its name was secret)
+        os.unlink(tmp)
+        _write_new(tmp, text.encode())
+    try:
+        public_mode(tmp)
+        os.replace(tmp, folder / STAMP_NAME)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def start_stamp(folder, **fields) -> None:
+    """Give the new (or empty) folder ``folder`` an empty manifest, so that the files written
+    into it from now on are recorded.  ``fields`` (``role``, ``for``, ``token``, ...) mark
+    a private folder being made."""
+    folder = Path(folder)
+    data = {"files": {}, "dirs": [], "prev": {}, "pending": {}, "uid": os.geteuid(),
+            "pid": os.getpid(), "created": time.time(), **fields}
+    with _folder_lock(folder):
+        _store(folder, data, read_stamp(folder))
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: Path):
+    """Exclusive lock on the folder itself (``flock`` on its descriptor): one manifest update
+    at a time, across processes."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    try:
+        with contextlib.suppress(OSError):  # a file system without flock: no lock
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _walk_files(folder: Path):
+    """(relative path, kind) of every entry under ``folder``, never following links;
+    ``kind`` is "dir", "file" or "other"."""
+    for root, dirs, files in os.walk(folder):
+        r = Path(root)
+        for n in sorted(dirs):
+            p = r / n
+            if p.is_symlink():
+                yield p, "other"
+            else:
+                yield p, "dir"
+        for n in sorted(files):
+            p = r / n
+            st = os.lstat(p)
+            yield p, ("file" if stat.S_ISREG(st.st_mode) else "other")
+        dirs[:] = [d for d in dirs if not (r / d).is_symlink()]
+
+
+def seal(folder) -> None:
+    """Record every file and folder of ``folder``, a private folder morphshell has just made
+    whole (:func:`atomic_dir`, a build's staging folder), in its manifest.
+
+    Nested folders with a sealed stamp of their own (``stl/`` made by :func:`atomic_dir`)
+    keep it; temporary folders of killed steps inside are removed; links and special files
+    are not recorded (they stay foreign)."""
+    folder = Path(folder)
+    old = read_stamp(folder) or {}
+    files, dirs = {}, []
+    skip: list[Path] = []
+    for p, kind in _walk_files(folder):
+        if any(s in p.parents for s in skip):
             continue
-        os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~mask)
+        rel = p.relative_to(folder).as_posix()
+        if kind == "dir":
+            sub = read_stamp(p)
+            if sub is not None and _temporary_of(p) is not None:
+                _remove_private(p)
+                skip.append(p)
+                continue
+            dirs.append(rel)
+            if sub is not None and not sub.get("legacy") and not _is_private(sub):
+                skip.append(p)  # its own manifest lists its files
+            elif sub is not None:
+                (p / STAMP_NAME).unlink()
+        elif kind == "file" and p.parent == folder and p.name.startswith(STAMP_NAME + "."):
+            p.unlink()  # a temporary stamp of a killed step, in this private folder
+        elif kind == "file" and p.name != STAMP_NAME:
+            files[rel] = list(file_digest(p))
+    keep = {k: old[k] for k in ("for", "token", "pid") if k in old}
+    with _folder_lock(folder):
+        _store(folder, {"files": files, "dirs": sorted(dirs), "prev": {}, "pending": {},
+                        **keep}, read_stamp(folder))
+
+
+# ---------------------------------------------------------------- temporary folders
+
+
+_TEMP_NAME = re.compile(r"^\.(?P<for>.+)\.(?P<kind>tmp|old)-(?P<token>[0-9a-f]{16})$")
+
+
+def _temporary_of(p: Path) -> str | None:
+    """If ``p`` is a temporary, moved-aside or staging folder morphshell made, the name of
+    the folder it was made for; else None.  Recognised by the stamp inside (what it was
+    made for, its token, its owner) matching the name, never by the name alone."""
+    try:
+        st = os.lstat(p)
+    except OSError:
+        return None
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.geteuid():
+        return None
+    m = read_stamp(p)
+    if m is None or m.get("legacy"):
+        return None
+    name = p.name
+    if name.endswith(STAGING_SUFFIX) and name.startswith("."):
+        target = name[1:-len(STAGING_SUFFIX)]
+        return target if m.get("role") == "staging" and m.get("for") == target else None
+    g = _TEMP_NAME.match(name)
+    if g and m.get("for") == g["for"] and m.get("token") == g["token"]:
+        return g["for"]
+    return None
+
+
+def _pid_alive(pid) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, ValueError, TypeError, OverflowError):
+        return True
+    return True
+
+
+def _remove_private(p: Path) -> None:
+    """Remove a private folder of morphshell's (recognised by :func:`_temporary_of`) with
+    everything in it; links inside are removed, never followed."""
+    shutil.rmtree(p, ignore_errors=True)
+
+
+def _make_private(parent: Path, name: str, **fields) -> Path:
+    """A new private folder ``parent/name`` (mode 0700) with a stamp saying what it is."""
+    path = parent / name
+    os.mkdir(path, 0o700)
+    start_stamp(path, **fields)
+    return path
 
 
 # ---------------------------------------------------------------- ownership
 
 
-def _manifest(folder: Path) -> set[str] | None:
-    """Files listed by ``folder``'s stamp (relative POSIX paths), None when unstamped."""
-    stamp = folder / STAMP_NAME
-    if not stamp.is_file() or stamp.is_symlink():
-        return None
+def _owner(folder: Path) -> Path | None:
+    """The nearest folder at or above ``folder`` with a stamp (which records what is
+    written in ``folder``), or None."""
+    for d in (folder, *folder.parents):
+        if os.path.lexists(d / STAMP_NAME) and read_stamp(d) is not None:
+            return d
+    return None
+
+
+def _entry_state(p: Path, rel: str, m: dict) -> str | None:
+    """None when the file ``p`` (``rel`` in the manifest ``m``) is morphshell's, else why
+    not."""
+    if rel in m["pending"]:
+        return None  # a temporary file of a write in progress or killed
+    rec = m["files"].get(rel)
+    if rec is None:
+        if m.get("legacy"):
+            return "made by an older morphshell that did not record file contents"
+        return "not written by morphshell"
+    known = [list(rec), list(m["prev"].get(rel) or [None, None])]
     try:
-        data = json.loads(stamp.read_text())
-        return {str(f) for f in data["files"]}
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+        if os.lstat(p).st_size not in (known[0][1], known[1][1]):
+            return "changed since morphshell wrote it"  # (no need to read it)
+        got = list(file_digest(p))
+    except OSError as e:
+        return f"cannot be read ({e.strerror})"
+    return None if got in known else "changed since morphshell wrote it"
 
 
-def write_stamp(folder, *, since: float | None = None) -> None:
-    """Record the files of ``folder`` as morphshell's.
+def audit(folder) -> list[tuple[Path, str]]:
+    """Everything under the stamped folder ``folder`` that is not morphshell's, with why.
 
-    Parameters
-    ----------
-    folder : path-like
-        A folder morphshell has written.
-    since : float, optional
-        Epoch seconds.  When given, only files modified since then are added to the
-        existing manifest (a stage run on an existing design folder); otherwise every
-        file of the folder is listed (a folder morphshell has just made whole).
+    A file belongs to the nearest folder above it whose stamp its parent's manifest
+    vouches for (``stl/top.stl`` is checked against ``stl/``'s stamp when the build folder
+    lists ``stl``).  An unstamped ``folder`` is foreign as a whole unless it is empty.
+
+    Returns
+    -------
+    list of (Path, str)
+        The foreign entries (files, folders, links, special files) and the reason.
     """
     folder = Path(folder)
-    files = set() if since is None else (_manifest(folder) or set())
-    for p in folder.rglob("*"):
-        if p.is_file() and p.name != STAMP_NAME and (since is None
-                                                     or p.lstat().st_mtime >= since):
-            files.add(p.relative_to(folder).as_posix())
-    files = {f for f in files if (folder / f).exists()}
-    text = json.dumps({"made_by": "morphshell", "files": sorted(files)}, indent=0) + "\n"
-    atomic_write_text(folder / STAMP_NAME, text)
+    m = read_stamp(folder)
+    if m is None:
+        return [(p, "not made by morphshell") for p in sorted(folder.iterdir())]
+    out: list[tuple[Path, str]] = []
+    _audit_in(folder, folder, m, out)
+    return out
+
+
+def _audit_in(d: Path, owner: Path, m: dict, out: list) -> None:
+    try:
+        entries = sorted(os.scandir(d), key=lambda e: e.name)
+    except OSError as e:
+        out.append((d, f"cannot be read ({e.strerror})"))
+        return
+    for e in entries:
+        p = Path(e.path)
+        rel = p.relative_to(owner).as_posix()
+        if e.is_symlink():
+            out.append((p, "a symbolic link"))
+        elif e.is_dir(follow_symlinks=False):
+            if rel in m["dirs"]:
+                sub = read_stamp(p)
+                if sub is not None and not _is_private(sub):
+                    _audit_in(p, p, sub, out)  # a folder with its own manifest
+                else:
+                    _audit_in(p, owner, m, out)
+            elif _temporary_of(p) is None:
+                out.append((p, "a folder morphshell did not make"))
+        elif e.is_file(follow_symlinks=False):
+            if d == owner and (e.name == STAMP_NAME
+                               or e.name == f"{STAMP_NAME}.{m.get('next')}.tmp"):
+                continue
+            if _is_lock_file(p):
+                continue  # the lock of a subfolder's build (removed when released)
+            why = _entry_state(p, rel, m)
+            if why:
+                out.append((p, why))
+        else:
+            out.append((p, "not a regular file"))
 
 
 def foreign_files(folder) -> list[Path]:
-    """Files under ``folder`` that no stamp lists (all of them when it is unstamped).
+    """Paths under ``folder`` that are not morphshell's (:func:`audit`)."""
+    return [p for p, _ in audit(folder)]
 
-    A file belongs to the nearest stamped folder above it: ``stl/top.stl`` is checked
-    against ``stl/``'s stamp when there is one, else against ``folder``'s.
-    """
-    folder = Path(folder)
-    cache: dict[Path, set[str] | None] = {}
-    foreign = []
-    for p in sorted(folder.rglob("*")):
-        if p.is_dir() and not p.is_symlink():
-            continue
-        if p.name == STAMP_NAME:
-            continue
-        owner = p.parent
-        while True:
-            if owner not in cache:
-                cache[owner] = _manifest(owner)
-            if cache[owner] is not None or owner == folder:
-                break
-            owner = owner.parent
-        listed = cache[owner]
-        if listed is None or p.relative_to(owner).as_posix() not in listed:
-            foreign.append(p)
-    return foreign
+
+def _listing(bad: list[tuple[Path, str]], base: Path) -> str:
+    def name(p):
+        try:
+            return str(p.relative_to(base)) or p.name
+        except ValueError:
+            return str(p)
+    text = ", ".join(f"{name(p)}: {why}" for p, why in bad[:3])
+    return text + (f" and {len(bad) - 3} more" if len(bad) > 3 else "")
 
 
 def claim_output(dst, *, what: str = "output folder", inputs=()) -> Path:
@@ -152,7 +452,8 @@ def claim_output(dst, *, what: str = "output folder", inputs=()) -> Path:
     ------
     InputError
         ``dst`` is a file or a symbolic link, a non-empty folder morphshell did not
-        make (or holding files it did not write), or contains one of ``inputs``.
+        make (an empty subfolder counts), a folder holding files it did not write or
+        that changed since, or contains one of ``inputs``.
     """
     dst = Path(dst).absolute()
     fix = ("choose a new or empty folder (e.g. --out build/NAME), or move your files out "
@@ -173,95 +474,448 @@ def claim_output(dst, *, what: str = "output folder", inputs=()) -> Path:
                          "(e.g. --out build/NAME); morphshell never deletes files it did "
                          "not make.")
     if dst.is_dir():
-        foreign = foreign_files(dst)
-        if foreign:
-            names = ", ".join(str(p.relative_to(dst)) for p in foreign[:3])
-            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
-            kind = ("is not a morphshell build folder" if _manifest(dst) is None
-                    else "holds files that morphshell did not write")
-            raise InputError(f"{what} {dst} {kind} ({names}{more}); replacing it would "
-                             "delete them.", fix=fix)
+        bad = audit(dst)
+        if bad:
+            m = read_stamp(dst)
+            kind = ("is not a morphshell build folder" if m is None else
+                    "was made by an older morphshell that did not record file contents"
+                    if m.get("legacy") else "holds files that morphshell did not write")
+            raise InputError(f"{what} {dst} {kind} ({_listing(bad, dst)}); replacing it "
+                             "would delete them.", fix=fix)
+        owner = _owner(dst.parent)
+        if owner is not None:
+            om = read_stamp(owner)
+            if om is not None and not _is_private(om) and \
+                    dst.relative_to(owner).as_posix() not in om["dirs"]:
+                raise InputError(f"{what} {dst} is a folder morphshell did not make inside "
+                                 f"{owner}; replacing it would delete it.", fix=fix)
     return dst
 
 
-# ---------------------------------------------------------------- atomic moves
+def check_design_folder(folder, *, what: str = "design folder") -> Path:
+    """Check that a stage may write into the existing folder ``folder`` in place: a real
+    folder (not a link) with a morphshell stamp of this version.
+
+    Raises
+    ------
+    InputError
+        Naming the folder and the fix.
+    """
+    folder = Path(folder).absolute()
+    if folder.is_symlink() or not folder.is_dir():
+        raise InputError(f"{what} {folder} is "
+                         f"{'a symbolic link' if folder.is_symlink() else 'not a folder'}.",
+                         fix="give the design folder itself (e.g. build/petal).")
+    m = read_stamp(folder)
+    if m is None or m.get("legacy") or _is_private(m):
+        why = ("was made by an older morphshell that did not record file contents"
+               if m and m.get("legacy") else f"has no {STAMP_NAME} stamp")
+        raise InputError(f"{what} {folder} {why}: morphshell cannot tell its files from "
+                         "yours there, so it writes nothing into it.",
+                         fix="make the design folder with 'morphshell build' or 'morphshell "
+                             "design' (e.g. --out build/NAME) and run the stage on that.")
+    return folder
+
+
+# ---------------------------------------------------------------- writing one file
+
+
+def make_dirs(folder) -> Path:
+    """``mkdir -p folder``, recording each folder it makes in the manifest of the stamped
+    folder above it; never through a symbolic link inside a stamped folder.
+
+    Raises
+    ------
+    InputError
+        A folder on the way inside a stamped folder is a link, a file, or a folder
+        morphshell did not make.
+    """
+    folder = Path(folder).absolute()
+    missing = []
+    d = folder
+    while not os.path.lexists(d):
+        missing.append(d)
+        d = d.parent
+    owner = _owner(d)
+    if owner is not None:
+        m = read_stamp(owner)
+        if m is not None and not _is_private(m):
+            for p in [d, *d.parents]:
+                if p == owner or owner not in p.parents:
+                    break
+                rel = p.relative_to(owner).as_posix()
+                if p.is_symlink() or not p.is_dir() or (rel not in m["dirs"]
+                                                        and _temporary_of(p) is None):
+                    what = ("a symbolic link" if p.is_symlink() else "not a folder"
+                            if not p.is_dir() else "a folder morphshell did not make")
+                    raise InputError(f"{p} is {what}: morphshell writes nothing through it.",
+                                     fix=_NEVER_OURS)
+    if not d.is_dir():
+        raise InputError(f"{d} is not a folder.", fix="give a folder path.")
+    for p in reversed(missing):
+        with contextlib.suppress(FileExistsError):
+            os.mkdir(p)
+        if p.is_symlink() or not p.is_dir():
+            raise InputError(f"{p} appeared as a link or a file while morphshell made it.",
+                             fix=_NEVER_OURS)
+        own = _owner(p.parent)
+        if own is not None:
+            with _folder_lock(own):
+                m = read_stamp(own)
+                if m is not None and not _is_private(m) and not m.get("legacy"):
+                    rel = p.relative_to(own).as_posix()
+                    if rel not in m["dirs"]:
+                        _store(own, dict(m, dirs=sorted({*m["dirs"], rel})), m)
+    return folder
+
+
+def _drop_dead_temporaries(owner: Path, m: dict) -> dict:
+    """Remove the temporary files that writers killed before their rename left in ``owner``
+    (recorded as pending by a process that is gone); returns the manifest without them."""
+    dead = {k for k, pid in m["pending"].items()
+            if pid != os.getpid() and not _pid_alive(pid)}
+    for k in dead:
+        p = owner / k
+        with contextlib.suppress(OSError):
+            if stat.S_ISREG(os.lstat(p).st_mode):
+                p.unlink()
+    return dict(m, pending={k: v for k, v in m["pending"].items() if k not in dead})
+
+
+def _check_replaceable(path: Path, owner: Path, m: dict) -> None:
+    """Refuse to write ``path`` when something not morphshell's is there."""
+    rel = path.relative_to(owner).as_posix()
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(st.st_mode):
+        why = "is a symbolic link"
+    elif not stat.S_ISREG(st.st_mode):
+        why = "is not a regular file"
+    else:
+        why = _entry_state(path, rel, m)
+        if why is None:
+            return
+        why = "is " + why if why.startswith(("not", "made")) else why
+    raise InputError(f"{path} {why}: morphshell will not overwrite it.", fix=_NEVER_OURS)
+
+
+@contextlib.contextmanager
+def atomic_file(path):
+    """Write ``path`` atomically: the project's one way to write a file.
+
+    Yields a new temporary path beside ``path`` (a unique name made with ``O_EXCL``, never a
+    link, mode 0600, same suffix so that libraries pick the right format); when the block
+    succeeds it gets the umask's permissions and is renamed to ``path`` in one step, when
+    it fails it is removed.  Readers see the old file or the new one, never a part.
+
+    In a stamped folder (see the module docstring) ``path`` must be absent or a file
+    morphshell wrote and nobody changed since; the new file's SHA-256 and size are recorded
+    in the manifest before the rename (with the previous ones, so that a kill between the
+    two leaves a folder morphshell still recognises).
+
+    Raises
+    ------
+    InputError
+        ``path`` (or a folder on the way) is not morphshell's: a user's file, a file
+        changed since morphshell wrote it, a symbolic link, a FIFO or a device.
+    """
+    path = Path(path).absolute()
+    make_dirs(path.parent)
+    owner = _owner(path.parent)
+    m = read_stamp(owner) if owner is not None else None
+    tracked = m is not None and not _is_private(m)
+    if m is not None and m.get("legacy"):
+        raise InputError(f"{owner} was made by an older morphshell that did not record file "
+                         f"contents: morphshell will not write {path.name} into it.",
+                         fix="rebuild into a new folder (e.g. --out build/NAME-2), or remove "
+                             "the old one yourself after checking it holds nothing of yours.")
+    base = path.name[:120]
+    while True:
+        tmp = path.with_name(f".{base}.tmp-{_token()}{path.suffix[:16]}")
+        if os.path.lexists(tmp):
+            continue
+        if not tracked:
+            with contextlib.suppress(FileExistsError):
+                _write_new(tmp, b"")
+                break
+            continue
+        with _folder_lock(owner):
+            m = _drop_dead_temporaries(owner, read_stamp(owner))
+            _check_replaceable(path, owner, m)
+            rel_tmp = tmp.relative_to(owner).as_posix()
+            # recorded before it exists: a kill right after leaves a file morphshell knows
+            _store(owner, dict(m, pending={**m["pending"], rel_tmp: os.getpid()}), m,
+                   keep=rel_tmp)
+            try:
+                _write_new(tmp, b"")
+                break
+            except FileExistsError:  # someone else's file appeared under the name
+                m = read_stamp(owner)
+                _store(owner, dict(m, pending={k: v for k, v in m["pending"].items()
+                                               if k != rel_tmp}), m)
+    try:
+        yield tmp
+        if tracked:
+            digest = list(file_digest(tmp))
+            with _folder_lock(owner):
+                m = read_stamp(owner)
+                _check_replaceable(path, owner, m)
+                rel = path.relative_to(owner).as_posix()
+                prev = dict(m["prev"])
+                if rel in m["files"] and os.path.lexists(path):
+                    prev[rel] = m["files"][rel]
+                _store(owner, dict(m, files={**m["files"], rel: digest}, prev=prev), m)
+                public_mode(tmp)
+                os.replace(tmp, path)
+        else:
+            public_mode(tmp)
+            os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through :func:`atomic_file`."""
+    with atomic_file(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write ``text`` to ``path`` through :func:`atomic_file` (``\\n`` line ends)."""
+    with atomic_file(path) as tmp, open(tmp, "w", newline="\n") as f:
+        f.write(text)
+
+
+def remove_file(path) -> None:
+    """Delete the file ``path`` if morphshell wrote it (and nobody changed it since); a
+    user's file is kept.  Missing files are fine."""
+    path = Path(path).absolute()
+    owner = _owner(path.parent)
+    if owner is None:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+        return
+    with _folder_lock(owner):
+        m = read_stamp(owner)
+        if m is None or _is_private(m):
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+            return
+        if not os.path.lexists(path):
+            return
+        try:
+            _check_replaceable(path, owner, m)
+        except InputError:
+            return  # the user's: kept
+        path.unlink()
+        rel = path.relative_to(owner).as_posix()
+        _store(owner, dict(m, files={k: v for k, v in m["files"].items() if k != rel},
+                           prev={k: v for k, v in m["prev"].items() if k != rel}), m)
+
+
+# ---------------------------------------------------------------- whole folders
+
+
+def _remove_ours(folder: Path) -> list[Path]:
+    """Delete from ``folder`` what its manifests vouch for (each file checked right before
+    it goes) and the folders left empty; returns what was kept (the user's)."""
+    kept: list[Path] = []
+    m = read_stamp(folder)
+    if m is None or m.get("legacy"):
+        return [folder]
+
+    def rm(d: Path, owner: Path, man: dict) -> bool:
+        empty = True
+        for e in sorted(os.scandir(d), key=lambda e: e.name):
+            p = Path(e.path)
+            rel = p.relative_to(owner).as_posix()
+            if e.is_dir(follow_symlinks=False):
+                if rel in man["dirs"]:
+                    sub = read_stamp(p)
+                    ok = (rm(p, p, sub) if sub is not None and not _is_private(sub)
+                          and not sub.get("legacy") else rm(p, owner, man))
+                elif _temporary_of(p) is not None:
+                    _remove_private(p)
+                    ok = True
+                else:
+                    ok = False
+                    kept.append(p)
+                empty &= ok
+            elif e.is_file(follow_symlinks=False) and d == owner and (
+                    e.name == STAMP_NAME or e.name == f"{STAMP_NAME}.{man.get('next')}.tmp"):
+                continue
+            elif e.is_file(follow_symlinks=False) and (_entry_state(p, rel, man) is None
+                                                       or _stale_lock(p)):
+                p.unlink()
+            else:
+                kept.append(p)
+                empty = False
+        if empty and d == owner:
+            for n in os.listdir(d):  # the stamp (and its temporary) go last
+                if n.startswith(STAMP_NAME):
+                    os.unlink(d / n)
+        if empty:
+            try:
+                os.rmdir(d)
+            except OSError:  # something appeared meanwhile: it stays
+                kept.append(d)
+                return False
+        return empty
+
+    rm(folder, folder, m)
+    return kept
 
 
 def replace_dir(src: Path, dst: Path) -> None:
-    """Move the finished folder ``src`` to ``dst``, replacing any previous ``dst``.
+    """Move the finished, sealed folder ``src`` to ``dst``, replacing any previous ``dst``.
 
-    The old folder is first renamed aside, then ``src`` renamed into place, then
-    the old one deleted: at every instant ``dst`` is absent or complete.  ``dst``
-    must pass :func:`claim_output` (checked again here, just before the move).
+    The old folder is first moved into a private folder beside it, then ``src`` renamed into
+    place, then the old one's files that its manifest vouches for are deleted (anything
+    else is kept and named in a warning): at every instant ``dst`` is absent or complete.
+    ``dst`` must pass :func:`claim_output` (checked again here, just before the move).
     """
-    src, dst = Path(src), Path(dst)
+    src, dst = Path(src), Path(dst).absolute()
     claim_output(dst)
-    old = None
-    if dst.exists():
-        old = dst.with_name(f".{dst.name}.old-{os.getpid()}")
-        if old.exists():
-            shutil.rmtree(old)
-        os.replace(dst, old)
-    os.replace(src, dst)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+    aside = None
+    if os.path.lexists(dst):
+        tok = _token()
+        aside = _make_private(dst.parent, f".{dst.name}.old-{tok}", role="old", token=tok,
+                              **{"for": dst.name})
+        os.replace(dst, aside / dst.name)
+    try:
+        os.rename(src, dst)
+    except OSError:
+        if aside is not None and not os.path.lexists(dst):
+            os.replace(aside / dst.name, dst)
+            _remove_ours_private(aside)
+        raise
+    own = _owner(dst.parent)
+    if own is not None:
+        with _folder_lock(own):
+            m = read_stamp(own)
+            rel = dst.relative_to(own).as_posix()
+            if m is not None and not _is_private(m) and not m.get("legacy") \
+                    and rel not in m["dirs"]:
+                _store(own, dict(m, dirs=sorted({*m["dirs"], rel})), m)
+    if aside is not None:
+        _remove_ours_private(aside)
+
+
+def _remove_ours_private(aside: Path) -> None:
+    """Remove a moved-aside folder: the old folder's own files, then the private wrapper;
+    a user's file found inside is kept there and named in a warning."""
+    kept = []
+    for p in aside.iterdir():
+        if p.name.startswith(STAMP_NAME):
+            continue
+        kept += _remove_ours(p) if p.is_dir() and not p.is_symlink() else [p]
+    if kept:
+        warnings.warn(f"kept {len(kept)} file(s) that morphshell did not write, found in the "
+                      f"replaced folder: {', '.join(map(str, kept[:3]))} (in {aside})",
+                      _Warning, stacklevel=3)
+        return
+    _remove_private(aside)
 
 
 def recover_stale(dst) -> list[Path]:
     """Clean up after a run of ``dst`` that was killed (SIGKILL, power loss); call it while
     holding :func:`build_lock` for ``dst``.
 
-    * a killed :func:`atomic_dir` leaves its temporary ``.<name>.tmp-*`` folder: removed;
+    * a killed :func:`atomic_dir` leaves its temporary ``.<name>.tmp-<token>`` folder:
+      removed;
     * a :func:`replace_dir` killed between its two renames leaves ``dst`` absent and the
-      previous complete result in ``.<name>.old-<pid>``: renamed back to ``dst``;
-      otherwise old folders are removed;
+      previous complete result in ``.<name>.old-<token>/<name>``: moved back to ``dst``;
+      otherwise old folders are removed (their own files only);
     * lock files and staging folders of other outputs in the same parent, left by killed
       runs, are removed (:func:`clean_stale_siblings`).
+
+    Only folders whose stamp says they are morphshell's, made for ``dst`` by this user and
+    by a process that is gone, are touched.
 
     Returns
     -------
     list of Path
         The folders and files removed or restored.
     """
-    dst = Path(dst)
+    dst = Path(dst).absolute()
     if not dst.parent.is_dir():
         return []
     done = []
-    for tmp in sorted(dst.parent.glob(f".{dst.name}.tmp-*")):
-        shutil.rmtree(tmp, ignore_errors=True)
-        done.append(tmp)
-    olds = sorted(dst.parent.glob(f".{dst.name}.old-*"), key=lambda q: q.stat().st_mtime)
-    if olds and not dst.exists():
-        os.replace(olds.pop(), dst)
+    olds = []
+    for p in sorted(dst.parent.iterdir()):
+        if not _TEMP_NAME.match(p.name) or _temporary_of(p) != dst.name:
+            continue
+        m = read_stamp(p) or {}
+        if m.get("pid") != os.getpid() and _pid_alive(m.get("pid")):
+            continue  # another process's, still at work
+        if ".old-" in p.name:
+            olds.append((m.get("created", 0.0), p))
+        else:
+            _remove_private(p)
+            done.append(p)
+    olds.sort()
+    if olds and not os.path.lexists(dst) and os.path.isdir(olds[-1][1] / dst.name):
+        os.replace(olds[-1][1] / dst.name, dst)
         done.append(dst)
-    for old in olds:
-        shutil.rmtree(old, ignore_errors=True)
+    for _, old in olds:
+        _remove_ours_private(old) if (old / dst.name).exists() else _remove_private(old)
         done.append(old)
     return done + clean_stale_siblings(dst)
 
 
+_LOCK_TEXT = re.compile(r"^(pid \d+)?$")
+
+
+def _is_lock_file(p: Path) -> bool:
+    """A lock file of :func:`build_lock`: named so, a regular file holding only ``pid N``."""
+    if not p.name.endswith(LOCK_SUFFIX):
+        return False
+    try:
+        fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return False
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        return (stat.S_ISREG(st.st_mode) and st.st_size <= 64
+                and _LOCK_TEXT.match(f.read(64).decode("ascii", "replace").strip()) is not None)
+
+
+def _stale_lock(p: Path) -> bool:
+    """A lock file of ours that no live process holds."""
+    if not _is_lock_file(p):
+        return False
+    try:
+        with open(p, "rb") as f:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+    except OSError:
+        return False
+
+
 def clean_stale_siblings(dst) -> list[Path]:
     """Remove the lock files no live process holds, and other outputs' staging folders that
-    are unlocked and older than :data:`STALE_STAGING_S`, in ``dst``'s parent folder."""
-    parent = Path(dst).parent
+    are unlocked and older than :data:`STALE_STAGING_S`, in ``dst``'s parent folder.  Both
+    are recognised by content (a lock file holds only ``pid N``; a staging folder's stamp
+    says what it is and that it is this user's), not by name alone."""
+    dst = Path(dst)
+    parent = dst.parent
     done = []
-    for lock in sorted(parent.glob(f".*{LOCK_SUFFIX}")):
-        if lock == lock_path(dst):
-            continue
-        with contextlib.suppress(OSError), open(lock, "a+") as f:
-            try:
-                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                continue  # a live build
+    for lock in sorted(q for q in parent.iterdir() if q.name.endswith(LOCK_SUFFIX)):
+        if lock != lock_path(dst) and _stale_lock(lock):  # (a live build holds its lock)
             lock.unlink()
             done.append(lock)
     now = time.time()
-    for staging in sorted(parent.glob(f".*{STAGING_SUFFIX}")):
-        name = staging.name[1:-len(STAGING_SUFFIX)]
-        if name == Path(dst).name or lock_path(parent / name).exists():
+    for staging in sorted(q for q in parent.iterdir() if q.name.endswith(STAGING_SUFFIX)):
+        name = _temporary_of(staging)
+        if name is None or name == dst.name or lock_path(parent / name).exists():
             continue
-        if now - staging.stat().st_mtime > STALE_STAGING_S:
-            shutil.rmtree(staging, ignore_errors=True)
+        m = read_stamp(staging) or {}
+        if now - float(m.get("created", now)) > STALE_STAGING_S:
+            _remove_private(staging)
             done.append(staging)
     return done
 
@@ -273,11 +927,44 @@ def staging_dir(dst) -> Path:
     return dst.parent / f".{dst.name}{STAGING_SUFFIX}" / dst.name
 
 
-def remove_staging(staging) -> None:
-    """Remove a staging folder made by :func:`staging_dir` and its wrapper."""
+def open_staging(staging, *, inputs_sha256: str) -> bool:
+    """Make the staging folder ``staging`` (:func:`staging_dir`) for a build whose inputs
+    hash to ``inputs_sha256``, or keep the one an interrupted build with the same inputs
+    left (so the simulation resumes from its checkpoint).
+
+    Returns
+    -------
+    bool
+        True when an interrupted build's staging folder is resumed.
+
+    Raises
+    ------
+    InputError
+        Something that is not morphshell's staging folder has its name.
+    """
     staging = Path(staging)
-    if staging.parent.name.endswith(STAGING_SUFFIX):
-        shutil.rmtree(staging.parent, ignore_errors=True)
+    wrapper = staging.parent
+    if os.path.lexists(wrapper):
+        if _temporary_of(wrapper) != staging.name:
+            raise InputError(f"{wrapper} exists and is not a staging folder of morphshell's "
+                             "(no stamp of ours inside): it is kept.",
+                             fix="move or rename it, then build again.")
+        m = read_stamp(wrapper) or {}
+        if m.get("inputs_sha256") == inputs_sha256 and staging.is_dir() \
+                and _is_private(read_stamp(staging)):
+            return True
+        _remove_private(wrapper)
+    _make_private(wrapper.parent, wrapper.name, role="staging", inputs_sha256=inputs_sha256,
+                  **{"for": staging.name})
+    _make_private(wrapper, staging.name, role="work", **{"for": staging.name})
+    return False
+
+
+def remove_staging(staging) -> None:
+    """Remove a staging folder made by :func:`open_staging` and its wrapper."""
+    wrapper = Path(staging).parent
+    if _temporary_of(wrapper) is not None:
+        _remove_private(wrapper)
 
 
 @contextlib.contextmanager
@@ -294,45 +981,57 @@ def atomic_dir(dst, *, keep_on_error: bool = False):
     Yields
     ------
     tmp : pathlib.Path
-        Empty folder on the same file system as ``dst``; stamped and given the umask's
-        permissions when the block ends.
+        Empty private folder on the same file system as ``dst``; sealed (every file
+        recorded) and given the umask's permissions when the block ends.
     """
     dst = claim_output(dst)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{dst.name}.tmp-", dir=dst.parent))
+    make_dirs(dst.parent)
+    tok = _token()
+    tmp = _make_private(dst.parent, f".{dst.name}.tmp-{tok}", role="tmp", token=tok,
+                        **{"for": dst.name})
     try:
         yield tmp
     except BaseException:
         if not keep_on_error:
-            shutil.rmtree(tmp, ignore_errors=True)
+            _remove_private(tmp)
         raise
-    write_stamp(tmp)
+    seal(tmp)
     public_mode(tmp, recursive=True)
     replace_dir(tmp, dst)
 
 
-def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and an atomic rename."""
-    with atomic_file(path) as tmp, open(tmp, "w", newline="\n") as f:
-        f.write(text)
-
-
 @contextlib.contextmanager
-def atomic_file(path):
-    """Context manager yielding a temporary path beside ``path``; renamed to ``path``
-    (with the umask's permissions) when the block succeeds, removed when it fails."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        public_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+def output_folder(dst):
+    """Where to write the folder ``dst``: ``dst`` itself when it is a private folder being
+    made (a build's staging folder), else a private temporary that becomes ``dst`` when the
+    block succeeds (:func:`atomic_dir`; ``dst`` must pass :func:`claim_output`).
+
+    Yields
+    ------
+    pathlib.Path
+    """
+    dst = Path(dst)
+    if dst.is_dir() and not dst.is_symlink() and _is_private(read_stamp(dst)):
+        yield dst
+    else:
+        with atomic_dir(dst) as tmp:
+            yield tmp
+
+
+def write_stamp(folder, *, since: float | None = None) -> None:
+    """Kept for callers of the former API, which stamped files after the fact.  Files are
+    now recorded when they are written (:func:`atomic_file`), so this only seals a private
+    folder being made (:func:`seal`) and does nothing to any other folder: it never adopts
+    a file.  ``since`` is ignored."""
+    del since
+    if _is_private(read_stamp(folder)):
+        seal(folder)
+
+
+def _manifest(folder) -> set[str] | None:
+    """Names the manifest of ``folder`` records (former API), None when unstamped."""
+    m = read_stamp(folder)
+    return None if m is None or m.get("legacy") else set(m["files"])
 
 
 # ---------------------------------------------------------------- locks
@@ -355,14 +1054,20 @@ def build_lock(target):
         If another process holds the lock (another build of the same shape).
     """
     path = lock_path(target)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs(path.parent)
     while True:
-        f = open(path, "a+")
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+        except OSError as e:
+            raise InputError(f"cannot open the lock file {path} ({e.strerror}).",
+                             fix=f"remove {path} if it is a link or a folder, then re-run."
+                             ) from None
+        f = os.fdopen(fd, "r+")
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             f.seek(0)
-            holder = f.read().strip() or "another process"
+            holder = f.read(64).strip() or "another process"
             f.close()
             raise InputError(
                 f"{target} is being built by {holder}: two builds of the same shape "
@@ -393,18 +1098,11 @@ def build_lock(target):
         f.close()
 
 
-def claim_result_folder(folder, is_ours, *, what: str) -> Path:
+def claim_result_folder(folder, *, what: str) -> Path:
     """Claim an output folder that may already hold this command's own results, so that a
-    rerun resumes there: new, stamped by morphshell, or holding only files ``is_ours``
-    accepts.
-
-    Parameters
-    ----------
-    folder : path-like
-    is_ours : callable(Path) -> bool
-        Whether a file under ``folder`` that no stamp lists is one of our results.
-    what : str
-        How the message names the folder.
+    rerun resumes there: new, empty, or stamped by morphshell with nothing of the user's
+    in it.  A new or empty folder gets an empty manifest, so that each result written into
+    it (:func:`atomic_file`) is recorded as it is written.
 
     Returns
     -------
@@ -416,16 +1114,11 @@ def claim_result_folder(folder, is_ours, *, what: str) -> Path:
     InputError
         The folder holds files morphshell did not write (see :func:`claim_output`).
     """
-    folder = Path(folder)
-    if folder.is_dir() and not folder.is_symlink():
-        foreign = [p for p in foreign_files(folder) if not is_ours(p)]
-        if foreign:
-            raise InputError(f"{what} {folder} holds files morphshell did not write "
-                             f"({', '.join(str(p.relative_to(folder)) for p in foreign[:3])})",
-                             fix="move them away or give another --out folder; morphshell "
-                                 "never deletes files it did not make")
-        return folder.absolute()
-    return claim_output(folder, what=what)
+    folder = claim_output(folder, what=what)
+    make_dirs(folder)
+    if read_stamp(folder) is None:
+        start_stamp(folder)
+    return folder
 
 
 def claim_output_file(path, *, what: str = "output file") -> Path:
@@ -444,6 +1137,8 @@ def claim_output_file(path, *, what: str = "output file") -> Path:
                          "not a model file.", fix=fix)
     if path.exists():
         try:
+            if not path.is_file():
+                raise OSError
             ours = "provenance" in json.loads(path.read_text())
         except (OSError, ValueError, TypeError):
             ours = False

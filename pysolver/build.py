@@ -55,17 +55,18 @@ from .atomic import (
     atomic_write_text,
     build_lock,
     claim_output,
+    open_staging,
     public_mode,
     recover_stale,
     remove_staging,
     replace_dir,
+    seal,
     staging_dir,
-    write_stamp,
 )
 from .design import check_design_options, run_design
 from .design.surfaces import BUILTIN_SHAPES, check_spec
 from .design.time_landscape import read_time_file
-from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError
+from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError, check_input_file
 from .material.model import DEFAULT_MODEL_PATH, check_bracket_geometry, load_bracket_model
 from .params import DEFAULT_REFINE, LIMITS, MODEL_LIMITS, REPORT, SIM, UNIT_CELL
 from .render import (
@@ -113,6 +114,8 @@ def shape_name(source: str) -> str:
     p = Path(source)
     if p.is_file():
         return p.stem
+    if p.exists() and not p.is_dir():
+        check_input_file(p, "mesh file")  # a FIFO or a device: named, never read
     if p.is_dir():
         raise InputError(f"{source!r} is a directory, not a mesh file.",
                          fix="give the path of a mesh file (OBJ, STL, PLY, OFF) or a built-in "
@@ -463,8 +466,7 @@ def _finish(summary: dict, staging: Path, out: Path, t_build: float, *, material
     atomic_write_text(staging / "summary.json",
                       json.dumps(summary, indent=2, sort_keys=True, default=_json_default)
                       + "\n")
-    (staging / ".inputs_sha256").unlink(missing_ok=True)
-    write_stamp(staging)
+    seal(staging)
     public_mode(staging, recursive=True)
     replace_dir(staging, out)
     remove_staging(staging)
@@ -484,8 +486,7 @@ def _closing(summary: dict, name: str, out: Path, progress: bool) -> dict:
 # ------------------------------------------------------------------------------------------
 # a build again from an edited time landscape (the studio's "Run")
 
-REBUILD_DROPPED = ("summary.json", "temporal.json", "temporal_feasibility.png", STAMP_NAME,
-                   ".inputs_sha256")
+REBUILD_DROPPED = ("summary.json", "temporal.json", "temporal_feasibility.png", STAMP_NAME)
 """Top-level files of a build that a rebuild does not carry over (the later stages write
 them again); its subfolders (``sim/``, ``report/``, ``scad/``, ``stl/``, ``tolerance/``) are
 all made from the old tables and are not carried over either."""
@@ -1013,15 +1014,10 @@ def _now() -> float:
 
 
 def _prepare_staging(staging: Path, digest: str, progress: bool) -> None:
-    """Reuse the staging folder of an interrupted build with the same inputs, else start clean."""
-    marker = staging / ".inputs_sha256"
-    if staging.exists():
-        if marker.exists() and marker.read_text().strip() == digest:
-            _log(f"resuming the interrupted build in {staging}", progress)
-            return
-        remove_staging(staging)
-    staging.mkdir(parents=True)
-    marker.write_text(digest + "\n")
+    """Reuse the staging folder of an interrupted build with the same inputs, else start
+    clean (:func:`pysolver.atomic.open_staging`: recognised by the stamp inside)."""
+    if open_staging(staging, inputs_sha256=digest):
+        _log(f"resuming the interrupted build in {staging}", progress)
 
 
 # outputs of the stages a build may skip, and what they are computed from

@@ -14,12 +14,17 @@ import dataclasses
 import errno
 import functools
 import sys
-import time
 import traceback
 import warnings
 from pathlib import Path
 
-from .atomic import STAMP_NAME, claim_output, claim_output_file, write_stamp
+from .atomic import (
+    build_lock,
+    check_design_folder,
+    claim_output,
+    claim_output_file,
+    claim_result_folder,
+)
 from .errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERNAL,
@@ -110,10 +115,14 @@ def _add_solver_option(p: argparse.ArgumentParser) -> None:
 
 def _add_dask_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default=None,
-                   help="address of a running Dask scheduler (tcp://host:8786); default: a "
-                        "local cluster sized to this machine")
+                   help="address of a running Dask scheduler (tls://host:8786; plain tcp:// "
+                        "is warned about; credentials from Dask's configuration, see "
+                        "docs/tolerance.md); default: a local cluster sized to this machine, "
+                        "on 127.0.0.1 with TLS")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes of the local cluster (default: one per core)")
+    p.add_argument("--dashboard", action="store_true",
+                   help="serve the local cluster's Dask dashboard (on 127.0.0.1 only)")
 
 
 def _add_physics_options(p: argparse.ArgumentParser) -> None:
@@ -287,12 +296,13 @@ def _run(args: argparse.Namespace) -> int:
     progress = not getattr(args, "quiet", False)
     if hasattr(args, "dir"):
         args.dir = _design_dir(args.dir)
-        t0 = time.time()
-        try:
+        if args.command == "tolerance":  # reads the folder; writes its own result folder
             return _run_stage(args, progress)
-        finally:  # files this stage wrote into a stamped design folder are morphshell's
-            if (args.dir / STAMP_NAME).is_file():
-                write_stamp(args.dir, since=t0 - 1.0)
+        # a stage writes into the design folder in place: only into a folder morphshell
+        # made (whose stamp records what it wrote), one stage or build at a time
+        check_design_folder(args.dir)
+        with build_lock(args.dir):
+            return _run_stage(args, progress)
     return _run_command(args, progress)
 
 
@@ -368,7 +378,7 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
                            seed=args.seed, time_tol_s=args.time_tol,
                            sensitivity=args.sensitivity, material=args.material,
                            out=args.out, scheduler=args.scheduler, workers=args.workers,
-                           progress=progress, **kw)
+                           progress=progress, dashboard=args.dashboard, **kw)
         return EXIT_OK
     if cmd == "compare-scan":
         from sim.report.scan import compare_scan  # lazy: the stage loads when its subcommand runs
@@ -408,9 +418,8 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
         return EXIT_OK
     if cmd == "specimens":
         from .specimens import make_specimens  # lazy: the stage loads when its subcommand runs
-        out = claim_output(args.out, what="--out folder")
+        out = claim_result_folder(args.out, what="--out folder")
         make_specimens(out, jobs=args.jobs)
-        write_stamp(out)
         return EXIT_OK
     if cmd == "studio":
         from .studio import serve  # lazy: the stage loads when its subcommand runs
@@ -419,8 +428,16 @@ def _run_other(args: argparse.Namespace, progress: bool) -> int:
     if cmd == "sweep":
         from .sweep import run_sweep  # lazy: the stage loads when its subcommand runs
         res = run_sweep(args.spec, out=args.out, scheduler=args.scheduler,
-                        workers=args.workers, progress=progress)
-        return EXIT_OK if not res["run"]["failed"] else EXIT_INTERNAL
+                        workers=args.workers, progress=progress, dashboard=args.dashboard)
+        bad = [r for r in res["rows"] if r.get("verdict") == "ERROR"]
+        if not bad:
+            return EXIT_OK
+        print(f"morphshell sweep: error: {len(bad)} of {len(res['rows'])} variant(s) were not "
+              f"built (first: {bad[0]['variant']}: {bad[0].get('error') or '?'}); see "
+              f"{Path(res['out']) / 'table.csv'}", file=sys.stderr)
+        if res["run"]["failed"]:
+            return EXIT_INTERNAL
+        return max(int(r.get("exit_code") or EXIT_BAD_INPUT) for r in bad)
     if cmd == "shapes":
         from .design.surfaces import BUILTIN_SHAPES  # lazy: loads with its subcommand
         for name in BUILTIN_SHAPES:
@@ -443,8 +460,48 @@ def _warning_printer(command: str):
     return show
 
 
-# OSError numbers that describe the machine (the user can fix them), not a bug
-_ENVIRONMENT_ERRNOS = {errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EROFS, errno.EDQUOT}
+# OSError numbers that describe the machine (the user can fix them), not a bug:
+# errno -> (what happened, the fix)
+_ENVIRONMENT_ERRNOS = {
+    errno.ENOSPC: ("no space left on the device (the disk is full)",
+                   "free some space or write elsewhere (--out), then re-run"),
+    errno.EDQUOT: ("the disk quota is exceeded", "free some space or write elsewhere (--out), "
+                                                 "then re-run"),
+    errno.EFBIG: ("the file is too large for its file system or for this process's file-size "
+                  "limit (ulimit -f)", "write to another file system (--out) or raise the "
+                                       "limit, then re-run"),
+    errno.EACCES: ("permission denied", "check the permissions of the folder, then re-run"),
+    errno.EPERM: ("operation not permitted", "check the permissions of the folder, then "
+                                             "re-run"),
+    errno.EROFS: ("the file system is read-only", "write elsewhere (--out), then re-run"),
+    errno.EADDRINUSE: ("the network port is already in use",
+                       "choose another --port, or omit it to take any free port"),
+    errno.EADDRNOTAVAIL: ("the network address is not available on this machine",
+                          "check the address (the studio listens on 127.0.0.1)"),
+    errno.EMFILE: ("too many open files", "raise the limit (ulimit -n), then re-run"),
+    errno.ENFILE: ("too many open files on the machine", "close other programs, then re-run"),
+    errno.ENAMETOOLONG: ("a file name is too long", "use a shorter --out path or file name"),
+    errno.ELOOP: ("a symbolic link stands where morphshell does not follow links",
+                  "replace the link by a real folder or file, then re-run"),
+    errno.EIO: ("an input/output error on the device", "check the disk, then re-run"),
+}
+
+
+def _environment_error(e: BaseException):
+    """(what happened, which file, fix) when ``e`` (or an error it came from) is the machine,
+    not a bug; else None."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, MemoryError):
+            return ("the machine ran out of memory", None,
+                    "give a smaller input (e.g. decimate the mesh) or close other programs, "
+                    "then re-run")
+        if isinstance(e, OSError) and e.errno in _ENVIRONMENT_ERRNOS:
+            what, fix = _ENVIRONMENT_ERRNOS[e.errno]
+            return what, e.filename, fix
+        e = e.__cause__ or e.__context__
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -470,12 +527,12 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # a bug: say so, and how to get details
         if getattr(args, "debug", False):
             traceback.print_exc()
-        if isinstance(e, OSError) and e.errno in _ENVIRONMENT_ERRNOS:
-            # the machine, not the program: no permission, disk full, read-only file system
-            print(f"morphshell {args.command}: error: cannot write or read "
-                  f"{e.filename or 'a file'}: {e.strerror}.\n  Fix: check the permissions and "
-                  "the free space of the output folder (--out), then re-run; previous complete "
-                  "results are kept.", file=sys.stderr)
+        env = _environment_error(e)
+        if env is not None:  # the machine, not the program: named, with the fix
+            what, filename, fix = env
+            where = f" ({filename})" if filename else ""
+            print(f"morphshell {args.command}: error: {what}{where}.\n  Fix: {fix}; previous "
+                  "complete results are kept.", file=sys.stderr)
             return EXIT_BAD_INPUT
         print(f"morphshell {args.command}: internal error ({type(e).__name__}: {e}). "
               "This is a bug; re-run with --debug for the traceback and report it.",

@@ -5,7 +5,7 @@ Used by ``morphshell tolerance`` (:mod:`pysolver.tolerance`, one simulation per 
 
 * **Cluster.**  By default a ``LocalCluster`` sized to the machine (one single-threaded
   worker process per core: every task runs its linear algebra on one BLAS thread anyway);
-  ``scheduler="tcp://host:8786"`` sends the same tasks to an existing cluster
+  ``scheduler="tls://host:8786"`` sends the same tasks to an existing cluster
   (``docs/tolerance.md`` shows how to start one on several machines).
 * **Self-contained tasks.**  A :class:`Task` is an importable function and its arguments
   (plain data: arrays, numbers, file contents), so any worker on any machine can run it; the
@@ -30,28 +30,18 @@ import os
 import re
 import sys
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from .atomic import atomic_write_text
-from .errors import InputError
+from .errors import InputError, read_input
 from .params import TOLERANCE_RUN
 
 KEY_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,120}$")
 SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|inproc|ucx)://[A-Za-z0-9_.:\[\]/-]{1,200}$")
 RESULT_FORMAT = "morphshell.task_result"
-
-
-def is_result_file(path) -> bool:
-    """Whether ``path`` is a task result this module wrote (JSON with our format tag)."""
-    p = Path(path)
-    if p.suffix != ".json":
-        return False
-    try:
-        return json.loads(p.read_text()).get("format") == RESULT_FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
 
 
 def _soft_import_distributed():
@@ -162,7 +152,7 @@ class ResultStore:
         """
         p = self.path(task.key)
         try:
-            d = json.loads(p.read_text())
+            d = json.loads(read_input(p, "task result"))
         except (OSError, ValueError):
             return None
         if (not isinstance(d, dict) or d.get("format") != RESULT_FORMAT
@@ -171,7 +161,6 @@ class ResultStore:
         return d.get("result")
 
     def save(self, task: Task, result) -> None:
-        self.folder.mkdir(parents=True, exist_ok=True)
         text = json.dumps({"format": RESULT_FORMAT, "key": task.key,
                            "fingerprint": task.fingerprint, "result": result},
                           sort_keys=True, allow_nan=True)
@@ -210,13 +199,13 @@ class RunStats:
 
 
 def check_scheduler(address) -> str | None:
-    """Validate a ``--scheduler`` address (``tcp://host:8786``); ``None`` passes."""
+    """Validate a ``--scheduler`` address (``tls://host:8786``); ``None`` passes."""
     if address is None:
         return None
     a = str(address).strip()
     if not SCHEDULER_RE.match(a):
         raise InputError(f"--scheduler {address!r} is not a Dask scheduler address",
-                         fix="use tcp://HOST:8786 (the address 'dask scheduler' prints)")
+                         fix="use tls://HOST:8786 (the address 'dask scheduler' prints)")
     return a
 
 
@@ -228,48 +217,102 @@ def check_workers(workers) -> int | None:
     return workers
 
 
+LOOPBACK = "127.0.0.1"
+"""The one interface the local cluster (scheduler, workers, dashboard) listens on."""
+
+
+def local_security():
+    """Dask TLS security with a certificate made for this run only (mutual TLS).
+
+    The scheduler and the workers accept only peers that present this certificate, which
+    lives in this process's memory (and its workers'): another local user cannot submit
+    work to the cluster, nor read what flows in it.
+
+    Raises
+    ------
+    InputError
+        The ``cryptography`` package (a declared dependency) is missing.
+    """
+    try:
+        from distributed.security import Security  # heavy: Dask only for distributed runs
+
+        return Security.temporary()
+    except ImportError as e:  # Security.temporary needs cryptography
+        raise InputError(f"cannot make the local cluster's TLS certificate ({e})",
+                         fix="reinstall the environment: make venv") from None
+
+
+class PlainSchedulerWarning(UserWarning):
+    """A ``--scheduler`` without encryption or authentication."""
+
+
+def _warn_plain(scheduler: str) -> None:
+    if scheduler.startswith(("tcp://", "ws://")):
+        warnings.warn(f"{scheduler} is plain {scheduler.split(':')[0]}: anyone who can reach it "
+                      "can submit code to its workers, and the designs travel unencrypted. "
+                      "Use a tls:// scheduler and give its certificates in Dask's "
+                      "configuration (distributed.comm.tls.*; docs/tolerance.md).",
+                      PlainSchedulerWarning, stacklevel=3)
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None,
-                progress: bool = True):
+                progress: bool = True, dashboard: bool = False):
     """A ``distributed.Client``: of an existing cluster, or of a new ``LocalCluster``.
+
+    The local cluster listens on the loopback interface only (:data:`LOOPBACK`), speaks TLS
+    with a certificate made for this run (:func:`local_security`), and serves no web pages
+    (no dashboard, no HTTP routes) unless ``dashboard`` is asked for.
 
     Parameters
     ----------
     scheduler : str, optional
-        ``tcp://host:port`` of a running ``dask scheduler``.
+        ``tls://host:port`` (or ``tcp://``, with a warning) of a running ``dask scheduler``;
+        credentials come from Dask's configuration (``distributed.comm.tls.*``).
     workers : int, optional
         Worker processes of the local cluster (default: one per core); ignored with
         ``scheduler``.
     progress : bool
-        Print the cluster and its dashboard address to stderr.
+        Print the cluster (and its dashboard address) to stderr.
+    dashboard : bool
+        Serve the local cluster's dashboard, on the loopback interface.
 
     Yields
     ------
     distributed.Client
     """
     distributed = _soft_import_distributed()
+    import dask  # (with distributed)
+
     scheduler = check_scheduler(scheduler)
     workers = check_workers(workers)
     cluster = None
     if scheduler is not None:
+        _warn_plain(scheduler)
         try:
             client = distributed.Client(scheduler, timeout="20s")
         except OSError as e:
             raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({e})",
-                             fix="start it with 'dask scheduler' and check the address and "
-                                 "the firewall (docs/tolerance.md)") from None
+                             fix="start it with 'dask scheduler' and check the address, the "
+                                 "firewall and the TLS settings (docs/tolerance.md)") from None
     else:
         n = workers or os.cpu_count() or 1
-        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0",
-                                           silence_logs=logging.ERROR)
-        client = distributed.Client(cluster)
+        security = local_security()
+        routes = {} if dashboard else {"distributed.scheduler.http.routes": [],
+                                       "distributed.worker.http.routes": []}
+        with dask.config.set(routes):
+            cluster = distributed.LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
+                protocol="tls", security=security,
+                dashboard_address=f"{LOOPBACK}:0" if dashboard else None,
+                silence_logs=logging.ERROR)
+        client = distributed.Client(cluster, security=security)
     try:
         if progress:
             nw = len(client.scheduler_info().get("workers", {}))
-            where = scheduler or "local cluster"
-            print(f"dask: {where}, {nw} worker(s), dashboard {client.dashboard_link}",
-                  file=sys.stderr, flush=True)
+            where = scheduler or f"local cluster on {LOOPBACK} (TLS)"
+            dash = f", dashboard {client.dashboard_link}" if (dashboard or scheduler) else ""
+            print(f"dask: {where}, {nw} worker(s){dash}", file=sys.stderr, flush=True)
         yield client
     finally:
         client.close()
@@ -288,7 +331,8 @@ def _fmt_s(s: float) -> str:
 def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
               scheduler: str | None = None, workers: int | None = None,
               progress: bool = True, label: str = "tasks",
-              on_result: Callable | None = None) -> tuple[dict, RunStats]:
+              on_result: Callable | None = None,
+              dashboard: bool = False) -> tuple[dict, RunStats]:
     """Run the tasks whose results are not stored yet; store each result as it arrives.
 
     Parameters
@@ -298,7 +342,7 @@ def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
     store : ResultStore
     client : distributed.Client, optional
         Use this client (tests); else one is made by :func:`dask_client`.
-    scheduler, workers : see :func:`dask_client`
+    scheduler, workers, dashboard : see :func:`dask_client`
     progress : bool
     label : str
         Prefix of the progress lines.
@@ -333,7 +377,10 @@ def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
     if todo:
         with contextlib.ExitStack() as stack:
             if client is None:
-                client = stack.enter_context(dask_client(scheduler, workers, progress))
+                client = stack.enter_context(dask_client(scheduler, workers, progress,
+                                                         dashboard=dashboard))
+            if dashboard or scheduler is not None:
+                stats.dashboard = client.dashboard_link
             _compute(client, todo, store, results, stats, progress, label, on_result,
                      t_start)
     stats.wall_s = time.perf_counter() - t_start
@@ -347,7 +394,6 @@ def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
 def _compute(client, todo, store, results, stats, progress, label, on_result, t_start):
     distributed = _soft_import_distributed()
     stats.workers = len(client.scheduler_info().get("workers", {}))
-    stats.dashboard = client.dashboard_link
     by_key = {}
     futures = []
     for t in todo:
@@ -389,8 +435,9 @@ def _compute(client, todo, store, results, stats, progress, label, on_result, t_
             rate = (now - t_run) / max(stats.computed, 1)
             eta = rate * (n - done) if stats.computed else float("nan")
             print(f"{label}: {stats.loaded + done}/{stats.total} done, "
-                  f"{len(stats.failed)} failed, ETA {_fmt_s(eta)}  "
-                  f"(dashboard {stats.dashboard})", file=sys.stderr, flush=True)
+                  f"{len(stats.failed)} failed, ETA {_fmt_s(eta)}"
+                  + (f"  (dashboard {stats.dashboard})" if stats.dashboard else ""),
+                  file=sys.stderr, flush=True)
 
 
 __all__ = ["Task", "ResultStore", "RunStats", "run_tasks", "dask_client", "fingerprint",

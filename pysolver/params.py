@@ -1288,6 +1288,17 @@ class Sequencing:
         apart.  The map that clamps fewest cells alone squeezed the cover's 30-80 s into
         58-59 s; the simulated completion times scatter by an RMS 9-11 s around ``t*``
         (:mod:`pysolver.temporal.program`), so parts closer than that may close together.
+    bytes_per_pair : int, bytes
+        Memory the facing-pair search holds per vertex pair within ``reach_mm``: the pair
+        list (2 x int64, also while scipy builds it), its sort order, and the distance and
+        path arrays (float64); counted from the code of
+        :func:`pysolver.design.sequencing.facing_pairs`.
+    memory_fraction : float
+        Share of the machine's available memory the pair search may take; a denser input
+        mesh is refused before the search, naming the number of faces that would fit.
+    estimate_samples : int
+        Vertices (evenly spaced in file order) whose neighbours within ``reach_mm`` are
+        counted to estimate the number of pairs before the search.
     """
 
     reach_mm: float = 12.0
@@ -1296,6 +1307,9 @@ class Sequencing:
     saddle_ratio: float = 0.75
     times_s: tuple = (30.0, 80.0)
     min_separation_s: float = 10.0
+    bytes_per_pair: int = 72
+    memory_fraction: float = 0.5
+    estimate_samples: int = 2000
 
 
 SEQUENCING = Sequencing()

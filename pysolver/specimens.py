@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_dir
+from .atomic import atomic_dir, atomic_write_text
 from .errors import InputError
 from .params import UNIT_CELL
 from .render import (
@@ -236,8 +236,7 @@ def make_specimens(out_dir, lengths=(5, 6, 7, 8, 9), thicknesses=None, build_are
                     stl=str(out_dir / "stl" / f"{p.name}.stl"))
         rows.append(f"{l:.9g},{h:.9g},{left},{right},stl/{p.name}.stl,{spec['plate']},"
                     f"{spec['plate_xy_mm'][0]:.9g},{spec['plate_xy_mm'][1]:.9g}")
-    with open(out_dir / "specimens.csv", "w", newline="\n") as f:
-        f.write("\n".join(rows) + "\n")
+    atomic_write_text(out_dir / "specimens.csv", "\n".join(rows) + "\n")
     t_layout = time.perf_counter() - t0
     n_r = res["rendered"]
     summary = {

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_file, atomic_write_text, claim_result_folder, write_stamp
+from .atomic import atomic_file, atomic_write_text, claim_result_folder
 from .build import build
 from .distributed import (
     ResultStore,
@@ -58,10 +58,9 @@ from .distributed import (
     check_workers,
     code_fingerprint,
     fingerprint,
-    is_result_file,
     run_tasks,
 )
-from .errors import InputError, MorphshellError
+from .errors import InputError, MorphshellError, read_input
 from .params import TOLERANCE_RUN
 
 BUILD_ROOT = Path("build")
@@ -128,7 +127,7 @@ def load_spec(path) -> dict:
     """
     p = Path(path)
     try:
-        text = p.read_bytes().decode("utf-8")
+        text = read_input(p, "sweep spec").decode("utf-8")
         spec = tomllib.loads(text)
     except OSError as e:
         raise InputError(f"sweep spec {p}: {e.strerror}", fix="give an existing TOML file") \
@@ -328,19 +327,13 @@ def _plot(path: Path, rows: list) -> None:
 
 
 def _claim(out: Path) -> Path:
-    """The sweep folder: new, stamped by morphshell, or holding only our results/builds."""
-
-    def ours(p: Path) -> bool:
-        rel = p.relative_to(out).parts
-        if rel[0] == "builds":
-            return True  # each build folder is checked by build() itself (claim_output)
-        return rel[0] == "results" and is_result_file(p)
-
-    return claim_result_folder(out, ours, what="sweep folder")
+    """The sweep folder: new, or morphshell's (every file in it recorded as written; each
+    build folder in it is checked again by build() itself)."""
+    return claim_result_folder(out, what="sweep folder")
 
 
 def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
-              progress: bool = True) -> dict:
+              progress: bool = True, dashboard: bool = False) -> dict:
     """Build every variant of a sweep spec on Dask and write the table.
 
     Parameters
@@ -349,7 +342,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
         TOML spec (module docstring).
     out : path-like, optional
         Output folder (default ``build/sweep-<name>``).
-    scheduler, workers, client
+    scheduler, workers, client, dashboard
         Dask cluster (:func:`pysolver.distributed.dask_client`).
     progress : bool
 
@@ -361,8 +354,6 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
     scheduler, workers = check_scheduler(scheduler), check_workers(workers)
     spec = load_spec(spec_path)
     out = _claim(Path(out) if out is not None else BUILD_ROOT / f"sweep-{spec['name']}")
-    out.mkdir(parents=True, exist_ok=True)
-    write_stamp(out, since=time.time() + 1e9)
     tasks = []
     code = code_fingerprint()
     for v in spec["variants"]:
@@ -370,7 +361,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
         for k in FILE_OPTIONS:
             if k in v and (k != "shape" or _is_file_like(v[k])):
                 f = Path(v[k])
-                files[k] = (f.name, f.read_bytes())
+                files[k] = (f.name, read_input(f, f"{k} file"))
         opts = {k: val for k, val in v.items() if k not in files}
         opts["name"] = v["name"]
         dest = str(out / "builds" / v["name"])
@@ -379,7 +370,7 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
                                       code)))
     results, stats = run_tasks(tasks, ResultStore(out / "results"), client=client,
                                scheduler=scheduler, workers=workers, progress=progress,
-                               label="sweep")
+                               label="sweep", dashboard=dashboard)
     rows = []
     for v in spec["variants"]:
         r = dict(results.get(v["name"], {"variant": v["name"], "verdict": "ERROR",
@@ -389,9 +380,8 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
             r[k] = Path(val).name if (k in FILE_OPTIONS and val and _is_file_like(val)) else val
         rows.append(r)
     write_table(out, rows, spec["name"])
-    write_stamp(out)
     if progress:
-        n_ok = sum(r.get("verdict") in ("PASS", "WARN", "FAIL") for r in rows)
+        n_ok = sum(r.get("verdict") != "ERROR" for r in rows)
         print(f"sweep: {n_ok}/{len(rows)} variants built -> {out / 'index.html'}",
               file=sys.stderr, flush=True)
     return {"rows": rows, "out": str(out), "run": stats.to_dict()}

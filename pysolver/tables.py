@@ -19,14 +19,14 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, refuse_first
+from .atomic import atomic_file, atomic_write_text
+from .errors import InputError, check_input_file, read_input, refuse_first
 from .geometry import unit_cells
 from .params import UNIT_CELL, check_unit_cell
 from .params import tol as TOL
@@ -121,10 +121,7 @@ def write_table(path, kind: str, data: dict) -> Path:
     kinds = list(schema.values())
     for r in range(n):
         lines.append(",".join(_fmt(cols[k][r], kinds[k]) for k in range(len(kinds))))
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w", newline="\n") as fh:
-        fh.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -150,6 +147,7 @@ def read_table(path, kind: str) -> dict[str, np.ndarray]:
         where = (f"{path.parent}: no such design folder" if not path.parent.exists()
                  else f"{path}: file not found")
         raise InputError(where, fix="run the design stage first (morphshell design <shape>)")
+    check_input_file(path, f"{kind} table")
     try:
         with open(path) as fh:
             text = fh.read()
@@ -274,10 +272,7 @@ def write_stencil(path, V, UV, F) -> Path:
     lines += ["v {:.9g} {:.9g} {:.9g}".format(*tuple(p)) for p in V + 0.0]
     lines += ["vt {:.9g} {:.9g}".format(*tuple(p)) for p in UV + 0.0]
     lines += ["f {} {} {}".format(*(f + 1)) for f in F]
-    tmp = path.with_suffix(".obj.tmp")
-    with open(tmp, "w", newline="\n") as fh:
-        fh.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -325,6 +320,7 @@ def read_stencil(path):
     if not path.exists():
         raise InputError(f"{path}: file not found",
                          fix="run the design stage first (morphshell design <shape>)")
+    check_input_file(path, "stencil")
     V, T, F, FT = [], [], [], []
     with open(path, errors="replace") as fh:
         for ln, line in enumerate(fh, start=1):
@@ -381,7 +377,10 @@ def read_stencil(path):
             UV = T
         else:
             raise InputError(f"{path}: {len(T)} vt for {len(V)} v and faces without vt indices",
-                             fix="give one vt per v (row-aligned) or v/vt face indices")
+                             fix="for a stencil, give one vt per v (row-aligned) or v/vt face "
+                                 "indices; for a plain target mesh, delete its vt lines (e.g. "
+                                 "grep -v '^vt ' in.obj > target.obj), which a mesh does not "
+                                 "need")
     _check_stencil(V, UV if UV is not None else np.zeros((len(V), 2)), F, str(path))
     return V, UV, F
 
@@ -455,7 +454,7 @@ def read_design(folder, check: bool = True) -> Design:
     meta = {}
     if (folder / "design.json").exists():
         try:
-            meta = json.loads((folder / "design.json").read_text())
+            meta = json.loads(read_input(folder / "design.json", "design record"))
         except json.JSONDecodeError as e:
             raise InputError(f"{folder / 'design.json'}: invalid JSON ({e})") from None
     d = Design(folder, V, UV, F, bases, cells, bumpers, tl["time_s"],
@@ -512,8 +511,8 @@ def read_record(path) -> dict | None:
     """A JSON record of a design folder (``design.json``, ``summary.json``, ...) for display:
     its content, or ``None`` if the file is missing, unreadable or not JSON."""
     try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
+        return json.loads(read_input(path, "record"))
+    except (OSError, ValueError):  # (InputError is a ValueError)
         return None
 
 
@@ -523,7 +522,7 @@ def read_unit_cell(folder):
     if not path.is_file():
         return design_unit_cell({})
     try:
-        meta = json.loads(path.read_text())
+        meta = json.loads(read_input(path, "design record"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: invalid JSON ({e})", fix="re-run the design stage") from None
     return design_unit_cell(meta, str(path))
@@ -701,15 +700,13 @@ def write_model(folder, arrays: dict, inputs_sha256: str) -> Path:
     if missing:
         raise InputError(f"write_model: missing array(s) {missing}")
     path = Path(folder) / MODEL_FILE
-    tmp = path.with_suffix(path.suffix + ".tmp")
     items = [(k, np.ascontiguousarray(arrays[k])) for k in MODEL_ARRAYS]
     items.append(("inputs_sha256", np.array(inputs_sha256)))
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
+    with atomic_file(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
         for name, a in items:
             with zf.open(zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0)),
                          "w") as fh:
                 np.lib.format.write_array(fh, a, allow_pickle=False)
-    os.replace(tmp, path)
     return path
 
 

@@ -15,7 +15,10 @@ import sys
 import threading
 from pathlib import Path
 
-from pysolver.atomic import build_lock, recover_stale, replace_dir, write_stamp
+import pytest
+
+from pysolver import atomic
+from pysolver.atomic import atomic_dir, build_lock, recover_stale, replace_dir, start_stamp
 from pysolver.errors import EXIT_BAD_INPUT
 
 REPO = Path(__file__).resolve().parent.parent
@@ -113,22 +116,28 @@ def test_killed_design_command_is_cleaned_up_by_the_next_run(tmp_path):
 def test_replace_interrupted_between_its_renames_is_recovered(tmp_path):
     """``replace_dir`` moves the old folder aside, then the new one in: killed in between,
     ``dst`` is absent and the old complete folder waits aside; the next run (under the
-    lock) puts it back, and removes stale temporary folders."""
+    lock) puts it back, and removes stale temporary folders (tests/test_ownership.py has
+    the user's look-alike folders)."""
     dst = tmp_path / "petal"
-    dst.mkdir()
-    (dst / "summary.json").write_text("old complete\n")
-    write_stamp(dst)                                  # a folder morphshell made
-    os.replace(dst, tmp_path / ".petal.old-12345")    # the state after the first rename
-    (tmp_path / ".petal.tmp-abc").mkdir()             # a killed atomic_dir's temp folder
-    (tmp_path / ".petal.tmp-abc" / "cells.csv").write_text("half\n")
+    with atomic_dir(dst) as tmp:
+        (tmp / "summary.json").write_text("old complete\n")
+    tok = atomic._token()
+    aside = atomic._make_private(tmp_path, f".petal.old-{tok}", role="old", token=tok,
+                                 **{"for": "petal"})
+    os.replace(dst, aside / "petal")                  # the state after the first rename
+    with pytest.raises(RuntimeError), atomic_dir(dst, keep_on_error=True) as tmp:
+        (tmp / "cells.csv").write_text("half\n")     # a killed atomic_dir's temp folder
+        raise RuntimeError
     with build_lock(dst):
         done = recover_stale(dst)
     assert (dst / "summary.json").read_text() == "old complete\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["petal"]
-    assert len(done) == 2
+    assert len(done) == 3
     new = tmp_path / "new"
     new.mkdir()
     (new / "summary.json").write_text("new complete\n")
+    start_stamp(new)
+    atomic.seal(new)
     replace_dir(new, dst)
     assert (dst / "summary.json").read_text() == "new complete\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["petal"]

@@ -13,6 +13,7 @@ import hashlib
 import inspect
 import os
 import re
+import shutil
 import stat
 import subprocess
 import sys
@@ -23,8 +24,18 @@ import numpy as np
 import pytest
 import trimesh
 
+from pysolver import atomic
 from pysolver import build as build_module
-from pysolver.atomic import STALE_STAGING_S, STAMP_NAME, claim_output, foreign_files
+from pysolver.atomic import (
+    STAMP_NAME,
+    atomic_dir,
+    atomic_write_text,
+    claim_output,
+    foreign_files,
+    open_staging,
+    staging_dir,
+    start_stamp,
+)
 from pysolver.cli import _parser, main
 from pysolver.design.mesh_input import load_input
 from pysolver.design.time_landscape import evaluate_expression, parse_expression
@@ -119,13 +130,19 @@ def test_claim_output_lists_nested_stamps(tmp_path):
     (out / "stl").mkdir(parents=True)
     (out / "a.csv").write_text("x\n")
     (out / "stl" / "top.stl").write_text("solid\n")
-    assert len(foreign_files(out)) == 2
+    assert len(foreign_files(out)) == 2   # (the folder stl, and a.csv)
     with pytest.raises(InputError, match="not a morphshell build folder"):
         claim_output(out)
-    (out / STAMP_NAME).write_text('{"files": ["a.csv"]}')
-    assert foreign_files(out) == [out / "stl" / "top.stl"]
-    (out / "stl" / STAMP_NAME).write_text('{"files": ["top.stl"]}')
+    shutil.rmtree(out)
+    out.mkdir()
+    start_stamp(out)
+    atomic_write_text(out / "a.csv", "x\n")
+    with atomic_dir(out / "stl") as tmp:
+        (tmp / "top.stl").write_text("solid\n")
     assert foreign_files(out) == []
+    (out / "stl" / "side.stl").write_text("solid\n")
+    assert foreign_files(out) == [out / "stl" / "side.stl"]
+    (out / "stl" / "side.stl").unlink()
     assert claim_output(out) == out
 
 
@@ -263,13 +280,12 @@ def test_size_and_count_options_have_named_bounds(room, capsys, args, pat):
 def test_stale_locks_and_staging_are_cleaned_and_printed_paths_are_final(room, capsys):
     build = room / "build"
     (build / ".petal.morphshell-lock").write_text("pid 999999")   # a killed build's lock
-    old = build / ".petal.morphshell-staging" / "petal"
-    old.mkdir(parents=True)
-    (old / "cells.csv").write_text("half\n")
-    week = time.time() - 2 * STALE_STAGING_S
-    os.utime(old.parent, (week, week))
-    fresh = build / ".dome.morphshell-staging" / "dome"              # a recent interrupted one
-    fresh.mkdir(parents=True)
+    now = time.time()
+    with pytest.MonkeyPatch.context() as mp:                          # two weeks ago
+        mp.setattr(atomic.time, "time", lambda: now - 2 * atomic.STALE_STAGING_S)
+        open_staging(staging_dir(build / "petal"), inputs_sha256="x")
+    (staging_dir(build / "petal") / "cells.csv").write_text("half\n")
+    open_staging(staging_dir(build / "dome"), inputs_sha256="y")     # a recent interrupted one
     rc = main(["build", SHAPE, "--refine", "0", "--no-render", "--out", "build/second"])
     cap = capsys.readouterr()
     assert rc == 0, cap.err

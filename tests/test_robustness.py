@@ -727,6 +727,6 @@ def test_disk_full_is_named_not_called_a_bug(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr("pysolver.build.run_design", full)
     rc, err = _main(["design", "regular", "--out", tmp_path / "o"], capsys)
     assert rc == EXIT_BAD_INPUT
-    _names(err, r"error: cannot write or read .*cells\.csv: No space left on device",
-           r"Fix: check the permissions and the free space")
+    _names(err, r"error: no space left on the device \(the disk is full\) \(.*cells\.csv\)",
+           r"Fix: free some space or write elsewhere")
     assert "This is a bug" not in err

@@ -18,6 +18,8 @@ are implausible in millimetres.
 from __future__ import annotations
 
 import dataclasses
+import io
+import logging
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +27,7 @@ from pathlib import Path
 import igl
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file, read_input
 from ..geometry import face_adjacency
 from ..params import tol as TOL
 from ..tables import STENCIL_MARKER, read_stencil
@@ -104,11 +106,19 @@ def _read_trimesh(path: Path):
     import trimesh  # heavy: trimesh loads only for STL work
 
     ext = path.suffix.lower()
+    # from the bytes, without a file resolver: the material and texture files an OBJ or a
+    # PLY names (mtllib, map_Kd) are never opened (one could be a FIFO)
+    data = io.BytesIO(read_input(path, "mesh file"))
     try:
         # process=False everywhere: trimesh's processing would silently drop the triangles
         # of NaN/inf vertices (an STL then shows up as a "hole"); corners are welded by
         # weld_vertices, the same way for every format
-        m = trimesh.load(str(path), force="mesh", process=False)
+        log = logging.getLogger("trimesh")
+        level, log.level = log.level, logging.CRITICAL  # (it logs the unread texture)
+        try:
+            m = trimesh.load(data, file_type=ext[1:], force="mesh", process=False)
+        finally:
+            log.setLevel(level)
     except Exception as e:  # noqa: BLE001 - any parser failure is a corrupt file
         raise InputError(f"{path}: cannot read the {ext[1:].upper()} file, it is corrupt or "
                          f"truncated ({type(e).__name__}: {e})",
@@ -215,6 +225,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
     if not path.exists():
         raise InputError(f"{path}: file not found",
                          fix="check the path, or use a built-in shape (morphshell shapes)")
+    check_input_file(path, "mesh file")  # a FIFO or a device would block the reader
     if not path.is_file():
         raise InputError(f"{path}: is a directory, not a mesh file",
                          fix="give the path of a mesh file (OBJ, STL, PLY, OFF)")

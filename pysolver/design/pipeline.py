@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import sys
 import time as _time
 from pathlib import Path
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
+from ..atomic import atomic_write_text, output_folder
 from ..errors import InputError
 from ..geometry import signed_areas_2d
 from ..params import LIMITS, UNIT_CELL, UnitCell, check_unit_cell
@@ -266,7 +266,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         PLY, OFF; one connected disk-like surface in mm) or a stencil OBJ (v = target,
         vt = flat, row-aligned; its vertex and face order is kept).
     out_dir : str or Path
-        Design folder (created if needed); files are written atomically one by one.
+        Design folder: new, empty, or one morphshell made (:func:`pysolver.atomic.claim_output`);
+        it appears complete or not at all (:func:`pysolver.atomic.output_folder`).
     vertices : int, optional
         Stencil vertex count N (default: searched to minimise the stencil scaling).
     time : None, float, str or array
@@ -420,33 +421,34 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         raise size_refusal(remesh_info, params, rerun, extent)
     report.raise_if_failed()
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_design_tables(out_dir, lay, coll, t_vertex, t_star, th, params)
-    clock.step("write")
+    # the folder appears whole, or not at all (in place in a build's private staging)
+    with output_folder(out_dir) as out_dir:
+        write_design_tables(out_dir, lay, coll, t_vertex, t_star, th, params)
+        clock.step("write")
 
-    summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
-                       flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
-    if plots:
+        summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
+                           flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
+        if plots:
 
-        pics = write_design_plots(lay, out_dir, t_vertex, th)
-        clock.step("plots")
-        summary["pictures"] = [p.name for p in pics]
-    summary["timings_s"] = dict(clock.t)
-    options = {
-        "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
-        "vertices": vertices, "seed": seed,
-        "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
-                 else "array"),
-        "time_file": time_file_info,
-        "sequencing": sequence,
-        "scale": scale, "size_mm": size, "input_scale": input_scale,
-        "flattening": flattening, "thickness_mm": thickness,
-        "central_length_mm": cl, "stencil": stencil,
-        "params": params.to_dict(),
-        "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
-        "alignment_bases": [int(i) for i in lay.alignment],
-    }
-    _write_json(out_dir / "design.json", {"options": options, "summary": summary})
+            pics = write_design_plots(lay, out_dir, t_vertex, th)
+            clock.step("plots")
+            summary["pictures"] = [p.name for p in pics]
+        summary["timings_s"] = dict(clock.t)
+        options = {
+            "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
+            "vertices": vertices, "seed": seed,
+            "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
+                     else "array"),
+            "time_file": time_file_info,
+            "sequencing": sequence,
+            "scale": scale, "size_mm": size, "input_scale": input_scale,
+            "flattening": flattening, "thickness_mm": thickness,
+            "central_length_mm": cl, "stencil": stencil,
+            "params": params.to_dict(),
+            "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
+            "alignment_bases": [int(i) for i in lay.alignment],
+        }
+        _write_json(out_dir / "design.json", {"options": options, "summary": summary})
     return summary
 
 
@@ -544,11 +546,8 @@ def _json_default(o):
 
 
 def _write_json(path: Path, data: dict):
-    tmp = path.with_suffix(".json.tmp")
-    with open(tmp, "w", newline="\n") as fh:
-        json.dump(data, fh, indent=1, sort_keys=False, default=_json_default)
-        fh.write("\n")
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=False,
+                                       default=_json_default) + "\n")
 
 
 __all__ = ["run_design", "check_design_options", "unit_cell_options",

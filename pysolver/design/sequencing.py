@@ -24,12 +24,15 @@ Every part closes at one time, as the paper's own cover landscape does.
 
 from __future__ import annotations
 
+import os
+
 import igl
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from ..errors import InputError
 from ..params import SEQUENCING, Sequencing
 
 __all__ = ["edge_graph", "facing_pairs", "surface_parts", "stacking_order",
@@ -65,6 +68,61 @@ def edge_graph(V, F) -> sp.csr_matrix:
                          shape=(n, n)).tocsr()
 
 
+def available_memory() -> int:
+    """Bytes of memory the machine can still give (``MemAvailable`` of /proc/meminfo, else
+    the free physical pages)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def check_pair_memory(tree, n_faces: int, reach: float,
+                      settings: Sequencing = SEQUENCING) -> int:
+    """Estimate the vertex pairs within ``reach`` (from a sample of vertices) and refuse a
+    mesh whose pair search would not fit in memory, before it starts (the pairs grow with
+    the square of the mesh density).
+
+    Parameters
+    ----------
+    tree : scipy.spatial.cKDTree -- of the (n, 3) vertices, mm
+    n_faces : int
+    reach : float, mm
+
+    Returns
+    -------
+    int -- estimated number of pairs
+
+    Raises
+    ------
+    InputError
+        Naming the faces, the memory needed and available, and the number of faces that
+        would fit.
+    """
+    n = tree.n
+    idx = np.unique(np.linspace(0, n - 1, min(n, settings.estimate_samples)).astype(int))
+    per_vertex = tree.query_ball_point(tree.data[idx], reach, return_length=True) - 1
+    pairs = int(n * float(np.mean(per_vertex)) / 2) if n else 0
+    need = pairs * settings.bytes_per_pair
+    budget = settings.memory_fraction * available_memory()
+    if need > budget:
+        fit = int(n_faces * np.sqrt(budget / need))
+        raise InputError(
+            f"the input mesh has {n_faces} faces, too dense for the sequencing landscape: "
+            f"finding which parts of the target face each other would hold about "
+            f"{pairs:.3g} vertex pairs ({need / 1e9:.1f} GB), and {budget / 1e9:.1f} GB of "
+            "memory may be used.",
+            fix=f"decimate the mesh to at most {fit} faces (the design's stencil has at most a "
+                "few thousand vertices, so nothing is lost; e.g. MeshLab's Quadric Edge "
+                "Collapse Decimation), or give the time landscape (--time or --time-file), "
+                "which skips this step.")
+    return pairs
+
+
 def facing_pairs(V, F, reach: float, detour: float, G=None) -> np.ndarray:
     """Vertex pairs close in space but far apart on the surface.
 
@@ -84,8 +142,10 @@ def facing_pairs(V, F, reach: float, detour: float, G=None) -> np.ndarray:
     pairs : (k, 2) int -- ``i < j``, sorted
     """
     V = np.asarray(V, float)
+    tree = cKDTree(V)
+    check_pair_memory(tree, len(np.asarray(F)), reach)
     G = edge_graph(V, F) if G is None else G
-    pairs = cKDTree(V).query_pairs(reach, output_type="ndarray")
+    pairs = tree.query_pairs(reach, output_type="ndarray")
     if len(pairs) == 0:
         return np.zeros((0, 2), int)
     pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]

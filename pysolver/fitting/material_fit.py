@@ -76,6 +76,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_write_text
 from ..errors import InputError
 from ..material.creep import INTEGRATIONS, CreepModel
 from ..material.measurements import (
@@ -693,10 +694,7 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
     study = compare_options(meas, res, progress) if evaluate_options else []
     d = model_file_dict(res, meas)
     text = dumps_model(d)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_path.with_name(f".{out_path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(out_path)
+    atomic_write_text(out_path, text)
     report_dir.mkdir(parents=True, exist_ok=True)
     summary = {
         "model_file": str(out_path),

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, refuse_first
+from ..errors import InputError, read_input, refuse_first
 from ..params import LIMITS, UNIT_CELL
 from ..params import tol as TOL
 
@@ -164,7 +164,7 @@ def _find_file(data_dir: Path, pattern: str, exclude: str | None, kind: str) -> 
 
 def _read_csv(path: Path, required: tuple[str, ...]) -> tuple[dict, str]:
     """Read a CSV into ``{column: list of str}``; check the header; return the sha256 too."""
-    raw = path.read_bytes()
+    raw = read_input(path, "measurement file")
     digest = hashlib.sha256(raw).hexdigest()
     text = raw.decode("utf-8-sig")
     reader = csv.reader(text.splitlines())

@@ -42,6 +42,7 @@ area is 0.29 % below the circle's.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -50,7 +51,6 @@ import resource
 import shutil
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 import warnings
@@ -61,7 +61,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ..atomic import atomic_dir, public_mode
+from ..atomic import atomic_dir, atomic_file
 from ..errors import ExternalToolError, InputError, MorphshellError
 from ..geometry import print_transform, rotvec_to_matrix
 from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
@@ -213,7 +213,7 @@ def default_cache_dir(design_dir) -> Path:
     cache folder (``$XDG_CACHE_HOME/morphshell/parts``, by default
     ``~/.cache/morphshell/parts``): never a folder of the user's own beside the design."""
     design_dir = Path(design_dir).resolve()
-    for p in (design_dir, *design_dir.parents):
+    for p in design_dir.parents:  # (never the design folder itself, even if named build)
         if p.name == "build":
             return p / ".cache" / "parts"
     root = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
@@ -248,17 +248,12 @@ def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
 
     def work(item):
         part, target = item
-        fd, tmp = tempfile.mkstemp(prefix=f".{part.name}.", suffix=".stl", dir=cache_dir)
-        os.close(fd)
-        tmp = Path(tmp)
-        try:
-            ok, dt, err = _run_openscad(exe, part.path, tmp)
-            if ok:
-                public_mode(tmp)
-                os.replace(tmp, target)
-            return part, ok, dt, err
-        finally:
-            tmp.unlink(missing_ok=True)
+        result = []
+        with contextlib.suppress(_NotRendered), atomic_file(target) as tmp:
+            result = _run_openscad(exe, part.path, tmp)
+            if not result[0]:
+                raise _NotRendered  # the cache keeps no file for a failed part
+        return (part, *result)
 
     bar = tqdm(total=len(todo), desc="OpenSCAD parts", unit="part", file=sys.stderr,
                disable=not progress, dynamic_ncols=True, mininterval=_BAR_INTERVAL_S)
@@ -293,11 +288,6 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
     failures: list[tuple[Part, str]] = []
     if not todo:
         return seconds, failures
-    tmps = []
-    for part, _target in todo:
-        fd, tmp = tempfile.mkstemp(prefix=f".{part.name}.", suffix=".stl", dir=cache_dir)
-        os.close(fd)
-        tmps.append(Path(tmp))
     bar = tqdm(total=len(todo), desc="fast parts", unit="part", file=sys.stderr,
                disable=not progress, dynamic_ncols=True, mininterval=_BAR_INTERVAL_S)
     lock = threading.Lock()
@@ -306,23 +296,35 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
         with lock:
             bar.update(1)
 
-    try:
-        answers = render_fast.render_files(
-            [(p.path, tmp) for (p, _t), tmp in zip(todo, tmps, strict=True)], jobs=jobs,
-            ast_dir=Path(cache_dir) / render_fast.AST_CACHE_DIRNAME, on_done=done)
-        for (part, target), tmp, ans in zip(todo, tmps, answers, strict=True):
-            ok = ans["ok"] and tmp.is_file() and tmp.stat().st_size > 84
-            if ok:
-                public_mode(tmp)
-                os.replace(tmp, target)
+    with contextlib.ExitStack() as stack:  # one temporary file per part, each atomic_file's
+        files = [(part, stack.enter_context(_optional_file(target)))
+                 for part, target in todo]
+        try:
+            answers = render_fast.render_files(
+                [(p.path, tmp) for p, tmp in files], jobs=jobs,
+                ast_dir=Path(cache_dir) / render_fast.AST_CACHE_DIRNAME, on_done=done)
+        finally:
+            bar.close()
+        for (part, tmp), ans in zip(files, answers, strict=True):
+            if ans["ok"] and tmp.is_file() and tmp.stat().st_size > 84:
                 seconds[part.name] = float(ans["seconds"])
             else:
+                tmp.unlink(missing_ok=True)  # not moved into the cache
                 failures.append((part, ans["error"] or "(no geometry written)"))
-    finally:
-        bar.close()
-        for tmp in tmps:
-            tmp.unlink(missing_ok=True)
     return seconds, failures
+
+
+class _NotRendered(Exception):
+    """A part the renderer failed on: its temporary file is dropped, the cache untouched."""
+
+
+@contextlib.contextmanager
+def _optional_file(target):
+    """:func:`atomic_file` that stores nothing when the block removed the temporary file."""
+    with contextlib.suppress(_NotRendered), atomic_file(target) as tmp:
+        yield tmp
+        if not tmp.exists():
+            raise _NotRendered
 
 
 def _failure_lines(failures, limit: int = 10, tail: int = 12) -> str:

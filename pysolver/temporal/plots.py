@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_file
 from ..design.time_landscape import cell_target_times
 from ..params import UNIT_CELL
 from ..tables import read_stencil
@@ -88,11 +89,9 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     ax2.legend(fontsize=8, loc="upper left")
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    tmp = png.with_name(f".{png.stem}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_file(png) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
-    tmp.replace(png)
     return png
 
 

@@ -76,7 +76,7 @@ from pathlib import Path
 import numpy as np
 
 from pysolver import distributed
-from pysolver.atomic import atomic_write_text, claim_result_folder, write_stamp
+from pysolver.atomic import atomic_write_text, claim_result_folder
 from pysolver.build import check_sim_span, simulate_and_check
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
@@ -414,10 +414,8 @@ def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
 
 
 def _claim(folder: Path) -> Path:
-    """The tolerance folder: new, or morphshell's (its stamp, or our result files)."""
-    return claim_result_folder(
-        folder, lambda p: p.parent.name == "samples" and distributed.is_result_file(p),
-        what="tolerance folder")
+    """The tolerance folder: new, or morphshell's (every file in it recorded as written)."""
+    return claim_result_folder(folder, what="tolerance folder")
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
@@ -615,7 +613,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                        sensitivity: int | None = None, t_end: float = SIM.t_end,
                        dt: float = SIM.dt, material=None, out=None, scheduler=None,
                        workers=None, client=None, progress: bool = True, report: bool = True,
-                       on_result=None) -> dict:
+                       on_result=None, dashboard: bool = False) -> dict:
     """Monte Carlo tolerance analysis of a programmed design folder.
 
     Parameters
@@ -638,7 +636,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         Bracket model file (default: the committed one).
     out : path-like, optional
         Output folder (default ``<design_dir>/tolerance``).
-    scheduler, workers, client
+    scheduler, workers, client, dashboard
         Dask cluster (:func:`pysolver.distributed.dask_client`).
     progress, report : bool
         Progress lines; write ``report.html`` and pictures.
@@ -702,10 +700,9 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                               distributed.fingerprint(payload.sha, p, settings, code))
              for p in perts]
     store = distributed.ResultStore(out / "samples")
-    out.mkdir(parents=True, exist_ok=True)
-    write_stamp(out, since=time.time() + 1e9)  # claim the folder before the first result
     results, stats = distributed.run_tasks(tasks, store, client=client, scheduler=scheduler,
                                            workers=workers, progress=progress,
+                                           dashboard=dashboard,
                                            label="tolerance", on_result=on_result)
     if stats.failed:
         raise MorphshellError(
@@ -738,7 +735,6 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     if report:
 
         write_report(out, summary, folder, main, nominal)
-    write_stamp(out)
     if progress:
         f = summary["figures"]
         most = f.get("most_influential", "-")

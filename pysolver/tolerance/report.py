@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
-from pysolver.atomic import atomic_file, atomic_write_text  # noqa: E402
+from pysolver.atomic import atomic_file, atomic_write_text, remove_file  # noqa: E402
 from pysolver.tables import read_table
 
 _CSS = ("body{font-family:sans-serif;max-width:1100px;margin:1em auto;padding:0 1em}"
@@ -152,7 +152,7 @@ def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -
     if sens:
         plot_sensitivity(out / "tolerance_sensitivity.png", sens)
     else:  # ours (the folder is claimed): a picture of an earlier run must not linger
-        (out / "tolerance_sensitivity.png").unlink(missing_ok=True)
+        remove_file(out / "tolerance_sensitivity.png")
     unc = opt["uncertainty"]
     lo, hi = fig["p_pass_ci95"]
     parts = [f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>morphshell "

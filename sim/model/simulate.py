@@ -56,7 +56,6 @@ Any base point ``p`` given in the flat shell frame is at ``c + R (p - c_flat)`` 
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
@@ -67,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pysolver.atomic import atomic_file, atomic_write_text
+from pysolver.atomic import atomic_file, atomic_write_text, remove_file
 from pysolver.errors import InputError, MorphshellError
 from pysolver.geometry import rigid_fit
 from pysolver.material.model import load_bracket_model
@@ -706,8 +705,7 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     frames = sim.frames_dict()
     frames["tables_sha256"] = np.array(made_from)
     _atomic_savez(frames_path, frames)
-    with contextlib.suppress(FileNotFoundError):
-        ckpt.unlink()
+    remove_file(ckpt)
     tc = completion_times(frames)
     summary.update(model.summary())
     summary.update({"completed_cells": int(np.isfinite(tc).sum()),

@@ -27,6 +27,7 @@ registers both layers and keeps the one with the lower truncated error.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 from pathlib import Path
@@ -37,8 +38,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
-from pysolver.atomic import atomic_write_text
-from pysolver.errors import InputError
+from pysolver.atomic import atomic_file, atomic_write_text, make_dirs
+from pysolver.errors import InputError, check_input_file, read_input
 from pysolver.geometry import rigid_fit
 from pysolver.params import tol as TOL
 from pysolver.tables import read_table
@@ -102,6 +103,7 @@ def read_points(path):
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: file not found", fix="give the path of the scan point set")
+    check_input_file(path, "scan file")  # a FIFO or a device would block the reader
     ext = path.suffix.lower()
     if ext == ".obj":
         # hand-written: an OBJ of bare vertices is not a mesh for trimesh (it loads as empty)
@@ -119,7 +121,8 @@ def read_points(path):
         import trimesh  # heavy: trimesh loads only for STL work
 
         try:
-            geom = trimesh.load(path, process=False)
+            geom = trimesh.load(io.BytesIO(read_input(path, "scan file")), file_type="ply",
+                                process=False)  # (no resolver: names in it are not opened)
         except Exception as e:
             raise InputError(f"{path}: cannot read PLY ({type(e).__name__}: {e})") from None
         P = np.asarray(getattr(geom, "vertices", np.zeros((0, 3))), float).reshape(-1, 3)
@@ -359,7 +362,8 @@ def _plot(path, P, M, reg, title):
     ax2.set_ylabel("matched pairs")
     ax2.set_title("matched-pair distances")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
     return path
 
@@ -417,7 +421,7 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
     out["pairs"] = [[int(a), int(ids[b]), float(d)] for (a, b), d in
                     zip(reg["pairs"], reg["dist"], strict=True)]
     out_dir = Path(out_dir) if out_dir is not None else folder / "scan_report"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(out_dir)
     stem = scan_path.stem
     png = _plot(out_dir / f"scan_{stem}.png", P, M, reg,
                 f"{scan_path.name} vs simulated {chosen} markers: mean {out['mean_mm']:.2f} mm")
