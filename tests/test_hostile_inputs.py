@@ -259,7 +259,7 @@ def test_a_busy_port_is_named(tmp_path, monkeypatch, capsys):
         port = s.getsockname()[1]
         rc, msg = _cli(["studio", "d", "--port", port, "--no-browser"], capsys)
     assert rc == EXIT_BAD_INPUT, msg
-    assert "the network port is already in use" in msg and "another --port" in msg
+    assert f"port {port} on 127.0.0.1 is in use" in msg and "another --port" in msg
 
 
 # ---------------------------------------------------------------- smaller holes
@@ -290,23 +290,25 @@ def test_a_sweep_that_built_nothing_fails(tmp_path, monkeypatch, capsys):
 
 
 def test_stray_vt_rows_say_to_delete_them(tmp_path):
+    """Read as a stencil (--stencil), stray vt rows are refused, saying to delete them for a
+    plain mesh; read as a target (the default) they are a texture layout and ignored."""
     from pysolver.design.mesh_input import load_input
 
     p = tmp_path / "mesh.obj"
     p.write_text("v 0 0 0\nv 30 0 0\nv 0 30 0\nv 30 30 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
                  "f 1 2 3\nf 2 4 3\n")
     with pytest.raises(InputError, match=r"3 vt for 4 v") as e:
-        load_input(p)
+        load_input(p, stencil=True)
     assert "delete its vt lines" in e.value.fix
+    m = load_input(p, validate=False)
+    assert m.kind == "mesh" and m.UV is None and len(m.F) == 2
 
 
-def test_unknown_keys_inside_keyframes_and_brushes_are_refused():
-    from pysolver.studio.landscape import parse_constraints
+def test_unknown_keys_inside_keyframes_and_edits_are_refused():
+    from pysolver.studio.landscape import parse_keyframes, parse_landscape
 
-    assert parse_constraints({"keyframes": [{"vertex": 1, "time": 30}]}, 4) == ([(1, 30.0)],
-                                                                                 [])
+    assert parse_keyframes({"keyframes": [{"vertex": 1, "time": 30}]}, 4) == [(1, 30.0)]
     with pytest.raises(InputError, match=r"keyframe 0: unknown key\(s\) \['colour'\]"):
-        parse_constraints({"keyframes": [{"vertex": 1, "time": 30, "colour": 1}]}, 4)
-    with pytest.raises(InputError, match=r"brush 0: unknown key\(s\) \['__proto__'\]"):
-        parse_constraints({"brushes": [{"vertex": 1, "radius": 2, "time": 30,
-                                        "__proto__": {}}]}, 4)
+        parse_keyframes({"keyframes": [{"vertex": 1, "time": 30, "colour": 1}]}, 4)
+    with pytest.raises(InputError, match=r"unknown key\(s\) \['__proto__'\]"):
+        parse_landscape({"landscape": [30.0] * 4, "__proto__": {}}, 4)
