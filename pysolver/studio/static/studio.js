@@ -428,10 +428,12 @@
   Editor.prototype.clickAt = function (x, y) {
     var at = this.vertexAt(x, y);
     if (at.vertex === null) {
-      status("no vertex under the pointer (the nearest is " + Math.round(at.px) +
-        " px away): click on the target surface", "error");
+      // an action error: it stays (a late preview reply does not clear it) until a click lands
+      setError("click", "no vertex under the pointer (the nearest is " + Math.round(at.px) +
+        " px away): click on the target surface");
       return;
     }
+    setError("click", null);
     var r = studio.fields.kfTime.check();
     if (!r.ok) { $("kf-error").textContent = r.message; status("keyframe not placed: " + r.message, "error"); return; }
     this.remember();
