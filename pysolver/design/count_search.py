@@ -337,18 +337,13 @@ class CountSearch:
         return self.dom.lift(P), F2, before
 
     def hopeless(self, V2, F2) -> bool:
-        """Whether a stencil before optimisation is so far from the size or the limit that
-        the optimisation (which moves them by up to about a fifth) cannot make it the pick:
-        ``|log scale3d| > hopeless_log_scale`` or a longest flat cell over
-        ``hopeless_cell_factor`` times the limit.  Its figures are then taken as they are,
-        for the secant steps only."""
-        st = self.settings
-        c = stencil_figures(V2, F2, self.params, settings=st)
-        if not _laid_out(c):
-            return True
-        return (abs(np.log(c["scale3d"])) > st.hopeless_log_scale
-                or c["max_cell_length_mm"] > st.hopeless_cell_factor
-                * self.params.max_cell_length)
+        """Whether a stencil before optimisation is so far from the size asked for that the
+        optimisation (which moves its scaling by up to about a fifth) cannot make it the
+        pick: ``|log scale3d| > hopeless_log_scale``.  Its figures are then taken as they
+        are, for the secant steps only.  (Its longest cell is no such test: a target that
+        prints nowhere is refused naming the closest stencil tried, which must be optimised.)"""
+        c = stencil_figures(V2, F2, self.params, settings=self.settings)
+        return not _laid_out(c) or abs(np.log(c["scale3d"])) > self.settings.hopeless_log_scale
 
     def figures(self, V2, F2) -> dict:
         t2 = None if self.time is None else interpolate_to_stencil(self.time, self.V, self.F,
