@@ -25,13 +25,13 @@ from pysolver.design import run_design
 from pysolver.fitting.material_fit import fit_material
 from pysolver.material import load_bracket_model
 from pysolver.material.measurements import DEFAULT_DATA_DIR
-from pysolver.material.model import DEFAULT_MODEL_PATH
+from pysolver.params import BRACKET_MODEL_FILE
 from pysolver.tables import read_cells
 from pysolver.temporal import program as temporal
 
 REPO = Path(__file__).resolve().parent.parent
 REMOVED = "0.50_6"  # dry specimen h = 0.5 mm, l = 6 mm (and its wet series 0.5_6_*)
-COMMITTED_BYTES = Path(DEFAULT_MODEL_PATH).read_bytes()
+COMMITTED_BYTES = Path(BRACKET_MODEL_FILE).read_bytes()
 """The committed model as it was when this module was imported (before any fit ran)."""
 
 
@@ -88,7 +88,7 @@ def test_user_model_differs_from_default_but_is_close(user_fit):
 
 def test_user_fit_leaves_the_committed_model_untouched(user_fit):
     """Fitting a user's folder (--data) writes its own file, never the committed model."""
-    assert Path(DEFAULT_MODEL_PATH).read_bytes() == COMMITTED_BYTES
+    assert Path(BRACKET_MODEL_FILE).read_bytes() == COMMITTED_BYTES
 
 
 def test_shipped_measurements_are_the_committed_models_inputs():

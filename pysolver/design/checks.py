@@ -13,12 +13,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import signed_areas_2d
-from ..params import LIMITS, MODEL_LIMITS, UNIT_CELL, UnitCell
+from ..params import LIMITS, STENCIL, UNIT_CELL, UnitCell
 from ..params import tol as TOL
 from .layout import Layout
 
 # cells longer than this fraction of max_cell_length are reported as "near the limit"
-NEAR_LIMIT = MODEL_LIMITS.near_limit_fraction
 
 
 @dataclass
@@ -172,9 +171,11 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
             "through that region or reduce its curvature; the stencil's irregularity also "
             "matters: try another vertex count (--vertices N) or CVT seed (Python: "
             "vertices=N, seed=k)"))
-    near = np.flatnonzero((l > NEAR_LIMIT * params.max_cell_length) & (l <= params.max_cell_length))
+    near_fraction = STENCIL.near_limit_fraction
+    near = np.flatnonzero((l > near_fraction * params.max_cell_length)
+                          & (l <= params.max_cell_length))
     if len(near):
-        rep.warnings.append(f"{len(near)} cell(s) within {100 * (1 - NEAR_LIMIT):.0f}% of the "
+        rep.warnings.append(f"{len(near)} cell(s) within {100 * (1 - near_fraction):.0f}% of the "
                             f"{params.max_cell_length} mm length limit: cells {_ids(near)}")
     l_model = LIMITS.model_max_central_length_mm
     beyond = np.flatnonzero((l > l_model) & (l <= params.max_cell_length))

@@ -99,12 +99,9 @@ from ..material.polyfit import (
     monomial_exponents,
     mv,
 )
-from ..params import SIM, UNIT_CELL
+from ..params import BRACKET_MODEL_FILE, SIM, UNIT_CELL
 from ..params import tol as TOL
 from .material_report import compare_models, write_report
-
-DEFAULT_MODEL_PATH = REPO_ROOT / "pysolver" / "data" / "bracket_model.json"
-"""The committed fitted model."""
 
 DEFAULT_REPORT_DIR = REPO_ROOT / "build" / "material"
 """Default folder of the fit report."""
@@ -675,11 +672,11 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
     """
     t0 = time.time()
     opts = FitOptions() if options is None else options
-    out_path = Path(DEFAULT_MODEL_PATH if out_path is None else out_path)
+    out_path = Path(BRACKET_MODEL_FILE if out_path is None else out_path)
     report_dir = Path(DEFAULT_REPORT_DIR if report_dir is None else report_dir)
     previous = None
     cmp_path = Path(compare_to) if compare_to is not None else (
-        out_path if out_path.is_file() else DEFAULT_MODEL_PATH)
+        out_path if out_path.is_file() else BRACKET_MODEL_FILE)
     if cmp_path.is_file():
         try:
             previous = load_bracket_model(cmp_path)

@@ -24,12 +24,10 @@ from scipy.sparse import csgraph
 
 from ..atomic import atomic_write_text
 from ..mechanics import MembraneMesh
-from ..params import SIM, UNIT_CELL
+from ..params import MEMBRANE_MODEL_FILE, MODEL_FITS, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..temporal.membrane_model import (
     FORM,
-    MESH_MAX_AREA,
-    MODEL_PATH,
     MODEL_TERMS,
     SI_TERMS,
     PlaneMembrane,
@@ -133,7 +131,8 @@ def _vertex_depth(F, bnd):
                             indices=np.flatnonzero(bnd)).min(axis=0).astype(int)
 
 
-def patch_mesh(l0: float, rings: int = PATCH_RINGS, max_area: float = MESH_MAX_AREA) -> PatchMesh:
+def patch_mesh(l0: float, rings: int = PATCH_RINGS,
+               max_area: float = MODEL_FITS.membrane_fit_max_area) -> PatchMesh:
     """Membrane mesh of :func:`regular_patch`: the one membrane mesh of a flat layout
     (:func:`pysolver.temporal.membrane_model.layout_membrane`), and the cells' depth."""
     V, F, _ = regular_patch(l0, rings)
@@ -148,7 +147,8 @@ def patch_mesh(l0: float, rings: int = PATCH_RINGS, max_area: float = MESH_MAX_A
 
 
 def sample_patch(l0: float, d_values, rings: int = PATCH_RINGS,
-                 max_area: float = MESH_MAX_AREA, return_energy: bool = False, mesh=None):
+                 max_area: float = MODEL_FITS.membrane_fit_max_area, return_energy: bool = False,
+                 mesh=None):
     """FEM tractions of every cell of a regular patch contracted by each ``d``.
 
     Parameters
@@ -217,7 +217,8 @@ def _code_version() -> dict:
 
 def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
                        d_values=SAMPLE_D, rings: int = PATCH_RINGS,
-                       max_area: float = MESH_MAX_AREA, progress: bool = True) -> dict:
+                       max_area: float = MODEL_FITS.membrane_fit_max_area,
+                       progress: bool = True) -> dict:
     """Re-fit the linearised membrane model from FEM samples of regular patches.
 
     Parameters
@@ -239,7 +240,7 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
         ``samples``, ``sampling`` and ``provenance``.
     """
     t0 = time.perf_counter()
-    out_path = Path(out_path) if out_path is not None else MODEL_PATH
+    out_path = Path(out_path) if out_path is not None else MEMBRANE_MODEL_FILE
     report_dir = Path(report_dir) if report_dir is not None else DEFAULT_REPORT_DIR
     b_all, d_all, T_all, ratio_rows = [], [], [], []
     per_l0 = []

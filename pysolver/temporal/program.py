@@ -42,7 +42,7 @@ and listed in the summary.  If more than half of the cells are clamped the
 landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
-within :data:`COMPLETION_TOL_MM` (the 0.05 mm printing clearance, see
+within ``UnitCell.clearance`` (the 0.05 mm printing clearance, see
 :func:`simulated_completion`).
 
 Closing the loop (beyond the paper).  :func:`refine_design` compares simulated
@@ -67,7 +67,7 @@ from ..design.time_landscape import cell_target_times
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
-from ..params import MODEL_LIMITS, SEQUENCING, SIM, UNIT_CELL
+from ..params import PROGRAMMING, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
@@ -88,13 +88,6 @@ factor (irregular stencils: 0.65-1.8), and boundary cells get ``min(0.6, FEM fac
 (cells whose edge has both ends on the boundary pull only ~0.1-0.2 and never close with
 0.6)."""
 DEFAULT_CORRECTION = "fem"
-MAX_CLAMPED_FRACTION = MODEL_LIMITS.max_clamped_fraction
-BISECTION_STEPS = MODEL_LIMITS.bisection_steps
-REFINE_DAMPING = MODEL_LIMITS.refine_damping
-TIME_TOL_S = TOL.time
-FORCE_RTOL = TOL.force_rtol
-COMPLETION_TOL_MM = UNIT_CELL.clearance
-"""A bracket within this distance of its bumper counts as closed (timing metrics)."""
 
 
 def _log(msg: str, progress: bool) -> None:
@@ -167,7 +160,7 @@ def bracket_target_force(membrane, b0, d1, boundary, boundary_factor=None, facto
     return f, f / 4.0
 
 
-def solve_thickness(material, b0, x, t, f_bracket, steps: int = BISECTION_STEPS):
+def solve_thickness(material, b0, x, t, f_bracket, steps: int = PROGRAMMING.bisection_steps):
     """Bracket thickness whose force at (t, x) equals the target (bisection on h).
 
     The bracket force grows with thickness (thicker = stiffer), so a bisection on
@@ -204,7 +197,8 @@ def solve_thickness(material, b0, x, t, f_bracket, steps: int = BISECTION_STEPS)
     return h.reshape(shape), side.reshape(shape)
 
 
-def completion_time(material, h, b0, x, f_bracket, t_max=None, steps: int = BISECTION_STEPS):
+def completion_time(material, h, b0, x, f_bracket, t_max=None,
+                    steps: int = PROGRAMMING.bisection_steps):
     """Earliest time (s) at which a bracket's force at compression ``x`` drops to the target.
 
     Bisection in time on the (softening) bracket model.
@@ -221,7 +215,7 @@ def completion_time(material, h, b0, x, f_bracket, t_max=None, steps: int = BISE
     h, b0, x, f = (v.ravel() for v in (h, b0, x, f))
     lo = np.zeros(h.shape)
     hi = np.full(h.shape, t_max)
-    f = f * (1.0 + FORCE_RTOL)          # a thickness solved for t yields at t, not just after
+    f = f * (1.0 + TOL.force_rtol)          # a thickness solved for t yields at t, not just after
     at0 = np.asarray(material.force(h, b0, lo, x), float) <= f
     never = np.asarray(material.force(h, b0, hi, x), float) > f
     for _ in range(steps):
@@ -311,7 +305,7 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
     want = t_star if t_request is None else np.asarray(t_request, float)
     lo_ok = np.where(np.isfinite(t_lo), t_lo, time_limit(material))
     t_prog = np.clip(want, lo_ok, np.maximum(lo_ok, t_hi))
-    side = np.where(t_star < t_lo - TIME_TOL_S, -1, np.where(t_star > t_hi + TIME_TOL_S, 1, 0))
+    side = np.where(t_star < t_lo - TOL.time, -1, np.where(t_star > t_hi + TOL.time, 1, 0))
     side = np.where(np.isfinite(t_lo), side, 1)
     bb = np.repeat(np.asarray(b0, float)[:, None], 2, 1)
     h, _ = solve_thickness(material, bb, x, np.repeat(t_prog[:, None], 2, 1),
@@ -358,7 +352,7 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
     out["earliest"], out["latest"] = float(lo.min()), float(hi.max())
     grid = np.arange(0.0, t_limit + 0.5 * step, step)
     lo_all = np.where(fin, t_lo, np.inf)
-    cover = ((grid[:, None] >= lo_all - TIME_TOL_S) & (grid[:, None] <= t_hi + TIME_TOL_S))
+    cover = ((grid[:, None] >= lo_all - TOL.time) & (grid[:, None] <= t_hi + TOL.time))
     frac = cover.mean(axis=1)
     k = int(np.argmax(frac))
     out["best_constant"] = [float(grid[k]), float(frac[k])]
@@ -371,7 +365,7 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
         if not len(bs):
             break
         tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
-        bad = ((tt < lo_all - TIME_TOL_S) | (tt > t_hi + TIME_TOL_S)).mean(axis=1)
+        bad = ((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
         j = np.lexsort((-(bs - a), bad))[0]
         key = (round(float(bad[j]), 9), -float(bs[j] - a))
         if best is None or key < best[0]:
@@ -599,7 +593,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         "too_late_cells": np.flatnonzero(res["side"] > 0).tolist(),
         "clamp_error_s": {"mean": float(miss[res["clamped"]].mean()) if len(clamped) else 0.0,
                           "max": float(miss.max()) if n else 0.0},
-        "feasible": bool(frac <= MAX_CLAMPED_FRACTION),
+        "feasible": bool(frac <= PROGRAMMING.max_clamped_fraction),
         "achievable_range_s": ach,
         "membrane_model": {"terms": list(mem.terms), "coefficients": mem.coef.tolist(),
                            "residual_rms_N": mem.residual_rms_N},
@@ -697,5 +691,5 @@ __all__ = ["sequenced_span", "load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
            "program_cells", "program_design", "timing_errors", "time_limit",
-           "COMPLETION_TOL_MM", "REFINE_DAMPING", "REFINE_LOG",
+           "REFINE_LOG",
            "PICTURE", "STAGE_FILE"]

@@ -74,7 +74,7 @@ from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics.energies import ShellEnergy, State
 from pysolver.mechanics.model import ShellModel, load_model
 from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newton
-from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
+from pysolver.params import NEWTON, PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
 from pysolver.tables import tables_sha256
 
@@ -120,9 +120,9 @@ class SimSettings:
     dt: float = SIM.dt
     eta: float = SIM.eta
     tol: float = TOL.newton_grad
-    max_iter_dry: int = TOL.newton_max_iter_dry
-    max_iter_wet: int = TOL.newton_max_iter_wet
-    settle_mm: float = TOL.settle_mm
+    max_iter_dry: int = NEWTON.max_iter_dry
+    max_iter_wet: int = NEWTON.max_iter_wet
+    settle_mm: float = SIM.settle_mm
     blowup: float = 100.0
     checkpoint_every: int = 20
     predictor: bool | str = True
