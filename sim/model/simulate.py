@@ -123,8 +123,8 @@ class SimSettings:
     max_iter_dry: int = NEWTON.max_iter_dry
     max_iter_wet: int = NEWTON.max_iter_wet
     settle_mm: float = SIM.settle_mm
-    blowup: float = 100.0
-    checkpoint_every: int = 20
+    blowup: float = SIM.blowup
+    checkpoint_every: int = SIM.checkpoint_every
     predictor: bool | str = True
     solver: str = "fast"
     physics: PhysicsOptions = PHYSICS_OFF
@@ -636,7 +636,8 @@ def simulate_model(model: ShellModel, material, *, t_end: float = SIM.t_end,
 
 
 def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt, material=None,
-                    progress: bool = True, resume: bool = True, checkpoint_every: int = 20,
+                    progress: bool = True, resume: bool = True,
+                    checkpoint_every: int = SIM.checkpoint_every,
                     **settings) -> dict:
     """Simulate the morph of a design folder; write ``<design_dir>/sim/frames.npz``.
 
