@@ -65,7 +65,7 @@ from .atomic import (
 )
 from .design import check_design_options, run_design
 from .design.surfaces import BUILTIN_SHAPES, check_spec
-from .design.time_landscape import read_time_file
+from .design.time_landscape import read_time_file, write_landscape
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError, check_input_file
 from .material.model import check_bracket_geometry, load_bracket_model
 from .params import (
@@ -575,8 +575,7 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
         for p in folder.iterdir():
             if p.is_file() and not p.is_symlink() and p.name not in REBUILD_DROPPED:
                 shutil.copy2(p, staging / p.name)
-        tables.write_table(staging / tables.FILENAMES["time_landscape"], "time_landscape",
-                           {"vertex_id": np.arange(len(land)), "time_s": land})
+        write_landscape(staging, land)
         atomic_write_text(staging / tables.LANDSCAPE_SOURCE, json.dumps(edit, indent=1) + "\n")
         stage = _stage_runner(summary, name, folder, staging, False, progress)
         _start_checks(staging, render=render, simulate=True, renderer=renderer)
@@ -837,10 +836,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
                                            tol_mm)
         th = np.minimum(res["thickness"], cap)
         cap = np.where(np.isfinite(cap), th, cap)  # a capped layer never thickens again
-        out = dict(cells)
-        out["thickness_top_mm"] = th[:, 0]
-        out["thickness_bottom_mm"] = th[:, 1]
-        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        tables.update_cells(design_dir, cells, thickness_top_mm=th[:, 0],
+                            thickness_bottom_mm=th[:, 1])
         simulate(design_dir, **sim_kw)
         t_sim, t_frames = simulated_completion(design_dir, tol_mm)
         shutil.copy2(frames_path, keep_dir / f"frames_{k}.npz")
@@ -855,10 +852,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
              f"({hist[-1]['seconds']:.0f} s)", progress)
     best = _best_iteration(hist)
     if best != len(hist) - 1:
-        out = dict(cells)
-        out["thickness_top_mm"] = thick[best][:, 0]
-        out["thickness_bottom_mm"] = thick[best][:, 1]
-        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        tables.update_cells(design_dir, cells, thickness_top_mm=thick[best][:, 0],
+                            thickness_bottom_mm=thick[best][:, 1])
         shutil.copy2(keep_dir / f"frames_{best}.npz", frames_path)
     for f in keep_dir.glob("frames_*.npz"):
         f.unlink()

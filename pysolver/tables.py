@@ -250,6 +250,47 @@ def read_support_frame(path) -> np.ndarray:
     return np.c_[t["x_mm"], t["y_mm"]]
 
 
+LATER_CELL_COLUMNS = ("t_star_s", "thickness_top_mm", "thickness_bottom_mm", "t_min_s",
+                      "t_max_s", "clamped")
+"""The columns of ``cells.csv`` that stages after the design set (temporal programming and
+the refinement, through :func:`update_cells`); the design stage writes every other column,
+once."""
+
+
+def update_cells(folder, cells: dict, **columns) -> Path:
+    """The one writer of ``cells.csv`` after the design stage: the table as read, with the
+    given later-stage columns (:data:`LATER_CELL_COLUMNS`) replaced.
+
+    Parameters
+    ----------
+    folder : path-like
+        Design folder.
+    cells : dict of (n_cells,) arrays
+        ``cells.csv`` as read (:func:`read_table`); not changed.
+    **columns : (n_cells,) arrays
+        New values, by column name.
+
+    Returns
+    -------
+    Path of ``cells.csv``.
+
+    Raises
+    ------
+    InputError
+        A column the design stage owns, an unknown one, or one of the wrong length.
+    """
+    bad = sorted(set(columns) - set(LATER_CELL_COLUMNS))
+    if bad:
+        raise InputError(f"update_cells: {bad} are not columns a later stage sets",
+                         fix=f"set only {', '.join(LATER_CELL_COLUMNS)}; re-run the design "
+                             "stage to change the others")
+    n = len(cells["cell_id"])
+    for k, v in columns.items():
+        if len(v) != n:
+            raise InputError(f"update_cells: {k} has {len(v)} values for {n} cells")
+    return write_table(Path(folder) / FILENAMES["cells"], "cells", {**cells, **columns})
+
+
 # --------------------------------------------------------------------------------------
 # stencil.obj
 

@@ -34,7 +34,9 @@ class Surface:
     UV : (n, 2) float or None
         Flat layout when the surface is already a stencil (no remesh / flattening).
     time : callable((k, 3) float, mm) -> (k,) float, s, or None
-        Default time landscape as a function of the (scaled, centred) stencil vertices.
+        Default time landscape as a function of points on the target in its own frame (the
+        coordinates of ``V``, mm); the design maps the stencil's frame back to it
+        (:class:`~pysolver.design.time_landscape.DesignLandscape`).
     central_length : float, mm, or None
         Flat central length override (test patches).
     target_bases : int or None
