@@ -446,11 +446,8 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = NEWTON.max_
     E, g, H = problem.evaluate(hessian=True)
     r = problem.residual(g)
     hist = [(E, r, 0.0)]
-    n_reg = n_grad = 0
-    D = problem.dof_scale
-    status = "max_iter"
-    it = 0
-    shift = getattr(linear, "shift_hint", NEWTON.shift_min)
+    n_reg = n_grad = it = 0
+    status, shift = "max_iter", getattr(linear, "shift_hint", NEWTON.shift_min)
     if not np.isfinite(E) or not np.all(np.isfinite(g)):
         return NewtonResult(False, "nan", 0, float("nan"), E, history=hist,
                             wall_s=time.perf_counter() - t0)
@@ -459,39 +456,18 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = NEWTON.max_
             status = "converged"
             break
         it += 1
-        accepted = False
-        Hpsd = None
-        eps_E = problem.roundoff()
-        for kind, rel in _candidates(shift):
-            if kind == "gradient":  # last resort: diagonally scaled steepest descent
-                p = -g / np.maximum(np.abs(_diag(H)), TOL.exact * _scale(H, D) * D)
-                n_grad += 1
-            else:
-                if kind == "psd" and Hpsd is None:
-                    _, _, Hpsd = problem.evaluate(hessian=True, psd=True)
-                p = _solve_shifted(Hpsd if kind == "psd" else H, g, D, rel, linear)
-                if p is None:
-                    continue
-            alpha_max = _step_limit(p, problem.trans_dofs, problem.rot_dofs, max_step_mm,
-                                    max_rot_rad)
-            limit = getattr(problem, "step_limit", None)
-            if limit is not None:  # contact barriers: the collision-free part of the step
-                alpha_max = limit(p, alpha_max)
-            alpha, trial, accepted, E_trial, g_trial = _wolfe(problem, p, E, g, eps_E,
-                                                              alpha_max, c1, c2, max_halvings)
-            if accepted:
-                n_reg += not (kind == "exact" and rel <= NEWTON.shift_min)
-                if kind == "exact" and rel > NEWTON.shift_min:
-                    shift = rel
-                break
-        if not accepted:
+        st = _iteration(problem, E, g, H, problem.dof_scale, shift, linear,
+                        (c1, c2, max_halvings), (max_step_mm, max_rot_rad))
+        n_grad += st.gradient
+        if not st.accepted:
             status = "line_search"
             break
-        problem.accept(trial)
-        linear.shift_hint = shift
-        E, g = E_trial, g_trial  # the search evaluated them at the accepted point
+        n_reg += st.regularised
+        problem.accept(st.trial)
+        shift = linear.shift_hint = st.shift
+        E, g = st.E, st.g  # the search evaluated them at the accepted point
         r = problem.residual(g)
-        hist.append((E, r, alpha))
+        hist.append((E, r, st.alpha))
         if callback is not None:
             callback(it, E, r)
         if not np.isfinite(E) or not np.all(np.isfinite(g)):
@@ -505,6 +481,67 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = NEWTON.max_
             status = "converged"
     return NewtonResult(status == "converged", status, it, r, E, n_reg, n_grad, hist,
                         time.perf_counter() - t0)
+
+
+@dataclass
+class _Iteration:
+    """The outcome of one Newton iteration (:func:`_iteration`)."""
+
+    accepted: bool
+    shift: float
+    regularised: bool = False
+    gradient: bool = False
+    trial: object = None
+    alpha: float = 0.0
+    E: float = float("nan")
+    g: np.ndarray | None = None
+
+
+def _iteration(problem, E, g, H, D, shift: float, linear, wolfe, caps) -> _Iteration:
+    """One iteration of :func:`newton`: the search directions of :func:`_candidates` in turn
+    until one factorises, descends and passes the strong Wolfe line search.
+
+    Parameters
+    ----------
+    E, g, H : the energy (N mm), gradient and Hessian at the current point
+    D : (n,) float -- the dofs' scale
+    shift : float -- the shift that worked last (relative)
+    wolfe : (c1, c2, max_halvings)
+    caps : (max_step_mm, max_rot_rad)
+
+    Returns
+    -------
+    _Iteration
+        ``accepted`` and the accepted ``trial`` point, step ``alpha``, energy ``E`` and
+        gradient ``g`` there; the ``shift`` to start from next; whether the step was
+        ``regularised`` (not the exact Hessian at the base shift) and whether the gradient
+        step was tried (``gradient``).
+    """
+    Hpsd = None
+    eps_E = problem.roundoff()
+    tried_gradient = False
+    for kind, rel in _candidates(shift):
+        if kind == "gradient":  # last resort: diagonally scaled steepest descent
+            p = -g / np.maximum(np.abs(_diag(H)), TOL.exact * _scale(H, D) * D)
+            tried_gradient = True
+        else:
+            if kind == "psd" and Hpsd is None:
+                _, _, Hpsd = problem.evaluate(hessian=True, psd=True)
+            p = _solve_shifted(Hpsd if kind == "psd" else H, g, D, rel, linear)
+            if p is None:
+                continue
+        alpha_max = _step_limit(p, problem.trans_dofs, problem.rot_dofs, *caps)
+        limit = getattr(problem, "step_limit", None)
+        if limit is not None:  # contact barriers: the collision-free part of the step
+            alpha_max = limit(p, alpha_max)
+        alpha, trial, accepted, E_trial, g_trial = _wolfe(problem, p, E, g, eps_E,
+                                                          alpha_max, *wolfe)
+        if accepted:
+            if kind == "exact" and rel > NEWTON.shift_min:
+                shift = rel
+            return _Iteration(True, shift, not (kind == "exact" and rel <= NEWTON.shift_min),
+                              tried_gradient, trial, alpha, E_trial, g_trial)
+    return _Iteration(False, shift, gradient=tried_gradient)
 
 
 def _diag(H):
