@@ -11,7 +11,8 @@ that are not byte-identical and the largest absolute difference of any array in 
 simulation frames; it exits 1 unless every CSV/OBJ table is byte-identical, every JSON
 record is equal once its wall-clock timings and the repository path are left out, and
 every frame difference is at most 1e-9 (the frames' ``wall_s`` and ``tables_sha256``, a hash
-over ``design.json`` and so over its timings, left out).  Files only in the new folder are listed as new.
+over ``design.json`` and so over its timings, left out).  Files only in the new folder are
+listed as new.
 """
 
 from __future__ import annotations

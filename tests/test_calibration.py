@@ -19,9 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _shared import assert_fit_matches
+from _shared import assert_fit_matches, designed
 
-from pysolver.design import run_design
 from pysolver.fitting.material_fit import fit_material
 from pysolver.material import load_bracket_model
 from pysolver.material.measurements import DEFAULT_DATA_DIR
@@ -115,11 +114,11 @@ def test_committed_model_is_a_fresh_fit_of_the_shipped_data(tmp_path):
     assert fresh["provenance"]["inputs_sha256"] == committed["provenance"]["inputs_sha256"]
 
 
-def test_material_option_changes_thicknesses(user_fit, tmp_path):
+def test_material_option_changes_thicknesses(user_fit, tmp_path, tmp_path_factory):
     """MATERIAL= is honoured end to end: another model gives other thicknesses."""
     _, out, _ = user_fit
     a, b = tmp_path / "a", tmp_path / "b"
-    run_design("dome", a, progress=False, plots=False)   # (deterministic: one design, twice)
+    shutil.copytree(designed("dome", tmp_path_factory), a)   # one design, twice
     shutil.copytree(a, b)
     temporal.program_design(a, progress=False, fit_landscape=True, picture=False)
     temporal.program_design(b, material=str(out), progress=False, fit_landscape=True,

@@ -19,9 +19,11 @@ import pytest
 from pysolver import cli
 
 REPO = Path(__file__).resolve().parent.parent
-DOCS = [REPO / "README.md", REPO / "scad" / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+DOCS = [REPO / "README.md", REPO / "scad" / "README.md",
+        *sorted((REPO / "docs").rglob("*.md"))]
 TOP = ("pysolver/", "sim/", "scad/", "tests/", "bench/", "docs/", "data/", ".ci/")
-PATH = re.compile(r"`((?:%s)[^`\s*<>{}]*)`" % "|".join(re.escape(t) for t in TOP))
+_TOPS = "|".join(re.escape(t) for t in TOP)
+PATH = re.compile(r"`((?:" + _TOPS + r")[^`\s*<>{}]*)`")
 LINK = re.compile(r"\]\(((?!https?:|#|mailto:)[^)\s#]+)")
 SOURCE_NAME = re.compile(r"`([A-Za-z_][\w-]*\.(?:py|scad))`")
 DOTTED = re.compile(r"`((?:pysolver|sim)(?:\.[A-Za-z_][A-Za-z_0-9]*)+)")
