@@ -108,3 +108,25 @@ def designed(shape: str, tmp_path_factory) -> Path:
         if not (out / "design.json").is_file():
             run_design(shape, out, progress=False, plots=False)
     return out
+
+
+QUICK_SEARCH = {"opt_rounds": 1, "opt_iterations": 30, "opt_timing_iterations": 30,
+                "opt_pin_weight": 0.0}
+"""A smaller stencil-optimisation budget (one round of 30 L-BFGS iterations, no polish at
+scale 1) for tests whose subject is not the optimisation (a landscape carried onto the
+stencil, an option recorded): about 10x less time in the design stage (24 -> 2 s CPU for a
+60-vertex dome with a vertex-property landscape).  The optimisation itself is tested at the
+full budget (the built-in shapes' designs, ``tests/test_stencil.py``)."""
+
+
+def quick_stencil_search(monkeypatch) -> None:
+    """Make :func:`pysolver.design.run_design` search stencils with :data:`QUICK_SEARCH`."""
+    import dataclasses
+    import functools
+
+    from pysolver.design import pipeline
+    from pysolver.params import STENCIL
+
+    settings = dataclasses.replace(STENCIL, **QUICK_SEARCH)
+    monkeypatch.setattr(pipeline, "remesh_surface",
+                        functools.partial(pipeline.remesh_surface, settings=settings))
