@@ -5,7 +5,7 @@
 #   make bench              benchmarks -> build/bench/*.json
 #   make tolerance shape=petal [SAMPLES=64]   Monte Carlo tolerance analysis (Dask)
 #   make sweep SPEC=file.toml                 build and tabulate design variants (Dask)
-#   make scad-params        regenerate scad/params.scad from pysolver/params.py
+#   make scad-params        regenerate scad/params.scad from pysolver/params/
 #   make lock               re-resolve uv.lock (every package to its newest allowed release)
 #
 # The first call creates .venv and installs exactly the versions pinned in uv.lock (with
@@ -120,7 +120,7 @@ material: $(STAMP)
 membrane-model: $(STAMP)
 	$(PY) -m pysolver.cli fit-membrane
 
-# scad/params.scad from pysolver/params.py: one source for the unit-cell dimensions
+# scad/params.scad from pysolver/params/: one source for the unit-cell dimensions
 scad-params: $(STAMP)
 	$(PY) -m pysolver.render.scad_params
 

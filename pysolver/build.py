@@ -65,10 +65,19 @@ from .atomic import (
 )
 from .design import check_design_options, run_design
 from .design.surfaces import BUILTIN_SHAPES, check_spec
-from .design.time_landscape import read_time_file
+from .design.time_landscape import read_time_file, write_landscape
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, InputError, MorphshellError, check_input_file
-from .material.model import DEFAULT_MODEL_PATH, check_bracket_geometry, load_bracket_model
-from .params import DEFAULT_REFINE, LIMITS, MODEL_LIMITS, REPORT, SIM, UNIT_CELL
+from .material.model import check_bracket_geometry, load_bracket_model
+from .params import (
+    BRACKET_MODEL_FILE,
+    DEFAULT_REFINE,
+    LIMITS,
+    MEMBRANE_MODEL_FILE,
+    PROGRAMMING,
+    REPORT,
+    SIM,
+    UNIT_CELL,
+)
 from .render import (
     DEFAULT_RENDERER,
     check_renderer,
@@ -79,8 +88,6 @@ from .render import (
 from .render.scad_io import SCAD_DIR
 from .tables import read_bases, read_cells, read_record
 from .temporal import (
-    COMPLETION_TOL_MM,
-    REFINE_DAMPING,
     REFINE_LOG,
     STAGE_FILE,
     load_material,
@@ -89,7 +96,6 @@ from .temporal import (
     time_limit,
     timing_errors,
 )
-from .temporal.membrane_model import MODEL_PATH as MEMBRANE_MODEL_PATH
 from .temporal.membrane_model import load_membrane_model, validate_membrane_model_file
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -569,8 +575,7 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
         for p in folder.iterdir():
             if p.is_file() and not p.is_symlink() and p.name not in REBUILD_DROPPED:
                 shutil.copy2(p, staging / p.name)
-        tables.write_table(staging / tables.FILENAMES["time_landscape"], "time_landscape",
-                           {"vertex_id": np.arange(len(land)), "time_s": land})
+        write_landscape(staging, land)
         atomic_write_text(staging / tables.LANDSCAPE_SOURCE, json.dumps(edit, indent=1) + "\n")
         stage = _stage_runner(summary, name, folder, staging, False, progress)
         _start_checks(staging, render=render, simulate=True, renderer=renderer)
@@ -669,7 +674,7 @@ def _thin_open_layers(cap, h_prev, t_sim, t_star, t_end, frames_path, tol_mm):
     several times more than the other): the force balance behind the thicknesses
     (:func:`~pysolver.temporal.program.program_cells`) then over-estimates the membrane
     pull the simulation finds.  Each layer the last frame shows open
-    (:func:`sim.model.collisions.open_layers`) is capped ``MODEL_LIMITS.refine_open_layer_mm``
+    (:func:`sim.model.collisions.open_layers`) is capped ``PROGRAMMING.refine_open_layer_mm``
     below its thickness in the round that left it open (not below
     ``UNIT_CELL.thickness_min``).  A capped layer never thickens again in later rounds
     (the caller lowers the cap to the thickness used), so that a cell the cap closed is
@@ -692,7 +697,7 @@ def _thin_open_layers(cap, h_prev, t_sim, t_star, t_end, frames_path, tol_mm):
     h_prev = np.asarray(h_prev, float)
     thin = open_layers(frames_path, tol_mm) & never_due(t_sim, t_star, t_end)[:, None]
     h_min = UNIT_CELL.thickness_min
-    lower = np.maximum(h_min, h_prev - MODEL_LIMITS.refine_open_layer_mm)
+    lower = np.maximum(h_min, h_prev - PROGRAMMING.refine_open_layer_mm)
     cap = np.where(thin, np.minimum(cap, lower), cap)
     return cap, int((thin & (h_prev > h_min)).sum())
 
@@ -709,12 +714,12 @@ def _best_iteration(hist) -> int:
 
 def _refine_again(hist, k: int, rounds: int) -> bool:
     """Whether the refinement runs round ``k + 1``: the ``rounds`` asked for, then up to
-    ``MODEL_LIMITS.refine_extra_rounds`` more while the best round so far leaves cells that
+    ``PROGRAMMING.refine_extra_rounds`` more while the best round so far leaves cells that
     never complete, and the last round either thinned a layer or closed a cell (otherwise
     another simulation could not change anything the time correction has not)."""
     if k < rounds:
         return True
-    if rounds == 0 or k >= rounds + MODEL_LIMITS.refine_extra_rounds:
+    if rounds == 0 or k >= rounds + PROGRAMMING.refine_extra_rounds:
         return False
     last, before = hist[-1], hist[-2]
     moved = last["n_layers_thinned"] > 0 or last["n_never_due"] < before["n_never_due"]
@@ -731,8 +736,8 @@ def _round_record(t_star, t_sim, clamped, t_end, **extra) -> dict:
 
 
 def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
-                  progress: bool = True, t_end=None, damping: float = REFINE_DAMPING,
-                  tol_mm: float = COMPLETION_TOL_MM, simulate=None) -> dict:
+                  progress: bool = True, t_end=None, damping: float = PROGRAMMING.refine_damping,
+                  tol_mm: float = UNIT_CELL.clearance, simulate=None) -> dict:
     """Correct the programmed times from simulated completion times and re-simulate.
 
     Needs a programmed and simulated design folder (``sim/frames.npz``).  Each
@@ -741,7 +746,7 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     achievable range, re-solves the thicknesses (``t_star_s`` stays the user's
     target), and re-simulates.  A cell that never completes also has the layers it left
     open thinned (:func:`_thin_open_layers`).  When the ``iterations`` rounds leave cells
-    that never complete, up to ``MODEL_LIMITS.refine_extra_rounds`` more rounds run while
+    that never complete, up to ``PROGRAMMING.refine_extra_rounds`` more rounds run while
     they do.  The round with the fewest cells that never complete, then the lowest RMS
     timing error (clamped cells excluded, cells that never complete counted as finishing
     at the last frame) is kept: its thicknesses in ``cells.csv`` and its frames in
@@ -831,10 +836,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
                                            tol_mm)
         th = np.minimum(res["thickness"], cap)
         cap = np.where(np.isfinite(cap), th, cap)  # a capped layer never thickens again
-        out = dict(cells)
-        out["thickness_top_mm"] = th[:, 0]
-        out["thickness_bottom_mm"] = th[:, 1]
-        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        tables.update_cells(design_dir, cells, thickness_top_mm=th[:, 0],
+                            thickness_bottom_mm=th[:, 1])
         simulate(design_dir, **sim_kw)
         t_sim, t_frames = simulated_completion(design_dir, tol_mm)
         shutil.copy2(frames_path, keep_dir / f"frames_{k}.npz")
@@ -849,10 +852,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
              f"({hist[-1]['seconds']:.0f} s)", progress)
     best = _best_iteration(hist)
     if best != len(hist) - 1:
-        out = dict(cells)
-        out["thickness_top_mm"] = thick[best][:, 0]
-        out["thickness_bottom_mm"] = thick[best][:, 1]
-        tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
+        tables.update_cells(design_dir, cells, thickness_top_mm=thick[best][:, 0],
+                            thickness_bottom_mm=thick[best][:, 1])
         shutil.copy2(keep_dir / f"frames_{best}.npz", frames_path)
     for f in keep_dir.glob("frames_*.npz"):
         f.unlink()
@@ -890,10 +891,10 @@ def validate_model_files(material=None, membrane=None, unit=UNIT_CELL) -> None:
         The first rule a file breaks.
     """
     if material is None or isinstance(material, str | os.PathLike):
-        path = DEFAULT_MODEL_PATH if material is None else material
+        path = BRACKET_MODEL_FILE if material is None else material
         check_bracket_geometry(load_bracket_model(path), unit, str(path))  # (validates it)
     if membrane is None or isinstance(membrane, str | os.PathLike):
-        validate_membrane_model_file(MEMBRANE_MODEL_PATH if membrane is None else membrane)
+        validate_membrane_model_file(MEMBRANE_MODEL_FILE if membrane is None else membrane)
 def _contact_if_needed(folder: Path, name: str, progress: bool):
     """Physics options with barrier contact when the simulation of ``folder`` lets
     non-neighbouring bases pass through each other.

@@ -32,7 +32,7 @@ from .errors import (
     EXIT_OK,
     MorphshellError,
 )
-from .params import DEFAULT_REFINE, MODEL_LIMITS, TOLERANCE_RUN, UNCERTAINTY, UNIT_CELL
+from .params import DEFAULT_REFINE, PROGRAMMING, TOLERANCE_RUN, UNCERTAINTY, UNIT_CELL
 
 STAGES_HELP = """\
 stages (each reads and writes plain files in a design folder, build/<shape>/):
@@ -178,7 +178,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", type=int, default=DEFAULT_REFINE,
                    help="K rounds of closing the timing loop: correct t* from the simulation "
                         f"(default {DEFAULT_REFINE}, as make's REFINE; 0 = off); up to "
-                        f"{MODEL_LIMITS.refine_extra_rounds} more while cells never close")
+                        f"{PROGRAMMING.refine_extra_rounds} more while cells never close")
     p.add_argument("--no-program", action="store_true", help="keep uniform thickness")
     p.add_argument("--no-render", action="store_true", help="skip STL rendering")
     p.add_argument("--no-sim", action="store_true", help="skip simulation and report")

@@ -143,6 +143,34 @@ def read_table(path, kind: str) -> dict[str, np.ndarray]:
     path = Path(path)
     if path.is_dir():
         path = path / FILENAMES[kind]
+    rows = _table_rows(path, kind)
+    expected = list(schema)
+    out = {c: [] for c in expected}
+    kinds = list(schema.values())
+    for ln, row in enumerate(rows[1:], start=2):
+        fields = row.split(",")
+        if len(fields) != len(expected):
+            raise InputError(f"{path}:{ln}: {len(fields)} fields, expected {len(expected)}",
+                             fix="check for missing or extra commas")
+        for c, k, v in zip(expected, kinds, fields, strict=True):
+            v = v.strip()
+            out[c].append(_value(v, k, kind, c, f"{path}:{ln}: column {c} = {v!r}"))
+    dtypes = {"float": float, "int": np.int64, "bool": bool}
+    res = {c: np.array(out[c], dtype=dtypes.get(k, str))
+           for c, k in zip(expected, kinds, strict=True)}
+    for idc in {"bases": "base_id", "cells": "cell_id",
+                "time_landscape": "vertex_id"}.get(kind, "").split():
+        ids = res[idc]
+        bad = np.flatnonzero(ids != np.arange(len(ids)))
+        if len(bad):
+            raise InputError(f"{path}:{bad[0] + 2}: {idc} = {ids[bad[0]]}, expected {bad[0]} "
+                             "(ids must be 0, 1, 2, ... in row order)")
+    return res
+
+
+def _table_rows(path: Path, kind: str) -> list[str]:
+    """The non-blank lines of a table file, its header checked against the schema."""
+    schema = SCHEMAS[kind]
     if not path.exists():
         where = (f"{path.parent}: no such design folder" if not path.parent.exists()
                  else f"{path}: file not found")
@@ -168,60 +196,36 @@ def read_table(path, kind: str) -> dict[str, np.ndarray]:
             + (f"; missing {miss}" if miss else "") + (f"; unexpected {extra}" if extra else "")
             + ("; columns out of order" if not miss and not extra else ""),
             fix=f"the header must be exactly: {','.join(expected)}")
-    out = {c: [] for c in expected}
-    kinds = list(schema.values())
-    for ln, row in enumerate(rows[1:], start=2):
-        fields = row.split(",")
-        if len(fields) != len(expected):
-            raise InputError(f"{path}:{ln}: {len(fields)} fields, expected {len(expected)}",
-                             fix="check for missing or extra commas")
-        for c, k, v in zip(expected, kinds, fields, strict=True):
-            v = v.strip()
-            where = f"{path}:{ln}: column {c} = {v!r}"
-            if k == "float":
-                try:
-                    x = float(v)
-                except ValueError:
-                    raise InputError(f"{where} is not a number") from None
-                if math.isnan(x) and (kind, c) not in NAN_OK:
-                    raise InputError(f"{where}: NaN not allowed here")
-                if math.isinf(x):
-                    raise InputError(f"{where}: infinite value")
-                if (kind, c) in NONNEGATIVE and x < 0:
-                    raise InputError(f"{where}: must be >= 0")
-                out[c].append(x)
-            elif k in ("int", "bool"):
-                try:
-                    x = int(v)
-                except ValueError:
-                    raise InputError(f"{where} is not an integer") from None
-                if k == "bool" and x not in (0, 1):
-                    raise InputError(f"{where}: must be 0 or 1")
-                if (kind, c) in SLOT_COLUMNS and not 0 <= x <= 2:
-                    raise InputError(f"{where}: a slot must be 0, 1 or 2")
-                out[c].append(x)
-            else:
-                if v not in k:
-                    raise InputError(f"{where}: must be one of {list(k)}")
-                out[c].append(v)
-    res = {}
-    for c, k in zip(expected, kinds, strict=True):
-        if k == "float":
-            res[c] = np.array(out[c], dtype=float)
-        elif k == "int":
-            res[c] = np.array(out[c], dtype=np.int64)
-        elif k == "bool":
-            res[c] = np.array(out[c], dtype=bool)
-        else:
-            res[c] = np.array(out[c], dtype=str)
-    for idc in {"bases": "base_id", "cells": "cell_id",
-                "time_landscape": "vertex_id"}.get(kind, "").split():
-        ids = res[idc]
-        bad = np.flatnonzero(ids != np.arange(len(ids)))
-        if len(bad):
-            raise InputError(f"{path}:{bad[0] + 2}: {idc} = {ids[bad[0]]}, expected {bad[0]} "
-                             "(ids must be 0, 1, 2, ... in row order)")
-    return res
+    return rows
+
+
+def _value(v: str, k, kind: str, c: str, where: str):
+    """One field of a table, parsed as its column's type and checked (``where`` names it)."""
+    if k == "float":
+        try:
+            x = float(v)
+        except ValueError:
+            raise InputError(f"{where} is not a number") from None
+        if math.isnan(x) and (kind, c) not in NAN_OK:
+            raise InputError(f"{where}: NaN not allowed here")
+        if math.isinf(x):
+            raise InputError(f"{where}: infinite value")
+        if (kind, c) in NONNEGATIVE and x < 0:
+            raise InputError(f"{where}: must be >= 0")
+        return x
+    if k in ("int", "bool"):
+        try:
+            x = int(v)
+        except ValueError:
+            raise InputError(f"{where} is not an integer") from None
+        if k == "bool" and x not in (0, 1):
+            raise InputError(f"{where}: must be 0 or 1")
+        if (kind, c) in SLOT_COLUMNS and not 0 <= x <= 2:
+            raise InputError(f"{where}: a slot must be 0, 1 or 2")
+        return x
+    if v not in k:
+        raise InputError(f"{where}: must be one of {list(k)}")
+    return v
 
 
 def read_bases(path) -> dict[str, np.ndarray]:
@@ -248,6 +252,47 @@ def read_support_frame(path) -> np.ndarray:
     """(b, 2) float, mm: the support-frame outline."""
     t = read_table(path, "support_frame")
     return np.c_[t["x_mm"], t["y_mm"]]
+
+
+LATER_CELL_COLUMNS = ("t_star_s", "thickness_top_mm", "thickness_bottom_mm", "t_min_s",
+                      "t_max_s", "clamped")
+"""The columns of ``cells.csv`` that stages after the design set (temporal programming and
+the refinement, through :func:`update_cells`); the design stage writes every other column,
+once."""
+
+
+def update_cells(folder, cells: dict, **columns) -> Path:
+    """The one writer of ``cells.csv`` after the design stage: the table as read, with the
+    given later-stage columns (:data:`LATER_CELL_COLUMNS`) replaced.
+
+    Parameters
+    ----------
+    folder : path-like
+        Design folder.
+    cells : dict of (n_cells,) arrays
+        ``cells.csv`` as read (:func:`read_table`); not changed.
+    **columns : (n_cells,) arrays
+        New values, by column name.
+
+    Returns
+    -------
+    Path of ``cells.csv``.
+
+    Raises
+    ------
+    InputError
+        A column the design stage owns, an unknown one, or one of the wrong length.
+    """
+    bad = sorted(set(columns) - set(LATER_CELL_COLUMNS))
+    if bad:
+        raise InputError(f"update_cells: {bad} are not columns a later stage sets",
+                         fix=f"set only {', '.join(LATER_CELL_COLUMNS)}; re-run the design "
+                             "stage to change the others")
+    n = len(cells["cell_id"])
+    for k, v in columns.items():
+        if len(v) != n:
+            raise InputError(f"update_cells: {k} has {len(v)} values for {n} cells")
+    return write_table(Path(folder) / FILENAMES["cells"], "cells", {**cells, **columns})
 
 
 # --------------------------------------------------------------------------------------
@@ -321,6 +366,20 @@ def read_stencil(path):
         raise InputError(f"{path}: file not found",
                          fix="run the design stage first (morphshell design <shape>)")
     check_input_file(path, "stencil")
+    V, T, F, FT = _obj_records(path)
+    if not V or not F:
+        raise InputError(f"{path}: no vertices or no faces", fix="check the OBJ file")
+    V = np.array(V, float)
+    F = np.array(F, dtype=np.int64)
+    F = np.where(F < 0, F + len(V), F - 1)  # OBJ negative = relative
+    UV = _row_aligned_uv(path, V, F, T, FT) if T else None
+    _check_stencil(V, UV if UV is not None else np.zeros((len(V), 2)), F, str(path))
+    return V, UV, F
+
+
+def _obj_records(path: Path):
+    """The ``v``, ``vt``, ``f`` (vertex indices) and ``f`` (vt indices, when every corner
+    gives one) records of an OBJ, as lists; faces must be triangles."""
     V, T, F, FT = [], [], [], []
     with open(path, errors="replace") as fh:
         for ln, line in enumerate(fh, start=1):
@@ -350,39 +409,36 @@ def read_stencil(path):
                 raise
             except ValueError:
                 raise InputError(f"{path}:{ln}: cannot parse {line.strip()!r}") from None
-    if not V or not F:
-        raise InputError(f"{path}: no vertices or no faces", fix="check the OBJ file")
-    V = np.array(V, float)
-    F = np.array(F, dtype=np.int64)
-    F = np.where(F < 0, F + len(V), F - 1)  # OBJ negative = relative
-    UV = None
-    if T:
-        T = np.array(T, float)
-        if FT and len(FT) == len(F):
-            FT = np.array(FT, dtype=np.int64)
-            FT = np.where(FT < 0, FT + len(T), FT - 1)
-            UV = np.full((len(V), 2), np.nan)
-            mapping = {}
-            for fv, ft in zip(F.ravel(), FT.ravel(), strict=True):
-                if mapping.setdefault(fv, ft) != ft:
-                    raise InputError(
-                        f"{path}: vertex {fv + 1} uses several vt ({mapping[fv] + 1}, {ft + 1}):"
-                        " the flat layout has a seam", fix="give a one-to-one vt per v")
-            for fv, ft in mapping.items():
-                UV[fv] = T[ft]
-            if np.isnan(UV).any():
-                raise InputError(f"{path}: some vertices are not used by any face",
-                                 fix="remove unreferenced vertices")
-        elif len(T) == len(V):
-            UV = T
-        else:
-            raise InputError(f"{path}: {len(T)} vt for {len(V)} v and faces without vt indices",
-                             fix="for a stencil, give one vt per v (row-aligned) or v/vt face "
-                                 "indices; for a plain target mesh, delete its vt lines (e.g. "
-                                 "grep -v '^vt ' in.obj > target.obj), which a mesh does not "
-                                 "need")
-    _check_stencil(V, UV if UV is not None else np.zeros((len(V), 2)), F, str(path))
-    return V, UV, F
+    return V, T, F, FT
+
+
+def _row_aligned_uv(path: Path, V, F, T, FT) -> np.ndarray:
+    """(n, 2) float: the ``vt`` of an OBJ row-aligned with its ``v``: as given (one per v), or
+    through ``v/vt`` face indices, which must map one-to-one (no seam)."""
+    T = np.array(T, float)
+    if FT and len(FT) == len(F):
+        FT = np.array(FT, dtype=np.int64)
+        FT = np.where(FT < 0, FT + len(T), FT - 1)
+        UV = np.full((len(V), 2), np.nan)
+        mapping = {}
+        for fv, ft in zip(F.ravel(), FT.ravel(), strict=True):
+            if mapping.setdefault(fv, ft) != ft:
+                raise InputError(
+                    f"{path}: vertex {fv + 1} uses several vt ({mapping[fv] + 1}, {ft + 1}):"
+                    " the flat layout has a seam", fix="give a one-to-one vt per v")
+        for fv, ft in mapping.items():
+            UV[fv] = T[ft]
+        if np.isnan(UV).any():
+            raise InputError(f"{path}: some vertices are not used by any face",
+                             fix="remove unreferenced vertices")
+        return UV
+    if len(T) == len(V):
+        return T
+    raise InputError(f"{path}: {len(T)} vt for {len(V)} v and faces without vt indices",
+                     fix="for a stencil, give one vt per v (row-aligned) or v/vt face "
+                         "indices; for a plain target mesh, delete its vt lines (e.g. "
+                         "grep -v '^vt ' in.obj > target.obj), which a mesh does not "
+                         "need")
 
 
 # --------------------------------------------------------------------------------------

@@ -85,3 +85,48 @@ def assert_fit_matches(fresh: dict, committed: dict, rtol: float = FIT_RTOL) -> 
         c0 = np.asarray(committed["creep_model"][part]["coefficients"], float)
         c1 = np.asarray(fresh["creep_model"][part]["coefficients"], float)
         assert np.abs(c1 - c0).max() <= rtol * np.abs(c0).max(), part
+
+
+def designed(shape: str, tmp_path_factory) -> Path:
+    """The design folder of a built-in shape at its defaults (``run_design(shape,
+    plots=False)``), made once per test session and shared by every test that needs it,
+    across the workers of ``pytest -n`` (a file lock; the workers' temporary folders share a
+    parent).  Copy it (``shutil.copytree``) before running a stage on it: the design itself
+    is what the tests check, a redesign of the same shape would give the same bytes
+    (``tests/test_reproducibility.py`` checks that, against a fresh design)."""
+    import fcntl
+    import os
+
+    from pysolver.design import run_design
+
+    base = tmp_path_factory.getbasetemp()
+    root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "designed"
+    root.mkdir(parents=True, exist_ok=True)
+    out = root / shape.replace(":", "_").replace("=", "-").replace(",", "_")
+    with open(root / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (out / "design.json").is_file():
+            run_design(shape, out, progress=False, plots=False)
+    return out
+
+
+QUICK_SEARCH = {"opt_rounds": 1, "opt_iterations": 30, "opt_timing_iterations": 30,
+                "opt_pin_weight": 0.0}
+"""A smaller stencil-optimisation budget (one round of 30 L-BFGS iterations, no polish at
+scale 1) for tests whose subject is not the optimisation (a landscape carried onto the
+stencil, an option recorded): about 10x less time in the design stage (24 -> 2 s CPU for a
+60-vertex dome with a vertex-property landscape).  The optimisation itself is tested at the
+full budget (the built-in shapes' designs, ``tests/test_stencil.py``)."""
+
+
+def quick_stencil_search(monkeypatch) -> None:
+    """Make :func:`pysolver.design.run_design` search stencils with :data:`QUICK_SEARCH`."""
+    import dataclasses
+    import functools
+
+    from pysolver.design import pipeline
+    from pysolver.params import STENCIL
+
+    settings = dataclasses.replace(STENCIL, **QUICK_SEARCH)
+    monkeypatch.setattr(pipeline, "remesh_surface",
+                        functools.partial(pipeline.remesh_surface, settings=settings))

@@ -59,8 +59,9 @@ LAZY_ALLOWED = {"pysolver.cli"}  # see the module docstring
 
 
 def group(mod: str) -> str:
-    """The layer group of a project module."""
-    if mod in CORE:
+    """The layer group of a project module (the settings package ``pysolver.params`` and its
+    topic modules are all core)."""
+    if mod in CORE or mod.startswith("pysolver.params."):
         return "core"
     for prefix, g in (("pysolver.fitting", "fitting"), ("pysolver.material", "material"),
                       ("pysolver.design", "design"),
@@ -241,6 +242,16 @@ def test_runtime_does_not_import_the_offline_fits():
 
 def test_layer_table_knows_every_module():
     assert {group(m) for m in MODULES} <= set(LAYERS)
+
+
+def test_settings_import_only_the_core():
+    """The settings package is the bottom of the graph: its topic modules import one another
+    and :mod:`pysolver.errors`, nothing else of the project."""
+    params = {m for m in MODULES if m == "pysolver.params" or m.startswith("pysolver.params.")}
+    assert len(params) > 5, "pysolver.params is a package of topic modules"
+    bad = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
+           if a in params and b not in params | {"pysolver", "pysolver.errors"}]
+    assert not bad, "\n".join(bad)
 
 
 _NOQA = re.compile(r"noqa(:\s*[A-Z]+[0-9]+(\s*,\s*[A-Z]+[0-9]+)*)?")

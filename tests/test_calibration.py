@@ -19,19 +19,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _shared import assert_fit_matches
+from _shared import assert_fit_matches, designed
 
-from pysolver.design import run_design
 from pysolver.fitting.material_fit import fit_material
 from pysolver.material import load_bracket_model
 from pysolver.material.measurements import DEFAULT_DATA_DIR
-from pysolver.material.model import DEFAULT_MODEL_PATH
+from pysolver.params import BRACKET_MODEL_FILE
 from pysolver.tables import read_cells
 from pysolver.temporal import program as temporal
 
 REPO = Path(__file__).resolve().parent.parent
 REMOVED = "0.50_6"  # dry specimen h = 0.5 mm, l = 6 mm (and its wet series 0.5_6_*)
-COMMITTED_BYTES = Path(DEFAULT_MODEL_PATH).read_bytes()
+COMMITTED_BYTES = Path(BRACKET_MODEL_FILE).read_bytes()
 """The committed model as it was when this module was imported (before any fit ran)."""
 
 
@@ -88,7 +87,7 @@ def test_user_model_differs_from_default_but_is_close(user_fit):
 
 def test_user_fit_leaves_the_committed_model_untouched(user_fit):
     """Fitting a user's folder (--data) writes its own file, never the committed model."""
-    assert Path(DEFAULT_MODEL_PATH).read_bytes() == COMMITTED_BYTES
+    assert Path(BRACKET_MODEL_FILE).read_bytes() == COMMITTED_BYTES
 
 
 def test_shipped_measurements_are_the_committed_models_inputs():
@@ -115,11 +114,11 @@ def test_committed_model_is_a_fresh_fit_of_the_shipped_data(tmp_path):
     assert fresh["provenance"]["inputs_sha256"] == committed["provenance"]["inputs_sha256"]
 
 
-def test_material_option_changes_thicknesses(user_fit, tmp_path):
+def test_material_option_changes_thicknesses(user_fit, tmp_path, tmp_path_factory):
     """MATERIAL= is honoured end to end: another model gives other thicknesses."""
     _, out, _ = user_fit
     a, b = tmp_path / "a", tmp_path / "b"
-    run_design("dome", a, progress=False, plots=False)   # (deterministic: one design, twice)
+    shutil.copytree(designed("dome", tmp_path_factory), a)   # one design, twice
     shutil.copytree(a, b)
     temporal.program_design(a, progress=False, fit_landscape=True, picture=False)
     temporal.program_design(b, material=str(out), progress=False, fit_landscape=True,

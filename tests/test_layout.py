@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _shared import designed
 
 from pysolver import tables
 from pysolver.design.cellnodes import bracket_nodes, collision_lengths
@@ -125,11 +126,7 @@ def test_convex_polygon_distance():
 
 @pytest.fixture(scope="module")
 def dome_design(tmp_path_factory):
-    from pysolver.design import run_design
-
-    out = tmp_path_factory.mktemp("dome")
-    run_design("dome", out, progress=False, plots=False)
-    return tables.read_design(out)
+    return tables.read_design(designed("dome", tmp_path_factory))
 
 
 @pytest.fixture(scope="module")

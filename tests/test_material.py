@@ -17,7 +17,6 @@ from _shared import assert_fit_matches
 
 from pysolver.errors import InputError
 from pysolver.fitting.material_fit import (
-    DEFAULT_MODEL_PATH,
     FitOptions,
     dumps_model,
     model_file_dict,
@@ -40,7 +39,7 @@ from pysolver.material.measurements import (
     wet_eval_rows,
 )
 from pysolver.material.polyfit import monomial_exponents
-from pysolver.params import SIM, UNIT_CELL
+from pysolver.params import BRACKET_MODEL_FILE, SIM, UNIT_CELL
 
 # thresholds set from the first honest fit (dry 0.0558 mm, wet 0.6392 mm, eq. 9 0.7208 mm)
 DRY_RMS_MAX_MM = 0.07
@@ -253,7 +252,7 @@ def test_refit_reproduces_committed_model(model):
     meas = load_measurements()
     res = run_chain(meas, FitOptions(), progress=False)
     d = model_file_dict(res, meas)
-    committed = json.loads(DEFAULT_MODEL_PATH.read_text())
+    committed = json.loads(BRACKET_MODEL_FILE.read_text())
     assert_fit_matches(d, committed)
     assert res.residuals["dry_model"]["rms_mm"] < DRY_RMS_MAX_MM
     assert res.residuals["wet_model"]["rms_mm"] < WET_RMS_MAX_MM
@@ -367,7 +366,7 @@ def test_outside_grid_reference_mode_extrapolates_one_step(model):
 
 def test_compare_models_writes_png(model, tmp_path):
     out = tmp_path / "cmp.png"
-    compare_models(model, DEFAULT_MODEL_PATH, out, labels=("a", "b"))
+    compare_models(model, BRACKET_MODEL_FILE, out, labels=("a", "b"))
     assert out.stat().st_size > 10_000
 
 

@@ -17,9 +17,8 @@ from pysolver.design.cellnodes import model_arrays
 from pysolver.design.surfaces import regular_grid
 from pysolver.fitting.membrane_fit import patch_mesh
 from pysolver.mechanics import build_model, membrane_mesh
-from pysolver.params import SIM, UNIT_CELL
+from pysolver.params import PROGRAMMING, SIM, UNIT_CELL
 from pysolver.temporal.membrane_model import (
-    FACTOR_MESH_AREA,
     cell_membrane_factors,
     layout_membrane,
     load_membrane_model,
@@ -51,7 +50,7 @@ def _area(P):
 def test_simulator_and_temporal_programming_mesh_the_same_membrane():
     V, UV, F, g = _cap_layout()
     nc = len(g["cell_bases"])
-    for area in (SIM.membrane_max_area, FACTOR_MESH_AREA):
+    for area in (SIM.membrane_max_area, PROGRAMMING.membrane_factor_max_area):
         consts = dataclasses.replace(SIM, membrane_max_area=area)
         model = build_model(V, UV, F, np.full((nc, 2), 0.45), g, consts=consts)
         mesh, _, centers = layout_membrane(UV, F, area, g)

@@ -20,14 +20,14 @@ import pytest
 
 from pysolver.build import validate_model_files
 from pysolver.errors import InputError
-from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
+from pysolver.material.model import load_bracket_model
 from pysolver.material.validate import validate_bracket_model_file
-from pysolver.temporal.membrane_model import MODEL_PATH as MEMBRANE_PATH
+from pysolver.params import BRACKET_MODEL_FILE, MEMBRANE_MODEL_FILE
 from pysolver.temporal.membrane_model import load_membrane_model, validate_membrane_model_file
 
 REPO = Path(__file__).resolve().parent.parent
-GOOD = json.loads(Path(DEFAULT_MODEL_PATH).read_text())
-GOOD_MEMBRANE = json.loads(Path(MEMBRANE_PATH).read_text())
+GOOD = json.loads(Path(BRACKET_MODEL_FILE).read_text())
+GOOD_MEMBRANE = json.loads(Path(MEMBRANE_MODEL_FILE).read_text())
 SMALL = "regular:rows=1,cols=2"
 
 
@@ -306,10 +306,10 @@ def test_membrane_model_validator(name, make, patterns, tmp_path):
 
 
 def test_committed_models_pass():
-    v = validate_bracket_model_file(DEFAULT_MODEL_PATH)
+    v = validate_bracket_model_file(BRACKET_MODEL_FILE)
     assert v["coef"].shape == (8, 21, 21, 4)
     np.testing.assert_array_equal(v["coef"], _coef(GOOD))
-    m = validate_membrane_model_file(MEMBRANE_PATH)
+    m = validate_membrane_model_file(MEMBRANE_MODEL_FILE)
     assert m["terms"] == tuple(GOOD_MEMBRANE["terms"])
     validate_model_files()
 
@@ -334,7 +334,7 @@ def test_material_model_records_its_brackets_and_other_brackets_are_refused(tmp_
     from pysolver.material.model import check_bracket_geometry
     from pysolver.params import UNIT_CELL
 
-    d = json.loads(DEFAULT_MODEL_PATH.read_text())
+    d = json.loads(BRACKET_MODEL_FILE.read_text())
     assert d["bracket"] == {"height_mm": UNIT_CELL.bracket_w,
                             "width_mm": [UNIT_CELL.thickness_min, UNIT_CELL.thickness_max]}
     validate_model_files()                                   # the committed pair fits

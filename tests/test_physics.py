@@ -41,7 +41,7 @@ from pysolver.errors import InputError
 from pysolver.mechanics import build_model, load_model
 from pysolver.mechanics.energies import ShellEnergy, State, full_from_lower, rodrigues
 from pysolver.mechanics.solver import StaticProblem, newton
-from pysolver.params import PHYSICS_OFF, RELAXATION_PRONY, SIM, PhysicsOptions
+from pysolver.params import NEWTON, PHYSICS_OFF, RELAXATION_PRONY, SIM, PhysicsOptions
 from sim.model.physics import ExternalTerms, base_volumes, parse_physics
 from sim.model.simulate import SimSettings, Simulation, simulate_model
 
@@ -443,7 +443,6 @@ def test_contact_step_limit_matches_exhaustive_ccd():
     """The step limit with the broad phase's bound equals the continuous collision detection
     of every pair (no pair skipped that could meet during the step), on random steps."""
     pytest.importorskip("ipctk")
-    from pysolver.params import tol
     from sim.model.contact import BaseContact
 
     model = _cell_model()
@@ -463,7 +462,7 @@ def test_contact_step_limit_matches_exhaustive_ccd():
         X1, _, _ = con._mesh(np.array([0, 1]), s1.c, s1.R)
         t = con.ipc.compute_collision_free_stepsize(mesh, np.asfortranarray(X0),
                                                     np.asfortranarray(X1))
-        assert alpha == (1.0 if t >= 1.0 else tol.contact_ccd_safety * t)
+        assert alpha == (1.0 if t >= 1.0 else NEWTON.ccd_safety * t)
         limited += alpha < 1.0
     assert limited > 5
 

@@ -177,7 +177,7 @@ def test_every_stl_is_watertight_and_single(built):
     for layer in LAYERS:   # one separate dot per non-alignment base
         assert s["bodies"][f"markers_{layer}"] == n_dots
         dot = math.pi * U.marker_r ** 2 * U.marker_depth
-        facet_bound = 2 * math.pi * U.marker_r * render.FACET_TOL_MM * U.marker_depth
+        facet_bound = 2 * math.pi * U.marker_r * tol.facet * U.marker_depth
         assert 0 < n_dots * dot - s["volumes_mm3"][f"markers_{layer}"] <= n_dots * facet_bound
 
 

@@ -19,6 +19,7 @@ import pytest
 from pysolver import tables
 from pysolver.errors import ExternalToolError, InputError
 from pysolver.params import LAYERS
+from pysolver.params import tol as TOL
 from pysolver.render import fast as render_fast
 from pysolver.render import load_stl, render_design, render_parts, to_manifold
 from pysolver.render import parts as render
@@ -174,8 +175,8 @@ def test_auto_runs_the_self_check_and_picks_fast(both):
     assert set(check["parts"]) == {"ref_node_top", "ref_node_bottom", "ref_actuated_top",
                                    "ref_frame_top", "ref_frame_bottom", "ref_marker",
                                    "ref_specimen"}
-    assert check["max_volume_rel"] <= render.SELF_CHECK_VOLUME_RTOL
-    assert check["max_symdiff_rel"] <= render.SELF_CHECK_SYMDIFF_RTOL
+    assert check["max_volume_rel"] <= TOL.self_check_volume_rtol
+    assert check["max_symdiff_rel"] <= TOL.self_check_symdiff_rtol
     d = both["fast"]["dir"]
     part = Part("marker", "marker", None, -1, d / "scad" / "marker.scad")
     res = render_parts([part], cache_dir=both["cache"], progress=False, renderer="auto")

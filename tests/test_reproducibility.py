@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _shared import designed
 
 from pysolver.build import inputs_hash, lock_record
 from pysolver.design import run_design
@@ -33,9 +34,8 @@ TABLES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscap
 
 
 @pytest.mark.parametrize("shape", ["regular", "dome"])
-def test_two_designs_are_byte_identical(shape, tmp_path):
-    a, b = tmp_path / "a", tmp_path / "b"
-    run_design(shape, a, progress=False, plots=False)
+def test_two_designs_are_byte_identical(shape, tmp_path, tmp_path_factory):
+    a, b = designed(shape, tmp_path_factory), tmp_path / "b"   # (a: the session's design)
     run_design(shape, b, progress=False, plots=False)
     for name in TABLES:
         assert (a / name).read_bytes() == (b / name).read_bytes(), name

@@ -23,7 +23,8 @@ import pytest
 
 from pysolver.geometry import rotvec_to_matrix
 from pysolver.params import SUPPORT_FRAME, UNIT_CELL
-from pysolver.render import FACET_TOL_MM, load_stl
+from pysolver.params import tol as TOL
+from pysolver.render import load_stl
 from pysolver.render.scad_io import SCAD_DIR
 from pysolver.render.scad_params import PARAMS_SCAD, params_scad_text
 
@@ -89,7 +90,7 @@ def test_params_scad_equals_params_py(tmp_path):
     expect = dict(BASE_R=U.base_r, BASE_TH=U.base_th, BASE_P=U.base_p, BRACKET_W=U.bracket_w,
                   CLEARANCE=U.clearance, ALIGN_R=U.align_r, MARKER_R=U.marker_r,
                   MARKER_DEPTH=U.marker_depth, ALPHA_MARGIN=U.alpha_margin_deg,
-                  LAYER_H=U.layer_h, ALPHA=U.alpha_deg, FACET_TOL=FACET_TOL_MM,
+                  LAYER_H=U.layer_h, ALPHA=U.alpha_deg, FACET_TOL=TOL.facet,
                   FRAME_OFFSET_IN=SUPPORT_FRAME.offset_in,
                   FRAME_OFFSET_OUT=SUPPORT_FRAME.offset_out,
                   CONNECTOR_W=SUPPORT_FRAME.connector_w, CONNECTOR_R0=SUPPORT_FRAME.connector_r0)
@@ -102,7 +103,7 @@ def test_module_defaults_are_the_paper_dimensions(tmp_path):
     b = _mesh("base();", tmp_path, "base")
     assert b.bounds[:, 2] == pytest.approx([0, 2.3], abs=1e-5)          # height 2.3 mm
     # diameter 4 mm (the 48-gon is turned by half a facet: extents r cos(3.75 deg))
-    assert b.bounds[:, 0] == pytest.approx([-2, 2], abs=FACET_TOL_MM)
+    assert b.bounds[:, 0] == pytest.approx([-2, 2], abs=TOL.facet)
     br = _mesh("bracket(0, 7, 0.4);", tmp_path, "bracket")
     assert br.bounds[:, 2] == pytest.approx([1.3, 2.3], abs=1e-5)        # 1 mm high, far face
     d = _mesh("marker_dot();", tmp_path, "dot")
@@ -119,9 +120,9 @@ def test_facets_meets_the_sagitta_tolerance(tmp_path):
     for i, r in enumerate(radii):
         n = v[f"n{i}"]
         assert n % 4 == 0 and n >= 8
-        assert r * (1 - math.cos(math.pi / n)) <= FACET_TOL_MM + 1e-12
+        assert r * (1 - math.cos(math.pi / n)) <= TOL.facet + 1e-12
         # the next smaller multiple of 4 would break the tolerance (n is minimal)
-        assert n == 8 or r * (1 - math.cos(math.pi / (n - 4))) > FACET_TOL_MM
+        assert n == 8 or r * (1 - math.cos(math.pi / (n - 4))) > TOL.facet
     assert v["n2"] == 48  # base discs
 
 
@@ -229,7 +230,7 @@ def test_support_frame_bar_has_the_given_length(tmp_path):
 
 def _cyl_bound(r, h):
     """Largest volume deficit of a faceted cylinder: the annulus of width FACET_TOL."""
-    return 2 * math.pi * r * FACET_TOL_MM * h
+    return 2 * math.pi * r * TOL.facet * h
 
 
 def test_base_volume(tmp_path):

@@ -8,9 +8,11 @@ a layer having slightly different contact lengths and from the contact springs' 
 
 from __future__ import annotations
 
-import numpy as np
+import shutil
 
-from pysolver.design import run_design
+import numpy as np
+from _shared import designed
+
 from pysolver.material.model import load_bracket_model
 from pysolver.tables import read_table
 from pysolver.temporal import program_design
@@ -26,11 +28,11 @@ def _kabsch_rms(A, B):
     return float(np.sqrt(np.mean(err**2))), float(err.max())
 
 
-def test_dome_reaches_target(tmp_path):
+def test_dome_reaches_target(tmp_path, tmp_path_factory):
     """Designed, programmed with the committed model (programming must work: no stand-in
     material), simulated with the same model."""
     d = tmp_path / "dome"
-    run_design("dome", d, progress=False, plots=False)
+    shutil.copytree(designed("dome", tmp_path_factory), d)
     material = load_bracket_model()
     program_design(d, material=material, progress=False, picture=False, fit_landscape=True)
     summary = simulate_design(d, material=material, progress=False)

@@ -19,7 +19,7 @@ from pysolver.design.layout import build_layout
 from pysolver.design.mesh_input import load_input
 from pysolver.errors import InputError
 from pysolver.geometry import face_adjacency, face_centroids, signed_areas_2d, unit_cells
-from pysolver.params import STENCIL, UNIT_CELL
+from pysolver.params import MODEL_FITS, STENCIL, UNIT_CELL
 
 
 @pytest.fixture(scope="module")
@@ -289,17 +289,17 @@ def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path):
 def test_stencil_whose_bases_reach_across_edges_is_named():
     from synthetic import regular_grid
 
-    from pysolver.temporal.membrane_model import MESH_MAX_AREA, layout_membrane
+    from pysolver.temporal.membrane_model import layout_membrane
 
     UV, F = regular_grid(6, 6, edge=7.0 * np.sqrt(3))  # cells of 7 mm: fine
-    layout_membrane(UV, F, MESH_MAX_AREA)
+    layout_membrane(UV, F, MODEL_FITS.membrane_fit_max_area)
     UV = UV.copy()
     mid = int(np.argmin(np.linalg.norm(UV - UV.mean(axis=0), axis=1)))
     nb = [v for f in F if mid in f for v in f if v != mid]
     far = max(nb, key=lambda v: np.linalg.norm(UV[v] - UV[mid]))
     UV[mid] += 0.85 * (UV[far] - UV[mid])  # two obtuse slivers around the moved vertex
     with pytest.raises(InputError, match="reach across its edges"):
-        layout_membrane(UV, F, MESH_MAX_AREA)
+        layout_membrane(UV, F, MODEL_FITS.membrane_fit_max_area)
 
 
 def _timing_terms(dom, P, F, t_vertex, settings=STENCIL):

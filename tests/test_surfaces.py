@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
-from _shared import flat_grid, save_mesh
+from _shared import designed, flat_grid, quick_stencil_search, save_mesh
 
 from pysolver import tables
 from pysolver.design import run_design, surfaces
@@ -36,15 +38,16 @@ def test_builtin_surface_is_a_disk(name):
 
 
 @pytest.mark.parametrize("name", list(surfaces.BUILTIN))
-def test_builtin_designs_and_passes_checks(name, tmp_path):
-    summary = run_design(name, tmp_path, progress=False, plots=False)
+def test_builtin_designs_and_passes_checks(name, tmp_path_factory):
+    folder = designed(name, tmp_path_factory)   # run_design(name, plots=False), shared
+    summary = json.loads((folder / "design.json").read_text())["summary"]
     assert summary["checks"]["ok"], summary["checks"]
     bases, lmax = GOLDEN[name]
     assert summary["counts"]["bases"] == bases
     assert summary["cell_length_mm"]["max"] == pytest.approx(lmax, abs=0.02)
     assert summary["cell_length_mm"]["max"] <= 9.5
     assert summary["checks"]["figures"].get("min_flat_gap_mm", 0.1) >= 0.1 - 1e-6
-    d = tables.read_design(tmp_path)
+    d = tables.read_design(folder)
     assert d.n_bases == bases
     assert 1 <= summary["counts"]["alignment_bases"] <= 4
     # every cell contracts from flat to target
@@ -153,7 +156,8 @@ def dome_ply(tmp_path_factory):
     return p
 
 
-def test_user_mesh_with_vertex_times(dome_ply, tmp_path):
+def test_user_mesh_with_vertex_times(dome_ply, tmp_path, monkeypatch):
+    quick_stencil_search(monkeypatch)   # the subject is the landscape, not the optimisation
     summary = run_design(dome_ply, tmp_path / "a", time="vertex:quality", vertices=60, seed=0,
                          progress=False, plots=False)
     assert summary["checks"]["ok"] and summary["source_kind"] == "mesh"
@@ -212,10 +216,9 @@ def test_stencil_with_an_invalid_flat_layout_names_the_target_route(tmp_path):
     assert not (tmp_path / "out").exists() and not (tmp_path / "o2").exists()
 
 
-def test_user_stencil_keeps_vertex_and_face_order(tmp_path):
+def test_user_stencil_keeps_vertex_and_face_order(tmp_path, tmp_path_factory):
     """A stencil OBJ (v target, vt flat) is used as is: same vertex and face order."""
-    out = tmp_path / "dome"
-    run_design("dome", out, progress=False, plots=False)
+    out = designed("dome", tmp_path_factory)
     V, UV, F = tables.read_stencil(out / "stencil.obj")
     rng = np.random.default_rng(7)
     pv = rng.permutation(len(V))  # new vertex k = old vertex pv[k]
@@ -305,11 +308,10 @@ def test_good_mesh_formats_load(tmp_path):
     np.testing.assert_allclose(np.ptp(m.V, axis=0)[:2], 40.0)
 
 
-def test_mesh_as_stencil_and_lscm(tmp_path):
+def test_mesh_as_stencil_and_lscm(tmp_path, tmp_path_factory):
     """``stencil=True`` keeps a user mesh's own triangulation (order kept, flattened
     here); ``flattening='lscm'`` is selectable and recorded."""
-    out = tmp_path / "dome"
-    run_design("dome", out, progress=False, plots=False)
+    out = designed("dome", tmp_path_factory)
     V, _, F = tables.read_stencil(out / "stencil.obj")
     src = save_mesh(tmp_path / "mine.ply", V, F)
     summary = run_design(src, tmp_path / "mine", stencil=True, flattening="lscm",

@@ -20,7 +20,7 @@ from pysolver.build import refine_design
 from pysolver.design.time_landscape import cell_target_times
 from pysolver.errors import InputError
 from pysolver.fitting.membrane_fit import regular_patch, sample_patch
-from pysolver.params import MODEL_LIMITS, UNIT_CELL
+from pysolver.params import MEMBRANE_MODEL_FILE, PROGRAMMING, UNIT_CELL
 from pysolver.temporal import (
     PICTURE,
     completion_time,
@@ -32,7 +32,6 @@ from pysolver.temporal import (
     timing_errors,
 )
 from pysolver.temporal.membrane_model import (
-    MODEL_PATH,
     MembraneModel,
     load_membrane_model,
 )
@@ -243,7 +242,7 @@ def test_bad_inputs_are_refused():
 
 def test_membrane_model_file_reproduces_its_samples():
     m = load_membrane_model()
-    data = json.loads(MODEL_PATH.read_text())
+    data = json.loads(MEMBRANE_MODEL_FILE.read_text())
     s = m.samples
     pred = m.force(s["b0_mm"], s["d_mm"])
     err = pred - s["force_N"]
@@ -410,7 +409,7 @@ def _stuck_cell_case(tmp_path, margin_mm):
 def test_refine_thins_the_layer_a_stuck_cell_leaves_open(tmp_path):
     """The stuck layer is capped one step thinner per round, in extra rounds after the one
     asked for, until the cell closes; the round that closes it is kept."""
-    step = MODEL_LIMITS.refine_open_layer_mm
+    step = PROGRAMMING.refine_open_layer_mm
     d, mat, sim, h0, stuck = _stuck_cell_case(tmp_path, 1.5 * step)
     res = refine_design(d, iterations=1, material=mat, membrane=MEMBRANE, progress=False,
                         simulate=sim)
@@ -449,7 +448,7 @@ def test_refine_stops_when_a_stuck_cell_cannot_be_helped(tmp_path):
     never_closes(d)
     res = refine_design(d, iterations=1, material=mat, membrane=MEMBRANE, progress=False,
                         simulate=never_closes)
-    assert MODEL_LIMITS.refine_extra_rounds > 0
+    assert PROGRAMMING.refine_extra_rounds > 0
     assert res["rounds"] == 1                        # no extra round: nothing could change
     assert [h["n_never_due"] for h in res["history"]] == [1, 1]
     assert res["history"][1]["n_layers_thinned"] == 0

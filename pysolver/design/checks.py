@@ -13,12 +13,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import signed_areas_2d
-from ..params import LIMITS, MODEL_LIMITS, UNIT_CELL, UnitCell
+from ..params import LIMITS, STENCIL, UNIT_CELL, UnitCell
 from ..params import tol as TOL
 from .layout import Layout
-
-# cells longer than this fraction of max_cell_length are reported as "near the limit"
-NEAR_LIMIT = MODEL_LIMITS.near_limit_fraction
 
 
 @dataclass
@@ -141,17 +138,12 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
         the 3D rule), e.g. "at (12.3, -40.1, 5.0) mm on the target".
     """
     rep = CheckReport()
-    cells = lay.cells
     l = lay.central_length
     frame = "on the target"
     Fc = lay.Fc
     if to_input is not None:
         Fc = np.asarray(to_input(Fc), float)
         frame = "in the input's coordinates"
-    cell_pos = 0.5 * (Fc[cells.faces[:, 0]] + Fc[cells.faces[:, 1]])
-    rim_face = np.any(lay.ff < 0, axis=1)
-    cell_rim = rim_face[cells.faces[:, 0]] | rim_face[cells.faces[:, 1]]
-
     # 1. flips in the flattening
     A = signed_areas_2d(lay.UV, lay.F)
     flipped = np.flatnonzero(A <= 0)
@@ -160,8 +152,30 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
             f"{len(flipped)} flipped triangle(s) in the flat layout (faces {_ids(flipped)}, "
             f"{_where(Fc[flipped], frame)})",
             "use flattening='cetm', improve the mesh quality there, or cut the surface"))
+    too_long, near = _check_lengths(rep, lay, params, Fc, frame)      # 2. cell length
+    _check_gaps(rep, lay, params, Fc, frame)                          # 3. flat gaps
+    _check_bumpers(rep, lay, params)                                  # 4. bumpers
+    # 5. topology hints
+    two_bnd = np.flatnonzero(np.sum(lay.ff < 0, axis=1) >= 2)
+    if len(two_bnd):
+        rep.warnings.append(f"{len(two_bnd)} base(s) with two boundary edges (loosely held): "
+                            f"{_ids(two_bnd)}")
+    rep.figures.update(
+        max_cell_length_mm=float(l.max()), min_cell_length_mm=float(l.min()),
+        n_cells_over_limit=int(len(too_long)), n_cells_near_limit=int(len(near)),
+        n_flipped=int(len(flipped)))
+    if raise_:
+        rep.raise_if_failed()
+    return rep
 
-    # 2. cell length
+
+def _check_lengths(rep: CheckReport, lay: Layout, params: UnitCell, Fc, frame: str):
+    """Cells longer than the limit (errors), near it or beyond the bracket model's measured
+    lengths (warnings).  Returns the ids of the cells over and near the limit."""
+    cells, l = lay.cells, lay.central_length
+    cell_pos = 0.5 * (Fc[cells.faces[:, 0]] + Fc[cells.faces[:, 1]])
+    rim_face = np.any(lay.ff < 0, axis=1)
+    cell_rim = rim_face[cells.faces[:, 0]] | rim_face[cells.faces[:, 1]]
     too_long = np.flatnonzero(l > params.max_cell_length)
     if len(too_long):
         rep.errors.append((
@@ -172,9 +186,11 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
             "through that region or reduce its curvature; the stencil's irregularity also "
             "matters: try another vertex count (--vertices N) or CVT seed (Python: "
             "vertices=N, seed=k)"))
-    near = np.flatnonzero((l > NEAR_LIMIT * params.max_cell_length) & (l <= params.max_cell_length))
+    near_fraction = STENCIL.near_limit_fraction
+    near = np.flatnonzero((l > near_fraction * params.max_cell_length)
+                          & (l <= params.max_cell_length))
     if len(near):
-        rep.warnings.append(f"{len(near)} cell(s) within {100 * (1 - NEAR_LIMIT):.0f}% of the "
+        rep.warnings.append(f"{len(near)} cell(s) within {100 * (1 - near_fraction):.0f}% of the "
                             f"{params.max_cell_length} mm length limit: cells {_ids(near)}")
     l_model = LIMITS.model_max_central_length_mm
     beyond = np.flatnonzero((l > l_model) & (l <= params.max_cell_length))
@@ -182,28 +198,33 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
         rep.warnings.append(f"{len(beyond)} cell(s) longer than {l_model} mm "
                             "(beyond the measured bracket grid; the model extrapolates): "
                             f"cells {_ids(beyond)}")
+    return too_long, near
 
-    # 3. flat gaps between footprints
+
+def _check_gaps(rep: CheckReport, lay: Layout, params: UnitCell, Fc, frame: str) -> None:
+    """Bases or bumpers closer than ``min_gap`` in the flat layout, or overlapping."""
     gaps = lay.gaps
-    if gaps is not None and len(gaps.gap):
-        tol_gap = TOL.gap
-        bad = np.flatnonzero(gaps.gap < params.min_gap - tol_gap)
-        if len(bad):
-            pairs = gaps.pairs[bad]
-            over = np.flatnonzero(gaps.gap[bad] <= 0)
-            kind = "overlap" if len(over) else f"are closer than {params.min_gap} mm"
-            mid = 0.5 * (Fc[pairs[:, 0]] + Fc[pairs[:, 1]])
-            where = "; ".join(f"bases {a}-{b} ({g:.3f} mm) at {_xyz(m)} mm {frame}"
-                              for (a, b), g, m in
-                              zip(pairs[:4], gaps.gap[bad][:4], mid[:4], strict=True))
-            rep.errors.append((
-                f"{len(bad)} pair(s) of bases/bumpers {kind} in the flat layout (min gap "
-                f"{gaps.gap.min():.3f} mm): {where}",
-                "the flattening folds or squeezes that region: cut the surface there or "
-                "reduce its curvature"))
-        rep.figures["min_flat_gap_mm"] = float(gaps.gap.min())
+    if gaps is None or not len(gaps.gap):
+        return
+    bad = np.flatnonzero(gaps.gap < params.min_gap - TOL.gap)
+    if len(bad):
+        pairs = gaps.pairs[bad]
+        over = np.flatnonzero(gaps.gap[bad] <= 0)
+        kind = "overlap" if len(over) else f"are closer than {params.min_gap} mm"
+        mid = 0.5 * (Fc[pairs[:, 0]] + Fc[pairs[:, 1]])
+        where = "; ".join(f"bases {a}-{b} ({g:.3f} mm) at {_xyz(m)} mm {frame}"
+                          for (a, b), g, m in
+                          zip(pairs[:4], gaps.gap[bad][:4], mid[:4], strict=True))
+        rep.errors.append((
+            f"{len(bad)} pair(s) of bases/bumpers {kind} in the flat layout (min gap "
+            f"{gaps.gap.min():.3f} mm): {where}",
+            "the flattening folds or squeezes that region: cut the surface there or "
+            "reduce its curvature"))
+    rep.figures["min_flat_gap_mm"] = float(gaps.gap.min())
 
-    # 4. bumpers
+
+def _check_bumpers(rep: CheckReport, lay: Layout, params: UnitCell) -> None:
+    """Short concave-side bumpers (warning) and the bumpers' contact figures."""
     b = lay.bumpers
     straight = b.cut == "straight"
     beyond_rim = b.length - params.base_r
@@ -217,19 +238,6 @@ def check_layout(lay: Layout, params: UnitCell = UNIT_CELL, *, raise_: bool = Tr
     rep.figures["bumper_contact_normal_max_mm"] = float(normal.max())
     rep.figures["bumper_contact_lateral_max_mm"] = float(lateral.max())
     rep.figures["min_bumper_beyond_rim_mm"] = float(beyond_rim.min())
-
-    # 5. topology hints
-    two_bnd = np.flatnonzero(np.sum(lay.ff < 0, axis=1) >= 2)
-    if len(two_bnd):
-        rep.warnings.append(f"{len(two_bnd)} base(s) with two boundary edges (loosely held): "
-                            f"{_ids(two_bnd)}")
-    rep.figures.update(
-        max_cell_length_mm=float(l.max()), min_cell_length_mm=float(l.min()),
-        n_cells_over_limit=int(len(too_long)), n_cells_near_limit=int(len(near)),
-        n_flipped=int(len(flipped)))
-    if raise_:
-        rep.raise_if_failed()
-    return rep
 
 
 __all__ = ["CheckReport", "check_layout", "bumper_contact_errors"]

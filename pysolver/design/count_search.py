@@ -412,7 +412,8 @@ class CountSearch:
 
     def search(self, vertices, seeds, start: int):
         """Every inset in turn until one gives a candidate printable with the margin at
-        size, then the rim fallback; returns the key picked and the rim record."""
+        size, then the rim fallback; returns the key picked and the rim record.  Refuses a
+        target none of whose stencils could be laid out."""
         st, limit = self.settings, self.params.max_cell_length
         start = [start]
         for inset in self.insets:
@@ -424,8 +425,14 @@ class CountSearch:
                    for c in self.tried.values()):
                 break
         best = _pick(self.tried, self.params, st.margin, st)
+        if best is None:
+            why = "; ".join(sorted({c["error"] for c in self.tried.values() if "error" in c}))
+            why = why or "every rim inset splits the target"
+            raise InputError(f"no stencil of this target could be laid out ({why})",
+                             fix="check the target (it may fold sharply or be too small for "
+                                 "4 mm bases), or give --vertices")
         rim = None
-        if best is not None and best[2] > 0:
+        if best[2] > 0:
             def rim_search():
                 if not any(k[2] == 0.0 for k in self.tried):
                     self.search_inset(0.0, vertices, seeds, start)
@@ -519,19 +526,13 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     V2 : (k, 3) float, mm
     F2 : (f, 3) int
     info : dict
-        ``vertices``, ``requested``, ``seed``, ``rim_inset_mm``, ``estimate_paper``,
+        How the stencil was made (``design.json`` → ``summary.remesh``, every key in
+        ``docs/design-folder.md``): ``vertices``, ``requested``, ``seed``, ``rim_inset_mm``,
         ``at_size`` (:func:`at_size` of the stencil returned: False when no printable stencil
-        keeps the size asked for; the design stage then refuses it), ``optimisation``
-        (:meth:`CountSearch.records`), ``warnings``,
-        ``scale3d``, ``max_cell_length_mm``, ``before_optimisation`` / ``after_optimisation``
-        (:func:`stencil_figures` of the chosen stencil), ``candidates``
-        [[N, seed, inset, scale3d, longest flat cell], ...], ``polish`` (the last pass at
-        scale 1: ``scale3d``, ``max_cell_length_mm``, ``kept``, ``held``, ``rounds``) and
-        ``rim`` (the rim inset chosen and why: ``inset_mm``, ``area_covered`` of the returned
-        stencil, ``fallback`` and ``why``, see :func:`_rim_fallback`), ``timing_grading``
-        (``grading``, ``taken``: whether the spacing followed the landscape,
-        ``StencilSearch.timing_grading``) and, with ``user_times``, ``trade``
-        (:func:`_trade`).
+        keeps the size asked for; the design stage then refuses it), the figures
+        (:func:`stencil_figures`) ``before_optimisation`` / ``after_optimisation``,
+        ``candidates``, ``optimisation`` (:meth:`CountSearch.records`), ``polish``, ``rim``
+        (:func:`_rim_fallback`), ``timing_grading``, ``trade`` (:func:`_trade`), ``warnings``.
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -541,6 +542,72 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     A = surface_area(V, F)
     info = {"remeshed": True, "method": method, "area_mm2": round(A, 2),
             "estimate_paper": estimate_vertices(A)}
+    V, F, time = _search_target(V, F, time, method, dense, settings, info)
+    graded = method == "cvt" and user_times and time is not None and settings.timing_grading > 0
+    search = CountSearch(V, F, time, params=params, settings=settings, method=method,
+                         optimize=optimize, graded=graded, progress=progress)
+    seeds = ([int(seed)] if seed is not None
+             else [0] if method == "pymeshlab"  # (it has no seed)
+             else list(range(settings.seeds)))
+    best, rim = search.search(vertices, seeds, (
+        int(target_bases / 2) if target_bases
+        else round(settings.count_start * estimate_vertices(A))))
+    best, V2, F2, before, chosen = _polish_and_trade(
+        search, best, info, seeds, trade=user_times and time is not None and vertices is None)
+    if graded and not (chosen["max_cell_length_mm"] <= params.max_cell_length
+                       and chosen["scale3d"] >= settings.trade_min_scale3d):
+        return _without_grading(call, settings, chosen, search)
+    info["timing_grading"] = {"grading": settings.timing_grading if graded else 0.0,
+                              "taken": bool(graded)}
+    _record(info, search, best, (V2, F2, before), chosen, rim, optimize, A)
+    return V2, F2, info
+
+
+def _polish_and_trade(search: CountSearch, best, info: dict, seeds, trade: bool):
+    """The pick polished (:meth:`CountSearch.polish`) and, for a landscape the user gave with
+    the count searched, traded for fewer cells (:func:`_trade`); records both in ``info``.
+
+    Returns
+    -------
+    best : (int, int, float) -- the key of the stencil returned
+    V2, F2 : its vertices (mm) and faces
+    before : (V, F) of the pick before its optimisation
+    chosen : dict -- the figures of the stencil returned
+    """
+    V2, F2, before = search.meshes[best]
+    chosen = search.tried[best]
+    if best in search.flat and search.settings.opt_pin_weight > 0:
+        V2, chosen, info["polish"] = search.polish(best)
+    if trade and _laid_out(chosen):
+        best, V2, F2, chosen = _trade(best, V2, F2, chosen, search.trial, search.tried,
+                                      search.meshes, search.params, search.settings, info,
+                                      search.progress, seeds=seeds)
+    return best, V2, F2, before, chosen
+
+
+def _without_grading(call: dict, settings: StencilSearch, chosen: dict, search: CountSearch):
+    """The graded spacing asked for cells the limit does not allow: the search again,
+    spaced by the target alone (``call``: the arguments of :func:`remesh_surface`)."""
+    search.say(f"time-graded stencil: longest flat cell {chosen['max_cell_length_mm']:.2f}"
+               f" mm, scale3d {chosen['scale3d']:.3f}: searching again without")
+    V2, F2, again = remesh_surface(**call, settings=replace(settings, timing_grading=0.0))
+    again["timing_grading"] = {"grading": settings.timing_grading, "taken": False,
+                               "max_cell_length_mm": chosen["max_cell_length_mm"],
+                               "scale3d": chosen["scale3d"]}
+    return V2, F2, again
+
+
+def _search_target(V, F, time, method: str, dense, settings: StencilSearch, info: dict):
+    """The target the count search remeshes: the input, or its dense resampling (when its
+    triangles are poor or few, or ``dense``), with the landscape carried onto it (None when
+    constant: programming then picks the constant itself).
+
+    Returns
+    -------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    time : (n,) float, s, or None
+    """
     if method not in ("cvt", "pymeshlab"):
         raise InputError(f"remesh method {method!r}", fix="use 'cvt' or 'pymeshlab'")
     if dense is None:
@@ -558,43 +625,15 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
             time = interpolate_to_stencil(time, V, F, V2)
         V, F = V2, F2
         info["dense_resampled_faces"] = int(len(F))
-    graded = method == "cvt" and user_times and time is not None and settings.timing_grading > 0
-    search = CountSearch(V, F, time, params=params, settings=settings, method=method,
-                         optimize=optimize, graded=graded, progress=progress)
-    seeds = ([int(seed)] if seed is not None
-             else [0] if method == "pymeshlab"  # (it has no seed)
-             else list(range(settings.seeds)))
-    start = (int(target_bases / 2) if target_bases
-             else round(settings.count_start * estimate_vertices(A)))
-    best, rim = search.search(vertices, seeds, start)
-    if best is None:
-        why = "; ".join(sorted({c["error"] for c in search.tried.values() if "error" in c}))
-        why = why or "every rim inset splits the target"
-        raise InputError(f"no stencil of this target could be laid out ({why})",
-                         fix="check the target (it may fold sharply or be too small for 4 mm "
-                             "bases), or give --vertices")
-    V2, F2, before = search.meshes[best]
-    chosen = search.tried[best]
-    if best in search.flat and settings.opt_pin_weight > 0:
-        V2, chosen, info["polish"] = search.polish(best)
-    if user_times and time is not None and vertices is None and _laid_out(chosen):
-        best, V2, F2, chosen = _trade(best, V2, F2, chosen, search.trial, search.tried,
-                                      search.meshes, params, settings, info, progress,
-                                      seeds=seeds)
-    limit = params.max_cell_length
-    if graded and not (chosen["max_cell_length_mm"] <= limit
-                       and chosen["scale3d"] >= settings.trade_min_scale3d):
-        # the graded spacing asked for cells the limit does not allow: the search again,
-        # spaced by the target alone
-        search.say(f"time-graded stencil: longest flat cell {chosen['max_cell_length_mm']:.2f}"
-                   f" mm, scale3d {chosen['scale3d']:.3f}: searching again without")
-        V2, F2, again = remesh_surface(**call, settings=replace(settings, timing_grading=0.0))
-        again["timing_grading"] = {"grading": settings.timing_grading, "taken": False,
-                                   "max_cell_length_mm": chosen["max_cell_length_mm"],
-                                   "scale3d": chosen["scale3d"]}
-        return V2, F2, again
-    info["timing_grading"] = {"grading": settings.timing_grading if graded else 0.0,
-                              "taken": bool(graded)}
+    return V, F, time
+
+
+def _record(info: dict, search: CountSearch, best, stencil, chosen: dict, rim, optimize: bool,
+            A: float):
+    """Complete ``info`` (see :func:`remesh_surface`) for the stencil returned:
+    ``stencil = (V2, F2, before)``, its key ``best`` and figures ``chosen``; ``A`` (mm^2) is
+    the area of the target as given."""
+    V2, F2, before = stencil
     if rim is None:
         rim = {"inset_mm": float(best[2]), "area_covered": _covered(V2, F2, A),
                "fallback": None, "why": ("the stencil reaches the target's rim" if best[2] <= 0
@@ -605,8 +644,9 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
                 rim_inset_mm=float(best[2]), rim=rim, scale3d=chosen["scale3d"],
                 max_cell_length_mm=chosen["max_cell_length_mm"],
-                at_size=bool(at_size(chosen, settings)),
-                before_optimisation=stencil_figures(*before, params) if optimize else None,
+                at_size=bool(at_size(chosen, search.settings)),
+                before_optimisation=(stencil_figures(*before, search.params) if optimize
+                                     else None),
                 after_optimisation=chosen,
                 candidates=[[k[0], k[1], k[2], v["scale3d"], v["max_cell_length_mm"]]
                             for k, v in sorted(search.tried.items())],
@@ -615,7 +655,6 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                           f"(N={best[0]} seed={best[1]}: {r['rounds'][0]['why']})"
                           for r in records if (r["vertices"], r["seed"], r["rim_inset_mm"])
                           == best and r["rounds_kept"] == 0 and r["rounds"]])
-    return V2, F2, info
 
 
 __all__ = ["stencil_figures", "at_size", "CountSearch", "remesh_surface"]

@@ -32,7 +32,7 @@ from scipy.sparse.linalg import spsolve
 
 from ..errors import InputError
 from ..geometry import face_adjacency, signed_areas_2d
-from ..params import UNIT_CELL, UnitCell
+from ..params import NEWTON, UNIT_CELL, UnitCell
 from ..params import tol as TOL
 from .layout import build_layout
 
@@ -172,7 +172,7 @@ def cetm(V, F, *, max_iter: int = 60, tol: float = TOL.cetm_stop):
         t = 1.0
         for _ in range(40):
             e1 = _cetm_energy(lam0, F, u + t * du, theta, interior)
-            if e1 <= e0 + TOL.armijo_c1 * t * slope + TOL.energy_roundoff * abs(e0):
+            if e1 <= e0 + NEWTON.armijo_c1 * t * slope + TOL.energy_roundoff * abs(e0):
                 break
             t *= 0.5
         u = u + t * du

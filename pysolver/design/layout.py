@@ -452,6 +452,34 @@ def orient_flat(UV, F):
     return UV, int(np.sum(A <= 0))
 
 
+def _flat_scale(C2u, cells, bumpers: Bumpers, s2_rule: float, central_length,
+                enforce_gap: bool, params: UnitCell) -> float:
+    """The 2D scale of the flat layout (face centroids ``C2u`` before scaling): the min-gap
+    rule's ``s2_rule``, or the one that makes the shortest cell ``central_length`` long, then
+    raised until the printed footprints keep ``min_gap`` (``enforce_gap``)."""
+    s2 = s2_rule
+    if central_length is not None:
+        a, b = cells.faces[:, 0], cells.faces[:, 1]
+        lmin = np.linalg.norm(C2u[b] - C2u[a], axis=1).min()
+        s_req = float(central_length) / lmin
+        if s_req < s2_rule * (1 - TOL.rel):
+            raise InputError(
+                f"central_length={central_length} mm is shorter than the min-gap rule allows "
+                f"({s2_rule * lmin:.3f} mm)", fix="use a larger central_length or omit it")
+        s2 = s_req
+    if enforce_gap:
+        for _ in range(30):
+            gaps = footprint_gaps(bumpers, C2u * s2, params)
+            worst = gaps.gap.min(initial=np.inf)
+            if worst >= params.min_gap - TOL.rel:
+                break
+            k = int(np.argmin(gaps.gap))
+            i, j = gaps.pairs[k]
+            lk = np.linalg.norm(C2u[i] - C2u[j]) * s2
+            s2 *= 1 + (params.min_gap - worst + TOL.gap) / lk
+    return s2
+
+
 def build_layout(V, UV, F, params: UnitCell = UNIT_CELL, *, central_length=None,
                  enforce_gap: bool = True) -> Layout:
     """Scale a stencil and lay out bases, bumpers and cells.
@@ -493,37 +521,15 @@ def build_layout(V, UV, F, params: UnitCell = UNIT_CELL, *, central_length=None,
     s2_rule, _ = scale_2d(V, UV, F, cells, params)
     R, ref = base_rotations(V, UV, F, ff)
     bumpers = build_bumpers(V, F, ff, cells, R, params)
-    C2u = face_centroids(UV, F)
-    s2 = s2_rule
-    if central_length is not None:
-        a, b = cells.faces[:, 0], cells.faces[:, 1]
-        lmin = np.linalg.norm(C2u[b] - C2u[a], axis=1).min()
-        s_req = float(central_length) / lmin
-        if s_req < s2_rule * (1 - TOL.rel):
-            raise InputError(
-                f"central_length={central_length} mm is shorter than the min-gap rule allows "
-                f"({s2_rule * lmin:.3f} mm)", fix="use a larger central_length or omit it")
-        s2 = s_req
-    gaps = None
-    if enforce_gap:
-        for _ in range(30):
-            gaps = footprint_gaps(bumpers, C2u * s2, params)
-            worst = gaps.gap.min(initial=np.inf)
-            if worst >= params.min_gap - TOL.rel:
-                break
-            k = int(np.argmin(gaps.gap))
-            i, j = gaps.pairs[k]
-            lk = np.linalg.norm(C2u[i] - C2u[j]) * s2
-            s2 *= 1 + (params.min_gap - worst + TOL.gap) / lk
+    s2 = _flat_scale(face_centroids(UV, F), cells, bumpers, s2_rule, central_length,
+                     enforce_gap, params)
     # round to what the files store, then derive everything from the rounded stencil
-
     V = round_sig9(V)
     UV = round_sig9(UV * s2)
     R, ref = base_rotations(V, UV, F, ff)
     bumpers = build_bumpers(V, F, ff, cells, R, params)
     C2 = face_centroids(UV, F)
-    if enforce_gap:
-        gaps = footprint_gaps(bumpers, C2, params)
+    gaps = footprint_gaps(bumpers, C2, params) if enforce_gap else None
     Fc = face_centroids(V, F)
     N = face_normals(V, F)
     a, b = cells.faces[:, 0], cells.faces[:, 1]

@@ -222,6 +222,55 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
     InputMesh
     """
     path = Path(path)
+    ext = _check_mesh_file(path)
+    notes = []
+    has_vt = ext == ".obj" and _obj_has_vt(path)
+    if has_vt and not (stencil or has_stencil_marker(path)):
+        notes.append("UV map (vt) ignored: a mesh with a UV map is a target surface "
+                     "(give --stencil to use its triangles and vt as a finished stencil)")
+    elif has_vt:
+        try:
+            return _load_stencil_obj(path, scale, size, validate)
+        except InputError as e:
+            if "seam" not in e.problem or stencil:
+                raise
+            notes.append("vt ignored: the texture layout has seams (not a stencil)")
+    m = _read_trimesh(path)
+    V = np.asarray(m.vertices, float) * scale
+    file_index = np.arange(len(V))
+    F = np.asarray(m.faces, dtype=np.int64)
+    attrs, colors = _vertex_data(m, ext, len(V))
+    # weld coincident corners (an STL, or an OBJ/PLY/OFF triangle soup, stores every
+    # triangle corner separately), then drop unreferenced vertices, keeping the vertex order
+    keep, F, n_welded = weld_vertices(V, F)
+    if n_welded:
+        notes.append(f"{n_welded} coincident vertices welded")
+        V, file_index, attrs, colors = _vertex_subset(keep, V, file_index, attrs, colors)
+    used = np.unique(F)
+    if len(used) < len(V):
+        notes.append(f"{len(V) - len(used)} unreferenced vertices removed")
+        remap = -np.ones(len(V), dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        F = remap[F]
+        V, file_index, attrs, colors = _vertex_subset(used, V, file_index, attrs, colors)
+    if size is not None:  # measured on the vertices the faces use
+        scale = size_factor(V, size, str(path))
+        V = V * scale
+    mesh = InputMesh(V, F, None, attrs, colors, path, "mesh", notes, scale, file_index,
+                     int(len(m.vertices)))
+    if validate:
+        validate_surface(mesh.V, mesh.F, str(path))
+    return mesh
+
+
+def _vertex_subset(sel, V, file_index, attrs: dict, colors):
+    """The vertices ``sel`` of a mesh, with their file indices and per-vertex data."""
+    return (V[sel], file_index[sel], {k: v[sel] for k, v in attrs.items()},
+            None if colors is None else colors[sel])
+
+
+def _check_mesh_file(path: Path) -> str:
+    """Refuse a missing, special, empty or unsupported mesh file; its lower-case suffix."""
     if not path.exists():
         raise InputError(f"{path}: file not found",
                          fix="check the path, or use a built-in shape (morphshell shapes)")
@@ -235,68 +284,38 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
                          fix=f"export the surface as one of {', '.join(SUPPORTED)}")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: empty file", fix="re-export the mesh")
-    notes = []
-    has_vt = ext == ".obj" and _obj_has_vt(path)
-    if has_vt and not (stencil or has_stencil_marker(path)):
-        notes.append("UV map (vt) ignored: a mesh with a UV map is a target surface "
-                     "(give --stencil to use its triangles and vt as a finished stencil)")
-    elif has_vt:
-        try:
-            V, UV, F = read_stencil(path)
-            if size is not None:
-                scale = size_factor(V, size, str(path))
-            mesh = InputMesh(V * scale, F, None if UV is None else UV * scale, path=path,
-                             kind="stencil" if UV is not None else "mesh", scale=scale,
-                             file_index=np.arange(len(V)), file_vertices=len(V))
-            if validate:
-                validate_surface(mesh.V, mesh.F, str(path))
-            return mesh
-        except InputError as e:
-            if "seam" not in e.problem or stencil:
-                raise
-            notes.append("vt ignored: the texture layout has seams (not a stencil)")
-    m = _read_trimesh(path)
-    V = np.asarray(m.vertices, float) * scale
-    file_index = np.arange(len(V))
-    F = np.asarray(m.faces, dtype=np.int64)
+    return ext
+
+
+def _load_stencil_obj(path: Path, scale: float, size, validate: bool) -> InputMesh:
+    """An OBJ with ``vt`` read as a stencil (its vertex and face order kept)."""
+    V, UV, F = read_stencil(path)
+    if size is not None:
+        scale = size_factor(V, size, str(path))
+    mesh = InputMesh(V * scale, F, None if UV is None else UV * scale, path=path,
+                     kind="stencil" if UV is not None else "mesh", scale=scale,
+                     file_index=np.arange(len(V)), file_vertices=len(V))
+    if validate:
+        validate_surface(mesh.V, mesh.F, str(path))
+    return mesh
+
+
+def _vertex_data(m, ext: str, n: int):
+    """The per-vertex data of a loaded mesh: the scalar properties of a PLY's vertices
+    (other than positions, normals, colours) and the vertex colours (0..1), or None."""
     attrs = {}
     raw = getattr(m, "metadata", {}).get("_ply_raw") if ext == ".ply" else None
     if raw is not None and "vertex" in raw:
         data = raw["vertex"]["data"]
         names = getattr(getattr(data, "dtype", None), "names", None) or ()
         for nm in names:
-            if nm not in _PLY_STANDARD and data[nm].ndim == 1 and len(data[nm]) == len(V):
+            if nm not in _PLY_STANDARD and data[nm].ndim == 1 and len(data[nm]) == n:
                 attrs[nm] = np.asarray(data[nm], float)
     colors = None
     vis = getattr(m, "visual", None)
     if vis is not None and getattr(vis, "kind", None) == "vertex":
         colors = np.asarray(vis.vertex_colors, float)[:, :3] / 255.0
-    # weld coincident corners (an STL, or an OBJ/PLY/OFF triangle soup, stores every
-    # triangle corner separately), then drop unreferenced vertices, keeping the vertex order
-    keep, F, n_welded = weld_vertices(V, F)
-    if n_welded:
-        notes.append(f"{n_welded} coincident vertices welded")
-        V = V[keep]
-        file_index = file_index[keep]
-        attrs = {k: v[keep] for k, v in attrs.items()}
-        colors = None if colors is None else colors[keep]
-    used = np.unique(F)
-    if len(used) < len(V):
-        notes.append(f"{len(V) - len(used)} unreferenced vertices removed")
-        remap = -np.ones(len(V), dtype=np.int64)
-        remap[used] = np.arange(len(used))
-        V, F = V[used], remap[F]
-        file_index = file_index[used]
-        attrs = {k: v[used] for k, v in attrs.items()}
-        colors = None if colors is None else colors[used]
-    if size is not None:  # measured on the vertices the faces use
-        scale = size_factor(V, size, str(path))
-        V = V * scale
-    mesh = InputMesh(V, F, None, attrs, colors, path, "mesh", notes, scale, file_index,
-                     int(len(m.vertices)))
-    if validate:
-        validate_surface(mesh.V, mesh.F, str(path))
-    return mesh
+    return attrs, colors
 
 
 def boundary_loops(F) -> list[np.ndarray]:

@@ -26,7 +26,6 @@ from ..atomic import atomic_write_text, output_folder
 from ..errors import InputError
 from ..geometry import signed_areas_2d
 from ..params import LIMITS, UNIT_CELL, UnitCell, check_unit_cell
-from ..params import tol as TOL
 from . import surfaces
 from .alternatives import printable_alternatives, size_refusal
 from .cellnodes import bracket_nodes, collision_lengths, write_model_file
@@ -37,15 +36,12 @@ from .layout import Layout, build_layout
 from .mesh_input import load_input, size_factor
 from .plots import write_design_plots
 from .remesh import surface_area
-from .sequencing import sequencing_landscape
 from .time_landscape import (
-    TIME_FILE_ATTRIBUTE,
+    DesignLandscape,
     cell_target_times,
     check_time_option,
-    check_time_source,
     read_time_file,
-    resolve_time,
-    time_file_per_vertex,
+    write_landscape,
 )
 
 FLATTENINGS = ("cetm", "lscm")
@@ -99,49 +95,6 @@ def _load_source(source, scale: float, size=None, stencil: bool = False):
     h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
     surf = surfaces.Surface(p.stem, mesh.V, mesh.F, UV=mesh.UV)
     return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh, mesh.scale
-
-
-def _target_times(time, surf, mesh):
-    """(n,) float, s, or None: the time landscape at the target's own vertices, before
-    remeshing, so that the stencil optimisation can suit the cells' speeds to it (None when
-    it is constant: programming then picks the constant itself).  Coordinates are centred on
-    the target and unscaled; the final landscape sees the stencil, centred on itself and
-    scaled by the 3D rule (which the count search keeps within a few per cent of 1): an
-    expression of x, y, z differs by that much, which the optimisation's estimate (error
-    about 25 % in time) does not feel."""
-    c = np.asarray(surf.V, float).mean(axis=0)
-    if time is None and surf.time is not None:
-        t = resolve_time(None, surf.V - c, default=lambda X: surf.time(X + c))[0]
-    else:
-        src = None if mesh is None else mesh.transformed(-c, 1.0)
-        t = resolve_time(time, surf.V - c, source_mesh=src)[0]
-    return t if np.ptp(t) > TOL.time else None
-
-
-def _time_file_source(path, mesh, surf, stencil: bool):
-    """The ``time`` source for ``--time-file``: the values as they are (an array per stencil
-    vertex) for a finished stencil, else a vertex attribute of the input mesh that
-    :func:`~pysolver.design.time_landscape.resolve_time` interpolates (``vertex:<name>``).
-
-    Returns
-    -------
-    time : (n,) float array or str
-    info : dict -- ``path``, ``sha256``, ``values``, ``carried`` (recorded in design.json)
-    """
-    values, sha = read_time_file(path)
-    if mesh is None:
-        raise InputError(f"--time-file {path} gives values per vertex of an input mesh; "
-                         f"{surf.name} is a built-in shape",
-                         fix="give the time landscape of a built-in shape with --time "
-                             "(an expression of x, y, z in mm), or design a mesh file")
-    t = time_file_per_vertex(values, mesh, str(path))
-    info = {"path": str(path), "sha256": sha, "values": int(len(values))}
-    if surf.UV is not None or stencil:  # the stencil is the input: vertex-aligned
-        info["carried"] = "used as given: the input is the stencil"
-        return t, info
-    mesh.vertex_attributes = dict(mesh.vertex_attributes or {}, **{TIME_FILE_ATTRIBUTE: t})
-    info["carried"] = "barycentric interpolation on the input surface"
-    return f"vertex:{TIME_FILE_ATTRIBUTE}", info
 
 
 def _check_given_layout(UV, F, src: str, asked: bool) -> None:
@@ -280,10 +233,9 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         (unitless meshes; exclusive with ``scale``).  The size checks and every message
         see the scaled coordinates.
     time_file : str or Path, optional
-        CSV of one time (s) per vertex of the input mesh, in file order (exclusive with
-        ``time``; :func:`pysolver.design.time_landscape.read_time_file`).  Carried onto the stencil
-        by barycentric interpolation on the input surface, the path of a PLY vertex
-        property; for a finished stencil (OBJ with vt, or ``stencil``) used as given.
+        CSV of one time (s) per input-mesh vertex, in file order (exclusive with ``time``;
+        :func:`~pysolver.design.time_landscape.read_time_file`); carried onto the stencil as a
+        PLY vertex property is, or used as given for a finished stencil.
     flattening : {"cetm", "lscm"}
         Conformal flattening used for the layout (both are computed and compared).
     params : UnitCell
@@ -311,98 +263,211 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     """
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
                          thickness=thickness, params=params, size=size, time_file=time_file)
-    out_dir = Path(out_dir)
     clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
-    surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size, stencil)
-    time_opt, time_file_info = time, None
-    if time_file is not None:
-        time, time_file_info = _time_file_source(time_file, mesh, surf, stencil)
-    check_time_source(time, mesh)
-    sequence = None
-    if time is None and surf.time is None and mesh is not None:
-        time, sequence = sequencing_landscape(mesh.V, mesh.F)
+    inp = _read_input(source, scale, size, stencil, time, time_file, vertices)
+    surf = inp.surf
     clock.step("load")
+    st = _stencil(surf, inp.desc, inp.land, clock, vertices=vertices, seed=seed, params=params,
+                  flattening=flattening, stencil=stencil, progress=progress)
+    cl = central_length if central_length is not None else surf.central_length
+    lay, coll = _layout(st, params, cl, clock)
+    t_vertex, t_desc, t_star = _landscape_on_stencil(inp.land, st, lay)
+    th = np.full((len(lay.cells.faces), 2), float(thickness))
+    clock.step("time")
+    report, dist = _check(surf, st, lay, params, vertices)
+    clock.step("checks")
+    options = _options(inp, lay, vertices=vertices, seed=seed, time=time, scale=scale,
+                       size=size, flattening=flattening, thickness=thickness,
+                       central_length=cl, stencil=stencil, params=params)
+    summary = _summary(surf, inp.kind, inp.desc, lay, report, dist, st.comparison, st.remesh,
+                       flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
+    write_design_folder(out_dir, lay, coll, t_vertex, t_star, th, params,
+                  {"options": options, "summary": summary}, plots, clock)
+    return summary
 
 
-    remesh_info = {}
-    comparison = {}
-    rerun = None
+def write_design_folder(out_dir, lay: Layout, coll, t_vertex, t_star, thickness,
+                        params: UnitCell, record: dict, plots: bool = True, clock=None) -> None:
+    """Write the design folder: the tables (:func:`write_design_tables`), the pictures and
+    ``design.json`` (``record``: ``options`` and ``summary``, the summary completed with the
+    pictures and the timings).  The folder appears whole, or not at all (in place in a
+    build's private staging).
+
+    Parameters
+    ----------
+    out_dir : path-like
+    lay, coll, t_vertex, t_star, thickness, params
+        As :func:`write_design_tables`.
+    record : dict
+        ``{"options": ..., "summary": ...}``.
+    plots : bool
+        Draw the PNG pictures.
+    clock : optional
+        The design's stage clock (its ``step(name)`` is called after each step).
+    """
+    summary = record["summary"]
+    step = clock.step if clock is not None else (lambda name: None)
+    with output_folder(Path(out_dir)) as out_dir:
+        write_design_tables(out_dir, lay, coll, t_vertex, t_star, thickness, params)
+        step("write")
+        if plots:
+            summary["pictures"] = [p.name for p in
+                                   write_design_plots(lay, out_dir, t_vertex, thickness)]
+            step("plots")
+        if clock is not None:
+            summary["timings_s"] = dict(clock.t)
+        _write_json(out_dir / "design.json", record)
+
+
+def _landscape_on_stencil(land: DesignLandscape, st, lay: Layout):
+    """The landscape at the stencil's vertices (its frame: centred on the stencil, scaled by
+    its 3D scaling, ``stencil.obj`` v) and ``t*`` per cell.
+
+    Returns
+    -------
+    t_vertex : (n_vertices,) float, s
+    description : str
+    t_star : (n_cells,) float, s
+    """
+    t_vertex, desc = land.at(lay.V, np.asarray(st.V, float).mean(axis=0), lay.scale3d)
+    t_star = cell_target_times(t_vertex, lay.cells.verts[:, 0], lay.cells.verts[:, 1])
+    return t_vertex, desc, t_star
+
+
+def _options(inp, lay: Layout, *, vertices, seed, time, scale, size, flattening, thickness,
+             central_length, stencil, params: UnitCell) -> dict:
+    """``design.json`` → ``options``: what the design was made with (docs/design-folder.md)."""
+    return {
+        "source": inp.desc, "source_kind": inp.kind, "source_sha256_16": inp.sha,
+        "vertices": vertices, "seed": seed,
+        "time": (time if isinstance(time, (str, int, float, type(None))) else "array"),
+        "time_file": inp.land.time_file, "sequencing": inp.land.sequencing,
+        "scale": scale, "size_mm": size, "input_scale": inp.scale,
+        "flattening": flattening, "thickness_mm": thickness,
+        "central_length_mm": central_length, "stencil": stencil, "params": params.to_dict(),
+        "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
+        "alignment_bases": [int(i) for i in lay.alignment],
+    }
+
+
+def _layout(st, params: UnitCell, central_length, clock: _Clock):
+    """The flat layout of a stencil (scaling rules, bases, bumpers) and its cells' collision
+    lengths (from the bracket nodes).
+
+    Returns
+    -------
+    lay : Layout
+    coll : (n_cells, 2) float, mm -- ``collision_length_top_mm``, ``_bottom_mm``
+    """
+    lay = build_layout(st.V, st.UV, st.F, params, central_length=central_length)
+    clock.step("layout")
+    nodes_t, _ = bracket_nodes(lay.V, lay.UV, lay.F, params, ff=lay.ff, rotvec=lay.rotvec)
+    coll = collision_lengths(nodes_t, lay.cells)
+    clock.step("nodes")
+    return lay, coll
+
+
+@dataclasses.dataclass
+class _Input:
+    """The design's input, read: the target ``surf`` (a :class:`~pysolver.design.surfaces.
+    Surface`), its ``kind`` ("builtin", "mesh", "stencil"), description ``desc`` and hash
+    ``sha``, the input ``mesh`` (None for a built-in shape), the factor ``scale`` applied to
+    its coordinates, and its time landscape ``land``, resolved once."""
+
+    surf: surfaces.Surface
+    kind: str
+    desc: str
+    sha: str
+    mesh: object
+    scale: float
+    land: DesignLandscape
+
+
+def _read_input(source, scale, size, stencil: bool, time, time_file, vertices) -> _Input:
+    """Load the source and resolve its time landscape; refuse ``--vertices`` for an input
+    that is not remeshed."""
+    surf, kind, desc, sha, mesh, input_scale = _load_source(source, scale, size, stencil)
+    land = DesignLandscape.from_options(time, time_file, default=surf.time, mesh=mesh,
+                                        name=surf.name,
+                                        stencil_input=surf.UV is not None or stencil)
     if vertices is not None and (surf.UV is not None or stencil):
         what = ("a finished stencil (its own flat layout)" if kind != "builtin"
                 else "a fixed tessellation")
-        raise InputError(f"--vertices {vertices} has no effect on {src_desc}: it is {what}, "
+        raise InputError(f"--vertices {vertices} has no effect on {desc}: it is {what}, "
                          "not remeshed.",
                          fix="omit --vertices for this input; it applies to surfaces that are "
                              "remeshed (built-in curved shapes and mesh files).")
+    return _Input(surf, kind, desc, sha, mesh, input_scale, land)
+
+
+@dataclasses.dataclass
+class _Stencil:
+    """The stencil of a design before its layout: target ``V`` (n, 3) mm, flat ``UV``
+    (n, 2) mm, faces ``F`` (m, 3); how it was made (``remesh``, the flattenings'
+    ``comparison``) and ``rerun(factor, params) -> remesh record``, which searches the target
+    again (the refusals' measured alternatives), or None."""
+
+    V: np.ndarray
+    UV: np.ndarray
+    F: np.ndarray
+    remesh: dict
+    comparison: dict
+    rerun: object = None
+
+
+def _stencil(surf, src_desc: str, land: DesignLandscape, clock: _Clock, *, vertices, seed,
+             params: UnitCell, flattening: str, stencil: bool, progress: bool) -> _Stencil:
+    """The stencil: a finished one as given (checked), else the target remeshed (the count
+    search, with the landscape on the target) and flattened."""
     if surf.UV is not None:
-        V0, UV0, F0 = surf.V, surf.UV, surf.F
-        _check_given_layout(UV0, F0, src_desc, stencil)
+        _check_given_layout(surf.UV, surf.F, src_desc, stencil)
+        clock.step("remesh")
+        clock.step("flatten")
+        return _Stencil(surf.V, surf.UV, surf.F, {"remeshed": False, "vertices": int(len(surf.V))},
+                        {})
+    rerun = None
+    if stencil:
+        V0, F0 = surf.V, surf.F
         remesh_info = {"remeshed": False, "vertices": int(len(V0))}
-        clock.step("remesh")
-        clock.step("flatten")
     else:
-        if stencil:
-            V0, F0 = surf.V, surf.F
-            remesh_info = {"remeshed": False, "vertices": int(len(V0))}
-        else:
-            t_target = _target_times(time, surf, mesh)
+        t_target = land.on_target(surf.V)
 
-            def search(factor=1.0, p=params, say=None):
-                return remesh_surface(
-                    surf.V * factor, surf.F, vertices=vertices, seed=seed,
-                    target_bases=surf.target_bases, params=p, time=t_target,
-                    user_times=time_opt is not None or time_file is not None,
-                    progress=say)
-            V0, F0, remesh_info = search(say=(lambda line: print(
-                f"[design {surf.name}] remesh {line}", file=sys.stderr, flush=True))
-                if progress else None)
-            rerun = lambda f, p: search(f, p)[2]  # the refusals' measured alternatives
-        clock.step("remesh")
-        results = compare_flattenings(V0, F0, params=params)
-        comparison = {k: r.metrics for k, r in results.items()}
-        chosen = results[flattening]
-        if chosen.UV is None:
-            raise InputError(f"flattening {flattening!r} failed: {chosen.metrics['error']}",
-                             fix="try the other flattening or remesh the surface")
-        UV0 = chosen.UV
-        clock.step("flatten")
+        def search(factor=1.0, p=params, say=None):
+            return remesh_surface(
+                surf.V * factor, surf.F, vertices=vertices, seed=seed,
+                target_bases=surf.target_bases, params=p, time=t_target,
+                user_times=land.given, progress=say)
+        V0, F0, remesh_info = search(say=(lambda line: print(
+            f"[design {surf.name}] remesh {line}", file=sys.stderr, flush=True))
+            if progress else None)
+        rerun = lambda f, p: search(f, p)[2]  # the refusals' measured alternatives
+    clock.step("remesh")
+    results = compare_flattenings(V0, F0, params=params)
+    chosen = results[flattening]
+    if chosen.UV is None:
+        raise InputError(f"flattening {flattening!r} failed: {chosen.metrics['error']}",
+                         fix="try the other flattening or remesh the surface")
+    clock.step("flatten")
+    return _Stencil(V0, chosen.UV, F0, remesh_info, {k: r.metrics for k, r in results.items()},
+                    rerun)
 
-    cl = central_length if central_length is not None else surf.central_length
-    lay = build_layout(V0, UV0, F0, params, central_length=cl)
-    clock.step("layout")
 
-    nodes_t, _ = bracket_nodes(lay.V, lay.UV, lay.F, params, ff=lay.ff,
-                               rotvec=lay.rotvec)
-    coll = collision_lengths(nodes_t, lay.cells)
-    clock.step("nodes")
+def _check(surf, st: _Stencil, lay: Layout, params: UnitCell, vertices):
+    """The layout checks and the distortion; a stencil that does not print (or not at the
+    size asked for) is refused, naming measured alternatives.  Messages name places on the
+    target in mm (the scaled, centred ``stencil.obj`` v): the input may be unitless
+    (``--size``) or in other units (``--scale``).
 
-    # time landscape: built-in defaults see the shape's own frame; user input the target
-    center = np.asarray(V0, float).mean(axis=0)
-    if time is None and surf.time is not None:
-        t_vertex, t_desc = resolve_time(None, lay.V,
-                                        default=lambda X: surf.time(X / lay.scale3d + center))
-    else:
-        src_mesh = None
-        if mesh is not None:
-            src_mesh = mesh.transformed(-center, lay.scale3d)
-        t_vertex, t_desc = resolve_time(time, lay.V, source_mesh=src_mesh)
-        if time_file_info is not None:
-            t_desc = f"--time-file {time_file_info['path']}, {time_file_info['carried']}"
-        elif time is not None and sequence is not None:
-            t_desc = sequence["description"]
-    t_star = cell_target_times(t_vertex, lay.cells.verts[:, 0], lay.cells.verts[:, 1])
-    th = np.full((len(lay.cells.faces), 2), float(thickness))
-    clock.step("time")
-
-    # messages name places on the target in mm (the scaled, centred stencil.obj v): the
-    # input may be unitless (--size) or in other units (--scale)
+    Returns
+    -------
+    report : pysolver.design.checks.CheckReport
+    dist : dict -- :func:`pysolver.design.flatten.distortion_metrics`
+    """
     report = check_layout(lay, params, raise_=False)
-
     dist = distortion_metrics(lay.V, lay.UV, lay.F, params=params, layout=lay)
-    clock.step("checks")
+    remesh_info = st.remesh
     if remesh_info.get("remeshed") and remesh_info.get("rim_inset_mm"):
-
-        cover = surface_area(V0, F0) / remesh_info["area_mm2"]
+        cover = surface_area(st.V, st.F) / remesh_info["area_mm2"]
         remesh_info["area_covered"] = round(cover, 4)
         report.warnings.append(
             f"the stencil stops {remesh_info['rim_inset_mm'] * lay.scale3d:.1f} mm inside the "
@@ -414,42 +479,13 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     extent = float(np.ptp(surf.V, axis=0).max())
     if (remesh_info.get("remeshed")
             and lay.central_length.max() > params.max_cell_length):
-        report.errors.append(("", printable_alternatives(V0, F0, remesh_info, params,
-                                                         rerun, extent, (surf.V, surf.F))))
+        report.errors.append(("", printable_alternatives(st.V, st.F, remesh_info, params,
+                                                         st.rerun, extent, (surf.V, surf.F))))
     elif remesh_info.get("remeshed") and vertices is None \
             and not remesh_info.get("at_size", True):
-        raise size_refusal(remesh_info, params, rerun, extent)
+        raise size_refusal(remesh_info, params, st.rerun, extent)
     report.raise_if_failed()
-
-    # the folder appears whole, or not at all (in place in a build's private staging)
-    with output_folder(out_dir) as out_dir:
-        write_design_tables(out_dir, lay, coll, t_vertex, t_star, th, params)
-        clock.step("write")
-
-        summary = _summary(surf, kind, src_desc, lay, report, dist, comparison, remesh_info,
-                           flattening if surf.UV is None else "given", t_desc, t_vertex, coll)
-        if plots:
-
-            pics = write_design_plots(lay, out_dir, t_vertex, th)
-            clock.step("plots")
-            summary["pictures"] = [p.name for p in pics]
-        summary["timings_s"] = dict(clock.t)
-        options = {
-            "source": src_desc, "source_kind": kind, "source_sha256_16": src_hash,
-            "vertices": vertices, "seed": seed,
-            "time": (time_opt if isinstance(time_opt, (str, int, float, type(None)))
-                     else "array"),
-            "time_file": time_file_info,
-            "sequencing": sequence,
-            "scale": scale, "size_mm": size, "input_scale": input_scale,
-            "flattening": flattening, "thickness_mm": thickness,
-            "central_length_mm": cl, "stencil": stencil,
-            "params": params.to_dict(),
-            "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
-            "alignment_bases": [int(i) for i in lay.alignment],
-        }
-        _write_json(out_dir / "design.json", {"options": options, "summary": summary})
-    return summary
+    return report, dist
 
 
 def write_design_tables(out_dir, lay: Layout, coll, t_vertex, t_star, thickness,
@@ -490,8 +526,7 @@ def write_design_tables(out_dir, lay: Layout, coll, t_vertex, t_star, thickness,
         "plane_px": b.plane_p[:, 0], "plane_py": b.plane_p[:, 1], "plane_pz": b.plane_p[:, 2],
         "plane_nx": b.plane_n[:, 0], "plane_ny": b.plane_n[:, 1], "plane_nz": b.plane_n[:, 2],
         "cut": b.cut, "length_mm": b.length})
-    tables.write_table(out_dir / "time_landscape.csv", "time_landscape", {
-        "vertex_id": np.arange(len(lay.V)), "time_s": t_vertex})
+    write_landscape(out_dir, t_vertex)
     tables.write_table(out_dir / "support_frame.csv", "support_frame", {
         "x_mm": lay.support[:, 0], "y_mm": lay.support[:, 1]})
     write_model_file(out_dir, params)
@@ -551,4 +586,4 @@ def _write_json(path: Path, data: dict):
 
 
 __all__ = ["run_design", "check_design_options", "unit_cell_options",
-           "design_layout", "write_design_tables", "FLATTENINGS"]
+           "design_layout", "write_design_tables", "write_design_folder", "FLATTENINGS"]

@@ -34,7 +34,9 @@ class Surface:
     UV : (n, 2) float or None
         Flat layout when the surface is already a stencil (no remesh / flattening).
     time : callable((k, 3) float, mm) -> (k,) float, s, or None
-        Default time landscape as a function of the (scaled, centred) stencil vertices.
+        Default time landscape as a function of points on the target in its own frame (the
+        coordinates of ``V``, mm); the design maps the stencil's frame back to it
+        (:class:`~pysolver.design.time_landscape.DesignLandscape`).
     central_length : float, mm, or None
         Flat central length override (test patches).
     target_bases : int or None
@@ -413,13 +415,30 @@ def weave(size: float = 1.0, large: bool = False, edge: float = 13.0, rows: int 
         polys.append(np.array([B[k] * t_lo, A[k] * total[k] + B[k] * t_lo,
                                A[k] * total[k] + B[k] * (t_lo + width), B[k] * (t_lo + width)]))
     P, F = _lattice_disk(_polygon_union(polys), a)
+    V, t_dense = _curl_arms(P, A, B, (t_lo, t_lo + width), s0, Rcs)
+    return Surface("weave", V, F, UV=P.copy(), time=_time_on_dense(V, F, t_dense),
+                   description="three-arm pinwheel on a lattice, arms stack over the hub "
+                               "in order",
+                   options=dict(size=size, large=bool(large)))
+
+
+def _curl_arms(P, A, B, strip_t, s0: float, Rcs):
+    """Bend the weave's flat lattice: arm ``k`` (axis ``A[k]``, lateral ``B[k]``, the points
+    whose lateral coordinate lies in ``strip_t``) curls up from ``s0`` along a cylinder of
+    radius ``Rcs[k]`` by half a turn and runs back flat.
+
+    Returns
+    -------
+    V : (n, 3) float, mm -- the bent surface
+    t_dense : (n,) float, s -- its landscape: hub 30 s, arms 45 / 65 / 85 s
+    """
     V = np.c_[P, np.zeros(len(P))]
     t_dense = np.full(len(P), 30.0)
     best = np.full(len(P), -np.inf)
     for k, tk in enumerate((45.0, 65.0, 85.0)):
         s = P @ A[k]
         t = P @ B[k]
-        strip = (t >= t_lo - TOL.merge) & (t <= t_lo + width + TOL.merge)
+        strip = (t >= strip_t[0] - TOL.merge) & (t <= strip_t[1] + TOL.merge)
         inarm = strip & (s > s0)
         sp_ = s[inarm] - s0
         beta = np.minimum(sp_ / Rcs[k], np.pi)
@@ -430,11 +449,7 @@ def weave(size: float = 1.0, large: bool = False, edge: float = 13.0, rows: int 
         mine = strip & (s > best) & (s > 0)
         best[mine] = s[mine]
         t_dense[mine] = 30.0 + (tk - 30.0) * _smoothstep((s[mine] - 0.6 * s0) / (0.4 * s0))
-
-    return Surface("weave", V, F, UV=P.copy(), time=_time_on_dense(V, F, t_dense),
-                   description="three-arm pinwheel on a lattice, arms stack over the hub "
-                               "in order",
-                   options=dict(size=size, large=bool(large)))
+    return V, t_dense
 
 
 def spiral(size: float = 1.0, length: float = 280.0, width: float = 32.0,

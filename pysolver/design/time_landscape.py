@@ -21,13 +21,18 @@ from __future__ import annotations
 
 import ast
 import hashlib
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import igl
 import numpy as np
 
+from .. import tables
 from ..errors import InputError
 from ..params import LIMITS, SEQUENCING
+from ..params import tol as TOL
+from .sequencing import sequencing_landscape
 
 DEFAULT_TIME_S = 60.0
 
@@ -418,6 +423,147 @@ def resolve_time(time, V_stencil, *, default=None, source_mesh=None) -> tuple[np
                      fix="give one value per stencil or input-mesh vertex")
 
 
+@dataclass
+class DesignLandscape:
+    """The time landscape of a design, resolved once from the options, in one frame.
+
+    Built once per design (:meth:`from_options`: ``--time``, ``--time-file``, the automatic
+    sequencing of a mesh given no times, or the built-in shape's default) and evaluated at
+    points of the **stencil frame**: the target's coordinates shifted by ``-centre`` and
+    scaled by ``scale`` (``stencil.obj`` v: centred, mm).  Expressions of ``x, y, z`` see
+    that frame; a built-in default, a function of the target's own coordinates, sees the
+    points mapped back (``X / scale + centre``); per-vertex values of the input mesh are
+    carried by the mesh moved into the frame.  Before remeshing, the design evaluates it on
+    the target itself (``centre`` = the target's centroid, ``scale`` 1: the count search
+    keeps the stencil's 3D scaling within a few per cent of 1), after layout on the stencil
+    (``centre`` = its centroid, ``scale`` = its 3D scaling).
+
+    Attributes
+    ----------
+    time : None, float, str or array
+        The ``time`` source of :func:`resolve_time` (a ``--time-file`` becomes a vertex
+        attribute of the input mesh, or an array for a finished stencil).
+    default : callable((k, 3) float, mm) -> (k,) float, s, or None
+        The built-in shape's landscape, of points in the target's own frame.
+    mesh : InputMesh or None
+        The input mesh (target frame), for per-vertex sources.
+    description : str or None
+        What the landscape is, when the source says more than :func:`resolve_time`
+        (a time file, the automatic sequencing).
+    time_file : dict or None
+        ``--time-file`` record for ``design.json``: ``path``, ``sha256``, ``values``,
+        ``carried``.
+    sequencing : dict or None
+        The automatic sequencing record (:func:`pysolver.design.sequencing.
+        sequencing_landscape`), or None.
+    given : bool
+        The user gave the landscape (``--time`` or ``--time-file``).
+    """
+
+    time: object = None
+    default: Callable | None = None
+    mesh: object = None
+    description: str | None = None
+    time_file: dict | None = None
+    sequencing: dict | None = None
+    given: bool = False
+
+    @classmethod
+    def from_options(cls, time, time_file, *, default, mesh, name: str, stencil_input: bool):
+        """Resolve the landscape options of a design (once, before any stage runs).
+
+        Parameters
+        ----------
+        time : None, float, str or array
+            ``--time`` (:func:`check_time_option` has checked it).
+        time_file : str or Path or None
+            ``--time-file``: one time per input-mesh vertex (:func:`read_time_file`).
+        default : callable or None
+            The built-in shape's landscape (``Surface.time``).
+        mesh : InputMesh or None
+            The loaded input mesh (None for a built-in shape).
+        name : str
+            The shape's name, for messages.
+        stencil_input : bool
+            The input is a finished stencil (its vertices are the stencil's).
+
+        Raises
+        ------
+        InputError
+            A time file for a built-in shape, or of the wrong length; a per-vertex source
+            that the input does not have.
+        """
+        land = cls(time=time, default=default, mesh=mesh,
+                   given=time is not None or time_file is not None)
+        if time_file is not None:
+            land._carry_time_file(time_file, name, stencil_input)
+        check_time_source(land.time, mesh)
+        if land.time is None and default is None and mesh is not None:
+            land.time, land.sequencing = sequencing_landscape(mesh.V, mesh.F)
+            if land.time is not None:
+                land.description = land.sequencing["description"]
+        return land
+
+    def _carry_time_file(self, path, name: str, stencil_input: bool) -> None:
+        """``--time-file`` as the landscape source: the values as they are (an array per
+        stencil vertex) for a finished stencil, else a vertex attribute of the input mesh
+        that :func:`resolve_time` interpolates (``vertex:<name>``)."""
+        values, sha = read_time_file(path)
+        if self.mesh is None:
+            raise InputError(f"--time-file {path} gives values per vertex of an input mesh; "
+                             f"{name} is a built-in shape",
+                             fix="give the time landscape of a built-in shape with --time "
+                                 "(an expression of x, y, z in mm), or design a mesh file")
+        t = time_file_per_vertex(values, self.mesh, str(path))
+        info = {"path": str(path), "sha256": sha, "values": int(len(values))}
+        if stencil_input:  # the stencil is the input: vertex-aligned
+            info["carried"] = "used as given: the input is the stencil"
+            self.time = t
+        else:
+            self.mesh.vertex_attributes = dict(self.mesh.vertex_attributes or {},
+                                               **{TIME_FILE_ATTRIBUTE: t})
+            info["carried"] = "barycentric interpolation on the input surface"
+            self.time = f"vertex:{TIME_FILE_ATTRIBUTE}"
+        self.time_file = info
+        self.description = f"--time-file {info['path']}, {info['carried']}"
+
+    def at(self, X, centre, scale: float = 1.0) -> tuple[np.ndarray, str]:
+        """The landscape at points of the stencil frame.
+
+        Parameters
+        ----------
+        X : (k, 3) float, mm
+            Points in the frame: target coordinates shifted by ``-centre``, times ``scale``.
+        centre : (3,) float, mm
+            Where the frame's origin lies in the target's own coordinates.
+        scale : float
+            The frame's scale over the target's.
+
+        Returns
+        -------
+        t : (k,) float, s
+        description : str
+        """
+        if self.time is None and self.default is not None:
+            t, _ = resolve_time(None, X, default=lambda P: self.default(P / scale + centre))
+            return t, "shape default"
+        src = None if self.mesh is None else self.mesh.transformed(-centre, scale)
+        t, desc = resolve_time(self.time, X, source_mesh=src)
+        return t, self.description or desc
+
+    def on_target(self, V) -> np.ndarray | None:
+        """(n,) float, s, or None: the landscape at the target's own vertices ``V`` (the frame
+        centred on the target, scale 1), before remeshing, so that the stencil optimisation
+        can suit the cells' speeds to it; None when it is constant (programming then picks
+        the constant itself).  The final landscape sees the stencil, centred on itself and
+        scaled by the 3D rule (which the count search keeps within a few per cent of 1): an
+        expression of x, y, z differs by that much, which the optimisation's estimate (error
+        about 25 % in time) does not feel."""
+        c = np.asarray(V, float).mean(axis=0)
+        t, _ = self.at(V - c, c)
+        return t if np.ptp(t) > TOL.time else None
+
+
 def check_time_source(time, source_mesh) -> None:
     """Fail early (before remeshing) when ``time`` asks for per-vertex data that the input
     does not have."""
@@ -460,6 +606,28 @@ def _vertex_source(spec: str, mesh) -> np.ndarray:
     return t0 + (t1 - t0) * lum
 
 
+def write_landscape(folder, t_vertex) -> Path:
+    """The one writer of ``time_landscape.csv``: the requested completion time per stencil
+    vertex.  The design stage writes it; later, temporal programming when it maps a shape's
+    default landscape onto the achievable times (``fit_landscape``), and a studio run
+    (:func:`pysolver.build.rebuild`) with the user's edited landscape.
+
+    Parameters
+    ----------
+    folder : path-like
+        Design folder.
+    t_vertex : (n_vertices,) float, s
+
+    Returns
+    -------
+    Path of ``time_landscape.csv``.
+    """
+    t_vertex = np.asarray(t_vertex, float)
+    return tables.write_table(Path(folder) / tables.FILENAMES["time_landscape"],
+                              "time_landscape",
+                              {"vertex_id": np.arange(len(t_vertex)), "time_s": t_vertex})
+
+
 def cell_target_times(t_vertex, vertex_a, vertex_b) -> np.ndarray:
     """``t*`` per cell: mean of the landscape at the two ends of the stencil edge (s).
 
@@ -487,4 +655,4 @@ __all__ = ["DEFAULT_TIME_S", "TIME_FILE_ATTRIBUTE", "read_time_file", "time_file
            "check_time_source", "check_time_option", "parse_expression",
            "evaluate_expression",
            "interpolate_to_stencil", "validate_time", "resolve_time",
-           "cell_target_times"]
+           "cell_target_times", "DesignLandscape", "write_landscape"]

@@ -35,7 +35,7 @@ from pysolver.errors import InputError
 from pysolver.mechanics import build_model
 from pysolver.mechanics.energies import ShellEnergy, State
 from pysolver.mechanics.solver import StaticProblem, newton
-from pysolver.params import MODEL_LIMITS, SIM, UNIT_CELL
+from pysolver.params import MODEL_FITS, SIM, UNIT_CELL
 
 K_PRESCRIBE = 1e4  # N/mm, stiffness of the length-prescribing springs
 
@@ -90,8 +90,8 @@ def membrane_traction(l0_mm, d_mm, *, nx: int = 7, ny: int = 6,
     details = []
     for idx in np.ndindex(l0.shape):
         b0, dd = float(l0[idx]), float(d[idx])
-        b_lo, b_hi = MODEL_LIMITS.membrane_b0_mm
-        d_frac = MODEL_LIMITS.membrane_d_max_fraction
+        b_lo, b_hi = MODEL_FITS.membrane_b0_mm
+        d_frac = MODEL_FITS.membrane_d_max_fraction
         if not (b_lo <= b0 <= b_hi) or not (0.0 <= dd < d_frac * b0):
             raise InputError(f"membrane_traction: b0 = {b0} mm, d = {dd} mm out of range",
                              fix=f"use {b_lo:g} <= b0 <= {b_hi:g} mm and 0 <= d < {d_frac:g} b0")

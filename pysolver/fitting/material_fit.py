@@ -99,12 +99,9 @@ from ..material.polyfit import (
     monomial_exponents,
     mv,
 )
-from ..params import SIM, UNIT_CELL
+from ..params import BRACKET_MODEL_FILE, SIM, UNIT_CELL
 from ..params import tol as TOL
 from .material_report import compare_models, write_report
-
-DEFAULT_MODEL_PATH = REPO_ROOT / "pysolver" / "data" / "bracket_model.json"
-"""The committed fitted model."""
 
 DEFAULT_REPORT_DIR = REPO_ROOT / "build" / "material"
 """Default folder of the fit report."""
@@ -330,9 +327,33 @@ def invert_to_force_polynomials(creep: CreepModel, opts: FitOptions, progress: b
     """
     hg, bg, tg = opts.grid_axes()
     nh, nb, nt = opts.grid_num
-    t_panel_min = opts.grid_t_step_s / 60.0
     F = opts.load_F_step_N * np.arange(int(round(opts.load_F_max_N / opts.load_F_step_N)) + 1)
     F = F[F < opts.load_F_max_N - TOL.exact]
+    X = _resampled_displacements(creep, opts, hg, bg, F)
+    C = np.zeros((nh, nb, nt, 4))
+    points = np.zeros((nh, nb, nt), dtype=np.int64)
+    rank_def, stats = [], [0.0, 0.0, 0]  # max violation, sum of squares, count
+    t0 = time.time()
+    groups = [list(range(nh))] if opts.monotone_h else [[i] for i in range(nh)]
+    for ib, b in enumerate(bg):
+        xq = np.unique(np.r_[np.arange(0.0, b, opts.load_constraint_dx_mm), b])
+        q = (xq, np.vstack([_poly_rows(xq, 1), -_poly_rows(xq, 2)]), _poly_rows(xq, 0))
+        for it in range(nt):
+            for grp in groups:
+                _fit_cells(X, F, grp, ib, it, b, q, opts, C, points, rank_def, stats)
+        if progress and (ib % 5 == 4 or ib == nb - 1):
+            el = time.time() - t0
+            print(f"  force polynomials: length {ib + 1}/{nb}, {el:.0f} s, "
+                  f"ETA {el / (ib + 1) * (nb - ib - 1):.0f} s", file=sys.stderr)
+    return C, {"rank_deficient": rank_def, "points": points, "max_violation": stats[0],
+               "fit_rms": float(np.sqrt(stats[1] / max(stats[2], 1)))}
+
+
+def _resampled_displacements(creep: CreepModel, opts: FitOptions, hg, bg, F) -> np.ndarray:
+    """(nh, nb, nF, nt) float, mm: the creep model's displacement at every thickness,
+    length, load and grid time."""
+    nh, nb, nt = opts.grid_num
+    t_panel_min = opts.grid_t_step_s / 60.0
     X = np.empty((nh, nb, len(F), nt))
     for ih, h in enumerate(hg):
         H = np.full((nb, len(F)), h)
@@ -342,53 +363,47 @@ def invert_to_force_polynomials(creep: CreepModel, opts: FitOptions, progress: b
         xc = creep.creep_at_nodes(H.ravel(), B.ravel(), FF.ravel(), nt - 1, t_panel_min,
                                   opts.integration, opts.gauss_points).reshape(nb, len(F), nt)
         X[ih] = x0[:, :, None] + xc
-    C = np.zeros((nh, nb, nt, 4))
-    points = np.zeros((nh, nb, nt), dtype=np.int64)
-    rank_def, max_viol, sq, nsq = [], 0.0, 0.0, 0
-    t0 = time.time()
-    groups = [list(range(nh))] if opts.monotone_h else [[i] for i in range(nh)]
-    for ib, b in enumerate(bg):
-        xq = np.unique(np.r_[np.arange(0.0, b, opts.load_constraint_dx_mm), b])
-        Aq = np.vstack([_poly_rows(xq, 1), -_poly_rows(xq, 2)])
-        Rq = _poly_rows(xq, 0)
-        for it in range(nt):
-            for grp in groups:
-                k = len(grp)
-                N = np.zeros((4 * k, 4 * k))
-                r = np.zeros(4 * k)
-                ridge = np.zeros(4 * k)
-                fits = []
-                for j, ih in enumerate(grp):
-                    x = X[ih, ib, :, it]
-                    ok = np.isfinite(x) & (x <= opts.load_x_max_mm) & (x < b)
-                    xs, Fs = x[ok], F[ok]
-                    points[ih, ib, it] = len(xs)
-                    if np.unique(np.round(xs[xs != 0.0], 12)).size < 4:
-                        rank_def.append([ih, ib, it])
-                        ridge[4 * j:4 * j + 4] = opts.rank_ridge
-                    D = _poly_rows(xs, 0)
-                    N[4 * j:4 * j + 4, 4 * j:4 * j + 4] = np.einsum("ij,ik->jk", D, D)
-                    r[4 * j:4 * j + 4] = np.einsum("ij,i->j", D, Fs)
-                    fits.append((D, Fs))
-                A = np.zeros((k * len(Aq) + (k - 1) * len(xq), 4 * k))
-                for j in range(k):
-                    A[j * len(Aq):(j + 1) * len(Aq), 4 * j:4 * j + 4] = Aq
-                for j in range(k - 1):
-                    rows = slice(k * len(Aq) + j * len(xq), k * len(Aq) + (j + 1) * len(xq))
-                    A[rows, 4 * j:4 * j + 4] = -Rq
-                    A[rows, 4 * j + 4:4 * j + 8] = Rq
-                c, _inf = constrained_normal_lstsq(N, r, A, ridge=ridge)
-                C[grp, ib, it] = c.reshape(k, 4)
-                max_viol = max(max_viol, float(max(0.0, -mv(A, c).min())))
-                for j, (D, Fs) in enumerate(fits):
-                    sq += float(np.sum((mv(D, c[4 * j:4 * j + 4]) - Fs) ** 2))
-                    nsq += len(Fs)
-        if progress and (ib % 5 == 4 or ib == nb - 1):
-            el = time.time() - t0
-            print(f"  force polynomials: length {ib + 1}/{nb}, {el:.0f} s, "
-                  f"ETA {el / (ib + 1) * (nb - ib - 1):.0f} s", file=sys.stderr)
-    return C, {"rank_deficient": rank_def, "points": points, "max_violation": max_viol,
-               "fit_rms": float(np.sqrt(sq / max(nsq, 1)))}
+    return X
+
+
+def _fit_cells(X, F, grp, ib: int, it: int, b: float, q, opts: FitOptions, C, points,
+               rank_def: list, stats: list) -> None:
+    """Fit the force polynomials of the thicknesses ``grp`` at length ``ib`` and time ``it``
+    together (constrained least squares, :func:`constrained_normal_lstsq`), into ``C``, with
+    ``q = (xq, Aq, Rq)``: the constraint points and the rows of the slope/curvature and of
+    the thickness-order constraints there.  The point counts, rank-deficient cells and
+    ``stats`` (max violation, sum of squared residuals, count) are updated."""
+    xq, Aq, Rq = q
+    k = len(grp)
+    N = np.zeros((4 * k, 4 * k))
+    r = np.zeros(4 * k)
+    ridge = np.zeros(4 * k)
+    fits = []
+    for j, ih in enumerate(grp):
+        x = X[ih, ib, :, it]
+        ok = np.isfinite(x) & (x <= opts.load_x_max_mm) & (x < b)
+        xs, Fs = x[ok], F[ok]
+        points[ih, ib, it] = len(xs)
+        if np.unique(np.round(xs[xs != 0.0], 12)).size < 4:
+            rank_def.append([ih, ib, it])
+            ridge[4 * j:4 * j + 4] = opts.rank_ridge
+        D = _poly_rows(xs, 0)
+        N[4 * j:4 * j + 4, 4 * j:4 * j + 4] = np.einsum("ij,ik->jk", D, D)
+        r[4 * j:4 * j + 4] = np.einsum("ij,i->j", D, Fs)
+        fits.append((D, Fs))
+    A = np.zeros((k * len(Aq) + (k - 1) * len(xq), 4 * k))
+    for j in range(k):
+        A[j * len(Aq):(j + 1) * len(Aq), 4 * j:4 * j + 4] = Aq
+    for j in range(k - 1):
+        rows = slice(k * len(Aq) + j * len(xq), k * len(Aq) + (j + 1) * len(xq))
+        A[rows, 4 * j:4 * j + 4] = -Rq
+        A[rows, 4 * j + 4:4 * j + 8] = Rq
+    c, _inf = constrained_normal_lstsq(N, r, A, ridge=ridge)
+    C[grp, ib, it] = c.reshape(k, 4)
+    stats[0] = max(stats[0], float(max(0.0, -mv(A, c).min())))
+    for j, (D, Fs) in enumerate(fits):
+        stats[1] += float(np.sum((mv(D, c[4 * j:4 * j + 4]) - Fs) ** 2))
+        stats[2] += len(Fs)
 
 
 def _poly_rows(x: np.ndarray, deriv: int) -> np.ndarray:
@@ -639,6 +654,20 @@ def dumps_model(d: dict) -> str:
                   lambda mt: "[" + re.sub(r"\s+", " ", mt.group(1)) + "]", s) + "\n"
 
 
+def _previous_model(out_path: Path, compare_to):
+    """The model a new fit is drawn against (``compare_to``, else the file it replaces, else
+    the committed one), and its path; None when there is none or it cannot be read."""
+    cmp_path = Path(compare_to) if compare_to is not None else (
+        out_path if out_path.is_file() else BRACKET_MODEL_FILE)
+    previous = None
+    if cmp_path.is_file():
+        try:
+            previous = load_bracket_model(cmp_path)
+        except InputError:
+            previous = None
+    return previous, cmp_path
+
+
 def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
                  progress: bool = True, evaluate_options: bool = True,
                  options: FitOptions | None = None) -> dict:
@@ -675,16 +704,9 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
     """
     t0 = time.time()
     opts = FitOptions() if options is None else options
-    out_path = Path(DEFAULT_MODEL_PATH if out_path is None else out_path)
+    out_path = Path(BRACKET_MODEL_FILE if out_path is None else out_path)
     report_dir = Path(DEFAULT_REPORT_DIR if report_dir is None else report_dir)
-    previous = None
-    cmp_path = Path(compare_to) if compare_to is not None else (
-        out_path if out_path.is_file() else DEFAULT_MODEL_PATH)
-    if cmp_path.is_file():
-        try:
-            previous = load_bracket_model(cmp_path)
-        except InputError:
-            previous = None
+    previous, cmp_path = _previous_model(out_path, compare_to)
     if progress:
         print(f"fit-material: reading {data_dir or 'default data folder'}", file=sys.stderr)
     meas = load_measurements(data_dir)

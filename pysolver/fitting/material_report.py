@@ -20,7 +20,7 @@ from ..material.measurements import (  # noqa: E402
     preprocess_wet,
 )
 from ..material.model import load_bracket_model
-from ..params import UNIT_CELL  # noqa: E402
+from ..params import PICTURES, UNIT_CELL  # noqa: E402
 from ..params import tol as TOL  # noqa: E402
 
 _LOAD_COLORS = {1.0: "tab:blue", 2.0: "tab:orange", 3.0: "tab:green", 4.0: "tab:red",
@@ -140,7 +140,7 @@ def plot_rates(meas, res, out_png) -> None:
                 s &= (obs.t >= window[0]) & (obs.t <= window[1])
                 if np.count_nonzero(s) >= 3:
                     rate = np.polyfit(obs.t[s], obs.x[s], 1)[0]
-                    pts.append((obs.h[s][0], max(rate, TOL.rate_floor) / F))
+                    pts.append((obs.h[s][0], max(rate, PICTURES.rate_floor) / F))
             if pts:
                 p = np.array(pts)
                 ax.semilogy(p[:, 0], p[:, 1], "o", color=col, ms=4)

@@ -24,12 +24,10 @@ from scipy.sparse import csgraph
 
 from ..atomic import atomic_write_text
 from ..mechanics import MembraneMesh
-from ..params import SIM, UNIT_CELL
+from ..params import MEMBRANE_MODEL_FILE, MODEL_FITS, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..temporal.membrane_model import (
     FORM,
-    MESH_MAX_AREA,
-    MODEL_PATH,
     MODEL_TERMS,
     SI_TERMS,
     PlaneMembrane,
@@ -133,7 +131,8 @@ def _vertex_depth(F, bnd):
                             indices=np.flatnonzero(bnd)).min(axis=0).astype(int)
 
 
-def patch_mesh(l0: float, rings: int = PATCH_RINGS, max_area: float = MESH_MAX_AREA) -> PatchMesh:
+def patch_mesh(l0: float, rings: int = PATCH_RINGS,
+               max_area: float = MODEL_FITS.membrane_fit_max_area) -> PatchMesh:
     """Membrane mesh of :func:`regular_patch`: the one membrane mesh of a flat layout
     (:func:`pysolver.temporal.membrane_model.layout_membrane`), and the cells' depth."""
     V, F, _ = regular_patch(l0, rings)
@@ -148,7 +147,8 @@ def patch_mesh(l0: float, rings: int = PATCH_RINGS, max_area: float = MESH_MAX_A
 
 
 def sample_patch(l0: float, d_values, rings: int = PATCH_RINGS,
-                 max_area: float = MESH_MAX_AREA, return_energy: bool = False, mesh=None):
+                 max_area: float = MODEL_FITS.membrane_fit_max_area, return_energy: bool = False,
+                 mesh=None):
     """FEM tractions of every cell of a regular patch contracted by each ``d``.
 
     Parameters
@@ -217,7 +217,8 @@ def _code_version() -> dict:
 
 def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
                        d_values=SAMPLE_D, rings: int = PATCH_RINGS,
-                       max_area: float = MESH_MAX_AREA, progress: bool = True) -> dict:
+                       max_area: float = MODEL_FITS.membrane_fit_max_area,
+                       progress: bool = True) -> dict:
     """Re-fit the linearised membrane model from FEM samples of regular patches.
 
     Parameters
@@ -239,8 +240,62 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
         ``samples``, ``sampling`` and ``provenance``.
     """
     t0 = time.perf_counter()
-    out_path = Path(out_path) if out_path is not None else MODEL_PATH
+    out_path = Path(out_path) if out_path is not None else MEMBRANE_MODEL_FILE
     report_dir = Path(report_dir) if report_dir is not None else DEFAULT_REPORT_DIR
+    b_all, d_all, T_all, ratio, per_l0 = _fit_samples(l0_values, d_values, rings, max_area,
+                                                      progress, t0)
+    coef, fit = _lstsq(b_all, d_all, T_all, MODEL_TERMS)
+    alternatives = [_lstsq(b_all, d_all, T_all, t)[1] for t in (SI_TERMS, ("1", "b", "d"))]
+    by_faces = {str(int(k)): {"mean": float(ratio[ratio[:, 2] == k, 3].mean()),
+                              "min": float(ratio[ratio[:, 2] == k, 3].min()),
+                              "max": float(ratio[ratio[:, 2] == k, 3].max())}
+                for k in np.unique(ratio[:, 2])}
+    model = {
+        "form": FORM,
+        "description": "Membrane traction pulling a unit cell's two bases together (N, total "
+                       "over the cell's 4 brackets); b = flat bracket length b0 (mm), d = "
+                       "shortening b0 - b (mm). Per-bracket target = F_mem / 4.",
+        "terms": list(MODEL_TERMS),
+        "coefficients": [float(c) for c in coef],
+        "units": "N for F; b, d in mm",
+        "boundary_factor": float(SIM.boundary_weakening),
+        "fit": dict(fit, n_samples=int(len(T_all)), alternatives=alternatives),
+        "boundary": {
+            "ratio_by_faces_at_boundary_vertex": by_faces,
+            "note": "FEM traction of boundary cells / interior traction at the same (b0, d) in "
+                    "the uniformly contracted patch, grouped by the number of stencil faces "
+                    "around the cell's boundary end (3 = straight boundary, 2 = convex corner). "
+                    "The design uses boundary_factor (the paper's 0.6) for every boundary cell.",
+            "rows_b0_d_faces_ratio": np.round(ratio, 6).tolist(),
+        },
+        "samples": {"b0_mm": b_all.tolist(), "d_mm": d_all.tolist(),
+                    "force_N": [float(t) for t in T_all]},
+        "sampling": _sampling_record(l0_values, d_values, rings, max_area, per_l0),
+        "provenance": dict(_code_version(), command="morphshell fit-membrane",
+                           fit_seconds=round(time.perf_counter() - t0, 2)),
+    }
+
+    atomic_write_text(out_path, json.dumps(model, indent=1) + "\n")
+    png = plot_membrane_fit(model, report_dir / "membrane_fit.png")
+    model["picture"] = str(png)
+    if progress:
+        f = model["fit"]
+        print(f"[membrane] F_mem = {FORM}, c = {np.round(coef, 4).tolist()}  "
+              f"(rms {f['residual_rms_N']:.4f} N, max "
+              f"{f['residual_max_N']:.4f} N) -> {out_path}, {png}", file=sys.stderr, flush=True)
+    return model
+
+
+def _fit_samples(l0_values, d_values, rings: int, max_area: float, progress: bool, t0: float):
+    """The FEM samples of the fit: per flat central length, the interior cells' mean
+    traction at each shortening, and the boundary cells' ratio to it.
+
+    Returns
+    -------
+    b, d, T : (k,) float -- bracket length (mm), shortening (mm), traction (N)
+    ratio : (r, 4) float -- rows ``[b0, d, faces at the boundary vertex, ratio]``
+    per_l0 : list of dict -- mesh sizes and the interior spread per length
+    """
     b_all, d_all, T_all, ratio_rows = [], [], [], []
     per_l0 = []
     for k, l0 in enumerate(l0_values):
@@ -272,10 +327,12 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
                   f"T(d=0) = {Tin[0]:.3f} N  ({el:.0f} s, ETA {eta:.0f} s)",
                   file=sys.stderr, flush=True)
     b_all, d_all, T_all = map(np.asarray, (b_all, d_all, T_all))
-    coef, fit = _lstsq(b_all, d_all, T_all, MODEL_TERMS)
-    alternatives = [_lstsq(b_all, d_all, T_all, t)[1] for t in (SI_TERMS, ("1", "b", "d"))]
-    ratio = np.array(ratio_rows)
-    # mesh check at one length: the fit's mesh, a finer one and the simulator's coarser one
+    return b_all, d_all, T_all, np.array(ratio_rows), per_l0
+
+
+def _sampling_record(l0_values, d_values, rings: int, max_area: float, per_l0) -> dict:
+    """``sampling`` of the model file: how the samples were made, and a mesh check at one
+    length (the fit's mesh, a finer one and the simulator's coarser one)."""
     check_d = [0.0, 1.0, 2.0]
     mesh_check = {"l0_mm": 7.0, "d_mm": check_d}
     for key, area in (("fit_mesh", max_area), ("fine_mesh", max_area / 2.5),
@@ -285,58 +342,21 @@ def fit_membrane_model(out_path=None, report_dir=None, *, l0_values=SAMPLE_L0,
         inner = (ms.cell_depth >= 2) & ~ms.cell_boundary
         mesh_check[key] = {"max_area_mm2": area, "n_triangles": int(len(ms.mesh.tris)),
                            "force_N": [float(v) for v in r["T"][:, inner].mean(axis=1)]}
-    by_faces = {str(int(k)): {"mean": float(ratio[ratio[:, 2] == k, 3].mean()),
-                              "min": float(ratio[ratio[:, 2] == k, 3].min()),
-                              "max": float(ratio[ratio[:, 2] == k, 3].max())}
-                for k in np.unique(ratio[:, 2])}
-    model = {
-        "form": FORM,
-        "description": "Membrane traction pulling a unit cell's two bases together (N, total "
-                       "over the cell's 4 brackets); b = flat bracket length b0 (mm), d = "
-                       "shortening b0 - b (mm). Per-bracket target = F_mem / 4.",
-        "terms": list(MODEL_TERMS),
-        "coefficients": [float(c) for c in coef],
-        "units": "N for F; b, d in mm",
-        "boundary_factor": float(SIM.boundary_weakening),
-        "fit": dict(fit, n_samples=int(len(T_all)), alternatives=alternatives),
-        "boundary": {
-            "ratio_by_faces_at_boundary_vertex": by_faces,
-            "note": "FEM traction of boundary cells / interior traction at the same (b0, d) in "
-                    "the uniformly contracted patch, grouped by the number of stencil faces "
-                    "around the cell's boundary end (3 = straight boundary, 2 = convex corner). "
-                    "The design uses boundary_factor (the paper's 0.6) for every boundary cell.",
-            "rows_b0_d_faces_ratio": np.round(ratio, 6).tolist(),
-        },
-        "samples": {"b0_mm": b_all.tolist(), "d_mm": d_all.tolist(),
-                    "force_N": [float(t) for t in T_all]},
-        "sampling": {
-            "method": "hexagonal patch of an equilateral stencil, uniform contraction of the "
-                      "base centres (bases rigid, not rotating), free membrane relaxed "
-                      "(incompressible neo-Hookean CST, rest = flat / tau); force across the "
-                      "stencil edge of interior cells (>= 2 rings from the boundary), averaged",
-            "l0_mm": [float(v) for v in l0_values],
-            "d_mm": [float(v) for v in d_values],
-            "min_bracket_mm": MIN_BRACKET,
-            "min_bracket_fraction": MIN_BRACKET_FRACTION, "patch_rings": rings,
-            "mesh_max_area_mm2": max_area, "mesh_min_angle_deg": SIM.membrane_min_angle,
-            "tau": SIM.tau, "mu_MPa": SIM.mu, "membrane_h_mm": SIM.membrane_h,
-            "base_r_mm": UNIT_CELL.base_r, "alpha_deg": UNIT_CELL.alpha_deg,
-            "per_l0": per_l0,
-            "mesh_check": mesh_check,
-        },
-        "provenance": dict(_code_version(), command="morphshell fit-membrane",
-                           fit_seconds=round(time.perf_counter() - t0, 2)),
+    return {
+        "method": "hexagonal patch of an equilateral stencil, uniform contraction of the "
+                  "base centres (bases rigid, not rotating), free membrane relaxed "
+                  "(incompressible neo-Hookean CST, rest = flat / tau); force across the "
+                  "stencil edge of interior cells (>= 2 rings from the boundary), averaged",
+        "l0_mm": [float(v) for v in l0_values],
+        "d_mm": [float(v) for v in d_values],
+        "min_bracket_mm": MIN_BRACKET,
+        "min_bracket_fraction": MIN_BRACKET_FRACTION, "patch_rings": rings,
+        "mesh_max_area_mm2": max_area, "mesh_min_angle_deg": SIM.membrane_min_angle,
+        "tau": SIM.tau, "mu_MPa": SIM.mu, "membrane_h_mm": SIM.membrane_h,
+        "base_r_mm": UNIT_CELL.base_r, "alpha_deg": UNIT_CELL.alpha_deg,
+        "per_l0": per_l0,
+        "mesh_check": mesh_check,
     }
-
-    atomic_write_text(out_path, json.dumps(model, indent=1) + "\n")
-    png = plot_membrane_fit(model, report_dir / "membrane_fit.png")
-    model["picture"] = str(png)
-    if progress:
-        f = model["fit"]
-        print(f"[membrane] F_mem = {FORM}, c = {np.round(coef, 4).tolist()}  "
-              f"(rms {f['residual_rms_N']:.4f} N, max "
-              f"{f['residual_max_N']:.4f} N) -> {out_path}, {png}", file=sys.stderr, flush=True)
-    return model
 
 
 def plot_membrane_fit(model: dict, png) -> Path:

@@ -33,14 +33,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..params import PAPER_BRACKET_HEIGHT_MM, SIM, UNIT_CELL, UnitCell
+from ..params import BRACKET_MODEL_FILE, PAPER_BRACKET_HEIGHT_MM, SIM, UNIT_CELL, UnitCell
 from ..params import tol as TOL
 from .creep import CreepModel
-from .measurements import REPO_ROOT
 from .polyfit import poly_energy, poly_force, poly_stiffness
 from .validate import validate_bracket_model_file
 
-DEFAULT_MODEL_PATH = REPO_ROOT / "pysolver" / "data" / "bracket_model.json"
 OUTSIDE_MODES = ("clamp", "reference")
 _POW = np.arange(1, 5)
 
@@ -335,7 +333,7 @@ def check_bracket_geometry(model, unit: UnitCell = UNIT_CELL, source: str = "") 
     where = source or getattr(model, "path", None) or "the material model"
     fix = ("fit a material model for these brackets from their tensile tests: make material "
            "(morphshell fit-material), then build with --material FILE; or restore the "
-           "bracket dimensions the model was fitted for in pysolver/params.py")
+           "bracket dimensions the model was fitted for in pysolver/params (UnitCell)")
     if abs(height - unit.bracket_w) > TOL.merge:
         raise InputError(f"{where} was fitted for brackets {height:g} mm high; the unit cell "
                          f"has {unit.bracket_w:g} mm brackets (UnitCell.bracket_w)", fix=fix)
@@ -366,7 +364,7 @@ def load_bracket_model(path=None, outside: str = "clamp") -> BracketModel:
         Missing or malformed file, or a model that breaks a rule of
         :mod:`pysolver.material.validate` (the message names the key and the rule).
     """
-    path = Path(DEFAULT_MODEL_PATH if path is None else path)
+    path = Path(BRACKET_MODEL_FILE if path is None else path)
     v = validate_bracket_model_file(path)
     meta = {k: val for k, val in v["data"].items()
             if k not in ("format", "format_version", "description", "units", "grid",

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from pysolver.errors import InputError
-from pysolver.params import MODEL_LIMITS, RELAXATION_PRONY
+from pysolver.params import MODEL_FITS, RELAXATION_PRONY
 
 DATA_FILE = "rubber_stress_relaxation.csv"
 HOLD_STEP = 2  # tester step of the hold at constant stretch
@@ -66,8 +66,8 @@ def load_relaxation_data(data_dir=None):
         raise InputError(f"{path}: non-numeric or missing values",
                          fix="use the Instron export as shipped")
     hold = d[:, 1] == HOLD_STEP
-    if hold.sum() < MODEL_LIMITS.relaxation_min_samples:
-        raise InputError(f"{path}: fewer than {MODEL_LIMITS.relaxation_min_samples} samples "
+    if hold.sum() < MODEL_FITS.relaxation_min_samples:
+        raise InputError(f"{path}: fewer than {MODEL_FITS.relaxation_min_samples} samples "
                          f"in the hold step {HOLD_STEP}",
                          fix="use the Instron export as shipped")
     t = d[hold, 0] - d[hold, 0][0]
@@ -100,7 +100,7 @@ def fit_relaxation(t, load, taus=PRONY_TAUS):
 
     t = np.asarray(t, float)
     A = np.c_[np.ones_like(t), np.exp(-t[:, None] / np.asarray(taus, float))]
-    w = 1.0 / np.sqrt(np.maximum(t, MODEL_LIMITS.relaxation_weight_floor_s))
+    w = 1.0 / np.sqrt(np.maximum(t, MODEL_FITS.relaxation_weight_floor_s))
     c, _ = nnls(A * w[:, None], np.asarray(load, float) * w)
     F0 = float(c.sum())
     return c / F0, F0

@@ -42,6 +42,11 @@ except ImportError:  # pragma: no cover - depends on the installation
 def membrane_kernel(X, tri, dm_inv, rest_area, mu, h, G, H, want_hessian):  # pragma: no cover
     """Incompressible neo-Hookean CST: energy, gradient into ``G``, Hessians into ``H``.
 
+    A one-body assembly: one compiled loop over the elements, with the energy, the gradient
+    and the 9x9 Hessian of each element written out in it (longer than the project's 80
+    lines on purpose: numba compiles it as one loop, and the formulas follow
+    :func:`pysolver.mechanics.energies.membrane_terms` line by line).
+
     Parameters
     ----------
     X : (p, 3) float -- point positions

@@ -319,48 +319,108 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
                   cell_of=g["cell_of"], boundary=g["cell_boundary"])
     vertex_boundary = np.asarray(geometry["boundary_vertex"], bool)
     corner_xy = np.asarray(geometry["nodes_flat"], float)[:, :, :, 0, :2]
-    m, c = len(F), len(cells.faces)
+    o = _base_outlines(F, cells, vertex_boundary, corner_xy)
+    P, ends, split = _stencil_edge_ends(UV, F, cells, vertex_boundary, o)
+    free_seg = []
+    for i0, i1 in o.renum[o.corner[o.open_]]:
+        x = split.get(frozenset((int(i0), int(i1))))
+        free_seg += [(i0, i1)] if x is None else [(i0, x), (x, i1)]
+    free_seg = np.array(free_seg, dtype=np.int64).reshape(-1, 2)
+    c = len(cells.faces)
+    seg = np.r_[o.renum[o.outline], free_seg, ends]
+    mark = np.r_[o.outline_face + 2, np.ones(len(free_seg), np.int64), -(np.arange(c) + 1)]
+    vmark = np.r_[o.used // 6 + 2, np.zeros(len(P) - len(o.used), np.int64)]
+    pslg = {"vertices": P, "segments": seg, "segment_markers": mark[:, None].astype(np.int32),
+            "vertex_markers": vmark[:, None].astype(np.int32),
+            "holes": o.xy_all.reshape(len(F), 6, 2).mean(axis=1)}
+    return _membrane_from_triangle(triangle.triangulate(pslg, f"pzq{min_angle:g}a{max_area:g}Q"))
+
+
+def _corner_id(f, j, k):
+    """Index of the flat corner node ``(base f, slot j, arm k)`` among ``6 m``."""
+    return 6 * f + 2 * j + k
+
+
+@dataclass
+class _Outlines:
+    """The base outlines of a layout as PSLG segments (between flat corner nodes, numbered
+    ``6 f + 2 j + k``): ``outline`` (k, 2) segments and their bases ``outline_face``;
+    ``corner`` (2 c, 2) the corner segment of every cell side, across the cell where its
+    vertex is on the boundary (``open_``: a free membrane edge); the corner nodes ``used``,
+    their coordinates ``xy_all`` (6 m, 2) mm and their PSLG numbers ``renum`` (6 m,)."""
+
+    outline: np.ndarray
+    outline_face: np.ndarray
+    corner: np.ndarray
+    open_: np.ndarray
+    used: np.ndarray
+    xy_all: np.ndarray
+    renum: np.ndarray
+
+
+def _base_outlines(F, cells: Cells, vertex_boundary, corner_xy) -> _Outlines:
+    """Per cell and side (f, j): the base side segment (f,j,0)-(f,j,1), and at the corner by
+    vertex ``F[f,(j+2)%3]`` the base's corner edge (f,j,1)-(f,(j+1)%3,0) (interior vertex) or
+    an open segment across the cell to the partner's facing node (boundary vertex)."""
+    m = len(F)
     a, b = cells.faces[:, 0], cells.faces[:, 1]
     ja, jb = cells.slots[:, 0], cells.slots[:, 1]
     f = np.r_[a, b]
     j = np.r_[ja, jb]
     fo = np.r_[b, a]
     jo = np.r_[jb, ja]
-    cid = lambda ff_, jj, kk: 6 * ff_ + 2 * jj + kk  # noqa: E731
-    side = np.c_[cid(f, j, 0), cid(f, j, 1)]
+    side = np.c_[_corner_id(f, j, 0), _corner_id(f, j, 1)]
     corner_vertex = F[f, (j + 2) % 3]
     open_ = vertex_boundary[corner_vertex]
-    corner = np.c_[cid(f, j, 1), np.where(open_, cid(fo, jo, 0), cid(f, (j + 1) % 3, 0))]
+    corner = np.c_[_corner_id(f, j, 1),
+                   np.where(open_, _corner_id(fo, jo, 0), _corner_id(f, (j + 1) % 3, 0))]
     outline = np.r_[side, corner[~open_]]
     outline_face = np.r_[f, f[~open_]]
     used = np.unique(np.r_[outline.ravel(), corner[open_].ravel()])
-    xy_all = corner_xy.reshape(-1, 2)
     renum = -np.ones(6 * m, dtype=np.int64)
     renum[used] = np.arange(len(used))
-    # stencil-edge ends: an interior vertex is a (free) mesh vertex; at a boundary vertex the
-    # cut ends at a base corner next to it, of base a at the edge's first vertex and of base b
-    # at its second (no new vertex on the free edge: any cut from one end to the free
-    # boundary between the two bases separates the same two membrane pieces).  Where that cut
-    # would cross a base outline (skewed faces) the other bases' corners are tried, then the
-    # points where the stencil edge line meets the free edge (free vertices splitting it).
+    return _Outlines(outline, outline_face, corner, open_, used, corner_xy.reshape(-1, 2), renum)
+
+
+def _stencil_edge_ends(UV, F, cells: Cells, vertex_boundary, o: _Outlines):
+    """The ends of every cell's stencil-edge segment, and the PSLG's points.
+
+    An interior vertex is a (free) mesh vertex; at a boundary vertex the cut ends at a base
+    corner next to it, of base a at the edge's first vertex and of base b at its second (no
+    new vertex on the free edge: any cut from one end to the free boundary between the two
+    bases separates the same two membrane pieces).  Where that cut would cross a base outline
+    (skewed faces) the other bases' corners are tried, then the points where the stencil
+    edge line meets the free edge (free vertices splitting it).
+
+    Returns
+    -------
+    P : (p, 2) float, mm -- the PSLG's points: used corner nodes, interior stencil vertices,
+        free-edge splits
+    ends : (c, 2) int -- the PSLG points of every cell's stencil-edge segment
+    split : dict -- frozenset of a free segment's ends -> the point that splits it
+    """
+    c = len(cells.faces)
+    a, b = cells.faces[:, 0], cells.faces[:, 1]
+    ja, jb = cells.slots[:, 0], cells.slots[:, 1]
     inner_v = np.unique(cells.verts[~vertex_boundary[cells.verts]])
     vnode = -np.ones(len(UV), dtype=np.int64)
-    vnode[inner_v] = len(used) + np.arange(len(inner_v))
+    vnode[inner_v] = len(o.used) + np.arange(len(inner_v))
     bnd_end = vnode[cells.verts] < 0
     corner_at = np.empty((c, 2, 2), dtype=np.int64)    # [cell, end, base a/b] PSLG vertex
     for e in (0, 1):
         w = cells.verts[:, e]
         for q, (ff_, jj) in enumerate(((a, ja), (b, jb))):
-            corner_at[:, e, q] = renum[cid(ff_, jj, np.where(F[ff_, (jj + 1) % 3] == w, 0, 1))]
+            corner_at[:, e, q] = o.renum[_corner_id(ff_, jj,
+                                                    np.where(F[ff_, (jj + 1) % 3] == w, 0, 1))]
     ends = np.where(bnd_end, corner_at[:, [0, 1], [0, 1]], vnode[cells.verts])
-    P = np.r_[xy_all[used], UV[inner_v]]
-    S_out = renum[outline]
+    P = np.r_[o.xy_all[o.used], UV[inner_v]]
+    S_out = o.renum[o.outline]
     split = {}
     # hand-written: a loop over the few cells of skewed faces, none in a regular stencil
-    for ci in np.flatnonzero(_crossing_cells(P, S_out, outline_face, ends, cells.cell_of)):
+    for ci in np.flatnonzero(_crossing_cells(P, S_out, o.outline_face, ends, cells.cell_of)):
         be = np.flatnonzero(bnd_end[ci])
         ends[ci, be] = corner_at[ci, be, 1 - be]                  # the other bases' corners
-        if not _crossing_cells(P, S_out, outline_face, ends, cells.cell_of)[ci]:
+        if not _crossing_cells(P, S_out, o.outline_face, ends, cells.cell_of)[ci]:
             continue
         A, B = UV[cells.verts[ci, 0]], UV[cells.verts[ci, 1]]
         for e in be:                                              # the free-edge crossings
@@ -370,21 +430,16 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
             P = np.r_[P, [p0 + min(max(u, 0.1), 0.9) * (p1 - p0)]]
             ends[ci, e] = len(P) - 1
             split[frozenset((int(corner_at[ci, e, 0]), int(corner_at[ci, e, 1])))] = len(P) - 1
-    bad = _crossing_cells(P, S_out, outline_face, ends, cells.cell_of)
+    bad = _crossing_cells(P, S_out, o.outline_face, ends, cells.cell_of)
     if bad.any():
         raise _bases_reach_across(UV, F, cells, int(np.argmax(bad)))
-    free_seg = []
-    for i0, i1 in renum[corner[open_]]:
-        x = split.get(frozenset((int(i0), int(i1))))
-        free_seg += [(i0, i1)] if x is None else [(i0, x), (x, i1)]
-    free_seg = np.array(free_seg, dtype=np.int64).reshape(-1, 2)
-    seg = np.r_[S_out, free_seg, ends]
-    mark = np.r_[outline_face + 2, np.ones(len(free_seg), np.int64), -(np.arange(c) + 1)]
-    vmark = np.r_[used // 6 + 2, np.zeros(len(P) - len(used), np.int64)]
-    pslg = {"vertices": P, "segments": seg, "segment_markers": mark[:, None].astype(np.int32),
-            "vertex_markers": vmark[:, None].astype(np.int32),
-            "holes": xy_all.reshape(m, 6, 2).mean(axis=1)}
-    out = triangle.triangulate(pslg, f"pzq{min_angle:g}a{max_area:g}Q")
+    return P, ends, split
+
+
+def _membrane_from_triangle(out: dict) -> MembraneMesh:
+    """The membrane mesh from Triangle's output: the vertices triangles use, each attached to
+    its base (vertex marker - 2) or free (-1), triangles turned counter-clockwise, the
+    stencil-edge segments (negative markers) sorted by cell."""
     xy = np.asarray(out["vertices"], float)
     tris = np.asarray(out["triangles"], dtype=np.int64)
     vm = np.asarray(out["vertex_markers"]).ravel()
@@ -466,6 +521,41 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
     if cross_rest not in CROSS_REST_MODES:
         raise InputError(f"cross_rest must be one of {CROSS_REST_MODES}, got {cross_rest!r}")
     ff = geometry["face_adjacency"]
+    cells, thickness = _checked_cells(geometry, thickness, source, unit)
+    c = len(cells.faces)
+    C2 = face_centroids(UV, F)
+    base_flat = np.c_[C2, np.zeros(len(F))]
+    Rt = (base_rotations(V, UV, F, ff)[0] if rotvec is None
+          else rotvec_to_matrix(np.asarray(rotvec, float).reshape(-1, 3)))
+    nodes = _BracketNodes.of(ff, geometry["nodes_flat"], geometry["nodes_target"], base_flat)
+    spring_points, cross_points = nodes.pairs(cells)
+    rest0, Lc, cross_weight, cross_rest_v = _spring_lengths(
+        nodes, spring_points, cross_points, collision, consts, cross_rest, source)
+    if bracket_length is None:
+        bracket_length = (np.linalg.norm(C2[cells.faces[:, 1]] - C2[cells.faces[:, 0]], axis=1)
+                          - unit.bracket_offset)
+    bracket_length = np.asarray(bracket_length, float)
+    if bracket_length.shape != (c,) or np.any(bracket_length <= 0):
+        raise InputError(f"{source}: bracket lengths must be ({c},) positive values",
+                         fix="check cells.csv bracket_length_mm")
+    mem = _membrane(UV, F, geometry, C2, base_flat, nodes, consts, unit, physics)
+    return ShellModel(
+        V=V, UV=UV, F=F, base_flat=base_flat, base_target=face_centroids(V, F),
+        base_target_rotation=Rt, cell_bases=cells.faces.copy(), cell_slots=cells.slots.copy(),
+        cell_boundary=cells.boundary.copy(), cell_bracket_length=bracket_length,
+        cell_thickness=thickness, point_body=mem["point_body"], point_free=mem["point_free"],
+        point_local=mem["point_local"], spring_points=spring_points, spring_rest0=rest0,
+        spring_collision=Lc, cross_points=cross_points, cross_weight=cross_weight,
+        cross_rest=cross_rest_v, mem_point=mem["mem_point"], mem_flat=mem["mem_flat"],
+        mem_body=mem["mem_body"], mem_triangles=mem["tris"],
+        tri_points=mem["mem_point"][mem["tris"]], tri_dm_inv=mem["dm_inv"],
+        tri_rest_area=mem["rest_area"], node_point=nodes.point, consts=consts, unit=unit,
+        source=source)
+
+
+def _checked_cells(geometry: dict, thickness, source: str, unit: UnitCell):
+    """The unit cells of ``model.npz`` and the thicknesses (c, 2) mm, checked: at least one
+    cell, one thickness per cell and layer, printable values."""
     cells = Cells(faces=geometry["cell_bases"], slots=geometry["cell_slots"],
                   verts=geometry["cell_verts"], cell_of=geometry["cell_of"],
                   boundary=geometry["cell_boundary"])
@@ -479,48 +569,71 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
                          f"expected ({c}, 2) (cells x layers)")
     check_thickness(thickness, source or "model", rows=False, programmed=True, in_range=False,
                     unit=unit)
-    nodes_t, nodes_f = geometry["nodes_target"], geometry["nodes_flat"]
-    m = len(F)
-    C2 = face_centroids(UV, F)
-    base_flat = np.c_[C2, np.zeros(m)]
-    base_target = face_centroids(V, F)
-    if rotvec is None:
-        Rt, _ = base_rotations(V, UV, F, ff)
-    else:
-        Rt = rotvec_to_matrix(np.asarray(rotvec, float).reshape(-1, 3))
+    return cells, thickness
 
-    # --- bracket node points (only nodes of interior slots)
-    interior = ff >= 0  # (m, 3)
-    node_point = -np.ones((m, 3, 2, 2), dtype=np.int64)
-    mask = np.broadcast_to(interior[:, :, None, None], node_point.shape)
-    n_nodes = int(mask.sum())
-    node_point[mask] = np.arange(n_nodes)
-    bi = np.broadcast_to(np.arange(m)[:, None, None, None], node_point.shape)[mask]
-    node_local = (nodes_f - base_flat[:, None, None, None, :])[mask]
 
-    # --- springs and cross pairs (simulator.md §5)
-    fa, fb = cells.faces[:, 0], cells.faces[:, 1]
-    ja, jb = cells.slots[:, 0], cells.slots[:, 1]
+@dataclass
+class _BracketNodes:
+    """The bracket nodes of the interior slots as model points (``simulator.md`` §4):
+    ``point`` (m, 3, 2, 2) int, the point of node ``[base, slot, arm, layer]`` (-1 on the
+    boundary); ``n`` points; each one's ``body`` and ``local`` position (mm, flat, relative
+    to its base centre); their ``flat`` and ``target`` positions (mm)."""
 
-    def node(f, j, k, s):
-        return node_point[f, j, k, s]
+    point: np.ndarray
+    n: int
+    body: np.ndarray
+    local: np.ndarray
+    flat: np.ndarray
+    target: np.ndarray
 
-    sp, xp = [], []
-    for s in (0, 1):
-        for q in (0, 1):
-            sp.append(np.c_[node(fa, ja, q, s), node(fb, jb, 1 - q, s)])
-        xp.append(np.c_[node(fa, ja, 0, s), node(fb, jb, 0, s),
-                        node(fa, ja, 1, s), node(fb, jb, 1, s)])
-        xp.append(np.c_[node(fa, ja, s, 0), node(fb, jb, 1 - s, 1),
-                        node(fa, ja, s, 1), node(fb, jb, 1 - s, 0)])
-    spring_points = np.stack(sp, axis=1).reshape(-1, 2)  # cell-major, index 4c + 2s + q
-    cross_points = np.stack(xp, axis=1).reshape(-1, 4)
-    assert np.all(spring_points >= 0) and np.all(cross_points >= 0)
-    flat_nodes = nodes_f[mask]
-    targ_nodes = nodes_t[mask]
+    @classmethod
+    def of(cls, ff, nodes_f, nodes_t, base_flat) -> _BracketNodes:
+        m = len(ff)
+        interior = ff >= 0  # (m, 3)
+        point = -np.ones((m, 3, 2, 2), dtype=np.int64)
+        mask = np.broadcast_to(interior[:, :, None, None], point.shape)
+        n = int(mask.sum())
+        point[mask] = np.arange(n)
+        body = np.broadcast_to(np.arange(m)[:, None, None, None], point.shape)[mask]
+        local = (nodes_f - base_flat[:, None, None, None, :])[mask]
+        return cls(point, n, body, local, nodes_f[mask], nodes_t[mask])
+
+    def pairs(self, cells: Cells):
+        """The bracket springs (4 per cell, index ``4 c + 2 s + q``) and the cross pairs
+        (4 per cell) of ``simulator.md`` §5, as point indices: (4c, 2) and (4c, 4)."""
+        fa, fb = cells.faces[:, 0], cells.faces[:, 1]
+        ja, jb = cells.slots[:, 0], cells.slots[:, 1]
+        node = self.point
+        sp, xp = [], []
+        for s in (0, 1):
+            for q in (0, 1):
+                sp.append(np.c_[node[fa, ja, q, s], node[fb, jb, 1 - q, s]])
+            xp.append(np.c_[node[fa, ja, 0, s], node[fb, jb, 0, s],
+                            node[fa, ja, 1, s], node[fb, jb, 1, s]])
+            xp.append(np.c_[node[fa, ja, s, 0], node[fb, jb, 1 - s, 1],
+                            node[fa, ja, s, 1], node[fb, jb, 1 - s, 0]])
+        spring_points = np.stack(sp, axis=1).reshape(-1, 2)  # cell-major, index 4c + 2s + q
+        cross_points = np.stack(xp, axis=1).reshape(-1, 4)
+        assert np.all(spring_points >= 0) and np.all(cross_points >= 0)
+        return spring_points, cross_points
+
+
+def _spring_lengths(nodes: _BracketNodes, spring_points, cross_points, collision,
+                    consts: SimConstants, cross_rest: str, source: str):
+    """Rest lengths (flat) and collision lengths (target, shifted per cell and layer to the
+    design's ``collision``) of the bracket springs; weights and rest differences of the
+    cross pairs.
+
+    Returns
+    -------
+    rest0, Lc : (4c,) float, mm
+    cross_weight : (4c,) float, N/mm
+    cross_rest : (4c,) float, mm
+    """
+    c = len(spring_points) // 4
     seg_len = lambda P, i, k: np.linalg.norm(P[i[:, k]] - P[i[:, k - 1]], axis=1)  # noqa: E731
-    rest0 = seg_len(flat_nodes, spring_points, 1)
-    Lc = seg_len(targ_nodes, spring_points, 1)
+    rest0 = seg_len(nodes.flat, spring_points, 1)
+    Lc = seg_len(nodes.target, spring_points, 1)
     if collision is not None:
         collision = np.asarray(collision, float)
         if collision.shape != (c, 2):
@@ -532,18 +645,26 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
         k = int(np.flatnonzero(Lc <= 0)[0]) // 4
         raise InputError(f"{source}: cell {k} has a non-positive collision length",
                          fix="check cells.csv collision_length_* columns")
-    La = seg_len(flat_nodes, cross_points, 1)
-    Lb = np.linalg.norm(flat_nodes[cross_points[:, 3]] - flat_nodes[cross_points[:, 2]], axis=1)
+    flat = nodes.flat
+    La = seg_len(flat, cross_points, 1)
+    Lb = np.linalg.norm(flat[cross_points[:, 3]] - flat[cross_points[:, 2]], axis=1)
     cross_weight = consts.kappa_s * (La + Lb)
     cross_rest_v = (La - Lb) if cross_rest == "flat" else np.zeros_like(La)
-    if bracket_length is None:
-        bracket_length = np.linalg.norm(C2[fb] - C2[fa], axis=1) - unit.bracket_offset
-    bracket_length = np.asarray(bracket_length, float)
-    if bracket_length.shape != (c,) or np.any(bracket_length <= 0):
-        raise InputError(f"{source}: bracket lengths must be ({c},) positive values",
-                         fix="check cells.csv bracket_length_mm")
+    return rest0, Lc, cross_weight, cross_rest_v
 
-    # --- membrane
+
+def _membrane(UV, F, geometry, C2, base_flat, nodes: _BracketNodes, consts: SimConstants,
+              unit: UnitCell, physics: PhysicsOptions) -> dict:
+    """The membrane of the model (:func:`membrane_mesh`, with the rim margin when
+    ``physics.rim``): its points after the bracket nodes (on a base, or free), triangles and
+    their inverse rest shapes (pre-stretched by ``tau``).
+
+    Returns
+    -------
+    dict
+        ``point_body``, ``point_free``, ``point_local`` (every model point), ``mem_point``,
+        ``mem_flat``, ``mem_body``, ``tris``, ``dm_inv`` (t, 2, 2) 1/mm, ``rest_area`` mm^2.
+    """
     mesh = membrane_mesh(UV, F, geometry, max_area=consts.membrane_max_area,
                          min_angle=consts.membrane_min_angle)
     xy, tris, mbody = mesh.xy, mesh.tris, mesh.body
@@ -554,11 +675,11 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
         tau = np.where(margin, physics.rim_stretch, consts.tau)
     nm = len(xy)
     mem_flat = np.c_[xy, np.zeros(nm)]
-    mem_point = n_nodes + np.arange(nm)
-    point_body = np.r_[bi, mbody]
-    point_local = np.r_[node_local, np.where((mbody >= 0)[:, None],
-                                             mem_flat - base_flat[np.maximum(mbody, 0)],
-                                             mem_flat)]
+    mem_point = nodes.n + np.arange(nm)
+    point_body = np.r_[nodes.body, mbody]
+    point_local = np.r_[nodes.local, np.where((mbody >= 0)[:, None],
+                                              mem_flat - base_flat[np.maximum(mbody, 0)],
+                                              mem_flat)]
     point_free = -np.ones(len(point_body), dtype=np.int64)
     fr = point_body < 0
     point_free[fr] = np.arange(int(fr.sum()))
@@ -571,17 +692,9 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
     det = Dm[:, 0, 0] * Dm[:, 1, 1] - Dm[:, 0, 1] * Dm[:, 1, 0]
     dm_inv = np.stack([np.stack([Dm[:, 1, 1], -Dm[:, 0, 1]], 1),
                        np.stack([-Dm[:, 1, 0], Dm[:, 0, 0]], 1)], 1) / det[:, None, None]
-    return ShellModel(
-        V=V, UV=UV, F=F, base_flat=base_flat, base_target=base_target, base_target_rotation=Rt,
-        cell_bases=cells.faces.copy(), cell_slots=cells.slots.copy(),
-        cell_boundary=cells.boundary.copy(), cell_bracket_length=bracket_length,
-        cell_thickness=thickness, point_body=point_body, point_free=point_free,
-        point_local=point_local, spring_points=spring_points, spring_rest0=rest0,
-        spring_collision=Lc, cross_points=cross_points, cross_weight=cross_weight,
-        cross_rest=cross_rest_v, mem_point=mem_point, mem_flat=mem_flat, mem_body=mbody,
-        mem_triangles=tris, tri_points=mem_point[tris], tri_dm_inv=dm_inv,
-        tri_rest_area=0.5 * np.abs(det), node_point=node_point, consts=consts, unit=unit,
-        source=source)
+    return {"point_body": point_body, "point_free": point_free, "point_local": point_local,
+            "mem_point": mem_point, "mem_flat": mem_flat, "mem_body": mbody, "tris": tris,
+            "dm_inv": dm_inv, "rest_area": 0.5 * np.abs(det)}
 
 
 def load_model(design_dir, *, consts: SimConstants = SIM, cross_rest: str = "flat",

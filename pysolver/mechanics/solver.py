@@ -62,6 +62,7 @@ import scipy.sparse.linalg as spla  # noqa: E402
 from threadpoolctl import ThreadpoolController  # noqa: E402
 
 from pysolver.errors import InputError  # noqa: E402
+from pysolver.params import NEWTON  # noqa: E402
 from pysolver.params import tol as TOL  # noqa: E402
 
 from .energies import ShellEnergy, State, full_from_lower  # noqa: E402
@@ -154,7 +155,7 @@ class LinearSolver:
         self.n_analyses = 0
         self.factorize_s = 0.0
         self.solve_s = 0.0
-        self.shift_hint = SHIFT_MIN
+        self.shift_hint = NEWTON.shift_min
 
     def blas_scope(self):
         """Context for the calls of this solver: one BLAS thread (``fast``), or nothing."""
@@ -378,38 +379,34 @@ def _wolfe(problem, p, E0, g0, eps_E, alpha_max, c1, c2, max_evals):
     return 0.0, None, False, None, None
 
 
-SHIFT_MIN = TOL.newton_shift_min
-"""Base shift (relative to the mean scaled diagonal) for the exact translation null space."""
-SHIFT_MAX = TOL.newton_shift_max
-PSD_SHIFTS = (TOL.newton_shift_min, *TOL.newton_psd_shifts)
 
 
 def _candidates(last_shift: float):
     """Search-direction candidates of one Newton iteration, in order.
 
-    Exact Hessian first with the base shift SHIFT_MIN (pure Newton wherever the Hessian is
+    Exact Hessian first with the base shift NEWTON.shift_min (pure Newton wherever the Hessian is
     positive definite); if that fails, with an adaptive shift (Nocedal & Wright §3.4 'adding a
     multiple of the identity') starting at a quarter of the shift that worked last time (at
     least 1e-6) and growing x4 while the matrix is not positive definite, the direction is
-    not a descent direction or the line search fails, up to SHIFT_MAX; then the convexified
-    Hessian with PSD_SHIFTS; then a scaled gradient step.
+    not a descent direction or the line search fails, up to NEWTON.shift_max; then the convexified
+    Hessian with NEWTON.psd_ladder; then a scaled gradient step.
     """
-    yield "exact", SHIFT_MIN
-    s = max(last_shift / 4.0, TOL.newton_shift_floor)
-    while s <= SHIFT_MAX:
+    yield "exact", NEWTON.shift_min
+    s = max(last_shift / 4.0, NEWTON.shift_floor)
+    while s <= NEWTON.shift_max:
         yield "exact", s
         s *= 4.0
-    for s in PSD_SHIFTS:
+    for s in NEWTON.psd_ladder:
         yield "psd", s
     yield "gradient", 0.0
 
 
 @_blas_scoped
-def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_max_iter_wet,
-           linear: LinearSolver | None = None, c1: float = TOL.armijo_c1,
-           c2: float = TOL.wolfe_c2, max_halvings: int = TOL.line_search_halvings,
-           max_step_mm: float = TOL.newton_max_step_mm,
-           max_rot_rad: float = TOL.newton_max_rot_rad, callback=None) -> NewtonResult:
+def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = NEWTON.max_iter_wet,
+           linear: LinearSolver | None = None, c1: float = NEWTON.armijo_c1,
+           c2: float = NEWTON.wolfe_c2, max_halvings: int = NEWTON.line_search_halvings,
+           max_step_mm: float = NEWTON.max_step_mm,
+           max_rot_rad: float = NEWTON.max_rot_rad, callback=None) -> NewtonResult:
     """Minimise the energy of ``problem`` by Newton's method with line search.
 
     Each iteration tries search directions from :func:`_candidates` -- the exact Hessian
@@ -449,11 +446,8 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
     E, g, H = problem.evaluate(hessian=True)
     r = problem.residual(g)
     hist = [(E, r, 0.0)]
-    n_reg = n_grad = 0
-    D = problem.dof_scale
-    status = "max_iter"
-    it = 0
-    shift = getattr(linear, "shift_hint", SHIFT_MIN)
+    n_reg = n_grad = it = 0
+    status, shift = "max_iter", getattr(linear, "shift_hint", NEWTON.shift_min)
     if not np.isfinite(E) or not np.all(np.isfinite(g)):
         return NewtonResult(False, "nan", 0, float("nan"), E, history=hist,
                             wall_s=time.perf_counter() - t0)
@@ -462,39 +456,18 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
             status = "converged"
             break
         it += 1
-        accepted = False
-        Hpsd = None
-        eps_E = problem.roundoff()
-        for kind, rel in _candidates(shift):
-            if kind == "gradient":  # last resort: diagonally scaled steepest descent
-                p = -g / np.maximum(np.abs(_diag(H)), TOL.exact * _scale(H, D) * D)
-                n_grad += 1
-            else:
-                if kind == "psd" and Hpsd is None:
-                    _, _, Hpsd = problem.evaluate(hessian=True, psd=True)
-                p = _solve_shifted(Hpsd if kind == "psd" else H, g, D, rel, linear)
-                if p is None:
-                    continue
-            alpha_max = _step_limit(p, problem.trans_dofs, problem.rot_dofs, max_step_mm,
-                                    max_rot_rad)
-            limit = getattr(problem, "step_limit", None)
-            if limit is not None:  # contact barriers: the collision-free part of the step
-                alpha_max = limit(p, alpha_max)
-            alpha, trial, accepted, E_trial, g_trial = _wolfe(problem, p, E, g, eps_E,
-                                                              alpha_max, c1, c2, max_halvings)
-            if accepted:
-                n_reg += not (kind == "exact" and rel <= SHIFT_MIN)
-                if kind == "exact" and rel > SHIFT_MIN:
-                    shift = rel
-                break
-        if not accepted:
+        st = _iteration(problem, E, g, H, problem.dof_scale, shift, linear,
+                        (c1, c2, max_halvings), (max_step_mm, max_rot_rad))
+        n_grad += st.gradient
+        if not st.accepted:
             status = "line_search"
             break
-        problem.accept(trial)
-        linear.shift_hint = shift
-        E, g = E_trial, g_trial  # the search evaluated them at the accepted point
+        n_reg += st.regularised
+        problem.accept(st.trial)
+        shift = linear.shift_hint = st.shift
+        E, g = st.E, st.g  # the search evaluated them at the accepted point
         r = problem.residual(g)
-        hist.append((E, r, alpha))
+        hist.append((E, r, st.alpha))
         if callback is not None:
             callback(it, E, r)
         if not np.isfinite(E) or not np.all(np.isfinite(g)):
@@ -508,6 +481,67 @@ def newton(problem, *, tol: float = TOL.newton_grad, max_iter: int = TOL.newton_
             status = "converged"
     return NewtonResult(status == "converged", status, it, r, E, n_reg, n_grad, hist,
                         time.perf_counter() - t0)
+
+
+@dataclass
+class _Iteration:
+    """The outcome of one Newton iteration (:func:`_iteration`)."""
+
+    accepted: bool
+    shift: float
+    regularised: bool = False
+    gradient: bool = False
+    trial: object = None
+    alpha: float = 0.0
+    E: float = float("nan")
+    g: np.ndarray | None = None
+
+
+def _iteration(problem, E, g, H, D, shift: float, linear, wolfe, caps) -> _Iteration:
+    """One iteration of :func:`newton`: the search directions of :func:`_candidates` in turn
+    until one factorises, descends and passes the strong Wolfe line search.
+
+    Parameters
+    ----------
+    E, g, H : the energy (N mm), gradient and Hessian at the current point
+    D : (n,) float -- the dofs' scale
+    shift : float -- the shift that worked last (relative)
+    wolfe : (c1, c2, max_halvings)
+    caps : (max_step_mm, max_rot_rad)
+
+    Returns
+    -------
+    _Iteration
+        ``accepted`` and the accepted ``trial`` point, step ``alpha``, energy ``E`` and
+        gradient ``g`` there; the ``shift`` to start from next; whether the step was
+        ``regularised`` (not the exact Hessian at the base shift) and whether the gradient
+        step was tried (``gradient``).
+    """
+    Hpsd = None
+    eps_E = problem.roundoff()
+    tried_gradient = False
+    for kind, rel in _candidates(shift):
+        if kind == "gradient":  # last resort: diagonally scaled steepest descent
+            p = -g / np.maximum(np.abs(_diag(H)), TOL.exact * _scale(H, D) * D)
+            tried_gradient = True
+        else:
+            if kind == "psd" and Hpsd is None:
+                _, _, Hpsd = problem.evaluate(hessian=True, psd=True)
+            p = _solve_shifted(Hpsd if kind == "psd" else H, g, D, rel, linear)
+            if p is None:
+                continue
+        alpha_max = _step_limit(p, problem.trans_dofs, problem.rot_dofs, *caps)
+        limit = getattr(problem, "step_limit", None)
+        if limit is not None:  # contact barriers: the collision-free part of the step
+            alpha_max = limit(p, alpha_max)
+        alpha, trial, accepted, E_trial, g_trial = _wolfe(problem, p, E, g, eps_E,
+                                                          alpha_max, *wolfe)
+        if accepted:
+            if kind == "exact" and rel > NEWTON.shift_min:
+                shift = rel
+            return _Iteration(True, shift, not (kind == "exact" and rel <= NEWTON.shift_min),
+                              tried_gradient, trial, alpha, E_trial, g_trial)
+    return _Iteration(False, shift, gradient=tried_gradient)
 
 
 def _diag(H):
@@ -540,4 +574,4 @@ def _solve_shifted(H, g, D, rel: float, linear: LinearSolver):
 
 
 __all__ = ["LinearSolver", "NotPositiveDefinite", "NewtonResult", "StaticProblem", "newton",
-           "SHIFT_MIN", "HAVE_CHOLMOD", "BACKENDS"]
+           "HAVE_CHOLMOD", "BACKENDS"]

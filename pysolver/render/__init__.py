@@ -5,7 +5,6 @@ cache, union, :func:`render_design`) and :mod:`.fast` (the fast part renderer).
 """
 from .parts import (
     DEFAULT_RENDERER,
-    FACET_TOL_MM,
     OPENSCAD_ENV,
     RENDERERS,
     STL_FILES,
@@ -29,7 +28,6 @@ from .parts import (
 
 __all__ = [
     "DEFAULT_RENDERER",
-    "FACET_TOL_MM",
     "OPENSCAD_ENV",
     "RENDERERS",
     "RendererFallbackWarning",

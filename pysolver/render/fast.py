@@ -12,8 +12,8 @@ Execution
 Parts are evaluated by ``jobs`` worker processes (``python -m pysolver.render.fast``),
 each fed one part at a time over a pipe (one JSON line per request and per answer).
 A worker parses each library file once and keeps it for every later part; a crash
-(segfault) or a hang (:data:`PART_TIMEOUT_S`) costs only the part concerned, which is
-reported as failed, and a fresh worker takes over the rest.  Workers keep the
+(segfault) or a hang (``Limits.render_part_timeout_s``) costs only the part concerned,
+which is reported as failed, and a fresh worker takes over the rest.  Workers keep the
 parser's on-disk AST cache in ``<cache_dir>/.openscad-evaluator-ast`` instead of the
 user's home folder.
 
@@ -61,11 +61,7 @@ DIST = "openscad-evaluator"
 SHIM_VERSION = "2"
 """Version of this module's compatibility shim (in the cache key of every fast part)."""
 
-PART_TIMEOUT_S = LIMITS.render_part_timeout_s
-"""Seconds after which a worker stuck on one part is killed and the part reported failed."""
 
-STARTUP_TIMEOUT_S = LIMITS.render_startup_timeout_s
-"""Seconds a new worker may take to import the evaluator before it counts as dead."""
 
 AST_CACHE_DIRNAME = ".openscad-evaluator-ast"
 """Folder (inside the part cache) for the parser's on-disk AST cache of library files."""
@@ -365,9 +361,9 @@ class _Worker:
         """Render one part; a dead or stuck worker gives ``ok False`` and must be replaced."""
         line, late = "", False
         if not self.ready:   # the per-part timeout starts once the worker has imported
-            line, late = self._readline(STARTUP_TIMEOUT_S)
+            line, late = self._readline(LIMITS.render_startup_timeout_s)
             self.ready = bool(line)
-            what = f"did not start within {STARTUP_TIMEOUT_S:.0f} s"
+            what = f"did not start within {LIMITS.render_startup_timeout_s:.0f} s"
         if self.ready:
             line, late = self._readline(timeout, json.dumps({"scad": str(scad),
                                                              "out": str(out)}))
@@ -401,7 +397,7 @@ class _Worker:
 
 
 def render_files(items, *, jobs: int, ast_dir=None, on_done=None,
-                 timeout: float = PART_TIMEOUT_S) -> list[dict]:
+                 timeout: float = LIMITS.render_part_timeout_s) -> list[dict]:
     """Evaluate part files to STL with ``jobs`` worker processes.
 
     Parameters

@@ -96,11 +96,7 @@ OpenSCAD too), and so were 72 of 72 stress layers (six shapes x their own and 5 
 thickness programs, fast renderer) against 10 of 72 before.  It renders ``petal``'s 767
 parts in ~10 s instead of ~140 s."""
 
-SELF_CHECK_VOLUME_RTOL = TOL.self_check_volume_rtol
-"""Largest relative volume difference fast vs OpenSCAD on a reference part (auto mode)."""
 
-SELF_CHECK_SYMDIFF_RTOL = TOL.self_check_symdiff_rtol
-"""Largest symmetric-difference volume fast vs OpenSCAD, relative to the part volume."""
 
 FAST_INSTALL_FIX = ("install it into the project's environment ('.venv/bin/pip install "
                     "openscad-evaluator'), or use the renderer 'openscad'.")
@@ -117,9 +113,6 @@ INSTALL_FIX = ("install OpenSCAD: 'sudo apt-get install openscad' (Debian/Ubuntu
 _FATAL_MARKERS = ("ERROR:", "unknown variable", "unknown module", "unknown function",
                   "undefined operation", "Ignoring unknown")
 
-FACET_TOL_MM = TOL.facet
-"""mm: largest distance between a faceted circle and the true circle (``FACET_TOL`` in
-``scad/params.scad``, generated from :data:`pysolver.params.tol`)."""
 
 STL_FILES = {
     "top": "top.stl", "bottom": "bottom.stl",
@@ -529,8 +522,8 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
     bottom nodes with tilted bumpers, three brackets, alignment hole and marker pocket,
     an actuated node, both support frames, the marker dot and a specimen) are rendered by
     both backends through the part cache in ``<cache_dir>/selfcheck``; a part agrees
-    when the volumes agree within :data:`SELF_CHECK_VOLUME_RTOL` and the volume of the
-    symmetric difference is below :data:`SELF_CHECK_SYMDIFF_RTOL` of the part volume.
+    when the volumes agree within ``Tolerances.self_check_volume_rtol`` and the volume of the
+    symmetric difference is below ``Tolerances.self_check_symdiff_rtol`` of the part volume.
     Run once per process and (library, OpenSCAD, fast renderer) versions; later runs of
     a new process read both renders from the cache.  Thread-safe: a call made while another
     thread runs the check waits for it (:func:`start_self_check`).
@@ -601,8 +594,8 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
                                "symdiff_rel": ((a - b).volume() + (b - a).volume()) / va}
         mv = max((v["volume_rel"] for v in per.values()), default=None)
         ms = max((v["symdiff_rel"] for v in per.values()), default=None)
-        ok = (not failures and len(per) == len(parts) and mv <= SELF_CHECK_VOLUME_RTOL
-              and ms <= SELF_CHECK_SYMDIFF_RTOL)
+        ok = (not failures and len(per) == len(parts) and mv <= TOL.self_check_volume_rtol
+              and ms <= TOL.self_check_symdiff_rtol)
         if failures:
             first = sorted(failures)[0]
             last = failures[first].splitlines()[-1] if failures[first] else ""
@@ -611,8 +604,8 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
         else:
             summary = (f"self-check on {len(per)} reference parts "
                        f"{'passed' if ok else 'FAILED'}: volumes within {mv:.1e} (limit "
-                       f"{SELF_CHECK_VOLUME_RTOL:g}), symmetric difference <= {ms:.1e} of the "
-                       f"volume (limit {SELF_CHECK_SYMDIFF_RTOL:g})")
+                       f"{TOL.self_check_volume_rtol:g}), symmetric difference <= {ms:.1e} of the "
+                       f"volume (limit {TOL.self_check_symdiff_rtol:g})")
         check = {"ok": bool(ok), "summary": summary, "parts": per, "max_volume_rel": mv,
                  "max_symdiff_rel": ms, "failures": failures}
         _SELF_CHECKS[memo] = check
@@ -872,7 +865,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
         "jobs": res["jobs"],
         "cache_dir": str(cache_dir),
         "scad_dir": str(scad_dir),
-        "facet_tol_mm": FACET_TOL_MM,
+        "facet_tol_mm": TOL.facet,
         "layer_height_mm": UNIT_CELL.layer_h,
     }
     log(f"done in {summary['timings_s']['total']:.1f} s -> stl/")
@@ -882,6 +875,5 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
 __all__ = ["render_design", "render_parts", "find_openscad", "openscad_version",
            "library_digest", "part_key", "default_cache_dir", "load_stl", "to_manifold",
            "from_manifold", "union", "count_bodies", "describe_stl", "STL_FILES", "OPENSCAD_ENV",
-           "FACET_TOL_MM",
            "RENDERERS", "DEFAULT_RENDERER", "check_renderer", "fast_self_check", "start_self_check",
            "RendererFallbackWarning"]

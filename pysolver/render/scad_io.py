@@ -41,9 +41,6 @@ from ..tables import read_design as _read
 SCAD_DIR = Path(__file__).resolve().parents[2] / "scad"
 """The OpenSCAD library shipped with the repository."""
 
-CONNECTOR_SPACING = SUPPORT_FRAME.spacing
-"""mm: a boundary base gets a support-frame connector only if no already connected
-base lies within this flat distance (greedy in base order, as the reference)."""
 
 LIBRARY_FILES = ("params.scad", "util.scad", "base.scad", "bumper.scad", "bracket.scad",
                  "holes.scad", "unit_node.scad", "support_frame.scad", "label.scad",
@@ -555,7 +552,7 @@ def check_library(scad_dir) -> Path:
     return scad_dir
 
 
-__all__ = ["Part", "SCAD_DIR", "CONNECTOR_SPACING", "scad_literal", "part_text", "read_design",
+__all__ = ["Part", "SCAD_DIR", "scad_literal", "part_text", "read_design",
            "bracket_owner", "node_arguments", "frame_connectors", "ring_reach", "frame_holes",
            "boundary_edges", "write_part_files",
            "check_library"]

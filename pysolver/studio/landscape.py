@@ -25,16 +25,13 @@ from ..params import LIMITS
 from ..temporal import program_cells
 from ..temporal.membrane_model import load_membrane_model
 
-MAX_TIME_S = LIMITS.max_landscape_s
-"""Largest time a keyframe or a landscape may ask for (s)."""
-MAX_KEYFRAMES = MAX_EDITS = LIMITS.studio_max_edits
-"""Most keyframes in one request, and most edits recorded with one run."""
 EDIT_TOOLS = {"brush": ("set", "add", "subtract", "smooth"), "keyframes": ("harmonic",),
               "reset": ("build",)}
 """The edit log's tools and their modes (``studio_landscape.json``)."""
-_EDIT_NUMBERS = {"value": (-MAX_TIME_S, MAX_TIME_S),
+_EDIT_NUMBERS = {"value": (-LIMITS.max_landscape_s, LIMITS.max_landscape_s),
                  "radius": (1e-3, LIMITS.studio_max_radius_mm),
-                 "falloff": (0.0, 1.0), "vertices": (0, 10 ** 7), "keyframes": (0, MAX_KEYFRAMES)}
+                 "falloff": (0.0, 1.0), "vertices": (0, 10 ** 7),
+                 "keyframes": (0, LIMITS.studio_max_edits)}
 
 
 def _object(item, what: str, allowed) -> dict:
@@ -91,14 +88,15 @@ def parse_keyframes(payload, n_vertices: int) -> list[tuple[int, float]]:
     ------
     InputError
         Not an object, unknown keys (also inside a keyframe), a vertex outside
-        ``0..n_vertices-1``, a time that is not a number or outside ``[0, MAX_TIME_S]`` s.
+        ``0..n_vertices-1``, a time that is not a number or outside
+        ``[0, Limits.max_landscape_s]`` s.
     """
     payload = _object(payload, "the keyframe request", ("keyframes",))
     out = []
-    for i, k in enumerate(_list(payload, "keyframes", MAX_KEYFRAMES)):
+    for i, k in enumerate(_list(payload, "keyframes", LIMITS.studio_max_edits)):
         k = _object(k, f"keyframe {i}", ("vertex", "time"))
         out.append((_number(k, "vertex", 0, n_vertices - 1, f"keyframe {i}", integer=True),
-                    _number(k, "time", 0.0, MAX_TIME_S, f"keyframe {i}", " s")))
+                    _number(k, "time", 0.0, LIMITS.max_landscape_s, f"keyframe {i}", " s")))
     return out
 
 
@@ -124,7 +122,7 @@ def parse_landscape(payload, n_vertices: int, *, edits: bool = False):
     ------
     InputError
         Unknown keys, a landscape of the wrong length or with a time outside
-        ``[0, MAX_TIME_S]`` s, or a malformed edit.
+        ``[0, LIMITS.max_landscape_s]`` s, or a malformed edit.
     """
     payload = _object(payload, "the landscape request",
                       ("landscape", "edits") if edits else ("landscape",))
@@ -140,7 +138,7 @@ def parse_landscape(payload, n_vertices: int, *, edits: bool = False):
     if not edits:
         return land
     log = []
-    for i, e in enumerate(_list(payload, "edits", MAX_EDITS)):
+    for i, e in enumerate(_list(payload, "edits", LIMITS.studio_max_edits)):
         e = _object(e, f"edit {i}", ("tool", "mode", *_EDIT_NUMBERS))
         tool, mode = e.get("tool"), e.get("mode")
         if tool not in EDIT_TOOLS or mode not in EDIT_TOOLS[tool]:
@@ -250,4 +248,4 @@ class Feasibility:
 
 
 __all__ = ["parse_keyframes", "parse_landscape", "keyframe_values", "harmonic_landscape",
-           "Feasibility", "MAX_TIME_S", "EDIT_TOOLS"]
+           "Feasibility", "EDIT_TOOLS"]

@@ -63,7 +63,7 @@ import numpy as np
 
 from ..build import build_parts, morph_viewer, report_figures, viewer_assets
 from ..errors import InputError, MorphshellError
-from ..params import LIMITS, MODEL_LIMITS
+from ..params import LIMITS, PROGRAMMING
 from ..tables import LANDSCAPE_SOURCE, read_record, read_stencil, read_table
 from .landscape import (
     Feasibility,
@@ -74,7 +74,6 @@ from .landscape import (
 )
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-MAX_BODY_BYTES = LIMITS.studio_max_body_bytes
 TOKEN_HEADER = "X-Morphshell-Token"
 STL_NAME = re.compile(r"[a-z][a-z0-9_]{0,63}\.stl")
 """STL names the studio serves (and only those listed in ``stl/``)."""
@@ -169,8 +168,8 @@ class Build:
         return {"t_star": _jsonable(ev["t_star"]), "t_min": _jsonable(ev["t_min"]),
                 "t_max": _jsonable(ev["t_max"]), "clamped": ev["clamped"].astype(int).tolist(),
                 "side": np.asarray(ev["side"], int).tolist(), "n_clamped": n_clamped,
-                "refused": bool(n and n_clamped / n > MODEL_LIMITS.max_clamped_fraction),
-                "max_clamped_fraction": MODEL_LIMITS.max_clamped_fraction}
+                "refused": bool(n and n_clamped / n > PROGRAMMING.max_clamped_fraction),
+                "max_clamped_fraction": PROGRAMMING.max_clamped_fraction}
 
     def n_vertices(self) -> int:
         return len(self.stencil()[0])
@@ -449,9 +448,9 @@ class Handler(BaseHTTPRequestHandler):
                                                 "whole number of bytes")
             return None
         n = int(raw)
-        if n > MAX_BODY_BYTES:
+        if n > LIMITS.studio_max_body_bytes:
             self._error(HTTPStatus.REQUEST_ENTITY_TOO_LARGE,
-                        f"the request body is {n} bytes, more than {MAX_BODY_BYTES}")
+                        f"the request body is {n} bytes, more than {LIMITS.studio_max_body_bytes}")
             return None
         body = self.rfile.read(n)
         if len(body) != n:

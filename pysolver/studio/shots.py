@@ -165,61 +165,9 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
             d.get(srv.url)
             _wait(d, lambda d: d.find_element("tag name", "body").get_attribute("data-ready"),
                   "the studio")
-            centre = d.execute_script(
-                "var e = studio.editor, V = e.V, c = [0, 0, 0], best = 0, bd = Infinity;"
-                "for (var i = 0; i < e.nv; i++)"
-                "  for (var j = 0; j < 3; j++) c[j] += V[3*i+j] / e.nv;"
-                "for (i = 0; i < e.nv; i++) { var dd = Math.hypot(V[3*i]-c[0], V[3*i+1]-c[1],"
-                " V[3*i+2]-c[2]); if (dd < bd) { bd = dd; best = i; } } return best;")
-            # a bad value first: its message, and painting refused until it is fixed
-            d.execute_script("var m = document.getElementById('brush-mode'); m.value = 'add';"
-                             "m.dispatchEvent(new Event('change'));")
-            type_into(d, "brush-value", "8")
-            type_into(d, "brush-radius", "0")
-            drag_on_editor(d, centre, 40, 10)
-            save(_element_png(d, ".tools"), "studio-error.png")
-            # a slower region: +8 s in a 12 mm brush, then the reachable band and a hover
-            type_into(d, "brush-radius", "12")
-            drag_on_editor(d, centre, 60, 14)
-            _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute(
-                "data-strokes"), "the stroke")
-            _wait(d, lambda d: d.find_element("id", "feas").get_attribute("data-seq") == str(
-                d.execute_script("return studio.editor.seq")), "the live feasibility")
-            out["preview_ms"] = int(d.find_element("id", "feas").get_attribute("data-ms"))
-            d.execute_script("var s = document.getElementById('colour-mode'); s.value = 'band';"
-                             "s.dispatchEvent(new Event('change'));"
-                             "var p = studio.editor.screenOf(arguments[0]);"
-                             "studio.editor.hover(p[0] + 3, p[1] + 3);", centre)
-            save(_element_png(d, "#editor-section"), "studio-paint.png")
-            save(d.get_screenshot_as_png(), "studio.png")
-            # the run: the progress bar through every stage, then the results
-            d.find_element("id", "run").click()
-            _wait(d, lambda d: d.execute_script(
-                "return !!(studio.job && studio.job.stage === 'simulate'"
-                " && studio.job.progress > 0.2)"), "the run's simulation", timeout=600)
-            save(_element_png(d, ".tools"), "studio-progress.png")
-            _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute(
-                "data-state") in ("done", "error"), "the run", timeout=1800)
-            if d.find_element("id", "progress-text").get_attribute("data-state") != "done":
-                raise InputError("the studio's run failed: "
-                                 + d.find_element("id", "error").text)
-            out["run_s"] = d.execute_script("return studio.job.seconds")
-            _wait(d, lambda d: d.find_element("id", "results").get_attribute("data-state")
-                  == "shown", "the results")
-            d.find_element("css selector", "#parts-table tr[data-name='top.stl'] .part-3d").click()
-            _wait(d, lambda d: d.find_element("id", "part-view").get_attribute("data-part"),
-                  "the part's 3D preview")
-            save(_element_png(d, "#results-section"), "studio-results.png")
-            d.execute_script("var v = studio.viewers[0]; v.setFrame(v.nf - 1); v.setGhost(true);"
-                             "v.setColorMode('distance');")
-            time.sleep(0.5)
-            save(_element_png(d, "#viewer-section"), "studio-ghost.png")
-            d.get(report.resolve().as_uri())
-            _wait(d, lambda d: d.execute_script(
-                "return !!(window.morphViewer && window.morphViewer.renderCount > 0)"),
-                "the report's viewer")
-            d.execute_script("window.morphViewer.setFrame(Math.round(window.morphViewer.nf*0.2))")
-            save(d.get_screenshot_as_png(), "report.png")
+            _shoot_editor(d, save, out)
+            _shoot_run(d, save, out)
+            _shoot_report(d, report, save)
         finally:
             d.quit()
     finally:
@@ -229,6 +177,74 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
         shutil.rmtree(work, ignore_errors=True)
     out["files"] = files
     return out
+
+
+def _shoot_editor(d, save, out: dict) -> None:
+    """The editor: a bad brush value refused, then a slower region painted, its reachable
+    band and a hover (``studio-error.png``, ``studio-paint.png``, ``studio.png``)."""
+    centre = d.execute_script(
+        "var e = studio.editor, V = e.V, c = [0, 0, 0], best = 0, bd = Infinity;"
+        "for (var i = 0; i < e.nv; i++)"
+        "  for (var j = 0; j < 3; j++) c[j] += V[3*i+j] / e.nv;"
+        "for (i = 0; i < e.nv; i++) { var dd = Math.hypot(V[3*i]-c[0], V[3*i+1]-c[1],"
+        " V[3*i+2]-c[2]); if (dd < bd) { bd = dd; best = i; } } return best;")
+    # a bad value first: its message, and painting refused until it is fixed
+    d.execute_script("var m = document.getElementById('brush-mode'); m.value = 'add';"
+                     "m.dispatchEvent(new Event('change'));")
+    type_into(d, "brush-value", "8")
+    type_into(d, "brush-radius", "0")
+    drag_on_editor(d, centre, 40, 10)
+    save(_element_png(d, ".tools"), "studio-error.png")
+    # a slower region: +8 s in a 12 mm brush, then the reachable band and a hover
+    type_into(d, "brush-radius", "12")
+    drag_on_editor(d, centre, 60, 14)
+    _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute(
+        "data-strokes"), "the stroke")
+    _wait(d, lambda d: d.find_element("id", "feas").get_attribute("data-seq") == str(
+        d.execute_script("return studio.editor.seq")), "the live feasibility")
+    out["preview_ms"] = int(d.find_element("id", "feas").get_attribute("data-ms"))
+    d.execute_script("var s = document.getElementById('colour-mode'); s.value = 'band';"
+                     "s.dispatchEvent(new Event('change'));"
+                     "var p = studio.editor.screenOf(arguments[0]);"
+                     "studio.editor.hover(p[0] + 3, p[1] + 3);", centre)
+    save(_element_png(d, "#editor-section"), "studio-paint.png")
+    save(d.get_screenshot_as_png(), "studio.png")
+
+
+def _shoot_run(d, save, out: dict) -> None:
+    """The run: the progress bar through every stage, then the results, a part's 3D preview
+    and the ghost of the target (``studio-progress.png``, ``studio-results.png``,
+    ``studio-ghost.png``)."""
+    d.find_element("id", "run").click()
+    _wait(d, lambda d: d.execute_script(
+        "return !!(studio.job && studio.job.stage === 'simulate'"
+        " && studio.job.progress > 0.2)"), "the run's simulation", timeout=600)
+    save(_element_png(d, ".tools"), "studio-progress.png")
+    _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute(
+        "data-state") in ("done", "error"), "the run", timeout=1800)
+    if d.find_element("id", "progress-text").get_attribute("data-state") != "done":
+        raise InputError("the studio's run failed: " + d.find_element("id", "error").text)
+    out["run_s"] = d.execute_script("return studio.job.seconds")
+    _wait(d, lambda d: d.find_element("id", "results").get_attribute("data-state")
+          == "shown", "the results")
+    d.find_element("css selector", "#parts-table tr[data-name='top.stl'] .part-3d").click()
+    _wait(d, lambda d: d.find_element("id", "part-view").get_attribute("data-part"),
+          "the part's 3D preview")
+    save(_element_png(d, "#results-section"), "studio-results.png")
+    d.execute_script("var v = studio.viewers[0]; v.setFrame(v.nf - 1); v.setGhost(true);"
+                     "v.setColorMode('distance');")
+    time.sleep(0.5)
+    save(_element_png(d, "#viewer-section"), "studio-ghost.png")
+
+
+def _shoot_report(d, report: Path, save) -> None:
+    """The build's report with its viewer at a fifth of the morph (``report.png``)."""
+    d.get(report.resolve().as_uri())
+    _wait(d, lambda d: d.execute_script(
+        "return !!(window.morphViewer && window.morphViewer.renderCount > 0)"),
+        "the report's viewer")
+    d.execute_script("window.morphViewer.setFrame(Math.round(window.morphViewer.nf*0.2))")
+    save(d.get_screenshot_as_png(), "report.png")
 
 
 def main(argv=None) -> int:

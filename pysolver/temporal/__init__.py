@@ -8,10 +8,8 @@ energy of :mod:`pysolver.mechanics.energies` on the one membrane mesh of a flat 
 (:func:`pysolver.mechanics.membrane_mesh`); nothing here imports the simulator (``sim``).
 """
 from .program import (
-    COMPLETION_TOL_MM,
     CORRECTIONS,
     PICTURE,
-    REFINE_DAMPING,
     REFINE_LOG,
     STAGE_FILE,
     bracket_target_force,
@@ -28,10 +26,8 @@ from .program import (
 )
 
 __all__ = [
-    "COMPLETION_TOL_MM",
     "CORRECTIONS",
     "PICTURE",
-    "REFINE_DAMPING",
     "REFINE_LOG",
     "STAGE_FILE",
     "bracket_target_force",

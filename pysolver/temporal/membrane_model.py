@@ -68,16 +68,8 @@ from ..mechanics import MembraneMesh, membrane_mesh
 from ..mechanics.energies import SparsePattern, membrane_terms
 from ..mechanics.rim import rim_margin
 from ..mechanics.solver import LinearSolver, newton
-from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, MODEL_LIMITS, SIM, UNIT_CELL
+from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, NEWTON, PROGRAMMING, SIM, UNIT_CELL
 from ..params import tol as TOL
-
-MODEL_PATH = MEMBRANE_MODEL_FILE
-"""The committed membrane model (written by
-:func:`pysolver.fitting.membrane_fit.fit_membrane_model`)."""
-
-MESH_MAX_AREA = MODEL_LIMITS.membrane_fit_max_area  # mm^2, flat, of the fit
-NEWTON_TOL = TOL.membrane_grad  # N, infinity norm of the free-node gradient
-FACTOR_MESH_AREA = MODEL_LIMITS.membrane_factor_max_area  # mm^2, a design's own stencil
 
 TERMS = {
     "1": lambda b, d: np.ones_like(b),
@@ -258,7 +250,7 @@ def load_membrane_model(path=None) -> MembraneModel:
     """
     if isinstance(path, MembraneModel):
         return path
-    p = Path(path) if path is not None else MODEL_PATH
+    p = Path(path) if path is not None else MEMBRANE_MODEL_FILE
     v = validate_membrane_model_file(p)
     bf = v["boundary_factor"]
     return MembraneModel(coef=v["coef"], terms=v["terms"],
@@ -448,8 +440,8 @@ class FreeNodeProblem:
         return TOL.energy_roundoff * max(self._scale[1], 1.0)
 
 
-def _relax(mem: PlaneMembrane, x, free, tol=NEWTON_TOL, linear: LinearSolver | None = None,
-           max_iter: int = TOL.newton_max_iter_wet):
+def _relax(mem: PlaneMembrane, x, free, tol=TOL.membrane_grad, linear: LinearSolver | None = None,
+           max_iter: int = NEWTON.max_iter_wet):
     """Relax the free nodes with the shell's Newton solver (:func:`.solver.newton`).
 
     Elements in compression make the exact Hessian indefinite (seen on cover's
@@ -615,7 +607,7 @@ def layout_membrane(UV, F, max_area: float, geometry: dict | None = None):
 
 
 def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = None,
-                          max_area: float = FACTOR_MESH_AREA, rim=None,
+                          max_area: float = PROGRAMMING.membrane_factor_max_area, rim=None,
                           geometry: dict | None = None) -> dict:
     """Per-cell correction of ``F_mem`` from an FEM membrane on the design's own flat stencil.
 
@@ -660,7 +652,7 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
                          "design-folder order.", fix="re-run the design stage.")
     lc = np.asarray(cells["central_length_mm"], float)
     s = 1.0 - float(np.median(np.asarray(d1, float) / lc))
-    s = min(max(s, MODEL_LIMITS.membrane_contraction_min), 1.0)
+    s = min(max(s, PROGRAMMING.membrane_contraction_min), 1.0)
     if rim is None:
         mem = PlaneMembrane(mesh.xy, mesh.tris)
         run = mesh
@@ -688,6 +680,6 @@ def _design_matrix(b, d, terms=MODEL_TERMS):
 
 
 __all__ = ["check_membrane_model", "validate_membrane_model_file",
-           "TERMS", "MODEL_TERMS", "SI_TERMS", "FORM", "MODEL_PATH", "MembraneModel",
+           "TERMS", "MODEL_TERMS", "SI_TERMS", "FORM", "MembraneModel",
            "load_membrane_model", "layout_membrane", "PlaneMembrane", "FreeNodeProblem",
            "cell_tractions", "relax_contracted", "cell_membrane_factors"]

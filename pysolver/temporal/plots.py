@@ -7,12 +7,11 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_file
-from ..design.time_landscape import cell_target_times
 from ..params import UNIT_CELL
 from ..tables import read_stencil
 
 
-def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
+def plot_feasibility(design_dir, t_vertex, t_star, cells: dict, res: dict, png) -> Path:
     """Time landscape on the flat layout with the clamped cells marked, and the ranges.
 
     Left: the landscape (s) interpolated on the flat stencil, base outlines, and the
@@ -25,6 +24,9 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     design_dir : path-like
         Design folder (its ``stencil.obj`` gives the flat layout).
     t_vertex : (n_vertices,) float, s
+        The time landscape.
+    t_star : (n_cells,) float, s
+        The cells' programmed times (from that landscape).
     cells : dict of (n_cells,) arrays -- ``cells.csv`` columns
     res : dict -- :func:`pysolver.temporal.program_cells` output
     png : path-like
@@ -46,7 +48,7 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     va, vb = np.asarray(cells["vertex_a"]), np.asarray(cells["vertex_b"])
     mid = 0.5 * (UV[va] + UV[vb])
     side = np.asarray(res["side"])
-    t_star = cell_target_times(t_vertex, va, vb)
+    t_star = np.asarray(t_star, float)
     n = len(side)
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5.6),
@@ -71,6 +73,17 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
                  fontsize=10)
     ax.legend(fontsize=8, loc="upper right", framealpha=0.8)
 
+    _ranges_panel(ax2, t_star, res, side)
+    fig.tight_layout()
+    with atomic_file(png) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return png
+
+
+def _ranges_panel(ax2, t_star, res: dict, side) -> None:
+    """Every cell's achievable range (grey bar) and ``t*`` (marked by side), sorted by ``t*``."""
+    n = len(side)
     order = np.argsort(t_star, kind="stable")
     k = np.arange(n)
     lo, hi = np.asarray(res["t_min"])[order], np.asarray(res["t_max"])[order]
@@ -88,11 +101,6 @@ def plot_feasibility(design_dir, t_vertex, cells: dict, res: dict, png) -> Path:
     ax2.set_title("achievable completion time per cell", fontsize=10)
     ax2.legend(fontsize=8, loc="upper left")
     ax2.grid(alpha=0.3)
-    fig.tight_layout()
-    with atomic_file(png) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return png
 
 
 __all__ = ["plot_feasibility"]

@@ -42,7 +42,7 @@ and listed in the summary.  If more than half of the cells are clamped the
 landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
-within :data:`COMPLETION_TOL_MM` (the 0.05 mm printing clearance, see
+within ``UnitCell.clearance`` (the 0.05 mm printing clearance, see
 :func:`simulated_completion`).
 
 Closing the loop (beyond the paper).  :func:`refine_design` compares simulated
@@ -57,17 +57,18 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import tables
 from ..atomic import atomic_write_text
-from ..design.time_landscape import cell_target_times
+from ..design.time_landscape import cell_target_times, write_landscape
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
-from ..params import MODEL_LIMITS, SEQUENCING, SIM, UNIT_CELL
+from ..params import PROGRAMMING, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
@@ -88,18 +89,11 @@ factor (irregular stencils: 0.65-1.8), and boundary cells get ``min(0.6, FEM fac
 (cells whose edge has both ends on the boundary pull only ~0.1-0.2 and never close with
 0.6)."""
 DEFAULT_CORRECTION = "fem"
-MAX_CLAMPED_FRACTION = MODEL_LIMITS.max_clamped_fraction
-BISECTION_STEPS = MODEL_LIMITS.bisection_steps
-REFINE_DAMPING = MODEL_LIMITS.refine_damping
-TIME_TOL_S = TOL.time
-FORCE_RTOL = TOL.force_rtol
-COMPLETION_TOL_MM = UNIT_CELL.clearance
-"""A bracket within this distance of its bumper counts as closed (timing metrics)."""
 
 
-def _log(msg: str, progress: bool) -> None:
+def _log(msg: str, progress: bool, prefix: str = "[temporal]") -> None:
     if progress:
-        print(f"[temporal] {msg}", file=sys.stderr, flush=True)
+        print(f"{prefix} {msg}", file=sys.stderr, flush=True)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -167,7 +161,7 @@ def bracket_target_force(membrane, b0, d1, boundary, boundary_factor=None, facto
     return f, f / 4.0
 
 
-def solve_thickness(material, b0, x, t, f_bracket, steps: int = BISECTION_STEPS):
+def solve_thickness(material, b0, x, t, f_bracket, steps: int = PROGRAMMING.bisection_steps):
     """Bracket thickness whose force at (t, x) equals the target (bisection on h).
 
     The bracket force grows with thickness (thicker = stiffer), so a bisection on
@@ -204,7 +198,8 @@ def solve_thickness(material, b0, x, t, f_bracket, steps: int = BISECTION_STEPS)
     return h.reshape(shape), side.reshape(shape)
 
 
-def completion_time(material, h, b0, x, f_bracket, t_max=None, steps: int = BISECTION_STEPS):
+def completion_time(material, h, b0, x, f_bracket, t_max=None,
+                    steps: int = PROGRAMMING.bisection_steps):
     """Earliest time (s) at which a bracket's force at compression ``x`` drops to the target.
 
     Bisection in time on the (softening) bracket model.
@@ -221,7 +216,7 @@ def completion_time(material, h, b0, x, f_bracket, t_max=None, steps: int = BISE
     h, b0, x, f = (v.ravel() for v in (h, b0, x, f))
     lo = np.zeros(h.shape)
     hi = np.full(h.shape, t_max)
-    f = f * (1.0 + FORCE_RTOL)          # a thickness solved for t yields at t, not just after
+    f = f * (1.0 + TOL.force_rtol)          # a thickness solved for t yields at t, not just after
     at0 = np.asarray(material.force(h, b0, lo, x), float) <= f
     never = np.asarray(material.force(h, b0, hi, x), float) > f
     for _ in range(steps):
@@ -311,7 +306,7 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
     want = t_star if t_request is None else np.asarray(t_request, float)
     lo_ok = np.where(np.isfinite(t_lo), t_lo, time_limit(material))
     t_prog = np.clip(want, lo_ok, np.maximum(lo_ok, t_hi))
-    side = np.where(t_star < t_lo - TIME_TOL_S, -1, np.where(t_star > t_hi + TIME_TOL_S, 1, 0))
+    side = np.where(t_star < t_lo - TOL.time, -1, np.where(t_star > t_hi + TOL.time, 1, 0))
     side = np.where(np.isfinite(t_lo), side, 1)
     bb = np.repeat(np.asarray(b0, float)[:, None], 2, 1)
     h, _ = solve_thickness(material, bb, x, np.repeat(t_prog[:, None], 2, 1),
@@ -358,7 +353,7 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
     out["earliest"], out["latest"] = float(lo.min()), float(hi.max())
     grid = np.arange(0.0, t_limit + 0.5 * step, step)
     lo_all = np.where(fin, t_lo, np.inf)
-    cover = ((grid[:, None] >= lo_all - TIME_TOL_S) & (grid[:, None] <= t_hi + TIME_TOL_S))
+    cover = ((grid[:, None] >= lo_all - TOL.time) & (grid[:, None] <= t_hi + TOL.time))
     frac = cover.mean(axis=1)
     k = int(np.argmax(frac))
     out["best_constant"] = [float(grid[k]), float(frac[k])]
@@ -371,7 +366,7 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
         if not len(bs):
             break
         tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
-        bad = ((tt < lo_all - TIME_TOL_S) | (tt > t_hi + TIME_TOL_S)).mean(axis=1)
+        bad = ((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
         j = np.lexsort((-(bs - a), bad))[0]
         key = (round(float(bad[j]), 9), -float(bs[j] - a))
         if best is None or key < best[0]:
@@ -491,9 +486,9 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
                    picture: bool = True, fit_landscape: bool = False, physics=None) -> dict:
     """Set the bracket thicknesses of a design folder from its time landscape.
 
-    Reads ``cells.csv`` and ``time_landscape.csv``, writes ``thickness_top_mm``,
-    ``thickness_bottom_mm``, ``t_star_s``, ``t_min_s``, ``t_max_s``, ``clamped`` back
-    into ``cells.csv`` (atomic rewrite) and draws ``temporal_feasibility.png``.
+    Reads ``cells.csv`` and ``time_landscape.csv``; sets the temporal stage's columns of
+    ``cells.csv`` (:data:`pysolver.tables.LATER_CELL_COLUMNS`), writes ``temporal.json`` and
+    draws ``temporal_feasibility.png``.
 
     Parameters
     ----------
@@ -503,7 +498,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         Bracket model (default: the committed one).
     membrane : path-like or MembraneModel, optional
         Membrane model (default: the committed ``pysolver/data/membrane_model.json``).
-    correction : {"boundary", "fem-boundary", "fem"}
+    correction : {"boundary", "fem"}
         Per-cell adaptation of ``F_mem`` (:data:`CORRECTIONS`); recorded in
         ``temporal.json`` and reused by :func:`refine_design`.
     t_request : (n_cells,) float, s, optional
@@ -543,80 +538,163 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     mem = load_membrane_model(membrane)
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
-    t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
     rim = ((physics.rim_margin_mm, physics.rim_stretch)
            if physics is not None and physics.rim else None)
     factor, finfo = membrane_factors(design_dir, cells, mem, correction, rim=rim)
-    res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
-                        cells["collision_length_bottom_mm"], cells["boundary"], t_star,
-                        material=mat, membrane=mem, t_request=t_request, factor=factor)
-    n = len(t_star)
-    clamped = np.flatnonzero(res["clamped"])
-    frac = float(len(clamped) / n) if n else 0.0
     min_span = sequenced_span(design_dir) if fit_landscape else 0.0
-    ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat),
-                              min_span=min_span)
+    p = Programme.solve(cells, land, mat, mem, factor, t_request, min_span)
     rescaled = None
-    m = ach.get("suggested_map")
-    if (fit_landscape and t_request is None and m is not None and len(clamped)
-            and m["fraction_clamped"] < frac):
-        t_old = (float(land.min()), float(land.max()))
-        span = m["t1"] - m["t0"]
-        u = (land - m["t0"]) / span if span > 0 else np.zeros_like(land)
-        land = np.maximum(m["a"] + u * (m["b"] - m["a"]), 0.0)
-        tables.write_table(design_dir / tables.FILENAMES["time_landscape"], "time_landscape",
-                           {"vertex_id": np.arange(len(land)), "time_s": land})
+    if fit_landscape and t_request is None:
+        land, p, rescaled = _fit_landscape(design_dir, cells, land, p, (mat, mem, factor),
+                                           min_span, progress)
+    summary = p.summary(cells, mat, mem, finfo, refined=t_request is not None,
+                        rescaled=rescaled)
+    if picture and p.n:
+        png = plot_feasibility(design_dir, land, p.t_star, cells, p.res, design_dir / PICTURE)
+        summary["picture"] = png.name
+    if not summary["feasible"]:
+        p.refuse(mat, design_dir)
+    summary["seconds"] = round(time.perf_counter() - t0, 3)
+    p.write(design_dir, cells, summary, factor)
+    h = p.res["thickness"]
+    _log(f"{design_dir.name}: {p.n} cells, thickness {h.min():.3f}-{h.max():.3f} mm, "
+         f"{len(p.clamped)} clamped ({100 * p.frac:.1f} %)", progress)
+    return summary
+
+
+def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, progress: bool):
+    """Map a shape's default landscape linearly (order kept) onto the achievable range that
+    clamps fewest cells, when that clamps fewer than it does now; rewrite
+    ``time_landscape.csv`` and programme the cells again.
+
+    Parameters
+    ----------
+    models : (material, membrane, factor) -- as for :func:`program_cells`
+
+    Returns
+    -------
+    land : (n_vertices,) float, s -- the landscape (mapped, or as it was)
+    p : Programme -- for that landscape
+    rescaled : dict or None -- ``from_s``, ``to_s``, ``min_span_s`` when mapped
+    """
+    m = p.ach.get("suggested_map")
+    if m is None or not len(p.clamped) or m["fraction_clamped"] >= p.frac:
+        return land, p, None
+    mat, mem, factor = models
+    t_old = (float(land.min()), float(land.max()))
+    land = _mapped_landscape(land, m)
+    write_landscape(design_dir, land)
+    p = Programme.solve(cells, land, mat, mem, factor, None, min_span)
+    rescaled = {"from_s": list(t_old), "to_s": [float(land.min()), float(land.max())],
+                "min_span_s": m["min_span_s"]}
+    _log(f"default time landscape {t_old[0]:.0f}-{t_old[1]:.0f} s mapped onto the "
+         f"achievable {rescaled['to_s'][0]:.0f}-{rescaled['to_s'][1]:.0f} s "
+         + (f"(at least {min_span:.0f} s wide: sequenced parts "
+            f"{SEQUENCING.min_separation_s:g} s apart) " if min_span else "")
+         + f"({100 * p.frac:.0f} % of cells clamped)", progress, prefix="[program]")
+    return land, p, rescaled
+
+
+def _mapped_landscape(land, m: dict) -> np.ndarray:
+    """The landscape mapped linearly (order kept) by a suggested map of
+    :func:`_achievable_summary`: ``[t0, t1]`` onto ``[a, b]`` s, never below 0."""
+    span = m["t1"] - m["t0"]
+    u = (land - m["t0"]) / span if span > 0 else np.zeros_like(land)
+    return np.maximum(m["a"] + u * (m["b"] - m["a"]), 0.0)
+
+
+@dataclass
+class Programme:
+    """The thicknesses of a design's cells for one landscape (:func:`program_cells`), with
+    what the summary and the refusal say about them.
+
+    Attributes
+    ----------
+    t_star : (n,) float, s -- the cells' programmed times, from the landscape
+    res : dict -- :func:`program_cells`
+    clamped : (k,) int -- cells whose t* is out of reach
+    frac : float -- ``k / n``
+    ach : dict -- :func:`_achievable_summary`
+    t_limit : float, s -- the material model's time range (:func:`time_limit`)
+    """
+
+    t_star: np.ndarray
+    res: dict
+    clamped: np.ndarray
+    frac: float
+    ach: dict
+    t_limit: float
+
+    @classmethod
+    def solve(cls, cells, land, mat, mem, factor, t_request, min_span: float) -> Programme:
         t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
         res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
                             cells["collision_length_bottom_mm"], cells["boundary"], t_star,
-                            material=mat, membrane=mem, factor=factor)
+                            material=mat, membrane=mem, t_request=t_request, factor=factor)
         clamped = np.flatnonzero(res["clamped"])
-        frac = float(len(clamped) / n) if n else 0.0
-        ach = _achievable_summary(t_star, res["t_min"], res["t_max"], time_limit(mat),
+        n = len(t_star)
+        t_limit = time_limit(mat)
+        ach = _achievable_summary(t_star, res["t_min"], res["t_max"], t_limit,
                                   min_span=min_span)
-        rescaled = {"from_s": list(t_old), "to_s": [float(land.min()), float(land.max())],
-                    "min_span_s": m["min_span_s"]}
-        if progress:
-            print(f"[program] default time landscape {t_old[0]:.0f}-{t_old[1]:.0f} s mapped onto "
-                  f"the achievable {rescaled['to_s'][0]:.0f}-{rescaled['to_s'][1]:.0f} s "
-                  + (f"(at least {min_span:.0f} s wide: sequenced parts "
-                     f"{SEQUENCING.min_separation_s:g} s apart) " if min_span else "")
-                  + f"({100 * frac:.0f} % of cells clamped)", file=sys.stderr)
-    miss = np.where(res["side"] < 0, res["t_min"] - t_star,
-                    np.where(res["side"] > 0, t_star - res["t_max"], 0.0))
-    miss = np.where(np.isfinite(miss), miss, time_limit(mat))
-    h = res["thickness"]
-    summary = {
-        "n_cells": int(n),
-        "t_star_range_s": [float(t_star.min()), float(t_star.max())] if n else None,
-        "thickness_range_mm": {"top": [float(h[:, 0].min()), float(h[:, 0].max())],
-                               "bottom": [float(h[:, 1].min()), float(h[:, 1].max())]},
-        "thickness_mean_mm": float(h.mean()) if n else None,
-        "fraction_clamped": frac,
-        "n_clamped": int(len(clamped)),
-        "clamped_cells": clamped.tolist(),
-        "too_early_cells": np.flatnonzero(res["side"] < 0).tolist(),
-        "too_late_cells": np.flatnonzero(res["side"] > 0).tolist(),
-        "clamp_error_s": {"mean": float(miss[res["clamped"]].mean()) if len(clamped) else 0.0,
-                          "max": float(miss.max()) if n else 0.0},
-        "feasible": bool(frac <= MAX_CLAMPED_FRACTION),
-        "achievable_range_s": ach,
-        "membrane_model": {"terms": list(mem.terms), "coefficients": mem.coef.tolist(),
-                           "residual_rms_N": mem.residual_rms_N},
-        "boundary_factor": float(mem.boundary_factor),
-        "membrane_correction": finfo,
-        "n_boundary_cells": int(np.sum(cells["boundary"])),
-        "membrane_force_range_N": [float(res["f_cell"].min()), float(res["f_cell"].max())]
-        if n else None,
-        "material_model": str(getattr(mat, "path", None) or type(mat).__name__),
-        "refined_times": t_request is not None,
-        "landscape_rescaled": rescaled,
-    }
-    if picture and n:
+        return cls(t_star, res, clamped, float(len(clamped) / n) if n else 0.0, ach, t_limit)
 
-        png = plot_feasibility(design_dir, land, cells, res, design_dir / PICTURE)
-        summary["picture"] = png.name
-    if not summary["feasible"]:
+    @property
+    def n(self) -> int:
+        return len(self.t_star)
+
+    def summary(self, cells, mat, mem, finfo: dict, *, refined: bool, rescaled) -> dict:
+        """The programming summary (``temporal.json`` → ``summary``; see
+        :func:`program_design`)."""
+        res, t_star, n, h = self.res, self.t_star, self.n, self.res["thickness"]
+        miss = np.where(res["side"] < 0, res["t_min"] - t_star,
+                        np.where(res["side"] > 0, t_star - res["t_max"], 0.0))
+        miss = np.where(np.isfinite(miss), miss, self.t_limit)
+        return {
+            "n_cells": int(n),
+            "t_star_range_s": [float(t_star.min()), float(t_star.max())] if n else None,
+            "thickness_range_mm": {"top": [float(h[:, 0].min()), float(h[:, 0].max())],
+                                   "bottom": [float(h[:, 1].min()), float(h[:, 1].max())]},
+            "thickness_mean_mm": float(h.mean()) if n else None,
+            "fraction_clamped": self.frac,
+            "n_clamped": int(len(self.clamped)),
+            "clamped_cells": self.clamped.tolist(),
+            "too_early_cells": np.flatnonzero(res["side"] < 0).tolist(),
+            "too_late_cells": np.flatnonzero(res["side"] > 0).tolist(),
+            "clamp_error_s": {"mean": float(miss[res["clamped"]].mean())
+                              if len(self.clamped) else 0.0,
+                              "max": float(miss.max()) if n else 0.0},
+            "feasible": bool(self.frac <= PROGRAMMING.max_clamped_fraction),
+            "achievable_range_s": self.ach,
+            "membrane_model": {"terms": list(mem.terms), "coefficients": mem.coef.tolist(),
+                               "residual_rms_N": mem.residual_rms_N},
+            "boundary_factor": float(mem.boundary_factor),
+            "membrane_correction": finfo,
+            "n_boundary_cells": int(np.sum(cells["boundary"])),
+            "membrane_force_range_N": [float(res["f_cell"].min()), float(res["f_cell"].max())]
+            if n else None,
+            "material_model": str(getattr(mat, "path", None) or type(mat).__name__),
+            "refined_times": refined,
+            "landscape_rescaled": rescaled,
+        }
+
+    def write(self, design_dir: Path, cells: dict, summary: dict, factor) -> None:
+        """The programme into ``cells.csv`` (:func:`pysolver.tables.update_cells`: ``t*``,
+        thicknesses, achievable range, NaN where a cell cannot finish, and clamping), and
+        ``temporal.json`` (the summary, the membrane factors, the programmed times)."""
+        res, h = self.res, self.res["thickness"]
+        fin = np.isfinite(res["t_min"])
+        tables.update_cells(design_dir, cells, t_star_s=self.t_star, thickness_top_mm=h[:, 0],
+                            thickness_bottom_mm=h[:, 1],
+                            t_min_s=np.where(fin, res["t_min"], np.nan),
+                            t_max_s=np.where(fin, res["t_max"], np.nan),
+                            clamped=res["clamped"])
+        record = {"summary": summary, "membrane_factor": [float(v) for v in factor],
+                  "t_program_s": [float(v) for v in res["t_program"]]}
+        atomic_write_text(design_dir / STAGE_FILE, json.dumps(record, indent=1) + "\n")
+
+    def refuse(self, mat, design_dir: Path):
+        """Raise the refusal of a mostly infeasible landscape, naming why and the fix."""
+        res, t_star = self.res, self.t_star
         never = ~np.isfinite(res["t_min"])
         early, late = res["side"] < 0, (res["side"] > 0) & ~never
         why = [f"{k} {what}" for k, what in (
@@ -627,26 +705,10 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
             (int(never.sum()), "cannot finish at all within the material model's "
                                f"{time_limit(mat):.0f} s")) if k]
         raise InputError(
-            f"the time landscape is mostly infeasible: {len(clamped)} of {n} cells "
-            f"({100 * frac:.0f} %) cannot finish at their time t* (t* spans "
+            f"the time landscape is mostly infeasible: {len(self.clamped)} of {self.n} cells "
+            f"({100 * self.frac:.0f} %) cannot finish at their time t* (t* spans "
             f"{t_star.min():.1f}-{t_star.max():.1f} s): " + "; ".join(why) + ".",
-            fix=_fix_message(ach) + f" See {design_dir / PICTURE}.")
-    out = dict(cells)
-    out["t_star_s"] = t_star
-    out["thickness_top_mm"] = h[:, 0]
-    out["thickness_bottom_mm"] = h[:, 1]
-    out["t_min_s"] = np.where(np.isfinite(res["t_min"]), res["t_min"], np.nan)
-    out["t_max_s"] = np.where(np.isfinite(res["t_min"]), res["t_max"], np.nan)
-    out["clamped"] = res["clamped"]
-    tables.write_table(design_dir / tables.FILENAMES["cells"], "cells", out)
-    summary["seconds"] = round(time.perf_counter() - t0, 3)
-
-    record = {"summary": summary, "membrane_factor": [float(v) for v in factor],
-              "t_program_s": [float(v) for v in res["t_program"]]}
-    atomic_write_text(design_dir / STAGE_FILE, json.dumps(record, indent=1) + "\n")
-    _log(f"{design_dir.name}: {n} cells, thickness {h.min():.3f}-{h.max():.3f} mm, "
-         f"{len(clamped)} clamped ({100 * frac:.1f} %)", progress)
-    return summary
+            fix=_fix_message(self.ach) + f" See {design_dir / PICTURE}.")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -696,6 +758,6 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
 __all__ = ["sequenced_span", "load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
-           "program_cells", "program_design", "timing_errors", "time_limit",
-           "COMPLETION_TOL_MM", "REFINE_DAMPING", "REFINE_LOG",
+           "program_cells", "program_design", "Programme", "timing_errors", "time_limit",
+           "REFINE_LOG",
            "PICTURE", "STAGE_FILE"]

@@ -80,10 +80,10 @@ from pysolver.atomic import atomic_write_text, claim_result_folder
 from pysolver.build import check_sim_span, simulate_and_check
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
-from pysolver.material.model import DEFAULT_MODEL_PATH, load_bracket_model
+from pysolver.material.model import load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
-from pysolver.params import MODEL_LIMITS, SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
+from pysolver.params import BRACKET_MODEL_FILE, SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
 from pysolver.tables import MODEL_FILE, read_design, read_table
 
 from .report import write_report
@@ -92,7 +92,6 @@ FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
 DESIGN_FILES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
                 "support_frame.csv", "design.json", MODEL_FILE)
 SUMMARY_FORMAT = "morphshell.tolerance"
-THICKNESS_FLOOR_MM = MODEL_LIMITS.tolerance_thickness_floor_mm
 _POW = np.arange(1, 5)
 
 
@@ -205,7 +204,7 @@ def read_payload(design_dir, material=None) -> DesignPayload:
         elif name in ("stencil.obj", "bases.csv", "cells.csv", MODEL_FILE):
             raise InputError(f"{folder}: no {name}", fix="give a programmed design folder "
                              "(morphshell build NAME --no-render, or make sim shape=NAME)")
-    mpath = Path(material) if material is not None else DEFAULT_MODEL_PATH
+    mpath = Path(material) if material is not None else BRACKET_MODEL_FILE
     try:
         mbytes = mpath.read_bytes()
     except OSError as e:
@@ -257,7 +256,7 @@ def _draw(seed: int, i: int, n_cells: int, unc: Uncertainty, sd_mat: float):
     relax = float(relaxation_factor(wait)) if unc.relaxation else 1.0
     return {"thickness": unc.thickness_sd * z_th,
             "stretch": unc.stretch_mean + unc.stretch_sd * z_tau,
-            "modulus": max(1.0 + unc.modulus_rel_sd * z_mu, MODEL_LIMITS.tolerance_modulus_floor),
+            "modulus": max(1.0 + unc.modulus_rel_sd * z_mu, TOLERANCE_RUN.modulus_floor),
             "material": math.exp(sd_mat * z_mat),
             "relaxation": relax}
 
@@ -337,7 +336,7 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
     ctx = _context(payload)
     model = ctx["model"]
     th = np.maximum(model.cell_thickness + np.asarray(pert.thickness_delta, float),
-                    THICKNESS_FLOOR_MM)
+                    TOLERANCE_RUN.thickness_floor_mm)
     consts = dataclasses.replace(model.consts, tau=pert.tau,
                                  mu=model.consts.mu * pert.modulus_factor
                                  * pert.relaxation_factor)

@@ -33,12 +33,6 @@ from scipy.spatial import cKDTree
 from pysolver.errors import InputError
 from pysolver.params import UNIT_CELL
 
-BASE_RADIUS = UNIT_CELL.base_r
-"""Radius of the collision cylinder of a base, mm (the printed base disc)."""
-BASE_HALF_HEIGHT = UNIT_CELL.layer_h
-"""Half height of the collision cylinder, mm: one layer (2.3 mm) on each side of the membrane."""
-
-
 # --------------------------------------------------------------------------------------------
 # completion times
 # --------------------------------------------------------------------------------------------
@@ -184,7 +178,7 @@ def open_layers(frames, tol_mm: float = UNIT_CELL.clearance) -> np.ndarray:
 # cylinder geometry
 # --------------------------------------------------------------------------------------------
 
-def cylinder_sdf(X, center, axis, radius=BASE_RADIUS, half_height=BASE_HALF_HEIGHT):
+def cylinder_sdf(X, center, axis, radius=UNIT_CELL.base_r, half_height=UNIT_CELL.layer_h):
     """Signed distance from points to solid cylinders (negative inside).
 
     Parameters
@@ -210,7 +204,7 @@ def cylinder_sdf(X, center, axis, radius=BASE_RADIUS, half_height=BASE_HALF_HEIG
     return outside + inside
 
 
-def cylinder_samples(radius=BASE_RADIUS, half_height=BASE_HALF_HEIGHT, n_around=24):
+def cylinder_samples(radius=UNIT_CELL.base_r, half_height=UNIT_CELL.layer_h, n_around=24):
     """Surface sample points of a z-axis cylinder centred at the origin.
 
     Rims and side rings (5 heights), both caps (centre and a ring at r/2).
@@ -372,7 +366,7 @@ def _check_poses(base_center, base_rotation):
 # --------------------------------------------------------------------------------------------
 
 def base_collisions(base_center, base_rotation, neighbour_pairs, *, t=None,
-                    tol=0.1, radius=BASE_RADIUS, half_height=BASE_HALF_HEIGHT,
+                    tol=0.1, radius=UNIT_CELL.base_r, half_height=UNIT_CELL.layer_h,
                     clearance_margin=2.0, frames=None):
     """Find overlapping non-neighbouring bases in every frame.
 
@@ -440,7 +434,7 @@ def base_collisions(base_center, base_rotation, neighbour_pairs, *, t=None,
 # --------------------------------------------------------------------------------------------
 
 def membrane_collisions(base_center, base_rotation, membrane_vertices, *, t=None, tol=0.1,
-                        local_radius=None, radius=BASE_RADIUS, half_height=BASE_HALF_HEIGHT,
+                        local_radius=None, radius=UNIT_CELL.base_r, half_height=UNIT_CELL.layer_h,
                         frames=None, flat_vertices=None, flat_centers=None):
     """Find membrane vertices inside bases that were far from them in the flat layout.
 
@@ -521,6 +515,6 @@ def membrane_collisions(base_center, base_rotation, membrane_vertices, *, t=None
                     {"local_radius_mm": float(local_radius), "n_membrane_vertices": int(n_mem)})
 
 
-__all__ = ["BASE_RADIUS", "BASE_HALF_HEIGHT", "completion_times", "read_completion_frames",
+__all__ = ["completion_times", "read_completion_frames",
            "never_due", "open_layers", "cylinder_sdf", "cylinder_samples", "CollisionResult",
            "base_collisions", "membrane_collisions"]

@@ -26,7 +26,7 @@ inside the cells).
 
 Cost.  The broad phase is a Verlet list: a KD-tree of the base centres lists the pairs of
 non-neighbours whose centres are within the prisms' circumscribed diameter plus ``dhat`` plus
-twice a skin (``tol.contact_skin_mm``), and the list is reused until some centre has moved a
+twice a skin (``SIM.contact_skin_mm``), and the list is reused until some centre has moved a
 skin from where it was built.  Each listed pair then gets a separating-axis lower bound of its
 distance, the centre distance less both prisms' extents along the line of centres
 (:func:`gap_lower_bound`).  Only pairs whose bound is below ``dhat`` enter ipctk for the
@@ -46,7 +46,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from pysolver.errors import InputError
-from pysolver.params import tol as TOL
+from pysolver.params import NEWTON, SIM
 
 
 def _ipctk():
@@ -134,7 +134,7 @@ class BaseContact:
         self.r_out = math.hypot(self.radius, self.half_height)  # every prism vertex's radius
         a, b = model.cell_bases[:, 0], model.cell_bases[:, 1]
         self.neighbour = {(int(min(x, y)), int(max(x, y))) for x, y in zip(a, b, strict=True)}
-        self.skin = float(TOL.contact_skin_mm)
+        self.skin = float(SIM.contact_skin_mm)
         self._verlet = None  # (centres (m, 3) mm, list radius mm, pairs (k, 2)) of the list
         self.barrier = self.ipc.BarrierPotential(self.dhat, self.kappa)
         self.n_dof = model.n_dof
@@ -284,7 +284,7 @@ class BaseContact:
 
     def step_limit(self, state, p, alpha_max: float) -> float:
         """Largest collision-free multiple of the step ``p`` (up to ``alpha_max``), times
-        ``tol.contact_ccd_safety``.
+        ``NEWTON.ccd_safety``.
 
         Every prism point of base ``b`` moves by at most ``motion_b`` (its translation plus
         its rotation angle times the vertex radius) along the linear sweep from ``state`` to
@@ -311,7 +311,7 @@ class BaseContact:
             X1, _, _ = self._mesh(pq, s1.c, s1.R)
             t = min(t, self.ipc.compute_collision_free_stepsize(mesh, np.asfortranarray(X0),
                                                                 np.asfortranarray(X1)))
-        return alpha_max if t >= 1.0 else TOL.contact_ccd_safety * t * alpha_max
+        return alpha_max if t >= 1.0 else NEWTON.ccd_safety * t * alpha_max
 
     def min_distance(self, state) -> float:
         """Smallest distance (mm) between non-neighbouring prisms closer than ``reach``; inf

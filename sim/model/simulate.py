@@ -74,7 +74,7 @@ from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics.energies import ShellEnergy, State
 from pysolver.mechanics.model import ShellModel, load_model
 from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newton
-from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
+from pysolver.params import NEWTON, PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
 from pysolver.tables import tables_sha256
 
@@ -120,11 +120,11 @@ class SimSettings:
     dt: float = SIM.dt
     eta: float = SIM.eta
     tol: float = TOL.newton_grad
-    max_iter_dry: int = TOL.newton_max_iter_dry
-    max_iter_wet: int = TOL.newton_max_iter_wet
-    settle_mm: float = TOL.settle_mm
-    blowup: float = 100.0
-    checkpoint_every: int = 20
+    max_iter_dry: int = NEWTON.max_iter_dry
+    max_iter_wet: int = NEWTON.max_iter_wet
+    settle_mm: float = SIM.settle_mm
+    blowup: float = SIM.blowup
+    checkpoint_every: int = SIM.checkpoint_every
     predictor: bool | str = True
     solver: str = "fast"
     physics: PhysicsOptions = PHYSICS_OFF
@@ -636,7 +636,8 @@ def simulate_model(model: ShellModel, material, *, t_end: float = SIM.t_end,
 
 
 def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt, material=None,
-                    progress: bool = True, resume: bool = True, checkpoint_every: int = 20,
+                    progress: bool = True, resume: bool = True,
+                    checkpoint_every: int = SIM.checkpoint_every,
                     **settings) -> dict:
     """Simulate the morph of a design folder; write ``<design_dir>/sim/frames.npz``.
 

@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pysolver.params import FABRICATION, SIM, UNIT_CELL
-from pysolver.params import MEMBRANE_MODEL_FILE as MODEL_PATH
+from pysolver.params import FABRICATION, MEMBRANE_MODEL_FILE, SIM, UNIT_CELL
 from pysolver.params import tol as TOL
 from pysolver.tables import LANDSCAPE_SOURCE, PARTS_RECORD, read_record, tables_sha256
 
@@ -136,9 +135,10 @@ def provenance(folder, build_info=None) -> dict:
         models["material (bracket) model"] = {"path": mat, "sha256": sha256_file(mat)}
     elif mat:
         models["material (bracket) model"] = {"path": mat, "sha256": None}
-    if MODEL_PATH.is_file():
+    if MEMBRANE_MODEL_FILE.is_file():
         corr = (temporal.get("membrane_correction") or {}).get("correction")
-        models["membrane model"] = {"path": str(MODEL_PATH), "sha256": sha256_file(MODEL_PATH),
+        models["membrane model"] = {"path": str(MEMBRANE_MODEL_FILE),
+                                    "sha256": sha256_file(MEMBRANE_MODEL_FILE),
                                     "correction": corr}
     versions = {p: _version(p) for p in VERSION_PACKAGES}
     versions["python"] = sys.version.split()[0]

@@ -38,8 +38,7 @@ from scipy import stats
 from pysolver.atomic import atomic_dir
 from pysolver.errors import InputError
 from pysolver.geometry import fold_angles_deg, rigid_fit
-from pysolver.params import UNIT_CELL, ReportThresholds
-from pysolver.params import tol as TOL
+from pysolver.params import PICTURES, UNIT_CELL, ReportThresholds
 from pysolver.tables import Design, read_design, read_table, tables_sha256
 
 from ..model.collisions import base_collisions, membrane_collisions, never_due
@@ -852,7 +851,7 @@ def _render_all(ren, rp, tmp, files, t, last, times, sh, bc, gif_frames, w):
     out["renders"] = names
     out["render_frames"] = sel
     err = sh["err"]
-    clim = (0.0, max(float(err.max()), TOL.colour_floor_mm))
+    clim = (0.0, max(float(err.max()), PICTURES.colour_floor_mm))
     img = ren.images([last], base_scalars=err, clim=clim,
                      cmap="plasma", scalar_title="error (mm)", fit="these")[0]
     out["shape_error"] = rp.save_png(img, tmp / "shape_error.png").name

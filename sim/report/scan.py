@@ -50,15 +50,13 @@ TRIM_FRACTION = 0.8
 """Fraction of closest pairs kept by each trimmed-ICP iteration (allows 20 % missing/outliers)."""
 ICP_MAX_ITER = 60
 IRLS_MAX_ITER = 100
-IRLS_EPS_MM = TOL.irls_eps_mm
-"""Floor of the distances in the IRLS weights (1/max(d, eps)), mm."""
 
 
 # --------------------------------------------------------------------------------------------
 # rigid fits
 # --------------------------------------------------------------------------------------------
 
-def l1_rigid_fit(A, B, *, Q0=None, s0=None, max_iter=IRLS_MAX_ITER, eps=IRLS_EPS_MM):
+def l1_rigid_fit(A, B, *, Q0=None, s0=None, max_iter=IRLS_MAX_ITER, eps=TOL.irls_eps_mm):
     """Rigid motion minimising the sum of distances ``sum_i |Q a_i + s - b_i|`` (IRLS).
 
     Iteratively re-weighted Kabsch with weights ``1 / max(d_i, eps)``; each step

@@ -1,0 +1,61 @@
+"""Temporal programming and its refinement from the simulation (SI Note 4; beyond the paper).
+
+Source: morphshell's choices (the reference programs thicknesses by hand-tuned rules,
+``simulator.md`` §10); the measurements behind a value are given with it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Programming:
+    """Settings of the thickness solve (:mod:`pysolver.temporal.program`) and of the timing
+    refinement from the simulation (``--refine``).
+
+    Source: morphshell's (module docstring); the paper programs each cell once, without a
+    refinement.
+
+    Attributes
+    ----------
+    max_clamped_fraction : float
+        Largest fraction of cells whose thickness is clamped to the printable range for a
+        temporal program to be feasible; above it the landscape is refused, naming the
+        achievable range.
+    bisection_steps : int
+        Bisection steps of the thickness and completion-time solves (50 halvings of the
+        0.30-0.65 mm range or the model's 120 s: 3e-16 mm and 1e-13 s, the
+        round-off of the values).
+    refine_damping : float
+        Fraction of the timing error (``t* - t_sim``) corrected per refinement round.
+    refine_open_layer_mm : float, mm
+        A layer still open at the end of a simulation, in a cell that never completes,
+        is made this much thinner by the next refinement round.
+    refine_extra_rounds : int
+        Rounds the refinement adds after the ones asked for while its best round still
+        has cells that never complete (each one more simulation).
+    membrane_factor_max_area : float, mm^2
+        Largest flat triangle of the membrane mesh of a design's own stencil (per-cell
+        membrane factors, :func:`pysolver.temporal.membrane_model.cell_membrane_factors`).
+    membrane_contraction_min : float
+        Smallest uniform contraction (current / flat size) of the stencil estimated from the
+        cells' closing distances for the per-cell membrane factors.
+    """
+
+    max_clamped_fraction: float = 0.5
+    bisection_steps: int = 50
+    refine_damping: float = 0.8
+    refine_open_layer_mm: float = 0.1
+    refine_extra_rounds: int = 2
+    membrane_factor_max_area: float = 1.0
+    membrane_contraction_min: float = 0.5
+
+
+PROGRAMMING = Programming()
+
+DEFAULT_REFINE = 1
+"""Rounds of timing refinement from the simulation, the one default of ``morphshell build``,
+``make`` and :func:`pysolver.build.build`."""
+
+__all__ = ["Programming", "PROGRAMMING", "DEFAULT_REFINE"]

@@ -1,0 +1,281 @@
+"""The stencil: its search (vertex count, seeds, rim inset), its optimisation, and the
+layout checks.
+
+Source: morphshell's; each value says what it was measured on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class StencilSearch:
+    """Settings of the stencil generation (:mod:`pysolver.design.remesh`,
+    :mod:`pysolver.design.stencil_opt`, :mod:`pysolver.design.count_search`) and of the
+    layout checks (:mod:`pysolver.design.checks`).
+
+    Source: morphshell's (the reference remeshes by hand in its GUI, ``pipeline.md`` §2.2);
+    the measurements behind a value are given with it.
+
+    Attributes
+    ----------
+    dense_faces : int
+        User meshes are resampled to about this many well-shaped faces before flattening.
+    min_boundary_points : int
+        Fewest points on the stencil's rim.
+    lloyd_iterations : int
+        Weighted Lloyd iterations of the CVT in the conformal plane.
+    relax_iterations : int
+        Spring relaxation iterations (Persson and Strang's scheme) after the CVT.
+    relax_retriangulate : int
+        Delaunay re-triangulation every this many relaxation iterations.
+    relax_fscale, relax_step : float
+        Rest length over mean length of the repulsive springs (1.2 as in Persson and
+        Strang) and the explicit step size.
+    grading : float
+        Target spacing in 3D ``~ exp(u)^(-grading)`` (u = conformal log-scale):
+        0 = uniform in 3D (isotropic and uniform on the target), 1 = uniform in the plane.
+        The default 0.5 is the reference's own weighting (``pipeline.md`` §2.2); measured on
+        the paper's cover (``--size 106 --min-bumper 0.1``), it clamps 12.7 % of the cells of
+        a constant 60 s landscape and 22 % of the reference landscape, against 27 % and
+        35.5 % for 1: the 3D cell lengths, hence the bumpers' contact lengths that set each
+        cell's time range, vary less (coefficient of variation 0.22 against 0.26).
+    rim_insets : tuple of float
+        Insets of the stencil boundary from the target's boundary, as fractions of the edge
+        of the smallest regular cell the min-bumper rule allows (``sqrt(3) 2 (base_r +
+        min_bumper)``, 7.3-8 mm), tried in order (0 = the stencil reaches the rim).  A
+        CVT's outer sites lie about 0.3-0.5 spacing inside its domain; the reference's
+        stencils cover 80-88 % of their targets for that reason.  The inset removes the
+        rim's sharpest features (the stand's notches), where cells fold most.
+    opt_sharpness : float
+        Log-sum-exp sharpness of the smoothed maxima in the stencil optimisation.
+    opt_s3_weight : float
+        Weight of log(3D scaling) beside log(longest flat cell) in the objective.  At 0 the
+        optimisation shortens the longest cell mostly by enlarging the smallest target
+        cells, which lowers the 3D scaling, and the count search then restores the size
+        with more vertices (the stand: 502 bases at 9.17 mm, the reference 396 at 9.63 mm).
+        -0.7 credits most of that back, so the optimisation improves the longest cell per
+        unit of scaling instead; measured (the count search as a whole): the stand 433 bases
+        at 9.45 mm, cover (0.1 mm bumper) 589 at 8.30 mm, against 502 and 611 at 0; -0.5
+        left the stand at 502, -1 lets the optimisation shrink cells (a 3D scaling of 1.5 at
+        the stand's count).
+    opt_min_angle_deg, opt_max_angle_deg, opt_angle_weight : float
+        Flat corner angles outside this range (deg) are penalised with this weight (per
+        rad^2): a base's disc (r 2 mm) must not reach across its triangle's edges (a
+        30-30-120 triangle puts its centroid 1.2 mm from its long edge per 12 mm).
+    opt_centroid_edge_mm : float, mm
+        Smallest distance from a base centre (flat centroid) to its triangle's edges in the
+        scaled layout: a base's disc and bracket roots (r 2 mm) stay inside the membrane
+        region the simulator's and the F_mem correction's meshes give each base (the
+        reference's stencils keep >= 2.6 mm).
+    opt_clearance_weight : float
+        Weight of the squared log shortfall of a base centre's clearance.
+    opt_clearance_slack : float
+        Log shortfall of the clearance (2 %) a round may leave and still be kept (a hard
+        limit of :func:`pysolver.design.stencil_opt.accept_step`).
+    opt_backtracks : int
+        Halvings of a round's step back toward its start tried when the L-BFGS point breaks
+        a hard limit or does not improve the exact objective: a soft penalty's overshoot
+        never costs the whole round.
+    opt_stiffen : float
+        When no point of the step is kept, the round is solved once more with the clearance
+        penalty this many times stiffer.
+    opt_tiny : float
+        Floor of the arguments of the barrier's and penalties' logarithms, and the guard
+        added under the square root of the half fold's tangent (finite gradient when flat).
+    opt_rounds, opt_iterations : int
+        Outer rounds (re-lifting onto the target) and L-BFGS iterations per round.
+    opt_barrier : float
+        Weight of the log barrier that keeps flat triangles positively oriented.
+    opt_timing_weight : float
+        Weight of the timing misfit (:func:`pysolver.design.stencil_opt.timing_misfit`) in
+        the stencil optimisation, when a time landscape is known (0 = off).
+    timing_fastest, timing_slowest : tuple of float
+        ``(c, a, e, k)`` of the estimates ``log t ~ c + a log b0 + e log x + k [boundary]``
+        (t in s) of the fastest and slowest completion time a cell can reach (brackets of
+        ``thickness_min`` and ``thickness_max``) from its bracket length b0 (mm),
+        compression x (mm) and whether it lies on the rim.  Least squares on the times
+        temporal programming computed for 5448 and 3427 cells of six cover designs (the
+        reference's stencil and morphshell's) and the stand: residual SD 0.22 and 0.27 in
+        log t.  They only steer the stencil optimisation; temporal programming computes
+        each cell's times from the material and membrane models.
+    timing_margin : float
+        The misfit narrows each cell's estimated range by this much (log time) at both ends:
+        the estimates' own error is 0.22-0.27.
+    opt_timing_iterations : int
+        L-BFGS iterations per round when the timing term is on (it needs more than the
+        longest cell alone).
+    opt_cap_weight : float
+        With the timing term, weight (per log^2) of the penalty that keeps the exact longest
+        flat cell under ``max_cell_length - margin``: without it the timing term can trade
+        the count search's footing away (measured on cover: 3D scaling 0.82 at 418 bases).
+    seeds : int
+        Seeds tried at the chosen vertex count when none is given and the first seed
+        leaves less than ``margin`` below the limit.
+    count_start : float
+        First vertex count of the search over the paper's estimate ``0.38 A / 7^2``
+        (measured: the counts found are 1.4-1.7 x the estimate on cover, stand, petal,
+        spiral).
+    count_steps : int
+        Secant steps of the vertex count toward a 3D scaling of 1.
+    count_tolerance : float
+        |log scale3d| under which the secant search stops.
+    count_secant_min : float
+        Smallest difference of log vertex counts of the last two trials over which the
+        secant slope is taken (else the uniform-mesh slope 1/2).
+    dense_min_angle_deg : float, deg
+        An input mesh whose smallest triangle angle is below this is resampled (dense
+        remeshing) before flattening.
+    dense_min_faces : int
+        An input mesh with fewer faces than this is resampled before flattening.
+    remesh_surface_dist : float
+        Largest distance of the isotropic remeshing's surface from the input, relative to
+        the target edge length.
+    candidates : tuple of float
+        Relative vertex counts tried around the secant result (the other seeds are tried at
+        the best count).
+    margin : float, mm
+        Preferred distance of the longest flat cell below the limit.
+    opt_pin_weight : float
+        Weight (per log^2) of the penalty that holds the exact 3D scaling at 1 when the chosen
+        stencil is optimised once more for its longest flat cell per unit of scaling
+        (:func:`pysolver.design.count_search.remesh_surface`; 0 = no second pass): the count
+        search's scaling lands within a few per cent of 1 (its tolerance, and the seeds'
+        noise), this pass brings it within 0.5 % (30 left 1-4 %).
+    hopeless_log_scale, hopeless_cell_factor : float
+        A candidate whose stencil, before optimisation, is off the size asked for by more than
+        this (|log 3D scaling|, 42 %) or has a longest flat cell over this many times the limit
+        is not optimised: the optimisation moves them by up to 17 % and 20 % (petal: scaling
+        1.18 -> 0.99, longest cell 10.8 -> 8.8 mm; hemisphere and saddle of the peer shapes
+        5-9 % and 10-18 %), so it cannot become the pick; its figures still steer the secant
+        steps.  Cuts the search's cost on targets whose first counts land far off.
+    polish_tolerance : float
+        The polish "held" the scaling at 1 when the stencil kept is within this (log) of it;
+        otherwise the search says that it could not.
+    refusal_size_factor : float
+        A target none of whose stencils prints at any size is searched once more at this
+        fraction of its size, so that its refusal names a measured smaller ``--size``.
+    min_scale3d : float
+        Smallest 3D scaling (the shell over the size asked for) a stencil may have, and
+        ``1 / min_scale3d`` the largest: the count search picks among candidates within this
+        band first, and the design stage refuses a stencil outside it, naming measured
+        alternatives (a smaller ``--size`` that was tried, ``--min-bumper 0.1``), instead of
+        printing a shell silently smaller or larger than asked.
+    min_area_covered : float
+        When the stencil the first rim inset gives covers less than this fraction of the
+        target's area (3D area of the stencil over the target's), the search also tries the
+        stencil without an inset and takes it only if it prints at least as well (its longest
+        flat cell within ``max_cell_length - margin``, or within the limit when the inset
+        stencil is not within the margin either); otherwise the inset stencil stays.  On a
+        narrow target the inset removes whole rows of cells and leaves short rim cells that
+        never finish.  Measured (inset stencils of the default search): the spiral (32 mm
+        wide) 72 %, and with the inset 2.7 % RMS and 13 rim cells that never finish in the
+        simulation; without it (8.81 mm longest cell before the last pass) 0.63 % and 3.
+        ``petal:size=0.7`` 65 %, but without the inset its longest cell is 9.71 mm (> 9.5),
+        so the inset stays.  Above the threshold: petal 77 %, saddle 81 %, dome 82 %, the
+        stand (``--size 171``) 85 %, the cover (``--size 106 --min-bumper 0.1``) 88 %; the
+        reference's stencils cover 80-88 %.
+    remove_flaps : bool
+        Merge the two triangles of a rim vertex that has only two (a flap:
+        :func:`pysolver.design.remesh.remove_flaps`).  Its two rim bases, joined by one
+        cell and hanging from the rest by one cell each, turn in plane in water and lock
+        with their cells closed at one end.  Measured on the spiral: with flaps, 3 such
+        cells never finish, whatever the refinement does; without them, none.
+    flap_min_angle_deg : float, deg
+        A flap is kept where the merged triangle would have a smaller angle (its inner
+        vertex near the chord: a base would reach across the triangle's edge).
+    trade_counts : tuple of float
+        With a time landscape the user gave (``--time``, ``--time-file``), relative vertex
+        counts below the chosen one also tried: larger cells are faster, and a landscape
+        that asks for early times may clamp fewer cells on them
+        (:func:`pysolver.design.stencil_opt.estimated_clamping`).  The trade shrinks the
+        shell (its 3D scaling falls below 1), so it is taken only as below and reported.
+        Measured on cover with the reference's landscape (``--size 106 --min-bumper 0.1
+        --time-file``): the search's 359 vertices (scaling 0.997) clamp 16.1 % of the cells
+        when programmed; the trade takes 309 (seed 1, scaling 0.935: the shell 6.5 %
+        smaller), 12.5 %.  The estimate ranks stencils but scatters by seed (309 with seed
+        0: scaling 1.06, ~37 %), hence both seeds.
+    trade_min_scale3d : float
+        Smallest 3D scaling a traded stencil may have (the shell at least this fraction of
+        the requested size); at least ``min_scale3d``.
+    trade_gain : float
+        Smallest drop of the estimated clamped fraction that pays for the smaller shell.
+    timing_grading : float
+        With a landscape the user gave, the stencil's 3D spacing follows
+        ``(t / t_mean)^(-timing_grading)`` besides ``grading`` (:func:`pysolver.design.remesh.
+        time_spacing_log`): smaller, slower cells where the landscape asks for late times.
+        Measured on cover with the reference's landscape (``--size 106 --min-bumper 0.1``):
+        0 clamps 16.1 % of the cells (12.5 % with a 6.5 % smaller shell, the trade); 0.25
+        8.4 % (522 bases, scaling 0.951, longest flat cell 9.11 mm); 0.3 ends at a 3D
+        scaling of 0.875 (the longest flat cell binds); 0.35 and 0.5 leave no printable
+        stencil (the spacing jumps at the petals' borders).  A graded
+        search that is not printable or scales below ``trade_min_scale3d`` is redone
+        without the grading (``remesh.timing_grading``).
+    near_limit_fraction : float
+        A cell whose flat central length is above this fraction of ``max_cell_length``
+        (and not above it) is warned about as near the limit.
+    """
+
+    dense_faces: int = 6000
+    min_boundary_points: int = 6
+    lloyd_iterations: int = 40
+    relax_iterations: int = 100
+    relax_retriangulate: int = 5
+    relax_fscale: float = 1.2
+    relax_step: float = 0.2
+    grading: float = 0.5
+    rim_insets: tuple = (0.5, 0.0)
+    opt_sharpness: float = 60.0
+    opt_s3_weight: float = -0.7
+    opt_min_angle_deg: float = 30.0
+    opt_max_angle_deg: float = 90.0
+    opt_centroid_edge_mm: float = 2.3
+    opt_angle_weight: float = 100.0
+    opt_clearance_weight: float = 1000.0
+    opt_clearance_slack: float = 0.02
+    opt_backtracks: int = 6
+    opt_stiffen: float = 10.0
+    opt_tiny: float = 1e-30
+    opt_rounds: int = 2
+    opt_iterations: int = 50
+    opt_barrier: float = 1e-3
+    opt_timing_weight: float = 200.0
+    timing_fastest: tuple = (6.385, -2.919, 0.776, 0.546)
+    timing_slowest: tuple = (6.996, -2.15, 1.224, 0.032)
+    timing_margin: float = 0.4
+    opt_cap_weight: float = 1000.0
+    opt_timing_iterations: int = 100
+    seeds: int = 2
+    count_start: float = 1.5
+    count_steps: int = 4
+    count_tolerance: float = 0.05
+    count_secant_min: float = 1e-9
+    dense_min_angle_deg: float = 15.0
+    dense_min_faces: int = 2000
+    remesh_surface_dist: float = 0.05
+    candidates: tuple = ()
+    margin: float = 0.3
+    opt_pin_weight: float = 100.0
+    polish_tolerance: float = 0.02
+    hopeless_log_scale: float = 0.35
+    hopeless_cell_factor: float = 1.5
+    refusal_size_factor: float = 0.8
+    min_scale3d: float = 0.95
+    min_area_covered: float = 0.75
+    remove_flaps: bool = True
+    flap_min_angle_deg: float = 30.0
+    trade_counts: tuple = (0.93, 0.86)
+    trade_min_scale3d: float = 0.95
+    trade_gain: float = 0.03
+    timing_grading: float = 0.25
+    near_limit_fraction: float = 0.95
+
+
+STENCIL = StencilSearch()
+
+REFERENCE_MIN_BUMPER_MM = 0.1
+"""The minimal bumper of most of the reference's examples (the paper says 0.3 mm), offered as
+a measured alternative when a target cannot be printed."""
+
+__all__ = ["StencilSearch", "STENCIL", "REFERENCE_MIN_BUMPER_MM"]
