@@ -58,8 +58,11 @@ def _build(shape: str, out: Path) -> None:
         return None
 
     import importlib
-    for mod_name in ("sim.report", "pysolver.build"):
-        mod = importlib.import_module(mod_name)
+    for mod_name in ("sim.report", "pysolver.build", "pysolver.simulator", "pysolver.stage_runs"):
+        try:
+            mod = importlib.import_module(mod_name)
+        except ModuleNotFoundError:  # an older layout of the orchestrator
+            continue
         for name, stub in (("make_report", no_report), ("print_verdict", no_verdict)):
             if hasattr(mod, name):
                 setattr(mod, name, stub)

@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pysolver.build import inputs_hash, lock_record
+from pysolver.build import inputs_hash
 from pysolver.design import run_design
+from pysolver.provenance import lock_record
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = "regular:rows=1,cols=2"

@@ -43,9 +43,9 @@ landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
 within :data:`COMPLETION_TOL_MM` (the 0.05 mm printing clearance, see
-:func:`simulated_completion`).
+:func:`sim.model.collisions.completion_times`).
 
-Closing the loop (beyond the paper).  :func:`refine_design` compares simulated
+Closing the loop (beyond the paper).  :func:`pysolver.refine.refine_design` compares simulated
 completion times with ``t*`` and corrects the requested times of the thickness
 solve, ``t_req <- clip(t_req + damping (t* - t_sim), t_min, t_max)``, re-solving and
 re-simulating ``iterations`` times; the best iteration (lowest RMS timing error)
@@ -69,6 +69,7 @@ from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
 from ..params import MODEL_LIMITS, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
+from ..progress import say
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
 from .plots import plot_feasibility
@@ -78,7 +79,7 @@ PICTURE = "temporal_feasibility.png"
 STAGE_FILE = "temporal.json"
 """Programming record (correction rule, per-cell membrane factors, summary), design folder."""
 REFINE_LOG = "refine.json"
-"""History of :func:`pysolver.build.refine_design` (in ``<design>/sim/``)."""
+"""History of :func:`pysolver.refine.refine_design` (in ``<design>/sim/``)."""
 
 CORRECTIONS = ("boundary", "fem")
 """How ``F_mem`` is adapted per cell.  ``"boundary"``: the paper's rule, x 0.6 on boundary
@@ -98,8 +99,7 @@ COMPLETION_TOL_MM = UNIT_CELL.clearance
 
 
 def _log(msg: str, progress: bool) -> None:
-    if progress:
-        print(f"[temporal] {msg}", file=sys.stderr, flush=True)
+    say("program", "", msg, progress)
 
 
 # ----------------------------------------------------------------------------------------------
