@@ -105,3 +105,21 @@ def test_progress_lines_count_and_estimate(capsys):
                                     (3725, "1h02m"), (float("nan"), "?")])
 def test_duration_words(s, text):
     assert duration(s) == text
+
+
+def test_the_studio_reads_the_progress_lines(capsys):
+    """The studio's progress bar parses the one style: the build's stage lines and the
+    ``k/n`` counts of the stages (:class:`pysolver.studio.server.Job`)."""
+    from pysolver.progress import say
+    from pysolver.studio.server import Job
+
+    say("build", "regular:rows=2", "simulate ...")
+    Steps("simulate", "regular:rows=2", 240).step("t=   0.5 s  newton   2")
+    Steps("refine", "petal", 2).step("rms 1.20 s")
+    Steps("render", "fast parts", 118).step()
+    say("build", "petal", "simulate done in 3.0 s")
+    stage, sim, refine, render, done = capsys.readouterr().err.splitlines()
+    assert Job.STAGE.match(stage).group(1) == "simulate"
+    assert not Job.STAGE.match(done) and not Job.FRACTION.search(done)
+    assert [Job.FRACTION.search(x).groups() for x in (sim, refine, render)] == [
+        ("1", "240"), ("1", "2"), ("1", "118")]

@@ -344,7 +344,8 @@ def print_verdict(r, out_dir):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sim.report.report", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m sim.report.report",
+                                 description=__doc__.split("\n")[0])
     ap.add_argument("design_dir")
     ap.add_argument("--out", default=None)
     ap.add_argument("--quiet", action="store_true")
