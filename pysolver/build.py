@@ -72,7 +72,6 @@ from .tables import read_bases, read_cells, read_record
 from .temporal.membrane_model import MODEL_PATH as MEMBRANE_MODEL_PATH
 from .temporal.membrane_model import validate_membrane_model_file
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
 BUILD_ROOT = Path("build")
 
 
@@ -647,6 +646,6 @@ def _key_figures(folder: Path, stages: dict) -> dict:
     return fig
 
 
-__all__ = ["build", "rebuild", "design_only", "BuildOptions", "check_build_options",
+__all__ = ["build", "rebuild", "design_only", "check_build_options",
            "validate_model_files", "shape_name", "inputs_hash", "tool_versions",
            "report_figures", "check_landscape", "REBUILD_DROPPED", "BUILD_ROOT"]
