@@ -226,7 +226,8 @@ def _simulate(folder: Path, mat, solver: str, args, out: Path, log, physics=None
     """Simulate the benchmark design with one solver path (and physics options); returns its
     figures and (final base centres (n, 3) mm, completion times (n_cells,) s)."""
     from pysolver.params import PHYSICS_OFF
-    from sim.model.simulate import completion_times, simulate_design
+    from sim.model.collisions import completion_times
+    from sim.model.simulate import simulate_design
 
     physics = PHYSICS_OFF if physics is None else physics
     tag = tag or solver

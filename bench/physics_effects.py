@@ -61,7 +61,7 @@ def markers(fr, rest=False):
 
 
 def compare(ref, fr, size, rest=False, ref_rest=False):
-    from sim.model.simulate import completion_times
+    from sim.model.collisions import completion_times
 
     P, Q = markers(fr, rest), markers(ref, ref_rest)
     d = np.linalg.norm(kabsch(P, Q) - Q, axis=1)

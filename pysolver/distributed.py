@@ -25,10 +25,8 @@ import contextlib
 import hashlib
 import json
 import logging
-import math
 import os
 import re
-import sys
 import time
 import warnings
 from collections.abc import Callable, Iterable
@@ -38,6 +36,8 @@ from pathlib import Path
 from .atomic import atomic_write_text
 from .errors import InputError, read_input
 from .params import TOLERANCE_RUN
+from .progress import duration, say
+from .records import json_default, json_text
 
 KEY_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,120}$")
 SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|inproc|ucx)://[A-Za-z0-9_.:\[\]/-]{1,200}$")
@@ -72,9 +72,7 @@ def fingerprint(*parts) -> str:
             return {"sha256": hashlib.sha256(o).hexdigest()}
         if hasattr(o, "to_dict"):
             return o.to_dict()
-        if hasattr(o, "tolist"):
-            return o.tolist()
-        raise TypeError(f"cannot fingerprint {type(o).__name__}")
+        return json_default(o)  # numpy values, paths; anything else: TypeError
 
     for p in parts:
         h.update(json.dumps(p, sort_keys=True, default=default).encode())
@@ -161,10 +159,9 @@ class ResultStore:
         return d.get("result")
 
     def save(self, task: Task, result) -> None:
-        text = json.dumps({"format": RESULT_FORMAT, "key": task.key,
-                           "fingerprint": task.fingerprint, "result": result},
-                          sort_keys=True, allow_nan=True)
-        atomic_write_text(self.path(task.key), text + "\n")
+        atomic_write_text(self.path(task.key), json_text(
+            {"format": RESULT_FORMAT, "key": task.key, "fingerprint": task.fingerprint,
+             "result": result}, indent=None))
 
 
 @dataclass
@@ -312,20 +309,12 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
             nw = len(client.scheduler_info().get("workers", {}))
             where = scheduler or f"local cluster on {LOOPBACK} (TLS)"
             dash = f", dashboard {client.dashboard_link}" if (dashboard or scheduler) else ""
-            print(f"dask: {where}, {nw} worker(s){dash}", file=sys.stderr, flush=True)
+            say("dask", "", f"{where}, {nw} worker(s){dash}")
         yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
-
-
-def _fmt_s(s: float) -> str:
-    if not math.isfinite(s):
-        return "?"
-    s = int(round(s))
-    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else (
-        f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s")
 
 
 def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
@@ -345,7 +334,7 @@ def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
     scheduler, workers, dashboard : see :func:`dask_client`
     progress : bool
     label : str
-        Prefix of the progress lines.
+        Stage of the progress lines (``[label] k/n done ... ETA``, :mod:`pysolver.progress`).
     on_result : callable, optional
         ``on_result(key, result)`` after each computed result is stored (tests use it to
         kill a worker mid-run).
@@ -371,9 +360,8 @@ def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
         else:
             results[t.key] = r
     stats.loaded = len(results)
-    if progress and stats.loaded:
-        print(f"{label}: {stats.loaded}/{stats.total} result(s) from an earlier run "
-              f"in {store.folder}", file=sys.stderr, flush=True)
+    say(label, "", f"{stats.loaded}/{stats.total} result(s) from an earlier run in "
+        f"{store.folder}", progress and stats.loaded > 0)
     if todo:
         with contextlib.ExitStack() as stack:
             if client is None:
@@ -384,10 +372,9 @@ def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
             _compute(client, todo, store, results, stats, progress, label, on_result,
                      t_start)
     stats.wall_s = time.perf_counter() - t_start
-    if progress:
-        print(f"{label}: {stats.total - len(stats.failed)}/{stats.total} done "
-              f"({stats.computed} computed, {stats.loaded} loaded), {len(stats.failed)} "
-              f"failed, {_fmt_s(stats.wall_s)}", file=sys.stderr, flush=True)
+    say(label, "", f"{stats.total - len(stats.failed)}/{stats.total} done ({stats.computed} "
+        f"computed, {stats.loaded} loaded), {len(stats.failed)} failed, "
+        f"{duration(stats.wall_s)}", progress)
     return {k: results[k] for k in keys if k in results}, stats
 
 
@@ -424,9 +411,7 @@ def _compute(client, todo, store, results, stats, progress, label, on_result, t_
             except Exception as e:  # noqa: BLE001
                 exc = e
             stats.failed[t.key] = f"{type(exc).__name__}: {exc}"
-            if progress:
-                print(f"{label}: task {t.key} failed: {stats.failed[t.key]}",
-                      file=sys.stderr, flush=True)
+            say(label, "", f"task {t.key} failed: {stats.failed[t.key]}", progress)
         fut.release()
         done += 1
         now = time.perf_counter()
@@ -434,10 +419,9 @@ def _compute(client, todo, store, results, stats, progress, label, on_result, t_
             last = now
             rate = (now - t_run) / max(stats.computed, 1)
             eta = rate * (n - done) if stats.computed else float("nan")
-            print(f"{label}: {stats.loaded + done}/{stats.total} done, "
-                  f"{len(stats.failed)} failed, ETA {_fmt_s(eta)}"
-                  + (f"  (dashboard {stats.dashboard})" if stats.dashboard else ""),
-                  file=sys.stderr, flush=True)
+            say(label, "", f"{stats.loaded + done}/{stats.total} done, {len(stats.failed)} "
+                f"failed  ETA {duration(eta)}"
+                + (f"  (dashboard {stats.dashboard})" if stats.dashboard else ""))
 
 
 __all__ = ["Task", "ResultStore", "RunStats", "run_tasks", "dask_client", "fingerprint",

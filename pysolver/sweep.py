@@ -41,7 +41,6 @@ import io
 import itertools
 import math
 import re
-import sys
 import tempfile
 import time
 import tomllib
@@ -62,6 +61,7 @@ from .distributed import (
 )
 from .errors import InputError, MorphshellError, read_input
 from .params import TOLERANCE_RUN
+from .progress import say
 
 BUILD_ROOT = Path("build")
 OPTION_TYPES = {
@@ -126,19 +126,7 @@ def load_spec(path) -> dict:
         Unreadable TOML, unknown keys, wrong types, duplicate names, too many variants.
     """
     p = Path(path)
-    try:
-        text = read_input(p, "sweep spec").decode("utf-8")
-        spec = tomllib.loads(text)
-    except OSError as e:
-        raise InputError(f"sweep spec {p}: {e.strerror}", fix="give an existing TOML file") \
-            from None
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-        raise InputError(f"sweep spec {p}: not valid TOML ({e})",
-                         fix="see the example in docs/tolerance.md") from None
-    unknown = sorted(set(spec) - {"name", "base", "grid", "variant"})
-    if unknown:
-        raise InputError(f"sweep spec {p}: unknown key(s) {', '.join(map(repr, unknown))}",
-                         fix="use name, [base], [grid] and [[variant]]")
+    spec = _read_toml(p)
     name = spec.get("name", p.stem)
     if not isinstance(name, str) or not NAME_RE.match(name):
         raise InputError(f"sweep spec {p}: name = {name!r}",
@@ -157,15 +145,47 @@ def load_spec(path) -> dict:
                              fix=f"e.g. {k} = [1, 2]")
         for v in vals:
             _check_options({k: v}, f"{p} [grid]")
-    variants = []
     n_grid = math.prod(len(v) for v in grid.values()) if grid else 0
     if n_grid + len(explicit) > TOLERANCE_RUN.max_variants:
         raise InputError(f"sweep spec {p}: {n_grid + len(explicit)} variants",
                          fix=f"at most {TOLERANCE_RUN.max_variants} per sweep")
+    variants = _grid_variants(base, grid) + _listed_variants(base, explicit, p)
+    if not variants:
+        variants = [dict(base, name=_auto_name(base, []))]
+    _check_variants(variants, p)
+    return {"name": name, "variants": variants, "spec_dir": p.parent.absolute()}
+
+
+def _read_toml(p: Path) -> dict:
+    """The spec's TOML with only the known top-level keys."""
+    try:
+        spec = tomllib.loads(read_input(p, "sweep spec").decode("utf-8"))
+    except OSError as e:
+        raise InputError(f"sweep spec {p}: {e.strerror}", fix="give an existing TOML file") \
+            from None
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        raise InputError(f"sweep spec {p}: not valid TOML ({e})",
+                         fix="see the example in docs/tolerance.md") from None
+    unknown = sorted(set(spec) - {"name", "base", "grid", "variant"})
+    if unknown:
+        raise InputError(f"sweep spec {p}: unknown key(s) {', '.join(map(repr, unknown))}",
+                         fix="use name, [base], [grid] and [[variant]]")
+    return spec
+
+
+def _grid_variants(base: dict, grid: dict) -> list:
+    """Every combination of the grid's values on top of the base options."""
     keys = list(grid)
+    out = []
     for combo in itertools.product(*(grid[k] for k in keys)) if grid else ():
         o = dict(base, **dict(zip(keys, combo, strict=True)))
-        variants.append(dict(o, name=_auto_name(o, keys)))
+        out.append(dict(o, name=_auto_name(o, keys)))
+    return out
+
+
+def _listed_variants(base: dict, explicit: list, p: Path) -> list:
+    """The ``[[variant]]`` entries on top of the base options (checked, named)."""
+    out = []
     for i, v in enumerate(explicit):
         if not isinstance(v, dict):
             raise InputError(f"{p} [[variant]] {i + 1}: not a table")
@@ -178,9 +198,13 @@ def load_spec(path) -> dict:
         if not isinstance(vname, str) or not NAME_RE.match(vname):
             raise InputError(f"{p} [[variant]] {i + 1}: name = {vname!r}",
                              fix="use letters, digits, '_', '.', '-'")
-        variants.append(dict(o, name=vname))
-    if not variants:
-        variants = [dict(base, name=_auto_name(base, []))]
+        out.append(dict(o, name=vname))
+    return out
+
+
+def _check_variants(variants: list, p: Path) -> None:
+    """Distinct names, a shape each, and the file options resolved to existing files
+    (relative to the spec's folder; changed in place)."""
     names = [v["name"] for v in variants]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -198,7 +222,6 @@ def load_spec(path) -> dict:
                                      "does not exist",
                                      fix="paths are relative to the spec file's folder")
                 v[k] = str(f)
-    return {"name": name, "variants": variants, "spec_dir": p.parent.absolute()}
 
 
 def _is_file_like(shape: str) -> bool:
@@ -380,10 +403,9 @@ def run_sweep(spec_path, *, out=None, scheduler=None, workers=None, client=None,
             r[k] = Path(val).name if (k in FILE_OPTIONS and val and _is_file_like(val)) else val
         rows.append(r)
     write_table(out, rows, spec["name"])
-    if progress:
-        n_ok = sum(r.get("verdict") != "ERROR" for r in rows)
-        print(f"sweep: {n_ok}/{len(rows)} variants built -> {out / 'index.html'}",
-              file=sys.stderr, flush=True)
+    n_ok = sum(r.get("verdict") != "ERROR" for r in rows)
+    say("sweep", spec["name"], f"{n_ok}/{len(rows)} variants built -> {out / 'index.html'}",
+        progress)
     return {"rows": rows, "out": str(out), "run": stats.to_dict()}
 
 

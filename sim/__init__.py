@@ -4,9 +4,9 @@
 (``simulate_design``) of the shell mechanics of :mod:`pysolver.mechanics` (model assembly from
 a design folder, energies, compiled kernels, the Newton solver); ``completion_times`` is in
 :mod:`sim.model.collisions`.
-:mod:`sim.report` is the check report (verdict, pictures, fabrication sheet, scan
-comparison); :mod:`sim.viewer` the data of the 3D morph viewer.  ``sim`` reads the design
-folder only: it imports nothing from :mod:`pysolver` but the core (``params``, ``errors``,
-``atomic``, ``geometry``, ``tables``), the mechanics and the runtime material model
-(``tests/test_architecture.py``).
+:mod:`sim.report` is the check report (``check_morph``: the one verdict; pictures,
+fabrication sheet, scan comparison); :mod:`sim.viewer` the data of the 3D morph viewer.
+``sim`` reads the design folder only: it imports nothing from :mod:`pysolver` but the core
+(``params``, ``errors``, ``atomic``, ``geometry``, ``tables``, ``progress``, ``records``,
+``provenance``), the mechanics and the runtime material model (``tests/test_architecture.py``).
 """

@@ -106,7 +106,7 @@ def viewer_data(sd, t_done, *, max_frames: int = 80, quantise: bool = True,
     sd : sim.report.SimData
         Loaded design folder (tables, stencil, frames).
     t_done : (n_cells,) float, s
-        Simulated completion time per cell (NaN = never), ``sim.report.completion_times``.
+        Simulated completion time per cell (NaN = never), ``sim.model.collisions.completion_times``.
     max_frames : int
         Frames kept (evenly spaced, first and last always kept).
     quantise : bool

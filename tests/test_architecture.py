@@ -12,16 +12,21 @@ them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests kee
 * the simulator (``sim``) imports nothing from ``pysolver`` but the core (table reader,
   ``params``, ``errors``, ``atomic``, ``geometry``), the mechanics and the runtime material
   model;
-* of ``pysolver``, only the orchestrator (:mod:`pysolver.build`, which composes the stages)
-  and the command line import ``sim``; the other front ends (studio, tolerance analysis,
-  sweep) ask the orchestrator to simulate, and no design-side package (design, temporal,
-  render, material, fitting, mechanics, core) imports ``sim`` at all;
+* of ``pysolver``, only the gateway :mod:`pysolver.simulator` imports ``sim``; the other
+  front ends (the build and its stage runners, the refinement, studio, tolerance analysis,
+  sweep, the command line) reach the simulator through it, and no design-side package
+  (design, temporal, render, material, fitting, mechanics, core) imports ``sim`` at all;
 * the offline fitting tools (:mod:`pysolver.fitting`: material fit and report, membrane-model
   fit) sit above every runtime stage: only the command line imports them;
 * project modules are imported at module level: an import inside a function hides an edge
-  of the graph.  The one exception is the command line (:mod:`pysolver.cli`), whose
-  subcommands import their stage when they run so that ``morphshell --help`` is instant;
-  every such import carries a ``# lazy:`` comment;
+  of the graph.  The one exception is the command line (:mod:`pysolver.cli` and the
+  subcommands it runs, :mod:`pysolver.commands`), whose subcommands import their stage when
+  they run so that ``morphshell --help`` is instant; every such import carries a
+  ``# lazy:`` comment;
+* the pipeline's table (:mod:`pysolver.stages`) names its runners as ``"module:function"``
+  strings, imported when they run: each name is an edge of the graph too (from the
+  orchestrator :mod:`pysolver.build`, or from :mod:`pysolver.cli` for the subcommands),
+  checked like the imports, and every name exists;
 * any other import inside a function (an optional or heavy third-party dependency) carries a
   comment saying why (a bare ``# noqa`` is not a reason).
 """
@@ -37,7 +42,8 @@ TOP_PACKAGES = ("pysolver", "sim")
 
 # Layers, lowest first: a module may import its own group and any group of a lower rank.
 LAYERS = {
-    "core": 0,        # errors, params, atomic, geometry, tables: used by every stage
+    "core": 0,        # errors, params, atomic, geometry, tables, progress lines, JSON
+                      # records, provenance: used by every stage
     "mechanics": 1,   # shell model, membrane energy and mesh, Newton solver, rim margin
     "material": 1,    # runtime bracket material model
     "design": 2,      # target surface -> stencil -> layout -> design tables, model.npz
@@ -47,15 +53,17 @@ LAYERS = {
     "render": 3,      # OpenSCAD part files and STLs
     "fitting": 3.5,   # offline fitting tools (material fit and its report, membrane-model
                       # fit): above every runtime stage, so none of them imports a fit
-    "front": 4,       # orchestrator (build), command line, studio, sweep, tolerance, specimens
+    "front": 4,       # orchestrator (build, stages table and runners, refine), the gateway
+                      # to the simulator, command line, studio, sweep, tolerance, specimens
 }
 
 CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.atomic",
-        "pysolver.geometry", "pysolver.tables"}
+        "pysolver.geometry", "pysolver.tables", "pysolver.progress", "pysolver.records",
+        "pysolver.provenance"}
 FITTING = ("pysolver.fitting", "pysolver.fitting.material_fit",
            "pysolver.fitting.material_report", "pysolver.fitting.membrane_fit",
            "pysolver.fitting.cell_membrane")
-LAZY_ALLOWED = {"pysolver.cli"}  # see the module docstring
+LAZY_ALLOWED = {"pysolver.cli", "pysolver.commands"}  # the command line: see the docstring
 
 
 def group(mod: str) -> str:
@@ -144,7 +152,26 @@ def imports() -> list[tuple[str, str, int, bool, str]]:
     return out
 
 
-IMPORTS = imports()
+RUNNER = re.compile(r"^((?:pysolver|sim)(?:\.\w+)*):(\w+)$")
+
+
+def runner_names() -> list[tuple[str, str, str, int]]:
+    """The ``"module:function"`` names of the stage table: (caller, module, function, line);
+    the caller is the module that imports and runs them."""
+    path = MODULES["pysolver.stages"]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            m = RUNNER.match(node.value)
+            if m:
+                caller = "pysolver.cli" if m.group(1) == "pysolver.commands" else "pysolver.build"
+                out.append((caller, m.group(1), m.group(2), node.lineno))
+    return out
+
+
+RUNNERS = runner_names()
+IMPORTS = imports() + [(caller, mod, line, False, f"stages.py:{line} runner {mod}:{fn}")
+                       for caller, mod, fn, line in RUNNERS if mod in MODULES]
 
 
 def test_every_import_is_resolved():
@@ -205,14 +232,27 @@ def test_sim_reads_only_the_contract():
         "\n".join(bad)
 
 
-SIM_IMPORTERS = {"pysolver.build", "pysolver.cli"}  # the orchestrator and the command line
+SIM_IMPORTERS = {"pysolver.simulator"}  # the one gateway
 
 
-def test_only_the_orchestrator_imports_sim():
-    """Data flows forward: of ``pysolver``, only the orchestrator and the command line
-    import the simulator (any ``sim`` module, report and viewer included); design-side
+def test_the_stage_table_names_functions_that_exist():
+    """Every runner the stage table names is a module-level function of an existing
+    module (read from the source: nothing is imported)."""
+    assert len(RUNNERS) >= 8  # the stages and the commands: the parser sees the table
+    bad = []
+    for _caller, mod, fn, line in RUNNERS:
+        defs = ({n.name for n in ast.parse(MODULES[mod].read_text()).body
+                 if isinstance(n, ast.FunctionDef)} if mod in MODULES else set())
+        if fn not in defs:
+            bad.append(f"stages.py:{line}: {mod}:{fn}")
+    assert not bad, "the stage table names functions that do not exist:\n" + "\n".join(bad)
+
+
+def test_only_the_gateway_imports_sim():
+    """Data flows forward: of ``pysolver``, only the gateway :mod:`pysolver.simulator`
+    imports the simulator (any ``sim`` module, report and viewer included); design-side
     packages (temporal programming included, whose membrane model uses
-    :mod:`pysolver.mechanics`) and the other front ends never do."""
+    :mod:`pysolver.mechanics`) and the front ends never do."""
     assert SIM_IMPORTERS <= set(MODULES)
     bad = [f"{a}:{line} ({group(a)}) imports {b}" for a, b, line, _, _ in IMPORTS
            if a.split(".")[0] == "pysolver" and a not in SIM_IMPORTERS
@@ -236,7 +276,7 @@ def test_runtime_does_not_import_the_offline_fits():
                 "pysolver.temporal.membrane_fit", "pysolver.temporal.cell_membrane"):
         assert old not in MODULES, f"{old}: offline fits live in pysolver.fitting"
     bad = [f"{a}:{line} ({group(a)}) imports {b}" for a, b, line, _, _ in IMPORTS
-           if group(b) == "fitting" and group(a) != "fitting" and a != "pysolver.cli"]
+           if group(b) == "fitting" and group(a) != "fitting" and a not in LAZY_ALLOWED]
     assert not bad, "\n".join(bad)
 
 

@@ -104,7 +104,7 @@ def test_kill_during_design_leaves_no_output(tmp_path):
 
 
 def test_killed_design_command_is_cleaned_up_by_the_next_run(tmp_path):
-    _kill_when(["design", "regular"], tmp_path, "[design regular] load")
+    _kill_when(["design", "regular"], tmp_path, "[design] regular: load")
     build = tmp_path / "build"
     assert not (build / "regular").exists()
     r = _run(["--quiet", "design", "regular"], tmp_path)

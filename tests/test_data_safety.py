@@ -10,7 +10,6 @@ The shells are the small ``regular`` patches, so the file runs in well under a m
 from __future__ import annotations
 
 import hashlib
-import inspect
 import os
 import re
 import shutil
@@ -25,7 +24,6 @@ import pytest
 import trimesh
 
 from pysolver import atomic
-from pysolver import build as build_module
 from pysolver.atomic import (
     STAMP_NAME,
     atomic_dir,
@@ -41,6 +39,7 @@ from pysolver.design.mesh_input import load_input
 from pysolver.design.time_landscape import evaluate_expression, parse_expression
 from pysolver.errors import EXIT_BAD_INPUT, InputError
 from pysolver.params import DEFAULT_REFINE, LIMITS
+from pysolver.stages import BuildOptions
 from pysolver.tables import read_stencil
 
 REPO = Path(__file__).resolve().parent.parent
@@ -317,7 +316,7 @@ def test_one_refine_default_for_cli_api_and_make():
     build_sub = next(a for a in _parser()._subparsers._group_actions[0].choices.values()
                      if a.prog.endswith(" build"))
     assert build_sub.get_default("refine") == DEFAULT_REFINE == 1
-    assert inspect.signature(build_module.build).parameters["refine"].default == DEFAULT_REFINE
+    assert BuildOptions().refine == DEFAULT_REFINE
     assert not re.search(r"^REFINE\s*\?=\s*\S", (REPO / "Makefile").read_text(), re.M)
 
 

@@ -173,7 +173,7 @@ def test_commands_in_the_docs_exist():
                 if w not in targets:
                     bad.append(f"{doc}: `{cmd.strip()}`: no make target {w!r}")
                 break
-        elif words[0] == "morphshell" and len(words) > 1 and not words[1].startswith("-"):
+        elif words[0] == "morphshell" and len(words) > 1 and not words[1].startswith(("-", "<")):
             sub = subs.get(words[1])
             if sub is None:
                 bad.append(f"{doc}: `{cmd.strip()}`: no subcommand {words[1]!r}")

@@ -276,7 +276,8 @@ def test_good_morph_passes_and_report_is_complete(good):
 @pytest.mark.parametrize("mode,check", [("flat", "shape"), ("wrong_way", "shape"),
                                         ("collide", "collisions"), ("nonconverged", "solver")])
 def test_broken_morphs_fail(tmp_path, mode, check):
-    from sim.report import Thresholds, decide, load_sim, shape_metrics
+    from pysolver.params import ReportThresholds
+    from sim.report import decide, load_sim, shape_metrics
 
     # wrong_way: a shallow dome (sag 1.9 mm over 55 mm, folds 2 deg) bent the other way: the
     # centres are only a WARN, the reversed folds are the FAIL
@@ -296,7 +297,7 @@ def test_broken_morphs_fail(tmp_path, mode, check):
                            sd.target, sd.target_normals)
         m = dict(r["metrics"], shape=sh)
         m.pop("fold")
-        assert decide(m, Thresholds())[0] == "WARN"
+        assert decide(m, ReportThresholds())[0] == "WARN"
     if mode == "collide":
         ev = r["metrics"]["collisions"]["base_base"]["first"]
         nf = r["metrics"]["n_frames"]
@@ -311,16 +312,16 @@ def test_colliding_morph_switches_the_build_to_contact(tmp_path, good):
     """The build's escalation rule is the report's collision rule: a morph in which
     non-neighbouring bases pass through each other (the "collide" fixture) is simulated again
     with barrier contact; a clean one keeps the reference model."""
-    from pysolver.build import _contact_if_needed
+    from pysolver.simulator import contact_if_needed
     from sim.report import base_base_collisions
 
     make_synthetic_design(tmp_path, mode="collide")
     hit = base_base_collisions(tmp_path)
     assert hit["count"] == _report(tmp_path)["metrics"]["collisions"]["base_base"]["count"] >= 1
-    physics, got = _contact_if_needed(tmp_path, "collide", progress=False)
+    physics, got = contact_if_needed(tmp_path, "collide", progress=False)
     assert physics is not None and physics.switched_on() == ["contact"] and got == hit
     assert base_base_collisions(good)["count"] == 0
-    assert _contact_if_needed(good, "good", progress=False)[0] is None
+    assert contact_if_needed(good, "good", progress=False)[0] is None
 
 
 def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeypatch):
@@ -346,9 +347,9 @@ def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeyp
             np.savez_compressed(p, **fr)
         return {}
 
-    # (the stages the orchestrator imported; pysolver.build looks them up when it runs)
-    monkeypatch.setattr("pysolver.build.run_design", fake_design)
-    monkeypatch.setattr("pysolver.build.simulate_design", fake_simulate)
+    # (the stages the runners imported; pysolver.stage_runs looks them up when it runs)
+    monkeypatch.setattr("pysolver.stage_runs.run_design", fake_design)
+    monkeypatch.setattr("pysolver.stage_runs.simulate_design", fake_simulate)
     s = build("regular", out=tmp_path / "b", program=False, render=False, progress=False)
     assert [c.switched_on() if c else None for c in calls] == [None, ["contact"]]
     assert s["stages"]["simulate"]["contact"]["collisions"]["count"] >= 1
@@ -358,14 +359,14 @@ def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeyp
 
 
 def test_thresholds_validate_and_tighten(good):
-    from sim.report import Thresholds
+    from pysolver.params import ReportThresholds
 
     with pytest.raises(InputError):
-        Thresholds(shape_rms_fail_pct=-1)
+        ReportThresholds(shape_rms_fail_pct=-1)
     with pytest.raises(InputError):
-        Thresholds.coerce({"no_such_limit": 1})
+        ReportThresholds.coerce({"no_such_limit": 1})
     with pytest.raises(InputError):
-        Thresholds(shape_rms_warn_pct=6.0, shape_rms_fail_pct=5.0)
+        ReportThresholds(shape_rms_warn_pct=6.0, shape_rms_fail_pct=5.0)
     # a timing limit below the synthetic 2 s scatter turns the good morph into a WARN
     r = _report(good, thresholds={"timing_rms_warn_s": 0.5}, out_dir=good / "report_strict",
                 renderer="matplotlib")

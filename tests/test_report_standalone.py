@@ -15,6 +15,7 @@ import pytest
 from _browser import chrome, have_browser
 
 from pysolver.params import FABRICATION, SIM
+from pysolver.provenance import sha256_file
 from pysolver.tables import read_table
 from sim.report import fabrication as fab
 
@@ -104,7 +105,7 @@ def test_provenance_lists_input_options_models_versions(page, petal):
     temporal = json.loads((petal / "temporal.json").read_text())["summary"]
     mat = temporal["material_model"]
     assert rows["material (bracket) model"].startswith(mat)
-    assert fab.sha256_file(mat) in rows["material (bracket) model"]
+    assert sha256_file(mat) in rows["material (bracket) model"]
     assert re.search(r"sha256 [0-9a-f]{64}", rows["membrane model"])
     assert "morphshell 0.1.0" in rows["versions"] and "numpy" in rows["versions"]
     assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC", rows["report date"])
@@ -201,13 +202,13 @@ def test_viewer_data_round_trips(petal):
     """The viewer's JSON decodes to the frames, each aligned rigidly to the target."""
     import base64
 
-    from sim.report import completion_times, load_sim
+    from sim.model.collisions import completion_times
+    from sim.report import load_sim
     from sim.viewer import frame_alignments, viewer_data
 
     sd = load_sim(petal)
     fr = sd.frames
-    t_done, _ = completion_times(fr["t"], fr["collided"], fr.get("bracket_length"),
-                                 fr.get("collision_length"))
+    t_done = completion_times(fr)
     v = viewer_data(sd, t_done, max_frames=30)
     sel = np.asarray(v["frames"])
     assert len(sel) == 30 and sel[0] == 0 and sel[-1] == len(fr["t"]) - 1

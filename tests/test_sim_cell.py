@@ -21,7 +21,8 @@ from pysolver.design.cellnodes import model_arrays
 from pysolver.mechanics import build_model
 from pysolver.mechanics.energies import ShellEnergy, State
 from pysolver.params import SIM
-from sim.model.simulate import completion_times, simulate_model
+from sim.model.collisions import completion_times
+from sim.model.simulate import simulate_model
 
 
 def test_single_cell_matches_1d_force_balance():

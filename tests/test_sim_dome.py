@@ -16,7 +16,8 @@ from _shared import designed
 from pysolver.material.model import load_bracket_model
 from pysolver.tables import read_table
 from pysolver.temporal import program_design
-from sim.model.simulate import completion_times, simulate_design
+from sim.model.collisions import completion_times
+from sim.model.simulate import simulate_design
 
 
 def _kabsch_rms(A, B):

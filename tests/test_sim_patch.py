@@ -14,7 +14,8 @@ from synthetic import StandInBracketModel, regular_stencil
 
 from pysolver.design.cellnodes import model_arrays
 from pysolver.mechanics import build_model
-from sim.model.simulate import completion_times, simulate_model
+from sim.model.collisions import completion_times
+from sim.model.simulate import simulate_model
 
 
 def _model(top, bottom):

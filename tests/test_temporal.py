@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from pysolver import tables
-from pysolver.build import refine_design
 from pysolver.design.time_landscape import cell_target_times
 from pysolver.errors import InputError
 from pysolver.fitting.membrane_fit import regular_patch, sample_patch
 from pysolver.params import MEMBRANE_MODEL_FILE, PROGRAMMING, UNIT_CELL
+from pysolver.refine import refine_design
 from pysolver.temporal import (
     PICTURE,
     completion_time,
@@ -35,7 +35,7 @@ from pysolver.temporal.membrane_model import (
     MembraneModel,
     load_membrane_model,
 )
-from sim.model.simulate import simulated_completion
+from sim.model.collisions import completion_times
 
 REPO = Path(__file__).resolve().parent.parent
 BRACKET_MODEL = REPO / "pysolver" / "data" / "bracket_model.json"
@@ -308,7 +308,7 @@ def test_fem_membrane_factors_on_a_regular_patch(tmp_path):
     assert s["membrane_correction"]["correction"] == "fem"
 
 
-def test_simulated_completion_tolerance():
+def test_completion_tolerance():
     t = np.array([0.0, 1.0, 2.0, 3.0])
     Lc = np.array([[1.0, 1.0, 1.0, 1.0], [2.0, 2.0, 2.0, 2.0]])
     gap = np.zeros((4, 2, 4))
@@ -316,8 +316,8 @@ def test_simulated_completion_tolerance():
     gap[:, 1] = [[0.5] * 4, [0.3] * 4, [0.2] * 4, [0.0] * 4]
     frames = {"t": t, "collided": gap <= 0.0, "bracket_length": Lc[None] + gap,
               "collision_length": Lc}
-    strict, _ = simulated_completion(frames, tol_mm=0.0)
-    loose, _ = simulated_completion(frames)                   # 0.05 mm: the print clearance
+    strict = completion_times(frames, tol_mm=0.0)
+    loose = completion_times(frames)                          # 0.05 mm: the print clearance
     assert np.isnan(strict[0]) and strict[1] == 3.0
     assert loose.tolist() == [2.0, 3.0]
     # the layers still open in the last frame, by the same rule
@@ -419,7 +419,7 @@ def test_refine_thins_the_layer_a_stuck_cell_leaves_open(tmp_path):
     assert res["history"][0]["never_due_cells"] == [stuck]
     c = tables.read_table(d, "cells")
     assert c["thickness_top_mm"][stuck] == pytest.approx(h0[stuck] - 2 * step)
-    assert np.all(np.isfinite(simulated_completion(d)[0]))    # the kept round: all close
+    assert np.all(np.isfinite(completion_times(d)))           # the kept round: all close
     # refine=0 runs no round at all, not even the extra ones
     assert refine_design(d, iterations=0, material=mat, membrane=MEMBRANE, progress=False,
                          simulate=sim)["rounds"] == 0
@@ -487,7 +487,7 @@ def test_petal_completion_follows_the_landscape(tmp_path):
     simulate_design(d, progress=False)
     r = refine_design(d, iterations=1, progress=False)
     c = tables.read_table(d, "cells")
-    t_sim, _ = simulated_completion(d)
+    t_sim = completion_times(d)
     e = timing_errors(c["t_star_s"], t_sim, c["clamped"])
     b, a = r["history"][0], r["after"]
     print(f"\npetal ({PETAL}): {s['n_cells']} cells, {100 * s['fraction_clamped']:.1f} % "

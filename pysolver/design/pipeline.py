@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import sys
-import time as _time
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +24,8 @@ from ..atomic import atomic_write_text, output_folder
 from ..errors import InputError
 from ..geometry import signed_areas_2d
 from ..params import LIMITS, UNIT_CELL, UnitCell, check_unit_cell
+from ..progress import Clock
+from ..records import json_text
 from . import surfaces
 from .alternatives import printable_alternatives, size_refusal
 from .cellnodes import bracket_nodes, collision_lengths, write_model_file
@@ -45,23 +45,6 @@ from .time_landscape import (
 )
 
 FLATTENINGS = ("cetm", "lscm")
-
-
-class _Clock:
-    def __init__(self, progress: bool, label: str):
-        self.t = {}
-        self.progress = progress
-        self.label = label
-        self._t0 = _time.perf_counter()
-        self._start = self._t0
-
-    def step(self, name: str):
-        now = _time.perf_counter()
-        self.t[name] = round(now - self._t0, 4)
-        self._t0 = now
-        if self.progress:
-            print(f"[design {self.label}] {name:<10s} {self.t[name]:7.2f} s "
-                  f"(total {now - self._start:6.1f} s)", file=sys.stderr, flush=True)
 
 
 def _load_source(source, scale: float, size=None, stencil: bool = False):
@@ -263,7 +246,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     """
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
                          thickness=thickness, params=params, size=size, time_file=time_file)
-    clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
+    clock = Clock(progress, str(source) if not hasattr(source, "name") else source.name)
     inp = _read_input(source, scale, size, stencil, time, time_file, vertices)
     surf = inp.surf
     clock.step("load")
@@ -350,7 +333,7 @@ def _options(inp, lay: Layout, *, vertices, seed, time, scale, size, flattening,
     }
 
 
-def _layout(st, params: UnitCell, central_length, clock: _Clock):
+def _layout(st, params: UnitCell, central_length, clock: Clock):
     """The flat layout of a stencil (scaling rules, bases, bumpers) and its cells' collision
     lengths (from the bracket nodes).
 
@@ -415,7 +398,7 @@ class _Stencil:
     rerun: object = None
 
 
-def _stencil(surf, src_desc: str, land: DesignLandscape, clock: _Clock, *, vertices, seed,
+def _stencil(surf, src_desc: str, land: DesignLandscape, clock: Clock, *, vertices, seed,
              params: UnitCell, flattening: str, stencil: bool, progress: bool) -> _Stencil:
     """The stencil: a finished one as given (checked), else the target remeshed (the count
     search, with the landscape on the target) and flattened."""
@@ -568,21 +551,8 @@ def _summary(surf, kind, src_desc, lay: Layout, report, dist, comparison, remesh
     }
 
 
-def _json_default(o):
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(type(o))
-
-
 def _write_json(path: Path, data: dict):
-    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=False,
-                                       default=_json_default) + "\n")
+    atomic_write_text(path, json_text(data, indent=1, sort_keys=False))
 
 
 __all__ = ["run_design", "check_design_options", "unit_cell_options",

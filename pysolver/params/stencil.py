@@ -143,13 +143,12 @@ class StencilSearch:
         (:func:`pysolver.design.count_search.remesh_surface`; 0 = no second pass): the count
         search's scaling lands within a few per cent of 1 (its tolerance, and the seeds'
         noise), this pass brings it within 0.5 % (30 left 1-4 %).
-    hopeless_log_scale, hopeless_cell_factor : float
+    hopeless_log_scale : float
         A candidate whose stencil, before optimisation, is off the size asked for by more than
-        this (|log 3D scaling|, 42 %) or has a longest flat cell over this many times the limit
-        is not optimised: the optimisation moves them by up to 17 % and 20 % (petal: scaling
-        1.18 -> 0.99, longest cell 10.8 -> 8.8 mm; hemisphere and saddle of the peer shapes
-        5-9 % and 10-18 %), so it cannot become the pick; its figures still steer the secant
-        steps.  Cuts the search's cost on targets whose first counts land far off.
+        this (|log 3D scaling|, 42 %) is not optimised: the optimisation moves the scaling by
+        up to 17 % (petal: 1.18 -> 0.99; the peer hemisphere and saddle 5-9 %), so it cannot
+        become the pick; its figures still steer the secant steps.  Cuts the search's cost on
+        targets whose first counts land far off.
     polish_tolerance : float
         The polish "held" the scaling at 1 when the stencil kept is within this (log) of it;
         otherwise the search says that it could not.
@@ -259,7 +258,6 @@ class StencilSearch:
     opt_pin_weight: float = 100.0
     polish_tolerance: float = 0.02
     hopeless_log_scale: float = 0.35
-    hopeless_cell_factor: float = 1.5
     refusal_size_factor: float = 0.8
     min_scale3d: float = 0.95
     min_area_covered: float = 0.75

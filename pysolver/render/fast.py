@@ -46,13 +46,12 @@ import sys
 import tempfile
 import threading
 import time
-from importlib.metadata import PackageNotFoundError
-from importlib.metadata import version as _v
 from pathlib import Path
 
 import numpy as np
 
 from ..params import LIMITS
+from ..provenance import package_version
 from .scad_io import Part, part_text
 
 DIST = "openscad-evaluator"
@@ -94,13 +93,7 @@ def version() -> str | None:
     """
     if not available():
         return None
-
-    def v(dist):
-        try:
-            return _v(dist)
-        except PackageNotFoundError:
-            return "unknown"
-
+    v = package_version
     return (f"{DIST} {v(DIST)} (openscad-lalr-parser {v('openscad-lalr-parser')}, "
             f"manifold3d {v('manifold3d')}, morphshell shim {SHIM_VERSION})")
 

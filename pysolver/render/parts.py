@@ -44,8 +44,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
-import json
 import os
 import resource
 import shutil
@@ -66,6 +66,8 @@ from ..errors import ExternalToolError, InputError, MorphshellError
 from ..geometry import print_transform, rotvec_to_matrix
 from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
 from ..params import tol as TOL
+from ..progress import Steps, say
+from ..records import json_text
 from ..tables import PARTS_RECORD, tables_sha256
 from . import fast as render_fast
 from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files
@@ -96,8 +98,6 @@ OpenSCAD too), and so were 72 of 72 stress layers (six shapes x their own and 5 
 thickness programs, fast renderer) against 10 of 72 before.  It renders ``petal``'s 767
 parts in ~10 s instead of ~140 s."""
 
-
-
 FAST_INSTALL_FIX = ("install it into the project's environment ('.venv/bin/pip install "
                     "openscad-evaluator'), or use the renderer 'openscad'.")
 
@@ -113,7 +113,6 @@ INSTALL_FIX = ("install OpenSCAD: 'sudo apt-get install openscad' (Debian/Ubuntu
 _FATAL_MARKERS = ("ERROR:", "unknown variable", "unknown module", "unknown function",
                   "undefined operation", "Ignoring unknown")
 
-
 STL_FILES = {
     "top": "top.stl", "bottom": "bottom.stl",
     "markers_top": "markers_top.stl", "markers_bottom": "markers_bottom.stl",
@@ -122,8 +121,9 @@ STL_FILES = {
     "actuated": "actuated.stl",
 }
 
-_BAR_INTERVAL_S = 0.1 if sys.stderr.isatty() else 15.0
-"""Progress-bar refresh: live on a terminal, a line every 15 s in logs (CI, files)."""
+_BAR_INTERVAL_S = 2.0 if sys.stderr.isatty() else 15.0
+"""Seconds between progress lines of the part pools: every 2 s on a terminal, every 15 s
+in logs (CI, files); the last part always prints."""
 
 EXPORT_SIMPLIFY_MM = 0.0
 """Tolerance (mm) of the manifold3d ``simplify`` run on every output before writing it:
@@ -237,7 +237,6 @@ def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
     failures: list[tuple[Part, str]] = []
     if not todo:
         return seconds, failures
-    from tqdm import tqdm  # optional: progress bars only with progress on
 
     def work(item):
         part, target = item
@@ -248,8 +247,8 @@ def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
                 raise _NotRendered  # the cache keeps no file for a failed part
         return (part, *result)
 
-    bar = tqdm(total=len(todo), desc="OpenSCAD parts", unit="part", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True, mininterval=_BAR_INTERVAL_S)
+    bar = Steps("render", "OpenSCAD parts", len(todo), enabled=progress,
+                every_s=_BAR_INTERVAL_S)
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = [pool.submit(work, item) for item in todo]
         try:
@@ -259,13 +258,11 @@ def _openscad_pool(todo, *, exe, cache_dir, jobs, progress):
                     seconds[part.name] = dt
                 else:
                     failures.append((part, err))
-                bar.update(1)
+                bar.step()
         except BaseException:
             for f in futures:
                 f.cancel()
             raise
-        finally:
-            bar.close()
     return seconds, failures
 
 
@@ -274,30 +271,23 @@ def _fast_pool(todo, *, cache_dir, jobs, progress):
 
     Returns ``seconds`` {name: evaluation wall time} and ``failures`` [(Part, message)].
     """
-    from tqdm import tqdm  # optional: progress bars only with progress on
-
-
     seconds: dict[str, float] = {}
     failures: list[tuple[Part, str]] = []
     if not todo:
         return seconds, failures
-    bar = tqdm(total=len(todo), desc="fast parts", unit="part", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True, mininterval=_BAR_INTERVAL_S)
+    bar = Steps("render", "fast parts", len(todo), enabled=progress, every_s=_BAR_INTERVAL_S)
     lock = threading.Lock()
 
     def done(i, ans):
         with lock:
-            bar.update(1)
+            bar.step()
 
     with contextlib.ExitStack() as stack:  # one temporary file per part, each atomic_file's
         files = [(part, stack.enter_context(_optional_file(target)))
                  for part, target in todo]
-        try:
-            answers = render_fast.render_files(
-                [(p.path, tmp) for p, tmp in files], jobs=jobs,
-                ast_dir=Path(cache_dir) / render_fast.AST_CACHE_DIRNAME, on_done=done)
-        finally:
-            bar.close()
+        answers = render_fast.render_files(
+            [(p.path, tmp) for p, tmp in files], jobs=jobs,
+            ast_dir=Path(cache_dir) / render_fast.AST_CACHE_DIRNAME, on_done=done)
         for (part, tmp), ans in zip(files, answers, strict=True):
             if ans["ok"] and tmp.is_file() and tmp.stat().st_size > 84:
                 seconds[part.name] = float(ans["seconds"])
@@ -344,7 +334,7 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
     jobs : int, optional
         Parallel OpenSCAD processes / fast-renderer workers (default: CPU count).
     progress : bool
-        tqdm bar with ETA on stderr.
+        ``[render] ... k/n  ETA`` lines on stderr (:class:`pysolver.progress.Steps`).
     exe : str, optional
         OpenSCAD executable (default :func:`find_openscad`).
     renderer : {"openscad", "fast", "auto"}, optional
@@ -383,31 +373,70 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
     jobs = int(jobs) if jobs else (os.cpu_count() or 1)
     if jobs < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}.", fix="omit jobs to use every CPU.")
-    check = None
-    used = requested
     t_check = time.perf_counter()
-    if requested == "auto":
-        exe = exe or find_openscad()
-        check = fast_self_check(scad_dir=scad_dir, cache_dir=cache_dir, exe=exe, jobs=jobs,
-                                progress=progress)
-        used = "fast" if check["ok"] else "openscad"
-        if progress:
-            print(f"[render] renderer auto -> {used}: {check['summary']}", file=sys.stderr,
-                  flush=True)
+    used, check, exe = _pick_renderer(requested, scad_dir=scad_dir, cache_dir=cache_dir,
+                                      exe=exe, jobs=jobs, progress=progress)
     t_check = time.perf_counter() - t_check
     t0 = time.perf_counter()
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    oversion = None
+    exe, version = _renderer_version(used, exe)
+    oversion = version if used == "openscad" else None
+    stl, todo = _targets(parts, cache_dir, digest, version)
+    seconds, failures, fallback, oversion = _render_todo(
+        used, todo, parts, stl, exe=exe, oversion=oversion, cache_dir=cache_dir,
+        digest=digest, jobs=jobs, progress=progress)
+    wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    if failures:
+        raise _parts_failed(failures, fallback, len(parts), len(todo), scad_dir)
+    return {"stl": stl, "rendered": len(todo), "cached": len(parts) - len(todo),
+            "seconds": seconds, "wall_s": wall, "cpu_s": cpu, "openscad": oversion,
+            "jobs": jobs, "renderer": used, "renderer_requested": requested,
+            "renderer_version": version, "fallback": fallback, "self_check": check,
+            "self_check_s": t_check}
+
+
+def _parts_failed(failures, fallback, n_parts: int, n_todo: int, scad_dir):
+    """The error naming the parts OpenSCAD failed on."""
+    first = " (the fast renderer had failed on them first)" if fallback else ""
+    return ExternalToolError(
+        f"OpenSCAD failed on {len(failures)} of {n_parts} parts{first} "
+        f"({n_todo - len(failures)} rendered and cached, {n_parts - n_todo} were "
+        "already cached):\n" + _failure_lines(failures),
+        fix="open the named part file in OpenSCAD to see the error; if you edited the "
+            f"library ({scad_dir}), fix the edit. Parts that rendered stay cached.")
+
+
+def _renderer_version(used: str, exe):
+    """(OpenSCAD executable or None, version string) of the backend ``used``."""
     if used == "openscad":
         exe = exe or find_openscad()
-        oversion = version = openscad_version(exe)
-    else:
+        return exe, openscad_version(exe)
+    version = render_fast.version()
+    if version is None:
+        raise ExternalToolError("renderer 'fast' needs the Python package "
+                                f"{render_fast.DIST}, which cannot be imported.",
+                                fix=FAST_INSTALL_FIX)
+    return exe, version
 
-        version = render_fast.version()
-        if version is None:
-            raise ExternalToolError("renderer 'fast' needs the Python package "
-                                    f"{render_fast.DIST}, which cannot be imported.",
-                                    fix=FAST_INSTALL_FIX)
+
+def _pick_renderer(requested: str, *, scad_dir, cache_dir, exe, jobs, progress):
+    """The backend to use: ``requested``, or for ``auto`` the fast renderer when its
+    self-check agrees with OpenSCAD.  Returns (backend, self-check or None, exe)."""
+    if requested != "auto":
+        return requested, None, exe
+    exe = exe or find_openscad()
+    check = fast_self_check(scad_dir=scad_dir, cache_dir=cache_dir, exe=exe, jobs=jobs,
+                            progress=progress)
+    used = "fast" if check["ok"] else "openscad"
+    say("render", "", f"renderer auto -> {used}: {check['summary']}", progress)
+    return used, check, exe
+
+
+def _targets(parts, cache_dir: Path, digest: str, version: str):
+    """Cache file of every part for a renderer version, and the (part, file) pairs not yet
+    in the cache."""
     stl: dict[str, Path] = {}
     todo: list[tuple[Part, Path]] = []
     for p in parts:
@@ -415,56 +444,58 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
         stl[p.name] = target
         if not target.is_file():
             todo.append((p, target))
-    fallback: dict[str, str] = {}
+    return stl, todo
+
+
+def _render_todo(used, todo, parts, stl, *, exe, oversion, cache_dir, digest, jobs, progress):
+    """Render the parts not in the cache with the backend ``used`` (the fast renderer's
+    failures with OpenSCAD).  Returns (seconds, failures, fallback, OpenSCAD version)."""
     if used == "openscad":
         seconds, failures = _openscad_pool(todo, exe=exe, cache_dir=cache_dir, jobs=jobs,
                                            progress=progress)
-    else:
-        seconds, fast_failures = _fast_pool(todo, cache_dir=cache_dir, jobs=jobs,
-                                            progress=progress)
-        failures = []
-        if fast_failures:
-            fallback = {p.name: err.strip() for p, err in fast_failures}
-            try:
-                exe = exe or find_openscad()
-                oversion = openscad_version(exe)
-            except ExternalToolError:
-                raise ExternalToolError(
-                    f"the fast renderer failed on {len(fast_failures)} of {len(parts)} parts, "
-                    "and OpenSCAD, which would render them instead, is not installed:\n"
-                    + _failure_lines(fast_failures),
-                    fix=INSTALL_FIX + " Parts that rendered stay cached.") from None
-            names = sorted(fallback)
-            warnings.warn(
-                f"the fast renderer failed on {len(names)} of {len(parts)} parts "
-                f"({', '.join(names[:5])}{', ...' if len(names) > 5 else ''}; first error: "
-                f"{fallback[names[0]].splitlines()[-1] if fallback[names[0]] else '?'}); "
-                "OpenSCAD renders them instead.", RendererFallbackWarning, stacklevel=2)
-            redo = []
-            for p, _err in fast_failures:
-                target = cache_dir / f"{part_key(p.path.read_bytes(), digest, oversion)}.stl"
-                stl[p.name] = target
-                if not target.is_file():
-                    redo.append((p, target))
-            more, failures = _openscad_pool(redo, exe=exe, cache_dir=cache_dir, jobs=jobs,
-                                            progress=progress)
-            seconds.update(more)
-    wall = time.perf_counter() - t0
-    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
-    if failures:
-        first = " (the fast renderer had failed on them first)" if fallback else ""
+        return seconds, failures, {}, oversion
+    seconds, fast_failures = _fast_pool(todo, cache_dir=cache_dir, jobs=jobs, progress=progress)
+    if not fast_failures:
+        return seconds, [], {}, oversion
+    fallback, oversion, failures = _openscad_fallback(
+        fast_failures, parts, stl, seconds, exe=exe, cache_dir=cache_dir, digest=digest,
+        jobs=jobs, progress=progress)
+    return seconds, failures, fallback, oversion
+
+
+def _openscad_fallback(fast_failures, parts, stl: dict, seconds: dict, *, exe, cache_dir,
+                       digest, jobs, progress):
+    """Render with OpenSCAD the parts the fast renderer failed on (a
+    :class:`RendererFallbackWarning` names them); ``stl`` and ``seconds`` are updated.
+
+    Returns
+    -------
+    fallback : dict -- {part name: why the fast renderer failed}
+    oversion : str -- OpenSCAD's version
+    failures : list -- (Part, message) OpenSCAD failed on too
+    """
+    fallback = {p.name: err.strip() for p, err in fast_failures}
+    try:
+        exe = exe or find_openscad()
+        oversion = openscad_version(exe)
+    except ExternalToolError:
         raise ExternalToolError(
-            f"OpenSCAD failed on {len(failures)} of {len(parts)} parts{first} "
-            f"({len(todo) - len(failures)} rendered and cached, {len(parts) - len(todo)} were "
-            "already cached):\n" + _failure_lines(failures),
-            fix="open the named part file in OpenSCAD to see the error; if you edited the "
-                f"library ({scad_dir}), fix the edit. Parts that rendered stay cached.")
-    return {"stl": stl, "rendered": len(todo), "cached": len(parts) - len(todo),
-            "seconds": seconds, "wall_s": wall, "cpu_s": cpu, "openscad": oversion,
-            "jobs": jobs, "renderer": used, "renderer_requested": requested,
-            "renderer_version": version, "fallback": fallback, "self_check": check,
-            "self_check_s": t_check}
+            f"the fast renderer failed on {len(fast_failures)} of {len(parts)} parts, "
+            "and OpenSCAD, which would render them instead, is not installed:\n"
+            + _failure_lines(fast_failures),
+            fix=INSTALL_FIX + " Parts that rendered stay cached.") from None
+    names = sorted(fallback)
+    warnings.warn(
+        f"the fast renderer failed on {len(names)} of {len(parts)} parts "
+        f"({', '.join(names[:5])}{', ...' if len(names) > 5 else ''}; first error: "
+        f"{fallback[names[0]].splitlines()[-1] if fallback[names[0]] else '?'}); "
+        "OpenSCAD renders them instead.", RendererFallbackWarning, stacklevel=4)
+    redo_stl, redo = _targets([p for p, _err in fast_failures], cache_dir, digest, oversion)
+    stl.update(redo_stl)
+    more, failures = _openscad_pool(redo, exe=exe, cache_dir=cache_dir, jobs=jobs,
+                                    progress=progress)
+    seconds.update(more)
+    return fallback, oversion, failures
 
 
 _SELF_CHECKS: dict[tuple, dict] = {}
@@ -569,47 +600,64 @@ def fast_self_check(*, scad_dir=SCAD_DIR, cache_dir, exe=None, jobs=None,
         folder.mkdir(parents=True, exist_ok=True)
         jobs = int(jobs) if jobs else (os.cpu_count() or 1)
         parts = render_fast.write_reference_parts(folder / "parts", scad_dir)
-        sets = {}
-        failures: dict[str, str] = {}
+        sets, failures = {}, {}
         for name, version in (("openscad", oversion), ("fast", fversion)):
-            targets = {p.name: folder / f"{part_key(p.path.read_bytes(), digest, version)}.stl"
-                       for p in parts}
-            todo = [(p, targets[p.name]) for p in parts if not targets[p.name].is_file()]
-            pool = _openscad_pool if name == "openscad" else _fast_pool
-            kw = {"exe": exe} if name == "openscad" else {}
-            _s, bad = pool(todo, cache_dir=folder, jobs=jobs, progress=progress, **kw)
-            failures.update({f"{p.name} ({name})": err.strip() for p, err in bad})
-            sets[name] = targets
-        per: dict[str, dict] = {}
-        if not failures:
-            for p in parts:
-                try:
-                    a = to_manifold(load_stl(sets["openscad"][p.name]), f"{p.name} (openscad)")
-                    b = to_manifold(load_stl(sets["fast"][p.name]), f"{p.name} (fast)")
-                except ExternalToolError as e:
-                    failures[p.name] = str(e)
-                    continue
-                va = a.volume()
-                per[p.name] = {"volume_rel": abs(b.volume() - va) / va,
-                               "symdiff_rel": ((a - b).volume() + (b - a).volume()) / va}
-        mv = max((v["volume_rel"] for v in per.values()), default=None)
-        ms = max((v["symdiff_rel"] for v in per.values()), default=None)
-        ok = (not failures and len(per) == len(parts) and mv <= TOL.self_check_volume_rtol
-              and ms <= TOL.self_check_symdiff_rtol)
-        if failures:
-            first = sorted(failures)[0]
-            last = failures[first].splitlines()[-1] if failures[first] else ""
-            summary = (f"self-check failed: a renderer failed on {len(failures)} reference "
-                       f"part(s), e.g. {first}: {last}")
-        else:
-            summary = (f"self-check on {len(per)} reference parts "
-                       f"{'passed' if ok else 'FAILED'}: volumes within {mv:.1e} (limit "
-                       f"{TOL.self_check_volume_rtol:g}), symmetric difference <= {ms:.1e} of the "
-                       f"volume (limit {TOL.self_check_symdiff_rtol:g})")
-        check = {"ok": bool(ok), "summary": summary, "parts": per, "max_volume_rel": mv,
-                 "max_symdiff_rel": ms, "failures": failures}
-        _SELF_CHECKS[memo] = check
-    return dict(check)
+            sets[name], bad = _reference_renders(name, version, parts, folder, digest, exe,
+                                                 jobs, progress)
+            failures.update(bad)
+        per = {} if failures else _compare_renders(parts, sets, failures)
+        _SELF_CHECKS[memo] = _self_check_result(parts, per, failures)
+    return dict(_SELF_CHECKS[memo])
+
+
+def _reference_renders(name, version, parts, folder, digest, exe, jobs, progress):
+    """The reference parts rendered by one backend through the self-check's cache.
+
+    Returns ({part name: STL path}, {"<part> (<backend>)": message} of the failures)."""
+    targets = {p.name: folder / f"{part_key(p.path.read_bytes(), digest, version)}.stl"
+               for p in parts}
+    todo = [(p, targets[p.name]) for p in parts if not targets[p.name].is_file()]
+    pool = _openscad_pool if name == "openscad" else _fast_pool
+    kw = {"exe": exe} if name == "openscad" else {}
+    _s, bad = pool(todo, cache_dir=folder, jobs=jobs, progress=progress, **kw)
+    return targets, {f"{p.name} ({name})": err.strip() for p, err in bad}
+
+
+def _compare_renders(parts, sets: dict, failures: dict) -> dict:
+    """Relative volume and symmetric-difference volume of the two backends' renders per
+    reference part; a render that is not a solid goes into ``failures``."""
+    per = {}
+    for p in parts:
+        try:
+            a = to_manifold(load_stl(sets["openscad"][p.name]), f"{p.name} (openscad)")
+            b = to_manifold(load_stl(sets["fast"][p.name]), f"{p.name} (fast)")
+        except ExternalToolError as e:
+            failures[p.name] = str(e)
+            continue
+        va = a.volume()
+        per[p.name] = {"volume_rel": abs(b.volume() - va) / va,
+                       "symdiff_rel": ((a - b).volume() + (b - a).volume()) / va}
+    return per
+
+
+def _self_check_result(parts, per: dict, failures: dict) -> dict:
+    """The self-check's verdict (:func:`fast_self_check`'s return value)."""
+    mv = max((v["volume_rel"] for v in per.values()), default=None)
+    ms = max((v["symdiff_rel"] for v in per.values()), default=None)
+    ok = (not failures and len(per) == len(parts) and mv <= TOL.self_check_volume_rtol
+          and ms <= TOL.self_check_symdiff_rtol)
+    if failures:
+        first = sorted(failures)[0]
+        last = failures[first].splitlines()[-1] if failures[first] else ""
+        summary = (f"self-check failed: a renderer failed on {len(failures)} reference "
+                   f"part(s), e.g. {first}: {last}")
+    else:
+        summary = (f"self-check on {len(per)} reference parts "
+                   f"{'passed' if ok else 'FAILED'}: volumes within {mv:.1e} (limit "
+                   f"{TOL.self_check_volume_rtol:g}), symmetric difference <= {ms:.1e} of the "
+                   f"volume (limit {TOL.self_check_symdiff_rtol:g})")
+    return {"ok": bool(ok), "summary": summary, "parts": per, "max_volume_rel": mv,
+            "max_symdiff_rel": ms, "failures": failures}
 
 
 # --------------------------------------------------------------------------------------------
@@ -744,11 +792,7 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     cache_dir = Path(cache_dir) if cache_dir else default_cache_dir(design_dir)
     renderer = check_renderer(DEFAULT_RENDERER if renderer is None else renderer)
     exe = None if renderer == "fast" else find_openscad()   # fast: OpenSCAD only as fallback
-
-    def log(msg):
-        if progress:
-            print(f"[render] {msg}", file=sys.stderr, flush=True)
-
+    log = functools.partial(say, "render", design_dir.name, enabled=progress)
     made_from = tables_sha256(design_dir)   # recorded with the STLs (stl/parts.json)
     design = read_design(design_dir)
     t0 = time.perf_counter()
@@ -758,18 +802,47 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
     parts = [dataclasses.replace(p, path=design_dir / "scad" / p.path.name) for p in parts]
     t_write = time.perf_counter() - t0
     log(f"{len(parts)} part files in scad/; cache {cache_dir}")
-
     res = render_parts(parts, cache_dir=cache_dir, scad_dir=scad_dir, jobs=jobs,
                        progress=progress, exe=exe, renderer=renderer)
-    log(f"{res['renderer']} renderer ({res['renderer_version']}): {res['rendered']} rendered, "
-        f"{res['cached']} cached, {res['wall_s']:.1f} s")
-    if res["fallback"]:
-        log(f"WARNING: the fast renderer failed on {len(res['fallback'])} parts, rendered by "
-            f"OpenSCAD instead: {', '.join(sorted(res['fallback']))}")
-
+    _log_rendered(res, log)
     t0 = time.perf_counter()
-    meshes = {p.name: load_stl(res["stl"][p.name]) for p in parts}
-    solids = {n: to_manifold(m, f"part STL of {n}") for n, m in meshes.items()}
+    solids = {p.name: to_manifold(load_stl(res["stl"][p.name]), f"part STL of {p.name}")
+              for p in parts}
+    outputs = assemble_layers(parts, solids, design, actuated=actuated)
+    t_union = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    info = _export(design_dir, outputs, made_from)
+    t_export = time.perf_counter() - t0
+    _warn_solids(info, log)
+    summary = _render_summary(parts, res, info, design_dir)
+    summary.update({"timings_s": {"write_scad": round(t_write, 3),
+                                  "self_check": round(res["self_check_s"], 3),
+                                  "openscad": round(res["wall_s"], 3),
+                                  "union": round(t_union, 3), "export": round(t_export, 3),
+                                  "total": round(time.perf_counter() - t_start, 3)},
+                    "cache_dir": str(cache_dir), "scad_dir": str(scad_dir)})
+    log(f"done in {summary['timings_s']['total']:.1f} s -> stl/")
+    return summary
+
+
+def assemble_layers(parts, solids: dict, design, *, actuated: bool = True) -> dict:
+    """The printable solids from the rendered parts: per layer the union of its nodes, its
+    support frame and its marker dots, in the print frame; and the shell in its target
+    pose (``actuated``).
+
+    Parameters
+    ----------
+    parts : list of Part
+    solids : dict
+        {part name: manifold3d solid} of every part.
+    design : pysolver.tables.Design
+    actuated : bool
+
+    Returns
+    -------
+    dict
+        {:data:`STL_FILES` key: manifold3d solid}.
+    """
     by_kind: dict[tuple, list[Part]] = {}
     for p in parts:
         by_kind.setdefault((p.kind, p.layer), []).append(p)
@@ -790,30 +863,38 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
             dots.append(dot.transform(_affine(print_transform(layer) @ A)))
         outputs[f"markers_{layer}"] = union(dots)
     if actuated:
-        # Target pose of each node: p_target = c + R (p + s m/2 z), the part being drawn about
-        # its base centre.  The layers are moved apart by the membrane thickness m (0.5 mm):
-        # that is where they sit on the real shell, and two layers touching face to face at
-        # the mid-plane would make the union fragile (coincident rims from different parts).
-        # The opened arms stop short of each other (APEX_GAP): every node is its own solid.
-        row_of = {int(b): r for r, b in enumerate(design.bases["base_id"])}
-        rot = np.c_[design.bases["rot_x_rad"], design.bases["rot_y_rad"],
-                    design.bases["rot_z_rad"]]
-        tgt = np.c_[design.bases["target_x_mm"], design.bases["target_y_mm"],
-                    design.bases["target_z_mm"]]
-        layers = []
-        for layer in LAYERS:
-            posed = []
-            for p in by_kind[("actuated", layer)]:
-                r = row_of[p.base_id]
-                A = np.eye(4)
-                A[:3, :3] = rotvec_to_matrix(rot[r])
-                A[:3, 3] = tgt[r] + A[:3, :3] @ [0.0, 0.0, layer_sign(layer) * SIM.membrane_h / 2]
-                posed.append(solids[p.name].transform(_affine(A)))
-            layers.append(union(posed))
-        outputs["actuated"] = union(layers)
-    t_union = time.perf_counter() - t0
+        outputs["actuated"] = _actuated(by_kind, solids, design)
+    return outputs
 
-    t0 = time.perf_counter()
+
+def _actuated(by_kind: dict, solids: dict, design):
+    """The shell in its target pose: every node at ``p_target = c + R (p + s m/2 z)``, the
+    part being drawn about its base centre.  The layers are moved apart by the membrane
+    thickness m (0.5 mm): that is where they sit on the real shell, and two layers touching
+    face to face at the mid-plane would make the union fragile (coincident rims from
+    different parts).  The opened arms stop short of each other (APEX_GAP): every node is
+    its own solid."""
+    row_of = {int(b): r for r, b in enumerate(design.bases["base_id"])}
+    rot = np.c_[design.bases["rot_x_rad"], design.bases["rot_y_rad"],
+                design.bases["rot_z_rad"]]
+    tgt = np.c_[design.bases["target_x_mm"], design.bases["target_y_mm"],
+                design.bases["target_z_mm"]]
+    layers = []
+    for layer in LAYERS:
+        posed = []
+        for p in by_kind[("actuated", layer)]:
+            r = row_of[p.base_id]
+            A = np.eye(4)
+            A[:3, :3] = rotvec_to_matrix(rot[r])
+            A[:3, 3] = tgt[r] + A[:3, :3] @ [0.0, 0.0, layer_sign(layer) * SIM.membrane_h / 2]
+            posed.append(solids[p.name].transform(_affine(A)))
+        layers.append(union(posed))
+    return union(layers)
+
+
+def _export(design_dir: Path, outputs: dict, made_from: str) -> dict:
+    """Write the STLs and ``stl/parts.json`` (what they were made from: the report lists
+    them only while the tables match); returns :func:`describe_stl` per output."""
     info = {}
     with atomic_dir(design_dir / "stl") as tmp:
         for key, m in outputs.items():
@@ -823,13 +904,24 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
             m = outputs[key] = m.simplify(EXPORT_SIMPLIFY_MM)
             from_manifold(m).export(str(tmp / STL_FILES[key]), file_type="stl")
             info[key] = describe_stl(tmp / STL_FILES[key], m)
-        # what the STLs were made from: the report lists them only while the tables match
-        (tmp / Path(PARTS_RECORD).name).write_text(json.dumps(
+        (tmp / Path(PARTS_RECORD).name).write_text(json_text(
             {"made_by": "morphshell render", "tables_sha256": made_from,
              "files": {STL_FILES[k]: hashlib.sha256((tmp / STL_FILES[k]).read_bytes())
-                       .hexdigest() for k in outputs}},
-            indent=1, sort_keys=True) + "\n")
-    t_export = time.perf_counter() - t0
+                       .hexdigest() for k in outputs}}, indent=1))
+    return info
+
+
+def _log_rendered(res: dict, log) -> None:
+    """What :func:`render_parts` did, and the parts the fast renderer left to OpenSCAD."""
+    log(f"{res['renderer']} renderer ({res['renderer_version']}): {res['rendered']} rendered, "
+        f"{res['cached']} cached, {res['wall_s']:.1f} s")
+    if res["fallback"]:
+        log(f"WARNING: the fast renderer failed on {len(res['fallback'])} parts, rendered by "
+            f"OpenSCAD instead: {', '.join(sorted(res['fallback']))}")
+
+
+def _warn_solids(info: dict, log) -> None:
+    """Warn about a layer that is not one solid and an STL that is not watertight."""
     for layer in LAYERS:
         if info[layer]["bodies"] != 1:
             log(f"WARNING: the {layer} layer is {info[layer]['bodies']} separate solids, not one: "
@@ -838,8 +930,12 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
         if not v["watertight"]:
             log(f"WARNING: {STL_FILES[key]} is not watertight once written (float32 STL "
                 "coordinates merged near-coincident vertices); a slicer's repair will fix it.")
+
+
+def _render_summary(parts, res: dict, info: dict, design_dir: Path) -> dict:
+    """The render stage's figures (:func:`render_design`), without timings and folders."""
     n_r = res["rendered"]
-    summary = {
+    return {
         "parts": len(parts),
         "parts_by_kind": {k: sum(p.kind == k for p in parts)
                           for k in ("node", "actuated", "frame", "marker")},
@@ -848,31 +944,23 @@ def render_design(design_dir, *, jobs=None, cache_dir=None, scad_dir=None, progr
         "seconds_per_part": (float(np.mean(list(res["seconds"].values()))) if n_r else None),
         "wall_seconds_per_part": (res["wall_s"] / n_r if n_r else None),
         "cpu_seconds_per_part": (res["cpu_s"] / n_r if n_r else None),
-        "stl": {k: str(design_dir / "stl" / STL_FILES[k]) for k in outputs},
+        "stl": {k: str(design_dir / "stl" / STL_FILES[k]) for k in info},
         "watertight": {k: v["watertight"] for k, v in info.items()},
         "bodies": {k: v["bodies"] for k, v in info.items()},
         "volumes_mm3": {k: v["volume_mm3"] for k, v in info.items()},
         "bbox_mm": {k: v["bbox_mm"] for k, v in info.items()},
         "triangles": {k: v["triangles"] for k, v in info.items()},
-        "timings_s": {"write_scad": round(t_write, 3), "self_check": round(res["self_check_s"], 3),
-                      "openscad": round(res["wall_s"], 3),
-                      "union": round(t_union, 3), "export": round(t_export, 3),
-                      "total": round(time.perf_counter() - t_start, 3)},
         "openscad": res["openscad"],
         "renderer": res["renderer"],
         "renderer_version": res["renderer_version"],
         "fallback_parts": sorted(res["fallback"]),
         "jobs": res["jobs"],
-        "cache_dir": str(cache_dir),
-        "scad_dir": str(scad_dir),
         "facet_tol_mm": TOL.facet,
         "layer_height_mm": UNIT_CELL.layer_h,
     }
-    log(f"done in {summary['timings_s']['total']:.1f} s -> stl/")
-    return summary
 
 
-__all__ = ["render_design", "render_parts", "find_openscad", "openscad_version",
+__all__ = ["render_design", "render_parts", "assemble_layers", "find_openscad", "openscad_version",
            "library_digest", "part_key", "default_cache_dir", "load_stl", "to_manifold",
            "from_manifold", "union", "count_bodies", "describe_stl", "STL_FILES", "OPENSCAD_ENV",
            "RENDERERS", "DEFAULT_RENDERER", "check_renderer", "fast_self_check", "start_self_check",

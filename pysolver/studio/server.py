@@ -61,9 +61,10 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from ..build import build_parts, morph_viewer, report_figures, viewer_assets
+from ..build import report_figures
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, PROGRAMMING
+from ..simulator import build_parts, morph_viewer, viewer_assets
 from ..tables import LANDSCAPE_SOURCE, read_record, read_stencil, read_table
 from .landscape import (
     Feasibility,
@@ -210,8 +211,8 @@ class Job:
     """The one job (a rebuild) running in a subprocess; its progress lines drive one progress
     bar over every stage, weighted by the stage times of the build being run again."""
 
-    STAGE = re.compile(r"^\[morphshell\] .*?: (\w+) \.\.\.$")
-    FRACTION = re.compile(r"(?:step |\[|refine |\| ?)(\d+)/(\d+)")
+    STAGE = re.compile(r"^\[build\] .*?: (\w+) \.\.\.$")
+    FRACTION = re.compile(r"^\[\w+\] .*?: (\d+)/(\d+)\b")
     DEFAULT_S = {"start": 4.0, "program": 3.0, "simulate": 20.0, "simulate_contact": 20.0,
                  "refine": 25.0, "render": 40.0, "report": 10.0}
     """Expected seconds of a stage the build did not time (its own times come first);
@@ -293,7 +294,7 @@ class Job:
                                     stage)
                 elif stage != "start":
                     f = self.FRACTION.search(line)
-                    if f and stage != "refine" or (f and line.startswith("[temporal]")):
+                    if f and (stage != "refine" or line.startswith("[refine]")):
                         frac = max(frac, min(int(f.group(1)) / max(int(f.group(2)), 1), 1.0))
                 self._progress(plan, expect, done_s, stage, t_stage, frac, line)
                 if time.time() - t0 > LIMITS.studio_job_timeout_s:

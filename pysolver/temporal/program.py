@@ -43,9 +43,9 @@ landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
 within ``UnitCell.clearance`` (the 0.05 mm printing clearance, see
-:func:`simulated_completion`).
+:func:`sim.model.collisions.completion_times`).
 
-Closing the loop (beyond the paper).  :func:`refine_design` compares simulated
+Closing the loop (beyond the paper).  :func:`pysolver.refine.refine_design` compares simulated
 completion times with ``t*`` and corrects the requested times of the thickness
 solve, ``t_req <- clip(t_req + damping (t* - t_sim), t_min, t_max)``, re-solving and
 re-simulating ``iterations`` times; the best iteration (lowest RMS timing error)
@@ -55,7 +55,6 @@ is kept.
 from __future__ import annotations
 
 import json
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,6 +69,7 @@ from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
 from ..params import PROGRAMMING, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
+from ..progress import say
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
 from .plots import plot_feasibility
@@ -79,7 +79,7 @@ PICTURE = "temporal_feasibility.png"
 STAGE_FILE = "temporal.json"
 """Programming record (correction rule, per-cell membrane factors, summary), design folder."""
 REFINE_LOG = "refine.json"
-"""History of :func:`pysolver.build.refine_design` (in ``<design>/sim/``)."""
+"""History of :func:`pysolver.refine.refine_design` (in ``<design>/sim/``)."""
 
 CORRECTIONS = ("boundary", "fem")
 """How ``F_mem`` is adapted per cell.  ``"boundary"``: the paper's rule, x 0.6 on boundary
@@ -91,9 +91,8 @@ factor (irregular stencils: 0.65-1.8), and boundary cells get ``min(0.6, FEM fac
 DEFAULT_CORRECTION = "fem"
 
 
-def _log(msg: str, progress: bool, prefix: str = "[temporal]") -> None:
-    if progress:
-        print(f"{prefix} {msg}", file=sys.stderr, flush=True)
+def _log(msg: str, progress: bool, stage: str = "program") -> None:
+    say(stage, "", msg, progress)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -591,7 +590,7 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
          f"achievable {rescaled['to_s'][0]:.0f}-{rescaled['to_s'][1]:.0f} s "
          + (f"(at least {min_span:.0f} s wide: sequenced parts "
             f"{SEQUENCING.min_separation_s:g} s apart) " if min_span else "")
-         + f"({100 * p.frac:.0f} % of cells clamped)", progress, prefix="[program]")
+         + f"({100 * p.frac:.0f} % of cells clamped)", progress)
     return land, p, rescaled
 
 

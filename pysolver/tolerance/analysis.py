@@ -40,8 +40,9 @@ folder's files as bytes, the material file as bytes, a :class:`Perturbation`), s
 worker can run it (:mod:`pysolver.distributed`).  The worker rebuilds the nominal
 :class:`~pysolver.mechanics.ShellModel` once per design and applies a perturbation with
 :func:`pysolver.mechanics.vary_model`, and asks the orchestrator to simulate it and check the
-result with the report's own metrics and verdict (:func:`pysolver.build.simulate_and_check`,
-:func:`sim.report.check_frames`).
+result with the report's one check (:func:`pysolver.simulator.simulate_and_check`,
+:func:`sim.report.verdict.check_morph`: the same metrics and verdict, the design's own unit
+cell included).
 
 Outputs in ``<design>/tolerance/`` (``summary.json``, ``report.html``, pictures and
 ``samples/*.json``, one result per task, written atomically so a rerun only computes what
@@ -64,9 +65,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import math
-import sys
 import tempfile
 import time
 import warnings
@@ -77,13 +76,15 @@ import numpy as np
 
 from pysolver import distributed
 from pysolver.atomic import atomic_write_text, claim_result_folder
-from pysolver.build import check_sim_span, simulate_and_check
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
 from pysolver.material.model import load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
 from pysolver.params import BRACKET_MODEL_FILE, SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
+from pysolver.progress import say
+from pysolver.records import finite, json_text
+from pysolver.simulator import check_sim_span, simulate_and_check
 from pysolver.tables import MODEL_FILE, read_design, read_table
 
 from .report import write_report
@@ -302,14 +303,7 @@ def _context(payload: DesignPayload) -> dict:
         model = load_model(d)
         des = read_design(d)
         material = load_bracket_model(d / "material.json")
-    c, b = des.cells, des.bases
-    ctx = {"model": model, "material": material,
-           "target": np.c_[b["target_x_mm"], b["target_y_mm"], b["target_z_mm"]],
-           "normals": np.c_[b["normal_x"], b["normal_y"], b["normal_z"]],
-           "pairs": np.c_[c["base_a"], c["base_b"]],
-           "t_star": np.asarray(c["t_star_s"], float),
-           "fold": np.asarray(c["fold_angle_deg"], float),
-           "clamped": np.asarray(c["clamped"], bool) if "clamped" in c else None}
+    ctx = {"model": model, "material": material, "design": des}
     if len(_CONTEXTS) >= 4:
         _CONTEXTS.pop(next(iter(_CONTEXTS)))
     _CONTEXTS[payload.sha] = ctx
@@ -329,8 +323,8 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
     Returns
     -------
     dict
-        The figures of :func:`sim.report.check_frames`, plus ``diverged`` (bool), ``message``,
-        ``steps`` and ``wall_s`` (the only non-reproducible field).
+        The figures of the check (:meth:`sim.report.Check.figures`), plus ``diverged`` (bool),
+        ``message``, ``steps`` and ``wall_s`` (the only non-reproducible field).
     """
     t0 = time.perf_counter()
     ctx = _context(payload)
@@ -345,8 +339,8 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
                 else CompliantBracketModel(ctx["material"], pert.compliance))
     diverged, message = False, ""
     try:
-        frames, check = simulate_and_check(varied, material, ctx, t_end=settings["t_end"],
-                                           dt=settings["dt"],
+        frames, check = simulate_and_check(varied, material, ctx["design"],
+                                           t_end=settings["t_end"], dt=settings["dt"],
                                            thresholds=settings.get("thresholds"))
     except MorphshellError as e:  # a diverged sample is a result: it fails the check
         diverged, message = True, str(e)
@@ -361,7 +355,7 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
                "n_completed": 0, "longest_cell_s": None}
         steps = 0
     else:
-        out = check
+        out = check.figures()
         steps = int(len(frames["t"]))
     dth = np.asarray(pert.thickness_delta, float)
     out.update({"name": pert.name, "diverged": diverged, "message": message, "steps": steps,
@@ -378,7 +372,7 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
 # the caller side
 
 
-def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
+def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s, seed=0):
     if not isinstance(samples, int) or isinstance(samples, bool) or not (
             1 <= samples <= TOLERANCE_RUN.max_samples):
         raise InputError(f"--samples {samples!r}",
@@ -410,6 +404,8 @@ def _check_options(samples, sensitivity, unc: Uncertainty, time_tol_s):
                          fix="use 0 <= start < end seconds")
     if not (math.isfinite(time_tol_s) and time_tol_s > 0):
         raise InputError(f"--time-tol {time_tol_s!r}", fix="use a positive number of seconds")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        raise InputError(f"--seed {seed!r}", fix="use a whole number >= 0")
 
 
 def _claim(folder: Path) -> Path:
@@ -651,38 +647,118 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     scheduler, workers = distributed.check_scheduler(scheduler), distributed.check_workers(workers)
     if sensitivity is None:
         sensitivity = min(TOLERANCE_RUN.sensitivity_samples, samples)
-    _check_options(samples, sensitivity, uncertainty, time_tol_s)
-
+    _check_options(samples, sensitivity, uncertainty, time_tol_s, seed)
     check_sim_span(t_end, dt)  # a bad t_end/dt is refused now
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
-        raise InputError(f"--seed {seed!r}", fix="use a whole number >= 0")
     if material is not None:  # a bad model file is refused here, not on every worker
-
         material = load_bracket_model(material).path
     folder = Path(design_dir).absolute()
     payload = read_payload(folder, material)
-    cells = read_table(folder, "cells")
+    cells, n_bases = _programmed_cells(folder)
     n_cells = len(cells["cell_id"])
+    out = _claim(Path(out) if out is not None else folder / "tolerance")
+    t_start = time.perf_counter()
+    unc, mat_info = _uncertainty(uncertainty, material)
+    perts, active = _perturbations(seed, samples, sensitivity, unc, n_cells)
+    settings = {"t_end": float(t_end), "dt": float(dt), "thresholds": None}
+    results, stats = _simulate_all(payload, perts, settings, out, client=client,
+                                   scheduler=scheduler, workers=workers, progress=progress,
+                                   dashboard=dashboard, on_result=on_result)
+    summary = _summary(results, stats, perts, active, cells, n_bases, folder, payload,
+                       options={"samples": samples, "seed": seed, "time_tol_s": time_tol_s,
+                                "sensitivity_runs": sensitivity, "t_end_s": float(t_end),
+                                "dt_s": float(dt), "uncertainty": dataclasses.asdict(unc),
+                                "material_scatter": mat_info, "factors": active,
+                                "material": None if material is None else str(material)},
+                       wall_s=round(time.perf_counter() - t_start, 3))
+    atomic_write_text(out / "summary.json", json_text(summary, indent=1, strict=True))
+    if report:
+        write_report(out, summary, folder,
+                     [results[p.name] for p in perts if p.name.startswith("sample-")],
+                     results["nominal"])
+    f = summary["figures"]
+    say("tolerance", folder.name, f"P(PASS) = {f['p_pass']:.2f} (95 % CI "
+        f"{f['p_pass_ci95'][0]:.2f}-{f['p_pass_ci95'][1]:.2f}), P(not FAIL) = "
+        f"{f['p_not_fail']:.2f}, most influential: {f.get('most_influential', '-')} -> {out}",
+        progress)
+    return summary
+
+
+def _summary(results: dict, stats, perts, active, cells, n_bases: int, folder: Path, payload,
+             *, options: dict, wall_s: float) -> dict:
+    """The content of ``summary.json`` (JSON-ready: non-finite numbers as None)."""
+    t_end = options["t_end_s"]
+    nominal = results["nominal"]
+    main = [results[p.name] for p in perts if p.name.startswith("sample-")]
+    oat = {f: [results[p.name] for p in perts if p.name.startswith(f"oat-{f}-")]
+           for f in active}
+    agg = aggregate(main, nominal, cells["t_star_s"], options["time_tol_s"], oat,
+                    len(cells["cell_id"]), n_bases, float(t_end))
+    agg["sensitivity_regression"] = regression_sensitivity(
+        [p for p in perts if p.name.startswith("sample-")], main, float(t_end))
+    return finite({
+        "format": SUMMARY_FORMAT, "format_version": 1, "design": str(folder),
+        "design_sha256": payload.sha, "options": options,
+        "nominal": {k: nominal[k] for k in ("verdict", "shape_rms_pct", "timing_rms_s",
+                                             "longest_cell_s", "reasons")},
+        **agg,
+        "run": dict(stats.to_dict(), wall_s=wall_s,
+                    sample_wall_s=_stats([results[p.name]["wall_s"] for p in perts]))})
+
+
+def _simulate_all(payload, perts, settings: dict, out: Path, **run):
+    """Every perturbed simulation as a Dask task (:func:`run_sample`), through the result
+    store of ``out`` (a rerun computes only the missing ones).
+
+    Raises
+    ------
+    MorphshellError
+        Some tasks failed (the finished ones are kept).
+    """
+    code = distributed.code_fingerprint()
+    tasks = [distributed.Task(p.name, run_sample, (payload, p, settings),
+                              distributed.fingerprint(payload.sha, p, settings, code))
+             for p in perts]
+    store = distributed.ResultStore(out / "samples")
+    results, stats = distributed.run_tasks(tasks, store, label="tolerance", **run)
+    if stats.failed:
+        raise MorphshellError(
+            f"{len(stats.failed)} of {stats.total} simulations failed (first: "
+            f"{next(iter(stats.failed.items()))}); the {len(results)} finished ones are kept "
+            f"in {store.folder}", fix="re-run the same command: only the missing ones run")
+    return results, stats
+
+
+def _programmed_cells(folder: Path):
+    """``cells.csv`` of a programmed design (every cell with a thickness and a t*; refused
+    here, not by every worker) and the number of bases."""
+    cells = read_table(folder, "cells")
     th = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
     ts = np.asarray(cells["t_star_s"], float)
     refuse_first(~(np.all(np.isfinite(th) & (th > 0), axis=1) & np.isfinite(ts)),
-                 # refused here, not by every worker
                  lambda i, _: f"{folder / 'cells.csv'}:{i + 2}: cell {i} has no programmed "
                               "thickness or t*",
                  fix="run the program stage first (morphshell build NAME --no-render, or "
                      "make sim shape=NAME)")
-    n_bases = len(read_table(folder, "bases")["base_id"])
-    out = _claim(Path(out) if out is not None else folder / "tolerance")
-    t_start = time.perf_counter()
-    unc = uncertainty
+    return cells, len(read_table(folder, "bases")["base_id"])
+
+
+def _uncertainty(unc: Uncertainty, material):
+    """The uncertainty with the material scatter filled in (from the fit residuals when
+    ``material_sd`` is None: :func:`material_scatter`, also returned; else None)."""
     mat_info = None
     sd_mat = unc.material_sd
     if sd_mat is None:
         mat_info = material_scatter(material)
         sd_mat = mat_info["sd_log"]
-    unc = dataclasses.replace(unc, material_sd=float(sd_mat))
+    return dataclasses.replace(unc, material_sd=float(sd_mat)), mat_info
+
+
+def _perturbations(seed: int, samples: int, sensitivity: int, unc: Uncertainty,
+                   n_cells: int):
+    """The nominal run, the Monte Carlo samples and the one-at-a-time runs of every factor
+    that varies; returns (perturbations, active factors)."""
+    sd_mat = unc.material_sd
     draws = [_draw(seed, i, n_cells, unc, sd_mat) for i in range(samples)]
-    settings = {"t_end": float(t_end), "dt": float(dt), "thresholds": None}
     active = [f for f, on in (("thickness", unc.thickness_sd > 0),
                               ("stretch", unc.stretch_sd > 0),
                               ("modulus", unc.modulus_rel_sd > 0),
@@ -694,68 +770,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     for f in active:
         perts += [make_perturbation(f"oat-{f}-{i:05d}", draws[i], n_cells, only=f, unc=unc)
                   for i in range(sensitivity)]
-    code = distributed.code_fingerprint()
-    tasks = [distributed.Task(p.name, run_sample, (payload, p, settings),
-                              distributed.fingerprint(payload.sha, p, settings, code))
-             for p in perts]
-    store = distributed.ResultStore(out / "samples")
-    results, stats = distributed.run_tasks(tasks, store, client=client, scheduler=scheduler,
-                                           workers=workers, progress=progress,
-                                           dashboard=dashboard,
-                                           label="tolerance", on_result=on_result)
-    if stats.failed:
-        raise MorphshellError(
-            f"{len(stats.failed)} of {stats.total} simulations failed (first: "
-            f"{next(iter(stats.failed.items()))}); the {len(results)} finished ones are kept "
-            f"in {store.folder}", fix="re-run the same command: only the missing ones run")
-    nominal = results["nominal"]
-    main = [results[p.name] for p in perts if p.name.startswith("sample-")]
-    oat = {f: [results[p.name] for p in perts if p.name.startswith(f"oat-{f}-")]
-           for f in active}
-    agg = aggregate(main, nominal, cells["t_star_s"], time_tol_s, oat, n_cells, n_bases,
-                    float(t_end))
-    agg["sensitivity_regression"] = regression_sensitivity(
-        [p for p in perts if p.name.startswith("sample-")], main, float(t_end))
-    summary = {"format": SUMMARY_FORMAT, "format_version": 1, "design": str(folder),
-               "design_sha256": payload.sha,
-               "options": {"samples": samples, "seed": seed, "time_tol_s": time_tol_s,
-                           "sensitivity_runs": sensitivity, "t_end_s": float(t_end),
-                           "dt_s": float(dt), "uncertainty": dataclasses.asdict(unc),
-                           "material_scatter": mat_info, "factors": active,
-                           "material": None if material is None else str(material)},
-               "nominal": {k: nominal[k] for k in ("verdict", "shape_rms_pct", "timing_rms_s",
-                                                    "longest_cell_s", "reasons")},
-               **agg,
-               "run": dict(stats.to_dict(), wall_s=round(time.perf_counter() - t_start, 3),
-                           sample_wall_s=_stats([results[p.name]["wall_s"] for p in perts]))}
-    summary = _clean(summary)
-    text = json.dumps(summary, indent=1, sort_keys=True, allow_nan=False) + "\n"
-    atomic_write_text(out / "summary.json", text)
-    if report:
-
-        write_report(out, summary, folder, main, nominal)
-    if progress:
-        f = summary["figures"]
-        most = f.get("most_influential", "-")
-        print(f"tolerance: P(PASS) = {f['p_pass']:.2f} (95 % CI {f['p_pass_ci95'][0]:.2f}-"
-              f"{f['p_pass_ci95'][1]:.2f}), P(not FAIL) = {f['p_not_fail']:.2f}, "
-              f"most influential: {most} -> {out}", file=sys.stderr, flush=True)
-    return summary
-
-
-def _clean(o):
-    """JSON-ready copy: numpy scalars and arrays to Python, NaN/inf to None."""
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
+    return perts, active
 
 
 __all__ = ["tolerance_analysis", "run_sample", "Perturbation",

@@ -134,66 +134,82 @@ def _table(header, rows):
 
 def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -> None:
     """Write the pictures and ``report.html`` of a tolerance analysis into ``out``."""
+    _pictures(out, summary, design_dir, results, nominal)
+    parts = _head(summary, design_dir) + _sensitivity(summary) + _least_reliable(summary)
+    atomic_write_text(out / "report.html", "\n".join(parts) + "\n")
+
+
+def _pictures(out, summary: dict, design_dir, results: list, nominal: dict) -> None:
+    """The shell, timing and sensitivity pictures."""
     b = read_table(design_dir, "bases")
     c = read_table(design_dir, "cells")
     target = np.c_[b["target_x_mm"], b["target_y_mm"], b["target_z_mm"]]
     pairs = np.c_[c["base_a"], c["base_b"]]
     t_star = np.asarray(c["t_star_s"], float)
-    cells, bases, fig = summary["cells"], summary["bases"], summary["figures"]
     opt = summary["options"]
-    p_on = np.array([r["p_on_time"] for r in cells])
-    sd = np.array([r["position_sd_mm"] for r in bases])
+    p_on = np.array([r["p_on_time"] for r in summary["cells"]])
+    sd = np.array([r["position_sd_mm"] for r in summary["bases"]])
     T = np.array([[np.nan if v is None else v for v in r["t_done"]] for r in results], float)
     t_nom = np.array([np.nan if v is None else v for v in nominal["t_done"]], float)
     plot_shell(out / "tolerance_shell.png", target, pairs, p_on, sd)
     plot_timing(out / "tolerance_timing.png", t_star, t_nom, T.reshape(len(results), -1),
                 opt["time_tol_s"], opt["t_end_s"])
-    sens = summary["sensitivity"]
-    if sens:
-        plot_sensitivity(out / "tolerance_sensitivity.png", sens)
+    if summary["sensitivity"]:
+        plot_sensitivity(out / "tolerance_sensitivity.png", summary["sensitivity"])
     else:  # ours (the folder is claimed): a picture of an earlier run must not linger
         remove_file(out / "tolerance_sensitivity.png")
+
+
+def _head(summary: dict, design_dir) -> list:
+    """The page up to the pictures: P(PASS), the uncertainty, the whole-shell figures."""
+    fig, opt = summary["figures"], summary["options"]
     unc = opt["uncertainty"]
     lo, hi = fig["p_pass_ci95"]
-    parts = [f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>morphshell "
-             f"tolerance: {html.escape(str(design_dir))}</title><style>{_CSS}</style></head>"
-             f"<body><h1>Tolerance analysis: {html.escape(str(design_dir))}</h1>",
-             f"<p class='big'>P(PASS) = {fig['p_pass']:.2f} "
-             f"<span class='note'>(95 % CI {lo:.2f}-{hi:.2f})</span>, "
-             f"P(not FAIL) = {fig['p_not_fail']:.2f}</p>",
-             f"<p>{fig['samples']} Monte Carlo samples (seed {opt['seed']}), simulated to "
-             f"t = {opt['t_end_s']:g} s; nominal verdict {html.escape(fig['nominal_verdict'])}."
-             f" Most influential factor: <b>{html.escape(fig.get('most_influential', '-'))}"
-             "</b>.</p>",
-             "<h2>Uncertainty</h2>",
-             _table(["factor", "distribution"], [
-                 ("thickness", f"per bracket, normal, sd {unc['thickness_sd']:g} mm"),
-                 ("stretch", f"pre-stretch normal {unc['stretch_mean']:g} +- "
-                             f"{unc['stretch_sd']:g}"),
-                 ("modulus", f"membrane modulus x (1 + normal(0, {unc['modulus_rel_sd']:g}))"),
-                 ("material", f"bracket compliance x exp(normal(0, {unc['material_sd']:.3g}))"
-                              " (fit residuals, per print)"),
-                 ("relaxation", "on: modulus x F(wait)/F(peak), wait log-uniform "
-                                f"{unc['relaxation_window_s']} s" if unc["relaxation"]
-                  else "off (--relaxation)")]),
-             "<h2>Whole shell</h2>",
-             _table(["figure", "value"], [
-                 ("verdicts", ", ".join(f"{k} {v}" for k, v in fig["verdicts"].items())),
-                 ("reasons (samples)", "; ".join(f"{k}: {v}" for k, v in
-                                                 fig["reasons"].items()) or "-"),
-                 ("P(every cell on time)", _f(fig["p_all_cells_on_time"])),
-                 ("P(on time), worst cell", _f(fig["p_on_time_cell_min"])),
-                 ("completion time sd, mean / max over cells",
-                  f"{_f(fig['completion_sd_s_mean'])} / {_f(fig['completion_sd_s_max'])} s"),
-                 ("final position sd, mean / max over bases",
-                  f"{_f(fig['position_sd_mm_mean'])} / {_f(fig['position_sd_mm_max'])} mm"),
-                 ("shape RMS error, mean (p95)",
-                  f"{_f(fig['shape_rms_pct']['mean'])} % ({_f(fig['shape_rms_pct']['p95'])} %)"),
-                 ("timing RMS error, mean (p95)",
-                  f"{_f(fig['timing_rms_s']['mean'])} s ({_f(fig['timing_rms_s']['p95'])} s)"),
-                 ("diverged samples", fig["diverged"])]),
-             "<h2>Pictures</h2><img src='tolerance_shell.png' alt='shell'>"
-             "<img src='tolerance_timing.png' alt='timing'>"]
+    return [f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>morphshell "
+            f"tolerance: {html.escape(str(design_dir))}</title><style>{_CSS}</style></head>"
+            f"<body><h1>Tolerance analysis: {html.escape(str(design_dir))}</h1>",
+            f"<p class='big'>P(PASS) = {fig['p_pass']:.2f} "
+            f"<span class='note'>(95 % CI {lo:.2f}-{hi:.2f})</span>, "
+            f"P(not FAIL) = {fig['p_not_fail']:.2f}</p>",
+            f"<p>{fig['samples']} Monte Carlo samples (seed {opt['seed']}), simulated to "
+            f"t = {opt['t_end_s']:g} s; nominal verdict {html.escape(fig['nominal_verdict'])}."
+            f" Most influential factor: <b>{html.escape(fig.get('most_influential', '-'))}"
+            "</b>.</p>",
+            "<h2>Uncertainty</h2>",
+            _table(["factor", "distribution"], [
+                ("thickness", f"per bracket, normal, sd {unc['thickness_sd']:g} mm"),
+                ("stretch", f"pre-stretch normal {unc['stretch_mean']:g} +- "
+                            f"{unc['stretch_sd']:g}"),
+                ("modulus", f"membrane modulus x (1 + normal(0, {unc['modulus_rel_sd']:g}))"),
+                ("material", f"bracket compliance x exp(normal(0, {unc['material_sd']:.3g}))"
+                             " (fit residuals, per print)"),
+                ("relaxation", "on: modulus x F(wait)/F(peak), wait log-uniform "
+                               f"{unc['relaxation_window_s']} s" if unc["relaxation"]
+                 else "off (--relaxation)")]),
+            "<h2>Whole shell</h2>",
+            _table(["figure", "value"], [
+                ("verdicts", ", ".join(f"{k} {v}" for k, v in fig["verdicts"].items())),
+                ("reasons (samples)", "; ".join(f"{k}: {v}" for k, v in
+                                                fig["reasons"].items()) or "-"),
+                ("P(every cell on time)", _f(fig["p_all_cells_on_time"])),
+                ("P(on time), worst cell", _f(fig["p_on_time_cell_min"])),
+                ("completion time sd, mean / max over cells",
+                 f"{_f(fig['completion_sd_s_mean'])} / {_f(fig['completion_sd_s_max'])} s"),
+                ("final position sd, mean / max over bases",
+                 f"{_f(fig['position_sd_mm_mean'])} / {_f(fig['position_sd_mm_max'])} mm"),
+                ("shape RMS error, mean (p95)",
+                 f"{_f(fig['shape_rms_pct']['mean'])} % ({_f(fig['shape_rms_pct']['p95'])} %)"),
+                ("timing RMS error, mean (p95)",
+                 f"{_f(fig['timing_rms_s']['mean'])} s ({_f(fig['timing_rms_s']['p95'])} s)"),
+                ("diverged samples", fig["diverged"])]),
+            "<h2>Pictures</h2><img src='tolerance_shell.png' alt='shell'>"
+            "<img src='tolerance_timing.png' alt='timing'>"]
+
+
+def _sensitivity(summary: dict) -> list:
+    """The one-at-a-time sensitivity and its cross-check from the samples."""
+    parts = []
+    sens = summary["sensitivity"]
     if sens:
         parts += ["<h2>Sensitivity (one at a time)</h2><p class='note'>Each factor alone "
                   f"({sens[0]['runs']} runs, the draws of the first samples, the others "
@@ -214,15 +230,19 @@ def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -
                   _table(["factor", "R^2 mean completion time", "R^2 shape error"],
                          [(r["factor"], _f(r["r2_mean_completion"]), _f(r["r2_shape_rms"]))
                           for r in reg])]
-    worst = sorted(cells, key=lambda r: (r["p_on_time"], -r["t_sd_s"]))[:15]
-    parts += ["<h2>Least reliable cells</h2>",
-              _table(["cell", "t* (s)", "nominal (s)", "P(on time)", "P(complete)", "sd (s)",
-                      "5 % (s)", "95 % (s)"],
-                     [(r["cell_id"], _f(r["t_star_s"]), _f(r["t_nominal_s"]),
-                       _f(r["p_on_time"]), _f(r["p_complete"]), _f(r["t_sd_s"]),
-                       _f(r["t_p05_s"]), _f(r["t_p95_s"])) for r in worst]),
-              "<p class='note'>All cells and bases: summary.json.</p></body></html>"]
-    atomic_write_text(out / "report.html", "\n".join(parts) + "\n")
+    return parts
+
+
+def _least_reliable(summary: dict) -> list:
+    """The 15 cells least often on time, and the end of the page."""
+    worst = sorted(summary["cells"], key=lambda r: (r["p_on_time"], -r["t_sd_s"]))[:15]
+    return ["<h2>Least reliable cells</h2>",
+            _table(["cell", "t* (s)", "nominal (s)", "P(on time)", "P(complete)", "sd (s)",
+                    "5 % (s)", "95 % (s)"],
+                   [(r["cell_id"], _f(r["t_star_s"]), _f(r["t_nominal_s"]),
+                     _f(r["p_on_time"]), _f(r["p_complete"]), _f(r["t_sd_s"]),
+                     _f(r["t_p05_s"]), _f(r["t_p95_s"])) for r in worst]),
+            "<p class='note'>All cells and bases: summary.json.</p></body></html>"]
 
 
 __all__ = ["write_report", "plot_shell", "plot_timing", "plot_sensitivity"]

@@ -59,7 +59,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -76,9 +75,11 @@ from pysolver.mechanics.model import ShellModel, load_model
 from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newton
 from pysolver.params import NEWTON, PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
+from pysolver.progress import Steps, say
+from pysolver.records import json_text
 from pysolver.tables import tables_sha256
 
-from .collisions import completion_times, read_completion_frames
+from .collisions import completion_times
 from .contact import BaseContact
 from .physics import BracketBending, ExternalTerms, bending_stiffness, check_physics, physics_json
 
@@ -554,25 +555,19 @@ def _resolve_material(material):
     return material
 
 
-def _log(msg: str, progress: bool) -> None:
-    if progress:
-        print(msg, file=sys.stderr, flush=True)
-
-
 def run_simulation(sim: Simulation, *, progress: bool = True, label: str = "sim",
                    checkpoint: Path | None = None, fingerprint: str = "",
                    frames_path: Path | None = None) -> dict:
     """Run ``sim`` to the end (or early stop), with progress lines and checkpoints.
 
-    On divergence the frames so far are written to ``frames_path`` (if given) and the
-    :class:`MorphshellError` is re-raised.
+    Progress: one line per step, ``[simulate] <label>: k/n t=... newton ... ETA s``
+    (:class:`pysolver.progress.Steps`).  On divergence the frames so far are written to
+    ``frames_path`` (if given) and the :class:`MorphshellError` is re-raised.
     """
     st = sim.settings
-    n = len(sim.times)
     t_start = time.perf_counter()
-    walls = []
     last_ckpt = sim.k
-    nonconv = []
+    steps = Steps("simulate", label, len(sim.times) - 1, enabled=progress)
     while not sim.done:
         t0 = time.perf_counter()
         try:
@@ -582,14 +577,10 @@ def run_simulation(sim: Simulation, *, progress: bool = True, label: str = "sim"
                 _atomic_savez(frames_path, sim.frames_dict())
             raise
         w = time.perf_counter() - t0
-        walls.append(w)
         k = sim.k - 1
-        eta_s = np.mean(walls[-20:]) * (n - sim.k)
         flag = "" if res.converged else f"  NOT CONVERGED ({res.status})"
-        if not res.converged:
-            nonconv.append(k)
-        _log(f"{label}: step {k}/{n - 1} t={sim.times[k]:6.1f} s  newton {res.iterations:3d}  "
-             f"|g| {res.residual:.1e} N  {w:5.2f} s  ETA {eta_s:5.0f} s{flag}", progress)
+        steps.step(f"t={sim.times[k]:6.1f} s  newton {res.iterations:3d}  "
+                   f"|g| {res.residual:.1e} N  {w:5.2f} s{flag}", k=k)
         if checkpoint is not None and st.checkpoint_every and (
                 sim.k - last_ckpt >= st.checkpoint_every) and not sim.done:
             _atomic_savez(checkpoint, sim.checkpoint_arrays(fingerprint))
@@ -603,8 +594,8 @@ def run_simulation(sim: Simulation, *, progress: bool = True, label: str = "sim"
         extra["dry_rest"] = {"converged": bool(res.converged), "residual_N": res.residual,
                              "newton_iterations": res.iterations,
                              "wall_s": round(time.perf_counter() - t0, 3)}
-        _log(f"{label}: dry rest on a table: newton {res.iterations} |g| {res.residual:.1e} N"
-             f"{'' if res.converged else '  NOT CONVERGED'}", progress)
+        say("simulate", label, f"dry rest on a table: newton {res.iterations} |g| "
+            f"{res.residual:.1e} N{'' if res.converged else '  NOT CONVERGED'}", progress)
     fr = sim.frames
     nf = sim.k
     return {**extra, "steps": nf, "wall_s": round(time.perf_counter() - t_start, 3),
@@ -678,28 +669,14 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     sim = Simulation(model, mat, st)
     out_dir = folder / "sim"
     frames_path = out_dir / FRAMES_NAME
-    # one checkpoint per set of physics options: the build's contact re-run (pysolver.build)
-    # neither overwrites nor discards the plain run's, so both resume
-    ckpt = out_dir / (CHECKPOINT_NAME if not st.physics.any else
-                      "checkpoint-" + hashlib.sha256(physics_json(st.physics).encode())
-                      .hexdigest()[:12] + ".npz")
+    ckpt = _checkpoint_path(out_dir, st)
     fp_settings = {k: v for k, v in asdict(st).items() if k != "checkpoint_every"}
     fingerprint = json.dumps({"model": model.fingerprint(), "material": _material_id(mat),
                               "settings": fp_settings}, sort_keys=True)
-    label = f"sim {folder.name}"
+    label = folder.name
     if resume and ckpt.exists():
-        try:
-            with np.load(ckpt, allow_pickle=False) as z:
-                ok = (int(z["version"]) == CHECKPOINT_VERSION
-                      and str(z["fingerprint"]) == fingerprint)
-                if ok:
-                    sim.restore(z)
-            _log(f"{label}: resuming from checkpoint at step {sim.k}" if ok else
-                 f"{label}: checkpoint does not match the design/settings; starting over",
-                 progress)
-        except Exception as e:  # noqa: BLE001 - a damaged checkpoint is ignored, not fatal
-            _log(f"{label}: cannot read checkpoint ({type(e).__name__}); starting over", progress)
-    _log(f"{label}: {model.summary()}", progress)
+        _resume(sim, ckpt, fingerprint, label, progress)
+    say("simulate", label, model.summary(), progress)
     summary = run_simulation(sim, progress=progress, label=label,
                              checkpoint=ckpt if checkpoint_every else None,
                              fingerprint=fingerprint, frames_path=frames_path)
@@ -713,40 +690,40 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
                     "completion_time_max_s": float(np.nanmax(tc)) if np.isfinite(tc).any()
                     else float("nan"),
                     "frames": str(frames_path)})
-    atomic_write_text(out_dir / "summary.json",
-                      json.dumps(summary, indent=2, sort_keys=True, default=float) + "\n")
+    atomic_write_text(out_dir / "summary.json", json_text(summary))
     nc = summary["nonconverged_steps"]
     if nc:
-        _log(f"{label}: WARNING {len(nc)} step(s) did not converge (residual > "
-             f"{st.tol:g} N): {nc[:10]}{' ...' if len(nc) > 10 else ''}", progress)
-    _log(f"{label}: {summary['steps']} frames in {summary['wall_s']:.1f} s -> sim/{FRAMES_NAME}",
-         progress)
+        say("simulate", label, f"WARNING {len(nc)} step(s) did not converge (residual > "
+            f"{st.tol:g} N): {nc[:10]}{' ...' if len(nc) > 10 else ''}", progress)
+    say("simulate", label, f"{summary['steps']} frames in {summary['wall_s']:.1f} s -> "
+        f"sim/{FRAMES_NAME}", progress)
     return summary
 
 
-def simulated_completion(frames, tol_mm: float = UNIT_CELL.clearance):
-    """Completion time of every cell in a simulation: all 4 brackets at their bumpers.
+def _checkpoint_path(out_dir: Path, st: SimSettings) -> Path:
+    """One checkpoint per set of physics options: the build's contact re-run
+    (:mod:`pysolver.build`) neither overwrites nor discards the plain run's, so both resume."""
+    if not st.physics.any:
+        return out_dir / CHECKPOINT_NAME
+    digest = hashlib.sha256(physics_json(st.physics).encode()).hexdigest()[:12]
+    return out_dir / f"checkpoint-{digest}.npz"
 
-    A cell is complete at the first frame where each of its 4 bracket springs is
-    collided or within ``tol_mm`` of its bumper length: the project's one definition,
-    :func:`completion_times` (``rule="clearance"``), read from a folder or file.
 
-    Parameters
-    ----------
-    frames : dict or path-like
-        ``frames.npz`` content (``t``, ``collided`` and, for ``tol_mm > 0``,
-        ``bracket_length``, ``collision_length``) or its path, or a design folder.
-    tol_mm : float, mm
-
-    Returns
-    -------
-    t_done : (n_cells,) float, s -- NaN for cells that never complete
-    t : (n_frames,) float, s -- frame times
-    """
-    frames = read_completion_frames(frames)
-    t = np.asarray(frames["t"], float)
-    return completion_times(frames, rule="clearance", tol_mm=tol_mm), t
+def _resume(sim: Simulation, ckpt: Path, fingerprint: str, label: str, progress: bool) -> None:
+    """Continue ``sim`` from ``ckpt`` when it was written for the same model, material and
+    settings; a damaged or different checkpoint is ignored (the run starts over)."""
+    try:
+        with np.load(ckpt, allow_pickle=False) as z:
+            ok = (int(z["version"]) == CHECKPOINT_VERSION
+                  and str(z["fingerprint"]) == fingerprint)
+            if ok:
+                sim.restore(z)
+        say("simulate", label, f"resuming from checkpoint at step {sim.k}" if ok else
+            "checkpoint does not match the design/settings; starting over", progress)
+    except Exception as e:  # noqa: BLE001 - a damaged checkpoint is ignored, not fatal
+        say("simulate", label, f"cannot read checkpoint ({type(e).__name__}); starting over",
+            progress)
 
 
 __all__ = ["SimSettings", "Simulation", "simulate_design", "simulate_model", "run_simulation",
-           "completion_times", "simulated_completion", "FRAMES_NAME", "CHECKPOINT_NAME"]
+           "FRAMES_NAME", "CHECKPOINT_NAME"]

@@ -10,16 +10,14 @@ of the design stages is recomputed.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import html
-import importlib.metadata
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from pysolver.params import FABRICATION, MEMBRANE_MODEL_FILE, SIM, UNIT_CELL
 from pysolver.params import tol as TOL
+from pysolver.provenance import package_versions, sha256_file
 from pysolver.tables import LANDSCAPE_SOURCE, PARTS_RECORD, read_record, tables_sha256
 
 STL_PURPOSE = {
@@ -35,25 +33,6 @@ STL_PURPOSE = {
     "support_frame_bottom.stl": "support frame of the bottom layer",
     "actuated.stl": "preview of the target (morphed) shape: not printed",
 }
-VERSION_PACKAGES = ("morphshell", "numpy", "scipy", "libigl", "trimesh", "manifold3d",
-                    "matplotlib", "pyvista", "scikit-sparse", "openscad-evaluator")
-
-
-def sha256_file(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def _version(dist):
-    try:
-        return importlib.metadata.version(dist)
-    except importlib.metadata.PackageNotFoundError:
-        return "not installed"
-
-
 def _studio_edits(record: dict) -> str:
     """The edits of a studio landscape record, counted by tool (``LANDSCAPE_SOURCE``)."""
     edits = record.get("edits")
@@ -93,16 +72,38 @@ def provenance(folder, build_info=None) -> dict:
     source = info.get("source") or dopt.get("source")
     src_path = Path(str(source)) if source else None
     if src_path is not None and src_path.is_file():
-        src_hash = sha256_file(src_path)
-        src_kind = "file"
+        src_hash, src_kind = sha256_file(src_path), "file"
     else:
         src_hash = dopt.get("source_sha256_16")
         src_kind = dopt.get("source_kind", "builtin")
     temporal = (read_record(folder / "temporal.json") or {}).get("summary", {})
     refine = read_record(folder / "sim" / "refine.json") or {}
     sim_sum = read_record(folder / "sim" / "summary.json") or {}
+    versions = package_versions()
+    if (summ.get("versions") or {}).get("openscad"):
+        versions["openscad"] = summ["versions"]["openscad"]
+    return {
+        "input": {"source": str(source) if source else None, "kind": src_kind,
+                  "sha256": src_hash},
+        "options": {**{k: v for k, v in dopt.items() if k not in ("params",)}, **opts},
+        "unit_cell_params": dopt.get("params"),
+        "build_inputs_sha256": info.get("inputs_sha256"),
+        "landscape": _landscape_source(folder, design, opts, temporal),
+        "stencil": _stencil_text((design.get("summary") or {}).get("remesh") or {}),
+        "refine_rounds": refine.get("rounds", refine.get("iterations", opts.get("refine"))),
+        "models": _models(temporal),
+        "simulation": {k: sim_sum.get(k) for k in ("steps", "t_final_s", "stopped_early",
+                                                    "wall_s") if k in sim_sum},
+        "versions": versions,
+        "date_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC"),
+    }
+
+
+def _landscape_source(folder: Path, design: dict, opts: dict, temporal: dict) -> str:
+    """Where the time landscape came from: the studio, the shape, a file, ``--time``;
+    and how the program stage mapped it onto the achievable times."""
     studio = read_record(folder / LANDSCAPE_SOURCE)
-    time_opt = dopt.get("time", opts.get("time"))
+    time_opt = design.get("options", {}).get("time", opts.get("time"))
     if isinstance(studio, dict):
         land = "edited in morphshell studio: " + _studio_edits(studio)
     elif time_opt is None:  # the shape's own, a --time-file, or the automatic sequencing
@@ -116,20 +117,29 @@ def provenance(folder, build_info=None) -> dict:
                  f"achievable {r['to_s'][0]:.0f}-{r['to_s'][1]:.0f} s")
         if r.get("min_span_s"):
             land += f" (kept at least {r['min_span_s']:.0f} s wide: sequenced parts apart)"
+    return land
+
+
+def _stencil_text(rem: dict) -> str | None:
+    """The remeshed stencil in words (size, scaling, trade for the landscape), or None."""
+    if not rem.get("remeshed"):
+        return None
+    stencil = (f"{rem.get('vertices')} vertices, 3D scaling {rem.get('scale3d')}, longest "
+               f"flat cell {rem.get('max_cell_length_mm')} mm")
+    tr = rem.get("trade") or {}
+    if tr.get("taken"):
+        stencil += (f"; traded for the landscape's times: {tr['vertices']} vertices at "
+                    f"scaling {tr['scale3d']:.3f} would clamp ~"
+                    f"{100 * tr['clamped_estimate']:.0f} % of the cells (estimate), "
+                    f"{tr['to_vertices']} larger cells at {tr['to_scale3d']:.3f} ~"
+                    f"{100 * tr['to_clamped_estimate']:.0f} %: the shell is "
+                    f"{100 * (1 - tr['to_scale3d'] / tr['scale3d']):.1f} % smaller")
+    return stencil
+
+
+def _models(temporal: dict) -> dict:
+    """The model files the build used, with their hashes."""
     models = {}
-    rem = (design.get("summary") or {}).get("remesh") or {}
-    stencil = None
-    if rem.get("remeshed"):
-        stencil = (f"{rem.get('vertices')} vertices, 3D scaling {rem.get('scale3d')}, longest "
-                   f"flat cell {rem.get('max_cell_length_mm')} mm")
-        tr = rem.get("trade") or {}
-        if tr.get("taken"):
-            stencil += (f"; traded for the landscape's times: {tr['vertices']} vertices at "
-                        f"scaling {tr['scale3d']:.3f} would clamp ~"
-                        f"{100 * tr['clamped_estimate']:.0f} % of the cells (estimate), "
-                        f"{tr['to_vertices']} larger cells at {tr['to_scale3d']:.3f} ~"
-                        f"{100 * tr['to_clamped_estimate']:.0f} %: the shell is "
-                        f"{100 * (1 - tr['to_scale3d'] / tr['scale3d']):.1f} % smaller")
     mat = temporal.get("material_model")
     if mat and Path(mat).is_file():
         models["material (bracket) model"] = {"path": mat, "sha256": sha256_file(mat)}
@@ -140,25 +150,7 @@ def provenance(folder, build_info=None) -> dict:
         models["membrane model"] = {"path": str(MEMBRANE_MODEL_FILE),
                                     "sha256": sha256_file(MEMBRANE_MODEL_FILE),
                                     "correction": corr}
-    versions = {p: _version(p) for p in VERSION_PACKAGES}
-    versions["python"] = sys.version.split()[0]
-    if (summ.get("versions") or {}).get("openscad"):
-        versions["openscad"] = summ["versions"]["openscad"]
-    return {
-        "input": {"source": str(source) if source else None, "kind": src_kind,
-                  "sha256": src_hash},
-        "options": {**{k: v for k, v in dopt.items() if k not in ("params",)}, **opts},
-        "unit_cell_params": dopt.get("params"),
-        "build_inputs_sha256": info.get("inputs_sha256"),
-        "landscape": land,
-        "stencil": stencil,
-        "refine_rounds": refine.get("rounds", refine.get("iterations", opts.get("refine"))),
-        "models": models,
-        "simulation": {k: sim_sum.get(k) for k in ("steps", "t_final_s", "stopped_early",
-                                                    "wall_s") if k in sim_sum},
-        "versions": versions,
-        "date_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC"),
-    }
+    return models
 
 
 # ------------------------------------------------------------------------------------ STLs
@@ -467,4 +459,4 @@ def fabrication_steps(*, n_align, align_ids, side, template, fab=FABRICATION,
 
 __all__ = ["provenance", "stl_inventory", "parts_made_from", "stretch_template", "template_svg",
            "template_pdf", "timeline",
-           "top_layer_side", "fabrication_steps", "sha256_file", "STL_PURPOSE"]
+           "top_layer_side", "fabrication_steps", "STL_PURPOSE"]

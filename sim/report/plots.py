@@ -526,6 +526,23 @@ def plot_solver(path, t, iters, residual, wall, converged, tol_residual):
     return _save(fig, path)
 
 
+def plot_shape_over_time(path, t, rms_t, size, th):
+    """RMS distance of the base centres to the target per frame, with the WARN and FAIL
+    limits (``th``: ReportThresholds, % of the target size ``size`` in mm)."""
+    fig, ax = plt.subplots(figsize=(6.4, 3.4))
+    ax.plot(t, rms_t, lw=1.2)
+    for pct, c in ((th.shape_rms_warn_pct, "orange"), (th.shape_rms_fail_pct, "red")):
+        ax.axhline(size * pct / 100, color=c, ls="--", lw=0.8, label=f"{pct:g} % of size")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("RMS distance to target (mm)")
+    ax.set_title("base centres vs target (each frame aligned rigidly)")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def plot_clearance(path, t, base_clear, mem_clear, tol, reach=None):
     """Smallest clearance between non-neighbouring bases (and membrane vs far bases) over time."""
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
@@ -632,6 +649,7 @@ def plot_time_landscape(path, flat_xy, cells_ab, t_star, t_done, *, uv=None, fac
 
 
 __all__ = ["ShellRenderer", "pyvista_status", "start_pyvista_probe", "layer_templates", "place",
+           "plot_shape_over_time",
            "view_frame",
            "save_png", "save_gif", "plot_timing", "plot_solver", "plot_clearance",
            "plot_layout_thickness", "plot_time_landscape", "fit_titles", "titles_fit"]

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
 import sys
 from pathlib import Path
 
@@ -42,9 +41,10 @@ from pysolver.atomic import atomic_file, atomic_write_text, make_dirs
 from pysolver.errors import InputError, check_input_file, read_input
 from pysolver.geometry import rigid_fit
 from pysolver.params import tol as TOL
+from pysolver.records import json_text
 from pysolver.tables import read_table
 
-from .report import load_frames
+from .load import load_frames
 
 TRIM_FRACTION = 0.8
 """Fraction of closest pairs kept by each trimmed-ICP iteration (allows 20 % missing/outliers)."""
@@ -425,16 +425,8 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
                 f"{scan_path.name} vs simulated {chosen} markers: mean {out['mean_mm']:.2f} mm")
     out["files"] = {"png": str(png), "json": str(out_dir / f"scan_{stem}.json")}
 
-    def clean(o):
-        if isinstance(o, float) and not np.isfinite(o):
-            return None
-        if isinstance(o, dict):
-            return {k: clean(v) for k, v in o.items()}
-        if isinstance(o, list):
-            return [clean(v) for v in o]
-        return o
-
-    atomic_write_text(out_dir / f"scan_{stem}.json", json.dumps(clean(out), indent=2) + "\n")
+    atomic_write_text(out_dir / f"scan_{stem}.json",
+                      json_text(out, sort_keys=False, strict=True))
     if progress:
         print(f"scan vs simulation ({chosen} layer): mean {out['mean_mm']:.3f} mm, max "
               f"{out['max_mm']:.3f} mm, std {out['std_mm']:.3f} mm, mean/diameter "
