@@ -16,8 +16,10 @@ shell's size.  :func:`remesh_surface` searches N so that the shell keeps the siz
    the design stage refuses it and names measured alternatives.
 3. **The rim** (:func:`_rim_fallback`): a narrow target whose inset stencil covers too little
    also gets the stencil reaching the rim, taken if it prints as well.
-4. **The polish** (:meth:`CountSearch.polish`): the pick optimised once more with its 3D
-   scaling held at 1; it is said whether the scaling held.
+4. **The polish** (:meth:`CountSearch.converge`, :meth:`CountSearch.polish`): the pick
+   optimised on until its rounds converge (so that the last bits of the input or the
+   machine do not move it), then with its 3D scaling held at 1; it is said whether the
+   scaling held.
 5. **The trade** (:func:`_trade`), with a landscape the user gave: fewer, larger cells when
    they clamp markedly fewer cells, at a kept size.
 
@@ -441,6 +443,34 @@ class CountSearch:
             self.say(f"rim: {rim['why']}")
         return best, rim
 
+    def converge(self, best) -> None:
+        """The pick optimised on until its rounds converge (``opt_converge_rounds``,
+        ``opt_round_tol``): its figures then no longer depend on where the candidate's
+        rounds stopped.  Updates the candidate's stencil, figures and record in place."""
+        st = self.settings
+        V2, F2, before = self.meshes[best]
+        P, t_P = self.flat[best]
+        P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P,
+                                  rounds=st.opt_converge_rounds)
+        old = self.tried[best]
+        Vc = self.dom.lift(P)
+        c = self.figures(Vc, F2)
+        if not opt["rounds"] or not _laid_out(c) or (at_size(old, st) and not at_size(c, st)) \
+                or c["max_cell_length_mm"] > max(old["max_cell_length_mm"],
+                                                 self.params.max_cell_length):
+            return  # (the objective fell, but the figures the pick took it for did not hold)
+        self.flat[best] = (P, t_P)
+        self.meshes[best] = (Vc, F2, before)
+        self.tried[best] = c
+        first = self.optimisation[best]
+        self.optimisation[best] = {
+            "rounds": first["rounds"] + opt["rounds"], "converged": opt["converged"],
+            "history": first["history"] + [{**h, "round": len(first["history"]) + h["round"]}
+                                           for h in opt["history"]]}
+        self.say(f"N={best[0]} seed={best[1]} converged in {len(opt['history'])} more "
+                 f"round(s): scale3d {c['scale3d']:.3f}, longest flat cell "
+                 f"{c['max_cell_length_mm']:.2f} mm")
+
     def polish(self, best):
         """The chosen stencil optimised again with its 3D scaling held at 1 (the longest flat
         cell per unit of scaling); kept when it is nearer the target's size at no longer cell
@@ -457,7 +487,8 @@ class CountSearch:
         V2, F2, _ = self.meshes[best]
         chosen = self.tried[best]
         P, t_P = self.flat[best]
-        P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P, pin=True)
+        P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P, pin=True,
+                                  rounds=st.opt_converge_rounds)
         Vp = self.dom.lift(P)
         fig = self.figures(Vp, F2)
         L0 = chosen["max_cell_length_mm"]
@@ -574,6 +605,8 @@ def _polish_and_trade(search: CountSearch, best, info: dict, seeds, trade: bool)
     before : (V, F) of the pick before its optimisation
     chosen : dict -- the figures of the stencil returned
     """
+    if best in search.flat:
+        search.converge(best)
     V2, F2, before = search.meshes[best]
     chosen = search.tried[best]
     if best in search.flat and search.settings.opt_pin_weight > 0:

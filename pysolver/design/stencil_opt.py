@@ -427,7 +427,8 @@ def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: fl
 
 
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
-                     settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False):
+                     settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False,
+                     rounds: int | None = None):
     """Move the interior stencil vertices to shorten the longest flat cell.
 
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
@@ -446,7 +447,10 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
     Each outer round runs L-BFGS on the linearised lift, then checks the result on the
     exact lift (:func:`accept_step`): an improving round is never thrown away for a soft
-    penalty's overshoot.  When no point of the step keeps the hard limits, the round is
+    penalty's overshoot.  The rounds go on (up to ``rounds``) until one gains less than
+    ``opt_round_tol``: a converged stencil does not depend on where L-BFGS's path through
+    the ill-conditioned objective happened to stop, so the last bits of the input or of the
+    machine do not move it.  When no point of the step keeps the hard limits, the round is
     solved again with the clearance penalty ``opt_stiffen`` times stiffer; only when that
     fails too is the round dropped (and the rounds stop).
 
@@ -467,13 +471,17 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         more flat length and 3D scaling than it saves (measured on the stand and cover).
     pin : bool
         Hold the 3D scaling at 1 and minimise the longest flat cell per unit of scaling.
+    rounds : int, optional
+        Most outer rounds (default ``settings.opt_rounds``; the pick of the count search
+        converges with ``settings.opt_converge_rounds``).
 
     Returns
     -------
     P : (n, 2) float, mm
         Optimised flat positions (every triangle still positively oriented).
     info : dict
-        ``rounds``: outer rounds kept; ``history``: one record per round tried
+        ``rounds``: outer rounds kept; ``converged``: the last round gained less than
+        ``opt_round_tol``; ``history``: one record per round tried
         (``round``, ``start``, ``lbfgs``, ``iterations``, ``stiffened``, and
         :func:`accept_step`'s ``kept``, ``step``, ``objective``, ``clearance_shortfall``,
         ``why``).
@@ -482,10 +490,10 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     F = np.asarray(F, dtype=np.int64)
     problem = StencilObjective(domain, P, F, params, settings, t_vertex, pin)
     if problem.n_cells == 0:
-        return P, {"rounds": 0, "history": []}
+        return P, {"rounds": 0, "history": [], "converged": True}
     current, short_now = problem.exact(P)
     history = []
-    for r in range(settings.opt_rounds):
+    for r in range(settings.opt_rounds if rounds is None else int(rounds)):
         rec = {"round": r + 1, "start": round(current, 6)}
         for stiffened, w in enumerate((settings.opt_clearance_weight,
                                        settings.opt_clearance_weight * settings.opt_stiffen)):
@@ -500,8 +508,13 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         history.append(rec)
         if Q is None:
             break
+        gain = current - step["objective"]
         P, current, short_now = Q, step["objective"], step["clearance_shortfall"]
-    return P, {"rounds": sum(h["kept"] for h in history), "history": history}
+        if gain < settings.opt_round_tol:
+            break
+    return P, {"rounds": sum(h["kept"] for h in history), "history": history,
+               "converged": bool(history) and history[-1]["kept"]
+               and history[-1]["start"] - history[-1]["objective"] < settings.opt_round_tol}
 
 
 def _rounded(step: dict) -> dict:
