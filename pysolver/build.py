@@ -79,6 +79,7 @@ from .temporal import (
     REFINE_DAMPING,
     REFINE_LOG,
     STAGE_FILE,
+    closing_lengths,
     load_material,
     program_cells,
     program_design,
@@ -175,8 +176,8 @@ def design_only(source: str, *, out=None, progress: bool = True, **options) -> d
                                      "size", "time_file")})
     name = shape_name(source)
     out = claim_output(out or BUILD_ROOT / name, what="output folder",
-                       inputs=[source] + ([options["time_file"]] if options.get("time_file")
-                                          else []))
+                       inputs=[source] + [options[k] for k in ("time_file", "thickness_file")
+                                          if options.get(k)])
     with build_lock(out):
         recover_stale(out)
         with atomic_dir(out) as tmp:
@@ -229,7 +230,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
           simulate: bool = True, t_end=None, dt=None, jobs=None,
           progress: bool = True, renderer=None, keep_failed: bool = False,
           solver: str = "fast", params=None, size=None, time_file=None,
-          seed=None) -> dict:
+          seed=None, stencil: bool = False) -> dict:
     """Build ``build/<name>/`` for a built-in shape or a mesh file.
 
     Parameters
@@ -239,7 +240,7 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
         ``regular``) or a path to a mesh / stencil OBJ.
     out : path-like, optional
         Output folder (default ``build/<name>``).
-    vertices, time, time_file, scale, size, flattening, stencil_order
+    vertices, time, time_file, scale, size, flattening, stencil_order, stencil
         Design options, see :func:`pysolver.design.run_design`.
     material : path-like, optional
         Bracket model file (default: the committed model).
@@ -295,6 +296,8 @@ def build(source: str, *, out=None, vertices=None, time=None, scale: float = 1.0
     all_opts.pop("params")
     if size is not None:  # (only when given, as dt and params)
         design_opts["size"] = all_opts["size"] = size
+    if stencil:  # (only when given: keeps the hash of earlier builds)
+        design_opts["stencil"] = all_opts["stencil"] = True
     if time_file is not None:  # the file's content is an input: its hash goes into the digest
         design_opts["time_file"] = all_opts["time_file"] = str(time_file)
         all_opts["time_file_sha256"] = read_time_file(time_file)[1]
@@ -484,7 +487,7 @@ def _round_record(t_star, t_sim, clamped, t_end, **extra) -> dict:
 
 def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
                   progress: bool = True, t_end=None, damping: float = REFINE_DAMPING,
-                  tol_mm: float = COMPLETION_TOL_MM, simulate=None) -> dict:
+                  tol_mm: float = COMPLETION_TOL_MM, simulate=None, physics=None) -> dict:
     """Correct the programmed times from simulated completion times and re-simulate.
 
     Needs a programmed and simulated design folder (``sim/frames.npz``).  Each
@@ -515,6 +518,10 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     simulate : callable, optional
         ``simulate(design_dir, **kw)`` replacing :func:`sim.model.simulate.simulate_design`
         (tests).
+    physics : PhysicsOptions, optional
+        The simulator's physics (default :data:`~pysolver.params.PHYSICS_DEFAULT`): the
+        layers are programmed to close where it closes them
+        (:func:`pysolver.temporal.program.closing_lengths`).
 
     Returns
     -------
@@ -546,6 +553,7 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     mem = load_membrane_model(membrane)
 
     cells = tables.read_table(design_dir, "cells")
+    closing = closing_lengths(design_dir, cells, physics)
     t_star = cells["t_star_s"].copy()
     factor = None
     rec = design_dir / STAGE_FILE
@@ -576,8 +584,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
         t0 = time.perf_counter()
         ts = np.where(np.isfinite(t_sim), t_sim, t_last)
         t_req = np.clip(t_req + damping * (t_star - ts), lo_ok, np.maximum(lo_ok, hi_ok))
-        res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
-                            cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+        res = program_cells(cells["bracket_length_mm"], closing[:, 0], closing[:, 1],
+                            cells["boundary"], t_star,
                             material=mat, membrane=mem, t_request=t_req, factor=factor)
         cap, n_thinned = _thin_open_layers(cap, thick[-1], t_sim, t_star, t_last, frames_path,
                                            tol_mm)
@@ -670,7 +678,7 @@ def _contact_if_needed(folder: Path, name: str, progress: bool):
     _log(f"{name}: {hit['count']} pair(s) of non-neighbouring bases pass through each other "
          f"(first bases {f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s); "
          "simulating again with barrier contact (--physics contact)", progress)
-    return parse_physics("contact"), hit
+    return parse_physics("default,contact"), hit
 
 
 # ------------------------------------------------------------------------------------------

@@ -27,7 +27,14 @@ from .errors import (
     EXIT_OK,
     MorphshellError,
 )
-from .params import DEFAULT_REFINE, MODEL_LIMITS, TOLERANCE_RUN, UNCERTAINTY, UNIT_CELL
+from .params import (
+    DEFAULT_REFINE,
+    MODEL_LIMITS,
+    PHYSICS_DEFAULT,
+    TOLERANCE_RUN,
+    UNCERTAINTY,
+    UNIT_CELL,
+)
 
 STAGES_HELP = """\
 stages (each reads and writes plain files in a design folder, build/<shape>/):
@@ -70,6 +77,10 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
                            "(for unitless meshes)")
     p.add_argument("--flattening", choices=("cetm", "lscm"), default="cetm",
                    help="conformal flattening method (default: cetm)")
+    p.add_argument("--stencil", action="store_true",
+                   help="the input is a finished stencil OBJ (v = target positions, vt = flat "
+                        "layout, one vt per v): used as given, vertex and face order kept "
+                        "(refused if it is not one)")
     p.add_argument("--stencil-order", action="store_true",
                    help="treat an OBJ with vt as a finished stencil: keep vertex/face order")
     p.add_argument("--min-bumper", type=float, default=None, metavar="MM",
@@ -116,10 +127,15 @@ def _add_dask_options(p: argparse.ArgumentParser) -> None:
 def _add_physics_options(p: argparse.ArgumentParser) -> None:
     """``--physics`` and its parameters (pysolver.params.PhysicsOptions, docs/physics.md)."""
     p.add_argument("--physics", default=None, metavar="EFFECTS",
-                   help="effects beyond the reference simulator, comma-separated: relaxation, "
-                        "gravity, dry-rest, rim, contact, bracket-bending (or all, none; default "
-                        "none)")
+                   help="effects beyond the reference simulator, comma-separated: clearance, "
+                        "relaxation, membrane-temperature, gravity, dry-rest, rim, contact, "
+                        "bracket-bending; 'default' stands for the default set "
+                        f"({','.join(PHYSICS_DEFAULT.switched_on()).replace('_', '-')}), "
+                        "'none' for the reference model, 'all' for every effect "
+                        "(default: default; docs/physics.md)")
     for name, unit in (("stretch-to-glue-min", "min"), ("glue-to-water-min", "min"),
+                       ("drying-min", "min"), ("water-temp-c", "deg C"),
+                       ("lab-temp-c", "deg C"),
                        ("print-density", "g/cm^3"), ("water-density", "g/cm^3"),
                        ("latex-density", "g/cm^3"), ("rim-margin-mm", "mm"),
                        ("rim-stretch", "")):
@@ -131,8 +147,9 @@ def _add_physics_options(p: argparse.ArgumentParser) -> None:
 def _physics_from_args(args: argparse.Namespace):
     from sim.model.physics import parse_physics  # lazy: the stage loads when its subcommand runs
 
-    keys = ("stretch_to_glue_min", "glue_to_water_min", "print_density", "water_density",
-            "latex_density", "rim_margin_mm", "rim_stretch", "face_down")
+    keys = ("stretch_to_glue_min", "glue_to_water_min", "drying_min", "water_temp_c",
+            "lab_temp_c", "print_density", "water_density", "latex_density", "rim_margin_mm",
+            "rim_stretch", "face_down")
     return parse_physics(args.physics, **{k: getattr(args, k) for k in keys})
 
 
@@ -180,6 +197,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("shape")
     p.add_argument("--out", default=None)
     _add_design_options(p)
+    p.add_argument("--thickness-file", default=None, metavar="FILE",
+                   help="bracket thicknesses the stencil was printed with: CSV, one row per "
+                        "unit cell (base_a, base_b or face_a, face_b; thickness_top_mm, "
+                        "thickness_bottom_mm or thickness_plus_normal_mm, "
+                        "thickness_minus_normal_mm); written to cells.csv, so the folder "
+                        "can be simulated without 'program'")
 
     p = add("program", help="bracket thicknesses from the time landscape")
     p.add_argument("dir", help="design folder")
@@ -206,7 +229,16 @@ def _parser() -> argparse.ArgumentParser:
     p = add("compare-scan", help="compare scanned marker dots with the simulation")
     p.add_argument("dir")
     p.add_argument("scan", help="point set: OBJ vertices, PLY, or CSV with x y z columns (mm)")
-    p.add_argument("--layer", choices=("auto", "top", "bottom"), default="auto")
+    p.add_argument("--layer", choices=("auto", "top", "bottom"), default="auto",
+                   help="layer whose markers were scanned (default: the better fitting one)")
+    p.add_argument("--state", choices=("auto", "final", "rest"), default="auto",
+                   help="compare the last frame in water (final) or the dry resting shape "
+                        "(rest, from --physics ...,dry-rest); default: rest when simulated")
+    p.add_argument("--gate-mm", type=float, default=None, metavar="MM",
+                   help="leave out matches farther than MM (outlier dots); default: every "
+                        "dot is matched, the printed shells' procedure")
+    p.add_argument("--out", default=None,
+                   help="folder of scan_<name>.json and .png (default DIR/scan_report)")
 
     p = add("fit-material", help="fit the bracket model from measurements")
     p.add_argument("--data", default=None,
@@ -305,7 +337,8 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
                        render=not args.no_render, simulate=not args.no_sim,
                        t_end=args.t_end, dt=args.dt, jobs=args.jobs, progress=progress,
                        renderer=args.renderer, keep_failed=getattr(args, "debug", False),
-                       solver=args.solver, params=_unit_cell(args), seed=args.seed)
+                       solver=args.solver, params=_unit_cell(args), seed=args.seed,
+                       stencil=args.stencil)
         return result.get("exit_code", EXIT_OK)
     if cmd == "design":
         from .build import design_only  # lazy: the stage loads when its subcommand runs
@@ -313,7 +346,8 @@ def _run_command(args: argparse.Namespace, progress: bool) -> int:
                     scale=args.scale, size=args.size, flattening=args.flattening,
                     time_file=args.time_file,
                     stencil_order=args.stencil_order, progress=progress,
-                    params=_unit_cell(args))
+                    params=_unit_cell(args), stencil=args.stencil,
+                    thickness_file=args.thickness_file)
         return EXIT_OK
     return _run_other(args, progress)
 
@@ -368,7 +402,12 @@ def _run_stage(args: argparse.Namespace, progress: bool) -> int:
         return EXIT_OK
     if cmd == "compare-scan":
         from sim.report.scan import compare_scan  # lazy: the stage loads when its subcommand runs
-        compare_scan(Path(args.dir), Path(args.scan), layer=args.layer)
+        out = None if args.out is None else claim_output(args.out, what="--out folder",
+                                                         inputs=[args.scan])
+        compare_scan(Path(args.dir), Path(args.scan), layer=args.layer, state=args.state,
+                     gate_mm=args.gate_mm, out_dir=out, progress=progress)
+        if out is not None:
+            write_stamp(out)
         return EXIT_OK
     raise AssertionError(cmd)
 

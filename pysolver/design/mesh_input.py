@@ -180,7 +180,7 @@ def size_factor(V, size: float, name: str = "surface") -> float:
 
 
 def load_input(path, scale: float = 1.0, validate: bool = True,
-               size: float | None = None) -> InputMesh:
+               size: float | None = None, stencil: bool = False) -> InputMesh:
     """Load a target surface or a stencil OBJ.
 
     Parameters
@@ -193,6 +193,9 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
     size : float, mm, optional
         Scale the coordinates instead so that the largest bounding-box extent is ``size``
         mm (for unitless meshes); exclusive with ``scale`` (``scale`` must then be 1).
+    stencil : bool
+        The file must be a stencil OBJ (``--stencil``): ``v`` = target, ``vt`` = flat
+        layout, one ``vt`` per ``v``; anything else is refused.
 
     Returns
     -------
@@ -212,10 +215,21 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
     if path.stat().st_size == 0:
         raise InputError(f"{path}: empty file", fix="re-export the mesh")
     notes = []
+    if stencil and not (ext == ".obj" and _obj_has_vt(path)):
+        raise InputError(f"{path}: --stencil needs an OBJ stencil (v = target positions, vt = "
+                         "the flat layout, one vt per v); this file has no vt lines"
+                         if ext == ".obj" else
+                         f"{path}: --stencil needs an OBJ stencil, not a {ext} file",
+                         fix="give the stencil OBJ, or omit --stencil to design the mesh as "
+                             "a target surface")
     if ext == ".obj" and _obj_has_vt(path):
 
         try:
             V, UV, F = read_stencil(path)
+            if stencil and UV is None:
+                raise InputError(f"{path}: --stencil needs one vt (flat position) per v",
+                                 fix="export the stencil with its flat layout as vt, "
+                                     "row-aligned with v")
             if size is not None:
                 scale = size_factor(V, size, str(path))
             mesh = InputMesh(V * scale, F, None if UV is None else UV * scale, path=path,
@@ -225,7 +239,7 @@ def load_input(path, scale: float = 1.0, validate: bool = True,
                 validate_surface(mesh.V, mesh.F, str(path))
             return mesh
         except InputError as e:
-            if "seam" not in e.problem:
+            if stencil or "seam" not in e.problem:
                 raise
             notes.append("vt ignored: the texture layout has seams (not a stencil)")
     m = _read_trimesh(path)

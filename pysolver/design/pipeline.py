@@ -36,6 +36,7 @@ from .mesh_input import load_input, size_factor
 from .plots import write_design_plots
 from .remesh import remesh_surface, stencil_figures, surface_area
 from .sequencing import sequencing_landscape
+from .thickness_file import cell_thicknesses, read_thickness_file
 from .time_landscape import (
     TIME_FILE_ATTRIBUTE,
     cell_target_times,
@@ -66,7 +67,7 @@ class _Clock:
                   f"(total {now - self._start:6.1f} s)", file=sys.stderr, flush=True)
 
 
-def _load_source(source, scale: float, size=None):
+def _load_source(source, scale: float, size=None, stencil: bool = False):
     """Returns (surface-like object, kind, source description, hash, input mesh or None,
     factor applied to the input coordinates: ``scale``, or the one that ``size`` asks for)."""
     if isinstance(source, surfaces.Surface):
@@ -75,6 +76,9 @@ def _load_source(source, scale: float, size=None):
     src = str(source)
     p = Path(src)
     if not p.exists() and surfaces.is_builtin(src):
+        if stencil:
+            raise InputError(f"--stencil: {src} is a built-in shape, not a stencil OBJ",
+                             fix="give the path of a stencil OBJ (v = target, vt = flat)")
         surf = surfaces.builtin(src)
         if size is not None:
 
@@ -93,7 +97,7 @@ def _load_source(source, scale: float, size=None):
                          fix=f"give a mesh file (OBJ, STL, PLY, OFF) or one of "
                              f"{', '.join(surfaces.BUILTIN)}")
 
-    mesh = load_input(p, scale=scale, size=size)
+    mesh = load_input(p, scale=scale, size=size, stencil=stencil)
     h = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
     surf = surfaces.Surface(p.stem, mesh.V, mesh.F, UV=mesh.UV)
     return surf, ("stencil" if mesh.UV is not None else "mesh"), str(p), h, mesh, mesh.scale
@@ -275,7 +279,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell) -> str:
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
                stencil_order=False, progress=True, plots=True, seed=None,
-               size=None, time_file=None) -> dict:
+               size=None, time_file=None, stencil=False, thickness_file=None) -> dict:
     """Design a shell and write the design folder.
 
     Parameters
@@ -318,6 +322,13 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         Write the PNG pictures (skip in fast tests).
     seed : int, optional
         CVT remeshing seed (default: searched).
+    stencil : bool
+        ``source`` must be a stencil OBJ (``--stencil``; refused otherwise): its vertex
+        and face order, target (v) and flat layout (vt) are used as given.
+    thickness_file : str or Path, optional
+        The bracket thicknesses the stencil was printed with (``--thickness-file``,
+        :mod:`pysolver.design.thickness_file`): written to ``cells.csv`` instead of the
+        uniform ``thickness``, so the folder can be simulated without programming.
 
     Returns
     -------
@@ -327,9 +338,11 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     """
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
                          thickness=thickness, params=params, size=size, time_file=time_file)
+    given_th = None if thickness_file is None else read_thickness_file(thickness_file)
     out_dir = Path(out_dir)
     clock = _Clock(progress, str(source) if not hasattr(source, "name") else source.name)
-    surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size)
+    surf, kind, src_desc, src_hash, mesh, input_scale = _load_source(source, scale, size,
+                                                                     stencil)
     time_opt, time_file_info = time, None
     if time_file is not None:
         time, time_file_info = _time_file_source(time_file, mesh, surf, stencil_order)
@@ -401,6 +414,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
             t_desc = sequence["description"]
     t_star = cell_target_times(t_vertex, lay.cells.verts[:, 0], lay.cells.verts[:, 1])
     th = np.full((len(lay.cells.faces), 2), float(thickness))
+    if given_th is not None:
+        th = cell_thicknesses(given_th, lay.cells.faces, params)
     clock.step("time")
 
     # messages name places on the target in mm (the scaled, centred stencil.obj v): the
@@ -445,7 +460,10 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         "sequencing": sequence,
         "scale": scale, "size_mm": size, "input_scale": input_scale,
         "flattening": flattening, "thickness_mm": thickness,
-        "central_length_mm": cl, "stencil_order": stencil_order,
+        "central_length_mm": cl, "stencil_order": stencil_order, "stencil": stencil,
+        "thickness_file": None if given_th is None else {
+            "path": given_th["path"], "sha256": given_th["sha256"],
+            "rows": int(len(given_th["bases"]))},
         "params": params.to_dict(),
         "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
         "alignment_bases": [int(i) for i in lay.alignment],

@@ -67,7 +67,8 @@ from ..design.time_landscape import cell_target_times
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
-from ..params import MODEL_LIMITS, SEQUENCING, SIM, UNIT_CELL
+from ..mechanics import bumper_clearance
+from ..params import MODEL_LIMITS, PHYSICS_DEFAULT, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
@@ -486,6 +487,30 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
     return f, info
 
 
+def closing_lengths(design_dir, cells: dict, physics=None) -> np.ndarray:
+    """Bracket length at which every cell's layers close, as the simulator closes them.
+
+    The target's collision lengths (``cells.csv``), less the printed bumpers' clearance
+    (:func:`pysolver.mechanics.bumper_clearance`) when ``physics.clearance`` is on.
+
+    Parameters
+    ----------
+    design_dir : path-like -- design folder (``bumpers.csv``, ``design.json``)
+    cells : dict of arrays -- ``cells.csv``
+    physics : PhysicsOptions, optional -- default :data:`~pysolver.params.PHYSICS_DEFAULT`
+
+    Returns
+    -------
+    (c, 2) float, mm -- per cell and layer (top, bottom)
+    """
+    physics = PHYSICS_DEFAULT if physics is None else physics
+    closing = np.c_[cells["collision_length_top_mm"], cells["collision_length_bottom_mm"]]
+    if physics.clearance:
+        closing = closing - bumper_clearance(tables.read_table(design_dir, "bumpers"), cells,
+                                             tables.read_unit_cell(design_dir))
+    return closing
+
+
 def program_design(design_dir, *, material=None, membrane=None, progress: bool = True,
                    correction: str = DEFAULT_CORRECTION, t_request=None,
                    picture: bool = True, fit_landscape: bool = False, physics=None) -> dict:
@@ -511,9 +536,12 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     picture : bool
         Draw the feasibility picture.
     physics : PhysicsOptions, optional
-        With ``rim`` on, the ``F_mem`` correction meshes the latex margin kept at the rim
-        (as the simulator does with the same option) and uses its FEM factor on boundary
-        cells instead of the paper's 0.6 cap.
+        The simulator's physics (default :data:`~pysolver.params.PHYSICS_DEFAULT`).  With
+        ``rim`` on, the ``F_mem`` correction meshes the latex margin kept at the rim (as the
+        simulator does with the same option) and uses its FEM factor on boundary cells
+        instead of the paper's 0.6 cap; with ``clearance`` on, each layer is programmed to
+        close at the printed bumpers' contact length
+        (:func:`pysolver.mechanics.bumper_clearance`), as the simulator closes it.
     fit_landscape : bool
         Map the landscape linearly (order kept) onto the achievable range that clamps
         the fewest cells before programming, and rewrite ``time_landscape.csv``.  The
@@ -544,11 +572,12 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
     t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
-    rim = ((physics.rim_margin_mm, physics.rim_stretch)
-           if physics is not None and physics.rim else None)
+    physics = PHYSICS_DEFAULT if physics is None else physics
+    rim = (physics.rim_margin_mm, physics.rim_stretch) if physics.rim else None
     factor, finfo = membrane_factors(design_dir, cells, mem, correction, rim=rim)
-    res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
-                        cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+    closing = closing_lengths(design_dir, cells, physics)
+    res = program_cells(cells["bracket_length_mm"], closing[:, 0], closing[:, 1],
+                        cells["boundary"], t_star,
                         material=mat, membrane=mem, t_request=t_request, factor=factor)
     n = len(t_star)
     clamped = np.flatnonzero(res["clamped"])
@@ -696,6 +725,6 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
 __all__ = ["sequenced_span", "load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
-           "program_cells", "program_design", "timing_errors", "time_limit",
+           "program_cells", "program_design", "closing_lengths", "timing_errors", "time_limit",
            "COMPLETION_TOL_MM", "REFINE_DAMPING", "REFINE_LOG",
            "PICTURE", "STAGE_FILE"]

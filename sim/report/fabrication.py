@@ -145,7 +145,7 @@ def provenance(folder, build_info=None) -> dict:
         "simulation": {k: sim_sum.get(k) for k in ("steps", "t_final_s", "stopped_early",
                                                     "wall_s") if k in sim_sum},
         "versions": versions,
-        "date_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
+        "date_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC"),
     }
 
 
