@@ -151,6 +151,7 @@ def _picture(path: Path, name: str, rows: dict, ref_mean: float, default: str,
         a = fig.add_subplot(gs[1 + k])
         sc = plot_error_on_shell(a, flat_xy, ids, err, vmax=vmax,
                                  title=f"{_label(spec)}: mean {np.mean(err):.2f} mm")
+    fig.subplots_adjust(left=0.27, right=0.9, wspace=0.3)
     fig.colorbar(sc, ax=fig.axes[1:], label="scan dot - simulated marker (mm)", shrink=0.8)
     fig.savefig(path, dpi=90)
     plt.close(fig)
