@@ -596,8 +596,8 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         tables.write_table(design_dir / tables.FILENAMES["time_landscape"], "time_landscape",
                            {"vertex_id": np.arange(len(land)), "time_s": land})
         t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
-        res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
-                            cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+        res = program_cells(cells["bracket_length_mm"], closing[:, 0], closing[:, 1],
+                            cells["boundary"], t_star,
                             material=mat, membrane=mem, factor=factor)
         clamped = np.flatnonzero(res["clamped"])
         frac = float(len(clamped) / n) if n else 0.0
