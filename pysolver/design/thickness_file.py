@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..params import LIMITS, UNIT_CELL
+from ..params import UNIT_CELL
 from ..tables import check_thickness
+from .time_landscape import read_option_text
 
 BASE_COLUMNS = (("base_a", "base_b"), ("face_a", "face_b"))
 THICKNESS_COLUMNS = (("thickness_top_mm", "thickness_bottom_mm"),
@@ -68,18 +69,7 @@ def read_thickness_file(path) -> dict:
         positive and finite (named by line); the same cell twice.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"--thickness-file {path}: " + (
-            "no such file" if not path.exists() else "not a regular file"), fix=FIX)
-    if path.stat().st_size > LIMITS.max_time_file_bytes:
-        raise InputError(f"--thickness-file {path}: larger than "
-                         f"{LIMITS.max_time_file_bytes} bytes", fix=FIX)
-    data = path.read_bytes()
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        raise InputError(f"--thickness-file {path}: not UTF-8 text ({e.reason} at byte "
-                         f"{e.start})", fix=FIX) from None
+    text, data = read_option_text(path, "--thickness-file", FIX)
     lines = [(n, ln.strip()) for n, ln in enumerate(text.splitlines(), start=1) if ln.strip()]
     if not lines:
         raise InputError(f"--thickness-file {path}: empty", fix=FIX)
