@@ -42,8 +42,9 @@ and listed in the summary.  If more than half of the cells are clamped the
 landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
-within :data:`COMPLETION_TOL_MM` (the 0.05 mm printing clearance, see
-:func:`simulated_completion`).
+within :data:`COMPLETION_TOL_MM` (0.05 mm, the size of the printing clearance, see
+:func:`simulated_completion`); the layers are programmed to close where the simulator
+closes them, at the printed bumpers' contact (:func:`closing_lengths`).
 
 Closing the loop (beyond the paper).  :func:`refine_design` compares simulated
 completion times with ``t*`` and corrects the requested times of the thickness

@@ -1066,8 +1066,8 @@ def _html(r, tmp, sd, viewer=None) -> str:
     never = ", ".join(map(str, tm["never_due_cells"][:20])) or "none"
     n_prog = tm["n_cells"] - tm["n_clamped"]
     parts.append("<section id='timing'><h2>Timing</h2><p>A unit cell completes at the first "
-                 "frame where all 4 of its bracket springs are at their bumpers, within the "
-                 "0.05 mm printing clearance (source: "
+                 "frame where all 4 of its bracket springs are at their bumpers, within "
+                 "0.05 mm, the size of the printing clearance (source: "
                  f"{html.escape(tm['source'])}). Figures over all cells first; then over the "
                  f"{n_prog} programmable cells (the temporal stage could reach their t* with "
                  f"{UNIT_CELL.thickness_min:.2f}-{UNIT_CELL.thickness_max:.2f} mm brackets; "
