@@ -14,10 +14,11 @@ its lattice cells are 5.9 mm, so only 4138 triangles.)  Writes
   default) ``speedup_vs_reference`` and the largest difference of their final base centres
   (mm) and completion times (s);
 * ``build/bench/sim_profile_<solver>.txt`` -- cProfile, top entries by internal time;
-* under ``physics`` in ``sim.json``: the cost of each physics option (issue #18,
-  ``docs/physics.md``), each switched on alone on the default (``fast``) path after the
-  runs above: its wall time, Newton iterations and ``wall_ratio`` to the run with every
-  effect off (``--effects none`` skips them).
+* under ``physics`` in ``sim.json``: the cost of each physics option (issues #18, #32,
+  ``docs/physics.md``), each switched on in addition to the default physics
+  (:data:`~pysolver.params.PHYSICS_DEFAULT`) on the default (``fast``) path after the runs
+  above: its wall time, Newton iterations and ``wall_ratio`` to the default run
+  (``--effects none`` skips them).
 
 Usage::
 
@@ -140,7 +141,8 @@ def main(argv=None) -> int:
     ap.add_argument("--top", type=int, default=30, help="profile entries to keep")
     ap.add_argument("--solver", choices=("both", "fast", "reference"), default="both",
                     help="solver path(s) to time (default: both, and their ratio)")
-    ap.add_argument("--effects", default="relaxation,gravity,dry_rest,rim,contact,bracket_bending",
+    ap.add_argument("--effects", default="relaxation,membrane_temperature,gravity,dry_rest,rim,"
+                                         "contact,bracket_bending",
                     help="physics options to time one by one on the fast path (or none)")
     ap.add_argument("--prepare-only", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -201,11 +203,11 @@ def main(argv=None) -> int:
     if args.effects != "none" and "fast" in runs:
         import dataclasses
 
-        from pysolver.params import PHYSICS_OFF
+        from pysolver.params import PHYSICS_DEFAULT
 
         res["physics"] = {}
         for eff in args.effects.split(","):
-            ph = dataclasses.replace(PHYSICS_OFF, **{eff: True})
+            ph = dataclasses.replace(PHYSICS_DEFAULT, **{eff: True})
             r, _ = _simulate(folder, mat, "fast", args, out, log, physics=ph, tag=eff)
             res["physics"][eff] = {
                 "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
@@ -225,11 +227,11 @@ def _simulate(folder: Path, mat, solver: str, args, out: Path, log, physics=None
               tag=None) -> tuple[dict, tuple]:
     """Simulate the benchmark design with one solver path (and physics options); returns its
     figures and (final base centres (n, 3) mm, completion times (n_cells,) s)."""
-    from pysolver.params import PHYSICS_OFF
+    from pysolver.params import PHYSICS_DEFAULT
     from sim.model.collisions import completion_times
     from sim.model.simulate import simulate_design
 
-    physics = PHYSICS_OFF if physics is None else physics
+    physics = PHYSICS_DEFAULT if physics is None else physics
     tag = tag or solver
 
     load0 = os.getloadavg()

@@ -41,7 +41,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 SHAPES = ("regular", "petal", "dome", "saddle", "spiral", "weave")
-EFFECTS = ("relaxation", "gravity", "dry_rest", "rim", "contact", "bracket_bending")
+EFFECTS = ("clearance", "relaxation", "membrane_temperature", "gravity", "dry_rest", "rim",
+           "contact", "bracket_bending")
 
 
 def kabsch(P, Q):
@@ -188,9 +189,9 @@ def main(argv=None) -> int:
         folder = out / shape
         if not (folder / "cells.csv").exists():
             build(shape, out=folder, render=False, simulate=False, progress=False)
-        size = float(np.ptp(load_model(folder).V, axis=0).max())
+        size = float(np.ptp(load_model(folder, physics=PHYSICS_OFF).V, axis=0).max())
         t0 = time.perf_counter()
-        ref = simulate_model(load_model(folder), mat)
+        ref = simulate_model(load_model(folder, physics=PHYSICS_OFF), mat, physics=PHYSICS_OFF)
         w_ref = time.perf_counter() - t0
         res = results.setdefault(shape, {})
         res["size_mm"] = size

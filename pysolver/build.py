@@ -146,7 +146,8 @@ def design_only(source: str, options: BuildOptions | None = None, **changes) -> 
                          **({} if opts.params is None else {"params": opts.params}))
     name = shape_name(source)
     out = claim_output(opts.out or BUILD_ROOT / name, what="output folder",
-                       inputs=[source] + ([opts.time_file] if opts.time_file else []))
+                       inputs=[source] + [f for f in (opts.time_file, opts.thickness_file)
+                                          if f])
     with build_lock(out):
         recover_stale(out)
         with atomic_dir(out) as tmp:

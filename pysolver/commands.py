@@ -19,6 +19,7 @@ from .atomic import (
     claim_output,
     claim_output_file,
     claim_result_folder,
+    write_stamp,
 )
 from .errors import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_INTERNAL, EXIT_OK
 from .params import UNCERTAINTY
@@ -88,13 +89,19 @@ def stage(args: argparse.Namespace) -> int:
 
 
 def compare_scan(args: argparse.Namespace) -> int:
-    """``morphshell compare-scan DIR SCAN``."""
+    """``morphshell compare-scan DIR SCAN``: into ``DIR/scan_report``, or a folder of its own
+    (``--out``, claimed like any output folder)."""
     from .simulator import compare_scan as run  # lazy: the stage loads when its subcommand runs
 
     folder = Path(args.dir).absolute()
     check_design_folder(folder)
+    out = None if args.out is None else claim_output(args.out, what="--out folder",
+                                                     inputs=[args.scan])
     with build_lock(folder):
-        run(folder, Path(args.scan), layer=args.layer)
+        run(folder, Path(args.scan), layer=args.layer, state=args.state, gate_mm=args.gate_mm,
+            out_dir=out, progress=_progress(args))
+    if out is not None:
+        write_stamp(out)
     return EXIT_OK
 
 

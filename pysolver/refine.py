@@ -33,6 +33,7 @@ from .simulator import (
 from .temporal import (
     REFINE_LOG,
     STAGE_FILE,
+    closing_lengths,
     load_material,
     program_cells,
     time_limit,
@@ -51,7 +52,7 @@ NOTE = ("rms_s: cells whose t* is achievable (clamped excluded) and that complet
 
 def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=None,
                   progress: bool = True, t_end=None, damping: float = PROGRAMMING.refine_damping,
-                  tol_mm: float = UNIT_CELL.clearance, simulate=None) -> dict:
+                  tol_mm: float = UNIT_CELL.clearance, simulate=None, physics=None) -> dict:
     """Correct the programmed times from simulated completion times and re-simulate.
 
     Needs a programmed and simulated design folder (``sim/frames.npz``).  Each
@@ -83,6 +84,10 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     simulate : callable, optional
         ``simulate(design_dir, **kw)`` replacing :func:`sim.model.simulate.simulate_design`
         (tests; the build passes its solver and physics).
+    physics : PhysicsOptions, optional
+        The simulator's physics (default :data:`~pysolver.params.PHYSICS_DEFAULT`): the
+        layers are programmed to close where it closes them
+        (:func:`pysolver.temporal.program.closing_lengths`).
 
     Returns
     -------
@@ -106,7 +111,7 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     sim_kw = {"progress": progress}
     sim_kw.update({k: v for k, v in (("material", material), ("t_end", t_end)) if v is not None})
     rounds = _Rounds(design_dir, load_material(material), load_membrane_model(membrane),
-                     damping=damping, tol_mm=tol_mm, progress=progress)
+                     damping=damping, tol_mm=tol_mm, progress=progress, physics=physics)
     k = 0
     while _refine_again(rounds.hist, k, int(iterations)):
         k += 1
@@ -128,13 +133,14 @@ class _Rounds:
     """
 
     def __init__(self, folder: Path, mat, mem, *, damping: float, tol_mm: float,
-                 progress: bool):
+                 progress: bool, physics=None):
         self.folder, self.mat, self.mem = folder, mat, mem
         self.damping, self.tol_mm, self.progress = damping, tol_mm, progress
         self.frames_path = folder / "sim" / "frames.npz"
         self.keep_dir = folder / "sim" / "refine"
         self.cells = tables.read_table(folder, "cells")
         c = self.cells
+        self.closing = closing_lengths(folder, c, physics)  # as the simulator closes them
         self.t_star = c["t_star_s"].copy()
         self.factor = self._membrane_factor(len(self.t_star))
         self.clamped = c["clamped"].astype(bool)
@@ -178,8 +184,8 @@ class _Rounds:
         self.t_req = np.clip(self.t_req + self.damping * (self.t_star - ts), self.lo,
                              np.maximum(self.lo, self.hi))
         c = self.cells
-        res = program_cells(c["bracket_length_mm"], c["collision_length_top_mm"],
-                            c["collision_length_bottom_mm"], c["boundary"], self.t_star,
+        res = program_cells(c["bracket_length_mm"], self.closing[:, 0], self.closing[:, 1],
+                            c["boundary"], self.t_star,
                             material=self.mat, membrane=self.mem, t_request=self.t_req,
                             factor=self.factor)
         self.cap, n_thinned = _thin_open_layers(self.cap, self.thick[-1], self.t_sim,

@@ -85,12 +85,13 @@ def contact_if_needed(folder: Path, name: str, progress: bool):
     (a petal sweeping past another), its path is impossible and the check could only say
     FAIL.  The printed shell's parts push each other aside instead, which the IPC barrier
     (``--physics contact``, :mod:`sim.model.contact`) models, so the build simulates again
-    with it.  A shell whose parts never meet keeps the reference model's result unchanged.
+    with it (on top of the default physics).  A shell whose parts never meet keeps its
+    first result unchanged.
 
     Returns
     -------
     physics : PhysicsOptions or None
-        ``contact`` switched on; None when no pair collides.
+        The default physics with ``contact`` switched on; None when no pair collides.
     hit : dict
         :meth:`sim.model.collisions.CollisionResult.summary` of the frames checked.
     """
@@ -101,7 +102,7 @@ def contact_if_needed(folder: Path, name: str, progress: bool):
     say("build", name, f"{hit['count']} pair(s) of non-neighbouring bases pass through each "
         f"other (first bases {f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s); "
         "simulating again with barrier contact (--physics contact)", progress)
-    return parse_physics("contact"), hit
+    return parse_physics("default,contact"), hit
 
 
 def viewer_assets() -> dict:

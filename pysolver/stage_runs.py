@@ -32,13 +32,14 @@ def design(ctx: StageContext) -> dict:
 
 
 def design_options(ctx: StageContext) -> dict:
-    """The keyword arguments of :func:`pysolver.design.run_design` (``seed``, ``size`` and
-    ``time_file`` only when given)."""
+    """The keyword arguments of :func:`pysolver.design.run_design` (``seed``, ``size``,
+    ``time_file`` and ``thickness_file`` only when given)."""
     o = ctx.options
     return dict(vertices=o.vertices, time=o.time, scale=o.scale, flattening=o.flattening,
                 stencil=o.stencil, params=o.params,
                 **o.given("seed", "size"),
-                **({} if o.time_file is None else {"time_file": str(o.time_file)}))
+                **{k: str(getattr(o, k)) for k in ("time_file", "thickness_file")
+                   if getattr(o, k) is not None})
 
 
 def program(ctx: StageContext) -> dict:
@@ -86,7 +87,8 @@ def refine(ctx: StageContext) -> dict:
     hook = functools.partial(simulate_design, solver=o.solver, **o.given("dt"),
                              **({} if ctx.physics is None else {"physics": ctx.physics}))
     res = refine_design(ctx.folder, iterations=o.refine, material=o.material,
-                        progress=ctx.progress, simulate=hook, **o.given("t_end"))
+                        progress=ctx.progress, simulate=hook, **o.given("t_end"),
+                        physics=ctx.physics or o.physics)
     if ctx.build is not None and ctx.physics is None:
         _contact(ctx, res)
     return res

@@ -25,7 +25,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .params import DEFAULT_REFINE, PROGRAMMING, SIM, TOLERANCE_RUN, UNCERTAINTY, UNIT_CELL
+from .params import (
+    DEFAULT_REFINE,
+    PHYSICS_DEFAULT,
+    PROGRAMMING,
+    SIM,
+    TOLERANCE_RUN,
+    UNCERTAINTY,
+    UNIT_CELL,
+)
 
 # ------------------------------------------------------------------------------------------
 # options
@@ -90,7 +98,7 @@ OPTIONS = {o.dest: o for o in (
         help="the mesh is a finished stencil: its own triangles are the bases (no remeshing), "
              "its vt (OBJ) the flat layout (else it is flattened); without it a mesh with a "
              "UV map is a target surface, and only morphshell's own stencil.obj is read as a "
-             "stencil"),
+             "stencil (a built-in shape is refused)"),
     opt("--min-bumper", type=float, default=None, metavar="MM",
         help="minimal bumper length beyond the base rim, mm (default 0.3, the paper's; 3D "
              "scaling rule)"),
@@ -125,8 +133,16 @@ OPTIONS = {o.dest: o for o in (
     opt("--no-resume", dest="resume", action="store_false",
         help="start over, ignore a checkpoint"),
     opt("--physics", default=None, metavar="EFFECTS",
-        help="effects beyond the reference simulator, comma-separated: relaxation, gravity, "
-             "dry-rest, rim, contact, bracket-bending (or all, none; default none)"),
+        help="effects beyond the reference simulator, comma-separated: clearance, "
+             "relaxation, membrane-temperature, gravity, dry-rest, rim, contact, "
+             "bracket-bending; 'default' stands for the default set "
+             f"({','.join(PHYSICS_DEFAULT.switched_on()).replace('_', '-')}), 'none' for the "
+             "reference model, 'all' for every effect (default: default; docs/physics.md)"),
+    opt("--thickness-file", default=None, metavar="FILE",
+        help="bracket thicknesses the stencil was printed with: CSV, one row per unit cell "
+             "(base_a, base_b or face_a, face_b; thickness_top_mm, thickness_bottom_mm or "
+             "thickness_plus_normal_mm, thickness_minus_normal_mm); written to cells.csv, so "
+             "the folder can be simulated without 'program'"),
 )}
 """The options of the pipeline's commands, by :attr:`Option.dest`."""
 
@@ -136,6 +152,7 @@ DESIGN_OPTIONS = ("vertices", "time", "time_file", "scale", "size", "flattening"
 :attr:`BuildOptions.params`)."""
 
 PHYSICS_PARAMETERS = (("stretch-to-glue-min", "min"), ("glue-to-water-min", "min"),
+                      ("drying-min", "min"), ("water-temp-c", "deg C"), ("lab-temp-c", "deg C"),
                       ("print-density", "g/cm^3"), ("water-density", "g/cm^3"),
                       ("latex-density", "g/cm^3"), ("rim-margin-mm", "mm"), ("rim-stretch", ""))
 """Parameters of ``--physics`` (:class:`pysolver.params.PhysicsOptions`, docs/physics.md)."""
@@ -164,6 +181,9 @@ class BuildOptions:
         Output folder (default ``build/<name>``).
     vertices, time, time_file, scale, size, flattening, stencil, seed
         Design options, see :func:`pysolver.design.run_design`.
+    thickness_file : path-like, optional
+        Bracket thicknesses the stencil was printed with (``morphshell design
+        --thickness-file``, :mod:`pysolver.design.thickness_file`).
     params : UnitCell, optional
         Unit cell with the user's tolerances (:func:`pysolver.design.unit_cell_options`);
         default :data:`pysolver.params.UNIT_CELL`.  Later stages read it from ``design.json``.
@@ -201,6 +221,7 @@ class BuildOptions:
     flattening: str = "cetm"
     stencil: bool = False
     seed: int | None = None
+    thickness_file: Any = None
     params: Any = None
     material: Any = None
     refine: int = DEFAULT_REFINE
@@ -327,7 +348,7 @@ STAGES = (
     Stage("design", "pysolver.stage_runs:design",
           "target surface -> stencil -> flat layout -> the design tables",
           reads=("<input mesh or built-in shape>",), writes=TABLES + ("design_*.png",),
-          options=("out",) + DESIGN_OPTIONS),
+          options=("out",) + DESIGN_OPTIONS + ("thickness_file",)),
     Stage("program", "pysolver.stage_runs:program",
           "bracket thicknesses from the time landscape (temporal programming)",
           reads=TABLES, writes=("cells.csv", "time_landscape.csv", "temporal.json",
@@ -424,7 +445,16 @@ TOOLS = (
             "pysolver.commands:compare_scan",
             (DIR, opt("scan", help="point set: OBJ vertices, PLY, or CSV with x y z columns "
                                    "(mm)"),
-             opt("--layer", choices=("auto", "top", "bottom"), default="auto"))),
+             opt("--layer", choices=("auto", "top", "bottom"), default="auto",
+                 help="layer whose markers were scanned (default: the better fitting one)"),
+             opt("--state", choices=("auto", "final", "rest"), default="auto",
+                 help="compare the last frame in water (final) or the dry resting shape "
+                      "(rest, from --physics ...,dry-rest); default: rest when simulated"),
+             opt("--gate-mm", type=float, default=None, metavar="MM",
+                 help="leave out matches farther than MM (outlier dots); default: every dot "
+                      "is matched, the printed shells' procedure"),
+             opt("--out", default=None,
+                 help="folder of scan_<name>.json and .png (default DIR/scan_report)"))),
     Command("fit-material", "fit the bracket model from measurements",
             "fit the bracket material model from tensile-test measurements",
             "pysolver.commands:fit_material",

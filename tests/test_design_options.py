@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -290,3 +291,88 @@ def test_make_passes_the_options_as_data(stencil, tmp_path):
              "ARGS=--quiet --size 60 --out out2")
     assert r.returncode == 2 and "no such file" in r.stderr, r.stderr
     assert list(tmp_path.glob("pwned*")) == []
+
+
+# ------------------------------------------------------------------------------------------
+# a stencil printed elsewhere: --stencil and --thickness-file (issue #32)
+
+
+def _thickness_csv(path, a, b, th, header="cell,face_a,face_b,thickness_plus_normal_mm,"
+                   "thickness_minus_normal_mm,t_star_s"):
+    path.write_text(header + "\n" + "".join(
+        f"{i},{x},{y},{float(p)!r},{float(m)!r},30.0\n" for i, (x, y, p, m) in
+        enumerate(zip(a, b, th[:, 0], th[:, 1], strict=True))))
+    return path
+
+
+def test_thickness_file_gives_every_cell_its_thickness(stencil, tmp_path, capsys):
+    """Rows in any order, each cell's two faces in either order: every cell gets its own
+    row's thickness (+normal = top), and design.json records the file's hash."""
+    path, _V, _F = stencil
+    run_design(path, tmp_path / "d0", size=60.0, plots=False, progress=False)
+    cells = read_design(tmp_path / "d0").cells
+    rng = np.random.default_rng(3)
+    th = np.round(rng.uniform(0.3, 0.65, (len(cells["cell_id"]), 2)), 6)
+    order = rng.permutation(len(th))
+    swap = rng.random(len(th)) < 0.5
+    a, b = cells["base_a"][order], cells["base_b"][order]
+    tf = _thickness_csv(tmp_path / "th.csv", np.where(swap, b, a), np.where(swap, a, b),
+                        th[order])
+    rc, err = _cli(["design", str(path), "--stencil", "--size", "60", "--thickness-file",
+                    str(tf), "--out", str(tmp_path / "d"), "--quiet"], capsys)
+    assert rc == 0, err
+    d = read_design(tmp_path / "d")
+    np.testing.assert_allclose(np.c_[d.cells["thickness_top_mm"], d.cells["thickness_bottom_mm"]],
+                               th, rtol=1e-8)
+    np.testing.assert_array_equal(d.cells["base_a"], cells["base_a"])
+    opts = json.loads((tmp_path / "d" / "design.json").read_text())["options"]
+    import hashlib
+
+    assert opts["stencil"] is True
+    assert opts["thickness_file"]["sha256"] == hashlib.sha256(tf.read_bytes()).hexdigest()
+
+
+@pytest.mark.parametrize("edit, message", [
+    ("drop", r"no row for cell"),
+    ("extra", r"is not a unit cell of the design"),
+    ("twice", r"appears 2 times"),
+    ("thick", r"outside the bracket thickness range"),
+    ("text", r":3: not a number"),
+    ("header", r"no thickness columns"),
+])
+def test_bad_thickness_files_exit_2_naming_the_problem(stencil, tmp_path, capsys, edit,
+                                                       message):
+    path, _V, _F = stencil
+    run_design(path, tmp_path / "d0", size=60.0, plots=False, progress=False)
+    cells = read_design(tmp_path / "d0").cells
+    a, b = cells["base_a"].copy(), cells["base_b"].copy()
+    th = np.full((len(a), 2), 0.5)
+    if edit == "drop":
+        a, b, th = a[1:], b[1:], th[1:]
+    elif edit == "extra":  # faces 0 and the last one are not neighbours
+        a, b, th = np.r_[a, 0], np.r_[b, b.max()], np.r_[th, [[0.5, 0.5]]]
+    elif edit == "twice":
+        a, b, th = np.r_[a, b[0]], np.r_[b, a[0]], np.r_[th, [[0.5, 0.5]]]
+    elif edit == "thick":
+        th[4, 1] = 0.8
+    tf = _thickness_csv(tmp_path / "th.csv", a, b, th,
+                        header="cell,face_a,face_b,h_top,h_bottom,t" if edit == "header"
+                        else "cell,face_a,face_b,thickness_plus_normal_mm,"
+                             "thickness_minus_normal_mm,t_star_s")
+    if edit == "text":
+        lines = tf.read_text().splitlines()
+        lines[2] = lines[2].replace("0.5", "half", 1)
+        tf.write_text("\n".join(lines) + "\n")
+    rc, err = _cli(["design", str(path), "--stencil", "--size", "60", "--thickness-file",
+                    str(tf), "--out", str(tmp_path / "d"), "--quiet"], capsys)
+    assert rc == 2 and re.search(message, err), err
+    assert not (tmp_path / "d").exists()
+
+
+def test_stencil_flag_refuses_a_built_in_shape(tmp_path, capsys):
+    """``--stencil`` names a finished stencil file; a built-in shape is not one.  (A mesh
+    without ``vt`` given with ``--stencil`` keeps its own triangles and is flattened:
+    ``tests/test_surfaces.py::test_mesh_as_stencil_and_lscm``.)"""
+    rc, err = _cli(["design", "petal", "--stencil", "--out", str(tmp_path / "c")], capsys)
+    assert rc == 2 and "built-in shape" in err, err
+    assert not (tmp_path / "c").exists()

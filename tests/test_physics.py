@@ -41,7 +41,14 @@ from pysolver.errors import InputError
 from pysolver.mechanics import build_model, load_model
 from pysolver.mechanics.energies import ShellEnergy, State, full_from_lower, rodrigues
 from pysolver.mechanics.solver import StaticProblem, newton
-from pysolver.params import NEWTON, PHYSICS_OFF, RELAXATION_PRONY, SIM, PhysicsOptions
+from pysolver.params import (
+    NEWTON,
+    PHYSICS_DEFAULT,
+    PHYSICS_OFF,
+    RELAXATION_PRONY,
+    SIM,
+    PhysicsOptions,
+)
 from sim.model.physics import ExternalTerms, base_volumes, parse_physics
 from sim.model.simulate import SimSettings, Simulation, simulate_model
 
@@ -61,8 +68,8 @@ def patch_dir(tmp_path_factory):
 
 def test_every_effect_off_reproduces_the_reference_frames(patch_dir):
     ref = np.load(DATA / "physics_off_reference.npz")
-    fr = simulate_model(load_model(patch_dir), StandInBracketModel(t_soft=10.0), t_end=40.0,
-                        physics=PHYSICS_OFF)
+    fr = simulate_model(load_model(patch_dir, physics=PHYSICS_OFF),
+                        StandInBracketModel(t_soft=10.0), t_end=40.0, physics=PHYSICS_OFF)
     assert len(fr["t"]) == len(ref["t"])
     assert np.abs(fr["energy"] - ref["energy"]).max() <= 1e-12
     assert np.abs(fr["bracket_length"] - ref["bracket_length"]).max() <= 1e-9
@@ -79,12 +86,20 @@ def test_every_effect_off_reproduces_the_reference_frames(patch_dir):
     assert '"relaxation": false' in str(fr["physics"])
 
 
-def test_parse_physics_and_bad_input():
+def test_parse_physics_and_bad_input(patch_dir):
     ph = parse_physics("relaxation,dry-rest", glue_to_water_min=30.0, print_density=None)
     assert ph.relaxation and ph.dry_rest and not ph.gravity and not ph.rim
     assert ph.glue_to_water_min == 30.0 and ph.print_density == PHYSICS_OFF.print_density
-    assert parse_physics("none") == PHYSICS_OFF and parse_physics(None) == PHYSICS_OFF
+    assert parse_physics("none") == PHYSICS_OFF and parse_physics("") == PHYSICS_OFF
+    assert parse_physics(None) == PHYSICS_DEFAULT == parse_physics("default")
+    assert parse_physics("default,gravity") == dataclasses.replace(PHYSICS_DEFAULT,
+                                                                    gravity=True)
     assert set(parse_physics("all").switched_on()) == set(PhysicsOptions.SWITCHES)
+    # the simulator's default; a model must be built with the options it is simulated with
+    assert SimSettings().physics == PHYSICS_DEFAULT
+    with pytest.raises(InputError, match="other physics than the simulation's"):
+        Simulation(load_model(patch_dir, physics=PHYSICS_OFF), StandInBracketModel(),
+                   SimSettings(physics=parse_physics("clearance")))
     with pytest.raises(InputError, match="unknown physics effect"):
         parse_physics("gravity,magic")
     with pytest.raises(InputError, match="print_density"):
@@ -134,8 +149,8 @@ def test_relaxation_fit_follows_the_measured_curve():
 def test_relaxation_scales_the_membrane_prestress(patch_dir):
     from pysolver.material.relaxation import relaxation_factor
 
-    model = load_model(patch_dir)
     ph = parse_physics("relaxation", stretch_to_glue_min=5.0, glue_to_water_min=25.0)
+    model = load_model(patch_dir, physics=ph)
     sim = Simulation(model, StandInBracketModel(), SimSettings(physics=ph))
     s = State.flat(model)
     e0 = ShellEnergy(model)
@@ -259,8 +274,8 @@ def test_cantilevered_cell_sags_linearly_and_by_clapeyron():
 
 def test_dry_rest_on_a_table(patch_dir):
     ph = parse_physics("dry-rest")
-    fr = simulate_model(load_model(patch_dir), StandInBracketModel(t_soft=10.0), t_end=20.0,
-                        physics=ph)
+    fr = simulate_model(load_model(patch_dir, physics=ph), StandInBracketModel(t_soft=10.0),
+                        t_end=20.0, physics=ph)
     assert bool(fr["rest_converged"])
     assert float(fr["rest_contact_force_N"]) == pytest.approx(float(fr["rest_weight_N"]),
                                                               rel=1e-4)
@@ -273,33 +288,137 @@ def test_dry_rest_on_a_table(patch_dir):
 # rim
 
 
-def test_rim_margin_is_prestretched_to_the_rim_stretch(patch_dir):
-    ph = parse_physics("rim", rim_margin_mm=1.0, rim_stretch=2.0)
-    m0 = load_model(patch_dir)
-    m1 = load_model(patch_dir, physics=ph)
-    t0 = len(m0.tri_points)
-    assert np.array_equal(m1.tri_points[:t0] - m1.mem_point[0], m0.tri_points - m0.mem_point[0])
-    margin = np.arange(len(m1.tri_points)) >= t0
-    P = m1.mem_flat[m1.mem_triangles[margin]]
-    e1, e2 = P[:, 1, :2] - P[:, 0, :2], P[:, 2, :2] - P[:, 0, :2]
-    area = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    assert np.all(area > 0)
-    assert np.allclose(m1.tri_rest_area[margin], area / 4.0)  # rest = flat / 2^2
-    # strip area ~ outline length x width
-    loop = m1.mem_flat[m1.mem_triangles[margin][:, 0]][:, :2]
-    assert area.sum() == pytest.approx(np.linalg.norm(np.diff(np.r_[loop[: len(loop) // 2]],
-                                                              axis=0), axis=1).sum()
-                                       * 1.0, rel=0.15)
-    # energy at the flat state: equibiaxial neo-Hookean at stretch 2, per flat area
-    e = ShellEnergy(m1)
-    X, _ = e.positions(State.flat(m1))
+def test_rim_margin_is_frozen_latex(patch_dir):
+    """SI Note 5 steps 6-7: glue freezes the margin before the sheet is released.  It rests
+    at its flat shape (``rim_stretch`` = 1: no energy at the flat state) and holds the latex
+    of the sheet stretched by tau (rest area = flat area / tau^2); a margin that kept a
+    pre-stretch ``s`` has the equibiaxial neo-Hookean energy at ``s`` (1e-12)."""
     from pysolver.mechanics.energies import membrane_terms
 
-    Em, _, _ = membrane_terms(X[m1.tri_points[margin]], m1.tri_dm_inv[margin],
-                              m1.tri_rest_area[margin], SIM.mu, SIM.membrane_h, hessian=False)
-    lam = 2.0
-    psi = SIM.mu / 2 * (2 * lam**2 + lam**-4 - 3)
-    assert Em.sum() == pytest.approx(SIM.membrane_h * psi * area.sum() / lam**2, rel=1e-12)
+    m0 = load_model(patch_dir, physics=PHYSICS_OFF)
+    t0 = len(m0.tri_points)
+    assert PHYSICS_OFF.rim_stretch == 1.0
+    for stretch in (1.0, 2.0):
+        ph = parse_physics("rim", rim_margin_mm=1.0, rim_stretch=stretch)
+        m1 = load_model(patch_dir, physics=ph)
+        assert np.array_equal(m1.tri_points[:t0] - m1.mem_point[0],
+                              m0.tri_points - m0.mem_point[0])
+        margin = np.arange(len(m1.tri_points)) >= t0
+        P = m1.mem_flat[m1.mem_triangles[margin]]
+        e1, e2 = P[:, 1, :2] - P[:, 0, :2], P[:, 2, :2] - P[:, 0, :2]
+        area = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        assert np.all(area > 0)
+        assert np.allclose(m1.tri_rest_area[margin], area / SIM.tau**2)  # the sheet's latex
+        # strip area ~ outline length x width
+        loop = m1.mem_flat[m1.mem_triangles[margin][:, 0]][:, :2]
+        assert area.sum() == pytest.approx(np.linalg.norm(np.diff(
+            np.r_[loop[: len(loop) // 2]], axis=0), axis=1).sum() * 1.0, rel=0.15)
+        e = ShellEnergy(m1)
+        X, _ = e.positions(State.flat(m1))
+        Em, _, _ = membrane_terms(X[m1.tri_points[margin]], m1.tri_dm_inv[margin],
+                                  m1.tri_rest_area[margin], SIM.mu, SIM.membrane_h,
+                                  hessian=False)
+        psi = SIM.mu / 2 * (2 * stretch**2 + stretch**-4 - 3)
+        assert Em.sum() == pytest.approx(SIM.membrane_h * psi * area.sum() / SIM.tau**2,
+                                         rel=1e-12, abs=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# printing clearance, membrane temperature, the dry rest's force law (issue #32)
+
+
+def test_clearance_closes_the_printed_bumpers(patch_dir):
+    """The printed bumpers are ``clearance`` short at each tip: on this flat patch every
+    bumper plane is vertical, so each spring's contact length is the target's minus exactly
+    2 x 0.05 mm; a simulated patch closes there (the contact springs end within their
+    compression under the membrane, < 0.02 mm, of it)."""
+    from pysolver.mechanics import bumper_clearance
+    from pysolver.tables import read_design
+
+    d = read_design(patch_dir)
+    c = bumper_clearance(d.bumpers, d.cells, d.params)
+    assert np.allclose(c, 2 * d.params.clearance)
+    m0 = load_model(patch_dir, physics=PHYSICS_OFF)
+    ph = parse_physics("clearance")
+    m1 = load_model(patch_dir, physics=ph)
+    assert np.allclose(m0.spring_collision - m1.spring_collision, 0.1, atol=1e-12)
+    fr = simulate_model(m1, StandInBracketModel(t_soft=10.0), t_end=60.0, physics=ph)
+    closed = fr["contact"][-1].ravel()
+    assert closed.mean() > 0.5
+    L = fr["bracket_length"][-1].ravel()[closed]
+    assert np.all(np.abs(L - m1.spring_collision[closed]) < 0.02)
+    assert np.all(L < m0.spring_collision[closed] - 0.07)
+
+
+def test_membrane_temperature_and_relaxation_scale_the_prestress(patch_dir):
+    """Rubber's stress at a fixed stretch is proportional to the absolute temperature: in the
+    water the membrane forces at the pre-stressed flat state scale by
+    g(age) * (56 + 273.15) / (22 + 273.15) (1e-12); the dry rest is back at 22 deg C."""
+    from pysolver.material.relaxation import relaxation_factor
+    from sim.model.simulate import membrane_scale
+
+    ph = parse_physics("relaxation,membrane-temperature", glue_to_water_min=25.0)
+    model = load_model(patch_dir, physics=ph)
+    sim = Simulation(model, StandInBracketModel(), SimSettings(physics=ph))
+    s = State.flat(model)
+    _, g_ref = ShellEnergy(model).gradient(s)
+    T = (56.0 + 273.15) / (22.0 + 273.15)
+    for t in (0.0, 90.0):
+        sim.update_brackets(t, dry=t == 0)
+        f = float(relaxation_factor(60.0 * 35.0 + t)) * T
+        assert sim.energy.mu_scale == pytest.approx(f, rel=1e-14)
+        _, g = sim.energy.gradient(s)
+        assert np.abs(g - f * g_ref).max() < 1e-12 * np.abs(g_ref).max()
+    assert membrane_scale(ph, 600.0, wet=False) == pytest.approx(
+        float(relaxation_factor(60.0 * 35.0 + 600.0)), rel=1e-14)
+    assert membrane_scale(parse_physics("membrane-temperature", water_temp_c=22.0), 5.0,
+                          wet=True) == 1.0
+
+
+def test_frozen_rest_lengths_keep_the_force():
+    """The cooled spring carries the force it had: F_dry(x0) = F (1e-10), for compression and
+    tension, on a stiffening and on a softening law; no force, no offset."""
+    from sim.model.simulate import frozen_rest_lengths, spring_forces
+
+    coef = np.array([[8.0, -1.5, 0.3, -0.02], [8.0, -1.5, 0.3, -0.02], [3.0, 2.0, 0.0, 0.0],
+                     [5.0, 0.0, 0.0, 0.0]])
+    f = np.array([2.5, -0.7, 4.0, 0.0])
+    x0 = frozen_rest_lengths(coef, f, np.full(4, 3.0))
+    assert np.allclose(spring_forces(coef, x0), f, atol=1e-10)
+    assert x0[3] == 0.0 and x0[0] > 0 > x0[1]
+
+
+def test_dry_rest_keeps_the_shape_it_cooled_in(patch_dir):
+    """A shell cooled under load keeps its shape: with a negligible weight the resting shape
+    is the final shape in the water (< 1e-4 mm), since every bracket keeps its final force;
+    the former law (rest length = final length, force reset to zero) lets the membrane pull
+    the open cells further (> 1e-3 mm)."""
+    ph = parse_physics("dry-rest", gravity_mm_s2=1e-6)
+    model = load_model(patch_dir, physics=ph)
+    sim = Simulation(model, StandInBracketModel(t_soft=10.0),
+                     SimSettings(t_end=8.0, physics=ph))  # open cells remain at 8 s
+    while not sim.done:
+        sim.step()
+    assert not sim.contact.reshape(-1, 4).all(axis=1).all()
+    res = sim.dry_rest()
+    assert res.converged
+    A, B = sim.frames["marker_top"][sim.k - 1], sim.rest_frame["rest_marker_top"]
+    Q, t = _kabsch(B, A)
+    assert np.abs(B @ Q.T + t - A).max() < 1e-4
+    sim.energy.spring_rest = sim.spring_lengths()  # the former law: forces reset to zero
+    prob = StaticProblem(sim.energy, sim.state.copy())
+    newton(prob, max_iter=200)
+    A2 = prob.state.c
+    Q, t = _kabsch(A2, sim.state.c)
+    assert np.abs(A2 @ Q.T + t - sim.state.c).max() > 1e-3
+
+
+def _kabsch(P, Q):
+    pc, qc = P.mean(0), Q.mean(0)
+    U, _, Vt = np.linalg.svd((P - pc).T @ (Q - qc))
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return R, qc - pc @ R.T
 
 
 # ------------------------------------------------------------------------------------------------

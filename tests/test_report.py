@@ -29,7 +29,7 @@ from pysolver.geometry import (
     fold_angles_deg,
     unit_cells,
 )
-from pysolver.params import UNIT_CELL
+from pysolver.params import PHYSICS_DEFAULT, UNIT_CELL
 from pysolver.tables import write_stencil, write_table
 
 MODES = ("good", "flat", "wrong_way", "collide", "nonconverged")
@@ -319,7 +319,9 @@ def test_colliding_morph_switches_the_build_to_contact(tmp_path, good):
     hit = base_base_collisions(tmp_path)
     assert hit["count"] == _report(tmp_path)["metrics"]["collisions"]["base_base"]["count"] >= 1
     physics, got = contact_if_needed(tmp_path, "collide", progress=False)
-    assert physics is not None and physics.switched_on() == ["contact"] and got == hit
+    # contact is added to the simulator's default physics (issue #32: the printing clearance)
+    assert physics is not None and got == hit
+    assert physics.switched_on() == [*PHYSICS_DEFAULT.switched_on(), "contact"]
     assert base_base_collisions(good)["count"] == 0
     assert contact_if_needed(good, "good", progress=False)[0] is None
 
@@ -351,10 +353,11 @@ def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeyp
     monkeypatch.setattr("pysolver.stage_runs.run_design", fake_design)
     monkeypatch.setattr("pysolver.stage_runs.simulate_design", fake_simulate)
     s = build("regular", out=tmp_path / "b", program=False, render=False, progress=False)
-    assert [c.switched_on() if c else None for c in calls] == [None, ["contact"]]
+    with_contact = [*PHYSICS_DEFAULT.switched_on(), "contact"]
+    assert [c.switched_on() if c else None for c in calls] == [None, with_contact]
     assert s["stages"]["simulate"]["contact"]["collisions"]["count"] >= 1
     r = json.loads((tmp_path / "b" / "report" / "report.json").read_text())
-    assert r["verdict"] == "PASS" and r["metrics"]["physics"] == ["contact"]
+    assert r["verdict"] == "PASS" and r["metrics"]["physics"] == with_contact
     assert any("contact" in n for n in r["notes"])
 
 

@@ -23,6 +23,7 @@ from pysolver.params import MEMBRANE_MODEL_FILE, PROGRAMMING, UNIT_CELL
 from pysolver.refine import refine_design
 from pysolver.temporal import (
     PICTURE,
+    closing_lengths,
     completion_time,
     membrane_factors,
     program_cells,
@@ -152,6 +153,22 @@ def _write_patch(folder: Path, t_vertex_fn, rings: int = 2, l0: float = 7.0, x=(
         "t_star_s": np.zeros(n), "thickness_top_mm": np.full(n, 0.5),
         "thickness_bottom_mm": np.full(n, 0.5), "t_min_s": np.full(n, np.nan),
         "t_max_s": np.full(n, np.nan), "clamped": np.zeros(n, bool)})
+    # the bumpers' end planes (the programming closes each layer where the printed bumpers
+    # meet, their clearance short of the target: pysolver.temporal.closing_lengths); on a
+    # flat patch they stand vertical, across each cell's axis
+    C = V2[F].mean(axis=1)
+    rows = []
+    for k, (a, b, sa, sb) in enumerate(cells[:, :4]):
+        for base, other, slot in ((a, b, sa), (b, a, sb)):
+            u = (C[other] - C[base]) / np.linalg.norm(C[other] - C[base])
+            for layer in ("top", "bottom"):
+                rows.append((base, layer, slot, k, other, np.degrees(np.arctan2(u[1], u[0])),
+                             *(0.5 * l0 * u), 0.0, *u, 0.0, "straight",
+                             0.5 * l0 - UNIT_CELL.base_r))
+    cols = ("base_id", "layer", "slot", "cell_id", "neighbour", "dir_deg", "plane_px",
+            "plane_py", "plane_pz", "plane_nx", "plane_ny", "plane_nz", "cut", "length_mm")
+    tables.write_table(folder, "bumpers", {c: np.array([r[i] for r in rows])
+                                           for i, c in enumerate(cols)})
     return folder
 
 
@@ -180,7 +197,7 @@ def test_program_design_writes_cells_and_clamps_out_of_range(tmp_path):
     th = np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]]
     assert np.all((th >= UNIT_CELL.thickness_min) & (th <= UNIT_CELL.thickness_max))
     b0 = c["bracket_length_mm"]
-    x = b0[:, None] - np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
+    x = b0[:, None] - closing_lengths(d, c)  # the printed bumpers' contact lengths
     factor = json.loads((d / "temporal.json").read_text())["membrane_factor"]
     _, fb = bracket_target_force(load_membrane_model(), b0, x.mean(axis=1), c["boundary"],
                                  factor=factor)
@@ -215,7 +232,7 @@ def test_mostly_infeasible_landscape_raises_with_the_range(tmp_path):
 def _patch_range(d):
     c = tables.read_table(d, "cells")
     b0 = c["bracket_length_mm"]
-    x = b0[:, None] - np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
+    x = b0[:, None] - closing_lengths(d, c)  # the printed bumpers' contact lengths
     from pysolver.temporal import bracket_target_force
 
     mem = load_membrane_model()
@@ -341,7 +358,7 @@ def _fake_simulator(mat, truth_factor=0.85):
         d = Path(design_dir)
         c = tables.read_table(d, "cells")
         b0 = c["bracket_length_mm"]
-        x = b0[:, None] - np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
+        x = b0[:, None] - closing_lengths(d, c)  # the printed bumpers' contact lengths
         _, fb = bracket_target_force(MEMBRANE, b0, x.mean(axis=1), c["boundary"])
         th = np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]]
         t_layer = completion_time(mat, th, b0[:, None], x, truth_factor * fb[:, None])

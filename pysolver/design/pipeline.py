@@ -36,6 +36,7 @@ from .layout import Layout, build_layout
 from .mesh_input import load_input, size_factor
 from .plots import write_design_plots
 from .remesh import surface_area
+from .thickness_file import cell_thicknesses, read_thickness_file
 from .time_landscape import (
     DesignLandscape,
     cell_target_times,
@@ -56,6 +57,9 @@ def _load_source(source, scale: float, size=None, stencil: bool = False):
     src = str(source)
     p = Path(src)
     if not p.exists() and surfaces.is_builtin(src):
+        if stencil:
+            raise InputError(f"--stencil: {src} is a built-in shape, not a stencil OBJ",
+                             fix="give the path of a stencil OBJ (v = target, vt = flat)")
         surf = surfaces.builtin(src)
         if size is not None:
 
@@ -192,7 +196,7 @@ def check_design_options(*, vertices=None, time=None, scale=1.0, flattening="cet
 def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flattening="cetm",
                params: UnitCell = UNIT_CELL, thickness=0.5, central_length=None,
                stencil=False, progress=True, plots=True, seed=None,
-               size=None, time_file=None) -> dict:
+               size=None, time_file=None, thickness_file=None) -> dict:
     """Design a shell and write the design folder.
 
     Parameters
@@ -237,6 +241,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         Write the PNG pictures (skip in fast tests).
     seed : int, optional
         CVT remeshing seed (default: searched).
+    thickness_file : str or Path, optional
+        The thicknesses the stencil was printed with, instead (``--thickness-file``).
 
     Returns
     -------
@@ -247,7 +253,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
                          thickness=thickness, params=params, size=size, time_file=time_file)
     clock = Clock(progress, str(source) if not hasattr(source, "name") else source.name)
-    inp = _read_input(source, scale, size, stencil, time, time_file, vertices)
+    inp = _read_input(source, scale, size, stencil, time, time_file, vertices, thickness_file)
     surf = inp.surf
     clock.step("load")
     st = _stencil(surf, inp.desc, inp.land, clock, vertices=vertices, seed=seed, params=params,
@@ -255,7 +261,7 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     cl = central_length if central_length is not None else surf.central_length
     lay, coll = _layout(st, params, cl, clock)
     t_vertex, t_desc, t_star = _landscape_on_stencil(inp.land, st, lay)
-    th = np.full((len(lay.cells.faces), 2), float(thickness))
+    th = _thicknesses(inp.thickness, lay, thickness, params)
     clock.step("time")
     report, dist = _check(surf, st, lay, params, vertices)
     clock.step("checks")
@@ -302,6 +308,14 @@ def write_design_folder(out_dir, lay: Layout, coll, t_vertex, t_star, thickness,
         _write_json(out_dir / "design.json", record)
 
 
+def _thicknesses(given, lay: Layout, thickness: float, params: UnitCell) -> np.ndarray:
+    """The bracket thickness of every cell and layer (c, 2) mm: the uniform ``thickness``, or
+    the rows of a thickness file (:func:`~pysolver.design.thickness_file.cell_thicknesses`)."""
+    if given is None:
+        return np.full((len(lay.cells.faces), 2), float(thickness))
+    return cell_thicknesses(given, lay.cells.faces, params)
+
+
 def _landscape_on_stencil(land: DesignLandscape, st, lay: Layout):
     """The landscape at the stencil's vertices (its frame: centred on the stencil, scaled by
     its 3D scaling, ``stencil.obj`` v) and ``t*`` per cell.
@@ -330,6 +344,9 @@ def _options(inp, lay: Layout, *, vertices, seed, time, scale, size, flattening,
         "central_length_mm": central_length, "stencil": stencil, "params": params.to_dict(),
         "scale3d": lay.scale3d, "scale2d": lay.scale2d, "scale2d_rule": lay.scale2d_rule,
         "alignment_bases": [int(i) for i in lay.alignment],
+        "thickness_file": None if inp.thickness is None else {
+            "path": inp.thickness["path"], "sha256": inp.thickness["sha256"],
+            "rows": int(len(inp.thickness["bases"]))},
     }
 
 
@@ -355,7 +372,9 @@ class _Input:
     """The design's input, read: the target ``surf`` (a :class:`~pysolver.design.surfaces.
     Surface`), its ``kind`` ("builtin", "mesh", "stencil"), description ``desc`` and hash
     ``sha``, the input ``mesh`` (None for a built-in shape), the factor ``scale`` applied to
-    its coordinates, and its time landscape ``land``, resolved once."""
+    its coordinates, its time landscape ``land``, resolved once, and the bracket thicknesses
+    of a ``--thickness-file`` (:func:`~pysolver.design.thickness_file.read_thickness_file`)
+    or None."""
 
     surf: surfaces.Surface
     kind: str
@@ -364,11 +383,14 @@ class _Input:
     mesh: object
     scale: float
     land: DesignLandscape
+    thickness: dict | None = None
 
 
-def _read_input(source, scale, size, stencil: bool, time, time_file, vertices) -> _Input:
-    """Load the source and resolve its time landscape; refuse ``--vertices`` for an input
-    that is not remeshed."""
+def _read_input(source, scale, size, stencil: bool, time, time_file, vertices,
+                thickness_file=None) -> _Input:
+    """Load the source and resolve its time landscape; read the thickness file; refuse
+    ``--vertices`` for an input that is not remeshed."""
+    given_th = None if thickness_file is None else read_thickness_file(thickness_file)
     surf, kind, desc, sha, mesh, input_scale = _load_source(source, scale, size, stencil)
     land = DesignLandscape.from_options(time, time_file, default=surf.time, mesh=mesh,
                                         name=surf.name,
@@ -380,7 +402,7 @@ def _read_input(source, scale, size, stencil: bool, time, time_file, vertices) -
                          "not remeshed.",
                          fix="omit --vertices for this input; it applies to surfaces that are "
                              "remeshed (built-in curved shapes and mesh files).")
-    return _Input(surf, kind, desc, sha, mesh, input_scale, land)
+    return _Input(surf, kind, desc, sha, mesh, input_scale, land, given_th)
 
 
 @dataclasses.dataclass

@@ -257,6 +257,37 @@ TIME_FILE_ATTRIBUTE = "time_file"
 they reach the stencil by the same path as a PLY vertex property (``time='vertex:...'``)."""
 
 
+def read_option_text(path, option: str, fix: str) -> tuple[str, bytes]:
+    """The text of a small input file given with a command-line option (``--time-file``,
+    ``--thickness-file``): a regular file of at most :attr:`Limits.max_time_file_bytes`,
+    UTF-8 (a BOM is dropped).
+
+    Returns
+    -------
+    text : str
+    data : bytes -- the file's bytes (for its hash)
+
+    Raises
+    ------
+    InputError
+        Missing, not a regular file, too large, not UTF-8; naming ``option`` and ``fix``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{option} {path}: no such file" if not path.exists() else
+                         f"{option} {path}: not a regular file", fix=fix)
+    size = path.stat().st_size
+    if size > LIMITS.max_time_file_bytes:
+        raise InputError(f"{option} {path}: {size} bytes, more than "
+                         f"{LIMITS.max_time_file_bytes} bytes", fix=fix)
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8-sig"), data
+    except UnicodeDecodeError as e:
+        raise InputError(f"{option} {path}: not UTF-8 text ({e.reason} at byte {e.start})",
+                         fix=fix) from None
+
+
 def read_time_file(path) -> tuple[np.ndarray, str]:
     """Read a ``--time-file``: CSV, one value (s) per vertex of the input mesh in file order.
 
@@ -284,19 +315,7 @@ def read_time_file(path) -> tuple[np.ndarray, str]:
     path = Path(path)
     fix = ("write one time in seconds per input-mesh vertex, in the mesh file's vertex order, "
            "one per line (an optional header line such as 'time_s' first)")
-    if not path.is_file():
-        raise InputError(f"--time-file {path}: no such file" if not path.exists() else
-                         f"--time-file {path}: not a regular file", fix=fix)
-    size = path.stat().st_size
-    if size > LIMITS.max_time_file_bytes:
-        raise InputError(f"--time-file {path}: {size} bytes, more than "
-                         f"{LIMITS.max_time_file_bytes} bytes", fix=fix)
-    data = path.read_bytes()
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        raise InputError(f"--time-file {path}: not UTF-8 text ({e.reason} at byte {e.start})",
-                         fix=fix) from None
+    text, data = read_option_text(path, "--time-file", fix)
     values, first = [], True
     for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()

@@ -15,18 +15,21 @@ from .model import (
     MembraneMesh,
     ShellModel,
     build_model,
+    bumper_clearance,
     load_model,
     membrane_mesh,
     vary_model,
 )
-from .rim import rim_margin
+from .rim import margin_rest, rim_margin
 
 __all__ = [
     "CROSS_REST_MODES",
     "MembraneMesh",
     "ShellModel",
     "build_model",
+    "bumper_clearance",
     "load_model",
+    "margin_rest",
     "membrane_mesh",
     "rim_margin",
     "vary_model",

@@ -33,11 +33,19 @@ import numpy as np
 
 from pysolver.errors import InputError
 from pysolver.geometry import Cells, base_rotations, face_centroids, rotvec_to_matrix
-from pysolver.params import PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions, SimConstants, UnitCell
+from pysolver.params import (
+    PHYSICS_DEFAULT,
+    PHYSICS_OFF,
+    SIM,
+    UNIT_CELL,
+    PhysicsOptions,
+    SimConstants,
+    UnitCell,
+)
 from pysolver.params import tol as TOL
 from pysolver.tables import check_thickness, read_design, read_model
 
-from .rim import rim_margin
+from .rim import margin_rest, rim_margin
 
 CROSS_REST_MODES = ("flat", "zero")
 
@@ -77,6 +85,8 @@ class ShellModel:
     node_point : (m, 3, 2, 2) int -- point id of bracket node [base, slot, k, layer], -1 unused
     consts : SimConstants
     unit : UnitCell
+    physics : PhysicsOptions -- the options the model was built with (``rim`` and
+        ``clearance`` shape it; the simulator checks that its own options agree)
     """
 
     V: np.ndarray
@@ -111,6 +121,7 @@ class ShellModel:
     unit: UnitCell = UNIT_CELL
     source: str = ""
     info: dict = field(default_factory=dict)
+    physics: PhysicsOptions = PHYSICS_OFF
 
     # -- sizes ------------------------------------------------------------------------------------
     @property
@@ -178,8 +189,8 @@ class ShellModel:
         h = hashlib.sha256()
         for name in ("F", "point_body", "point_local", "spring_points", "spring_rest0",
                      "spring_collision", "cross_points", "cross_weight", "cross_rest",
-                     "tri_points", "tri_dm_inv", "cell_thickness", "cell_bracket_length",
-                     "base_flat"):
+                     "tri_points", "tri_dm_inv", "tri_rest_area", "cell_thickness",
+                     "cell_bracket_length", "base_flat"):
             a = np.ascontiguousarray(getattr(self, name))
             h.update(name.encode())
             h.update(str(a.dtype).encode() + str(a.shape).encode())
@@ -475,7 +486,7 @@ def _membrane_from_triangle(out: dict) -> MembraneMesh:
 def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_length=None,
                 collision=None, consts: SimConstants = SIM, unit: UnitCell = UNIT_CELL,
                 cross_rest: str = "flat", source: str = "",
-                physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
+                physics: PhysicsOptions = PHYSICS_OFF, clearance=None) -> ShellModel:
     """Assemble a :class:`ShellModel` from a scaled stencil and the design's geometry.
 
     Parameters
@@ -505,19 +516,19 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
     cross_rest : {"flat", "zero"}
         Cross-pair rest difference R0: ``"flat"`` (SI Note 2: the difference in the initial
         configuration, zero force at rest) or ``"zero"`` (the reference code).
-    source : str
-        Description for messages.
+    source : str -- description for messages
     physics : PhysicsOptions
-        With ``rim`` on, the membrane gets the latex margin of :func:`rim_margin`, whose
-        triangles rest at ``rim_stretch`` instead of ``consts.tau``.
+        ``rim``: the membrane gets the latex margin of :func:`rim_margin` (rest state
+        :func:`margin_rest`); ``clearance``: the contact lengths less ``clearance``.
+    clearance : (c, 2) float, mm, optional
+        The printed bumpers' clearance per cell and layer (:func:`bumper_clearance`);
+        required with ``physics.clearance``.
 
     Returns
     -------
     ShellModel
     """
-    V = np.asarray(V, float)
-    UV = np.asarray(UV, float)
-    F = np.asarray(F, dtype=np.int64)
+    V, UV, F = np.asarray(V, float), np.asarray(UV, float), np.asarray(F, dtype=np.int64)
     if cross_rest not in CROSS_REST_MODES:
         raise InputError(f"cross_rest must be one of {CROSS_REST_MODES}, got {cross_rest!r}")
     ff = geometry["face_adjacency"]
@@ -530,7 +541,8 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
     nodes = _BracketNodes.of(ff, geometry["nodes_flat"], geometry["nodes_target"], base_flat)
     spring_points, cross_points = nodes.pairs(cells)
     rest0, Lc, cross_weight, cross_rest_v = _spring_lengths(
-        nodes, spring_points, cross_points, collision, consts, cross_rest, source)
+        nodes, spring_points, cross_points, collision, (physics.clearance, clearance), consts,
+        cross_rest, source)
     if bracket_length is None:
         bracket_length = (np.linalg.norm(C2[cells.faces[:, 1]] - C2[cells.faces[:, 0]], axis=1)
                           - unit.bracket_offset)
@@ -550,7 +562,7 @@ def build_model(V, UV, F, thickness, geometry: dict, *, rotvec=None, bracket_len
         mem_body=mem["mem_body"], mem_triangles=mem["tris"],
         tri_points=mem["mem_point"][mem["tris"]], tri_dm_inv=mem["dm_inv"],
         tri_rest_area=mem["rest_area"], node_point=nodes.point, consts=consts, unit=unit,
-        source=source)
+        source=source, physics=physics)
 
 
 def _checked_cells(geometry: dict, thickness, source: str, unit: UnitCell):
@@ -618,11 +630,12 @@ class _BracketNodes:
         return spring_points, cross_points
 
 
-def _spring_lengths(nodes: _BracketNodes, spring_points, cross_points, collision,
+def _spring_lengths(nodes: _BracketNodes, spring_points, cross_points, collision, clearance,
                     consts: SimConstants, cross_rest: str, source: str):
     """Rest lengths (flat) and collision lengths (target, shifted per cell and layer to the
-    design's ``collision``) of the bracket springs; weights and rest differences of the
-    cross pairs.
+    design's ``collision``, less the printed bumpers' clearance when ``clearance`` = (on,
+    (c, 2) mm) is on) of the bracket springs; weights and rest differences of the cross
+    pairs.
 
     Returns
     -------
@@ -641,6 +654,13 @@ def _spring_lengths(nodes: _BracketNodes, spring_points, cross_points, collision
                              f"expected ({c}, 2)")
         mean = Lc.reshape(c, 2, 2).mean(axis=2)
         Lc = (Lc.reshape(c, 2, 2) + (collision - mean)[:, :, None]).ravel()
+    on, clear = clearance
+    if on and (clear is None or np.shape(clear) != (c, 2)):
+        raise InputError(f"{source}: the printing clearance needs the bumpers of every "
+                         f"cell and layer, ({c}, 2) values",
+                         fix="build the model with load_model (it reads bumpers.csv)")
+    if on:
+        Lc = (Lc.reshape(c, 2, 2) - np.asarray(clear, float)[:, :, None]).ravel()
     if np.any(Lc <= 0):
         k = int(np.flatnonzero(Lc <= 0)[0]) // 4
         raise InputError(f"{source}: cell {k} has a non-positive collision length",
@@ -669,10 +689,11 @@ def _membrane(UV, F, geometry, C2, base_flat, nodes: _BracketNodes, consts: SimC
                          min_angle=consts.membrane_min_angle)
     xy, tris, mbody = mesh.xy, mesh.tris, mesh.body
     tau = np.full(len(tris), consts.tau)
+    area_factor = None
     if physics.rim:
         xy, tris, mbody, margin = rim_margin(xy, tris, mbody, C2, unit.base_r,
                                              physics.rim_margin_mm)
-        tau = np.where(margin, physics.rim_stretch, consts.tau)
+        tau, area_factor = margin_rest(margin, consts.tau, physics.rim_stretch)
     nm = len(xy)
     mem_flat = np.c_[xy, np.zeros(nm)]
     mem_point = nodes.n + np.arange(nm)
@@ -692,13 +713,52 @@ def _membrane(UV, F, geometry, C2, base_flat, nodes: _BracketNodes, consts: SimC
     det = Dm[:, 0, 0] * Dm[:, 1, 1] - Dm[:, 0, 1] * Dm[:, 1, 0]
     dm_inv = np.stack([np.stack([Dm[:, 1, 1], -Dm[:, 0, 1]], 1),
                        np.stack([-Dm[:, 1, 0], Dm[:, 0, 0]], 1)], 1) / det[:, None, None]
+    rest_area = 0.5 * np.abs(det)
+    if area_factor is not None:
+        rest_area = rest_area * area_factor
     return {"point_body": point_body, "point_free": point_free, "point_local": point_local,
             "mem_point": mem_point, "mem_flat": mem_flat, "mem_body": mbody, "tris": tris,
-            "dm_inv": dm_inv, "rest_area": 0.5 * np.abs(det)}
+            "dm_inv": dm_inv, "rest_area": rest_area}
+
+
+def bumper_clearance(bumpers: dict, cells: dict, unit: UnitCell = UNIT_CELL) -> np.ndarray:
+    """How much shorter than the target the printed bumpers of every cell close, per layer.
+
+    Each printed bumper's end plane is moved back by ``unit.clearance`` along its unit
+    normal (``scad/bumper.scad``), which shortens it along its axis by
+    ``clearance / |n_xy|`` (:func:`pysolver.design.layout.footprint_rectangles` with
+    ``printed=True``); a cell's two facing bumpers of a layer close by the sum.
+
+    Parameters
+    ----------
+    bumpers : dict of arrays -- ``bumpers.csv`` (:func:`pysolver.tables.read_table`)
+    cells : dict of arrays -- ``cells.csv``
+    unit : UnitCell
+
+    Returns
+    -------
+    (c, 2) float, mm -- per cell and layer (top, bottom)
+    """
+    c = len(cells["cell_id"])
+    n = np.c_[bumpers["plane_nx"], bumpers["plane_ny"], bumpers["plane_nz"]]
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    short = unit.clearance / np.maximum(np.hypot(n[:, 0], n[:, 1]), TOL.tiny)
+    layer = (np.asarray(bumpers["layer"]) == "bottom").astype(np.int64)
+    cid = np.asarray(bumpers["cell_id"], np.int64)
+    ok = cid >= 0
+    out = np.zeros((c, 2))
+    np.add.at(out, (cid[ok], layer[ok]), short[ok])
+    count = np.zeros((c, 2), np.int64)
+    np.add.at(count, (cid[ok], layer[ok]), 1)
+    if np.any(count != 2):
+        k = int(np.argwhere(count != 2)[0][0])
+        raise InputError(f"bumpers.csv: cell {k} has {count[k].tolist()} bumpers per layer, "
+                         "expected 2 (one on each base)", fix="re-run the design stage")
+    return out
 
 
 def load_model(design_dir, *, consts: SimConstants = SIM, cross_rest: str = "flat",
-               physics: PhysicsOptions = PHYSICS_OFF) -> ShellModel:
+               physics: PhysicsOptions = PHYSICS_DEFAULT) -> ShellModel:
     """Assemble the model of a design folder (``stencil.obj``, ``bases.csv``, ``cells.csv``,
     ``model.npz``, and the unit cell of ``design.json``).
 
@@ -707,7 +767,9 @@ def load_model(design_dir, *, consts: SimConstants = SIM, cross_rest: str = "fla
     design_dir : path-like
         Design folder (``docs/design-folder.md``).
     physics : PhysicsOptions
-        Only ``rim`` changes the model (the latex margin, see :func:`build_model`).
+        ``rim`` (the latex margin) and ``clearance`` (the printed bumpers' contact
+        lengths, :func:`bumper_clearance`) change the model (see :func:`build_model`).
+        Default: the simulator's default physics, :data:`~pysolver.params.PHYSICS_DEFAULT`.
 
     Returns
     -------
@@ -728,10 +790,11 @@ def load_model(design_dir, *, consts: SimConstants = SIM, cross_rest: str = "fla
     coll = np.c_[c["collision_length_top_mm"], c["collision_length_bottom_mm"]]
     geometry = read_model(folder, n_vertices=len(d.V), n_faces=d.n_bases, n_cells=d.n_cells,
                           params=unit)
+    clear = bumper_clearance(d.bumpers, c, unit) if physics.clearance else None
     return build_model(d.V, d.UV, d.F, th, geometry, rotvec=rot,
                        bracket_length=c["bracket_length_mm"], collision=coll, consts=consts,
                        unit=unit, cross_rest=cross_rest,
-                       source=str(folder), physics=physics)
+                       source=str(folder), physics=physics, clearance=clear)
 
 
 def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None = None
@@ -781,4 +844,4 @@ def vary_model(model: ShellModel, *, thickness=None, consts: SimConstants | None
 
 
 __all__ = ["ShellModel", "MembraneMesh", "build_model", "load_model", "vary_model", "membrane_mesh",
-           "rim_margin", "CROSS_REST_MODES"]
+           "rim_margin", "margin_rest", "bumper_clearance", "CROSS_REST_MODES"]

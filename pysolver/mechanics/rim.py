@@ -1,11 +1,12 @@
-"""The latex margin kept at the rim of a fabricated shell (SI Note 5 step 7; issue #18).
+"""The latex margin kept at the rim of a fabricated shell (SI Note 5 steps 6-7; issues #18, #32).
 
-The sheet is released from stretch 3 to about 2 before the shell is cut out, and a thin margin
-of latex is kept at the border.  :func:`rim_margin` adds that margin to a flat membrane mesh;
-the shell model (:func:`.model.build_model`, ``PhysicsOptions.rim``) and the ``F_mem``
-correction of the design (:func:`pysolver.temporal.membrane_model.cell_membrane_factors`)
-both use it, with the margin's triangles at rest at the rim stretch instead of the
-pre-stretch ``tau``.
+Glue is spread on the latex around the lattice "in order to freeze it", then the sheet is
+released from stretch 3 to about 2 and the shell is cut out, "keeping a tiny amount of
+degenerated latex at the border".  :func:`rim_margin` adds that margin to a flat membrane mesh
+and :func:`margin_rest` gives its rest state: frozen by the glue at the flat shape (no
+pre-stress, ``rim_stretch`` = 1) and holding the latex of the sheet stretched by ``tau``.  The
+shell model (:func:`.model.build_model`, ``PhysicsOptions.rim``) and the ``F_mem`` correction
+of the design (:func:`pysolver.temporal.membrane_model.cell_membrane_factors`) both use them.
 """
 
 from __future__ import annotations
@@ -75,4 +76,30 @@ def rim_margin(xy, tris, body, base_xy, base_r, width):
     return np.r_[xy, off], np.r_[tris, strip], np.r_[body, nbody], margin
 
 
-__all__ = ["rim_margin"]
+def margin_rest(margin, tau, rim_stretch):
+    """Rest state of the membrane triangles with the rim margin.
+
+    The membrane's triangles rest at the flat mesh divided by the sheet's pre-stretch
+    ``tau``.  The margin's rest is the flat mesh divided by ``rim_stretch`` (1: frozen by
+    the glue at its flat shape), and it holds the latex of the sheet stretched by ``tau``:
+    its rest area is scaled by ``(rim_stretch / tau)^2``, so its material (thickness times
+    rest area) is the stretched sheet's, ``membrane_h / tau^2`` per flat area.
+
+    Parameters
+    ----------
+    margin : (t,) bool -- triangle belongs to the margin
+    tau : float -- the sheet's pre-stretch
+    rim_stretch : float -- pre-stretch the margin keeps (1 <= rim_stretch)
+
+    Returns
+    -------
+    stretch : (t,) float -- divisor of the flat edge vectors giving the rest shape
+    area_factor : (t,) float -- factor on the rest area of that shape (1 off the margin)
+    """
+    margin = np.asarray(margin, bool)
+    stretch = np.where(margin, float(rim_stretch), float(tau))
+    area_factor = np.where(margin, (float(rim_stretch) / float(tau)) ** 2, 1.0)
+    return stretch, area_factor
+
+
+__all__ = ["rim_margin", "margin_rest"]

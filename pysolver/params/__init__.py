@@ -48,6 +48,7 @@ from .programming import DEFAULT_REFINE, PROGRAMMING, Programming
 from .report import PICTURES, REPORT, Pictures, ReportThresholds
 from .simulation import (
     NEWTON,
+    PHYSICS_DEFAULT,
     PHYSICS_OFF,
     RELAXATION_PRONY,
     SIM,
@@ -75,7 +76,7 @@ __all__ = [
     "Sequencing", "SEQUENCING",
     "Programming", "PROGRAMMING", "DEFAULT_REFINE",
     "SimConstants", "SIM", "NewtonSettings", "NEWTON", "PhysicsOptions", "PHYSICS_OFF",
-    "RELAXATION_PRONY",
+    "PHYSICS_DEFAULT", "RELAXATION_PRONY",
     "ModelFileRules", "MODEL_FILES", "ModelFits", "MODEL_FITS", "PAPER_BRACKET_HEIGHT_MM",
     "DATA_DIR", "BRACKET_MODEL_FILE", "MEMBRANE_MODEL_FILE",
     "ReportThresholds", "REPORT", "Pictures", "PICTURES",

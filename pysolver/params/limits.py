@@ -42,7 +42,8 @@ class Limits:
     min_gap_mm : (float, float), mm
         Range of ``--min-gap`` (flat gap between facing bumper tips, 2D scaling rule).
     max_time_file_bytes : int, bytes
-        Largest ``--time-file`` read (one number per line: millions of vertices).
+        Largest ``--time-file`` or ``--thickness-file`` read (one row per vertex or unit cell:
+        millions of them).
     max_cell_length_mm : float, mm
         Upper bound of ``--max-cell-length`` (flat central length of a unit cell): the
         bracket model's last measured length (l = 9.0 mm, ``bracket_length_mm`` grid end

@@ -91,6 +91,10 @@ class NewtonSettings:
     max_iter_dry, max_iter_wet : int
         Newton iteration caps of the dry step (from the flat state, many iterations) and of
         each wet step (reference: 1000 and 500, with its plain backtracking).
+    max_iter_rest : int
+        Cap of the dry resting shape's solve (``--physics dry-rest``): the shell settles
+        on a frictionless table by a slow, nearly rigid roll (330 iterations on the
+        printed spiral).
     max_rot_rad : float, rad
         Largest rotation of a base per Newton iteration.
     max_step_mm : float, mm
@@ -118,6 +122,7 @@ class NewtonSettings:
 
     max_iter_dry: int = 200
     max_iter_wet: int = 100
+    max_iter_rest: int = 1000
     max_rot_rad: float = 0.3
     max_step_mm: float = 2.0
     line_search_halvings: int = 30
@@ -137,16 +142,18 @@ class NewtonSettings:
 
 @dataclass(frozen=True)
 class PhysicsOptions:
-    """Physics beyond the reference simulator (issue #18), each switchable, all off by default.
+    """Physics beyond the reference simulator (issues #18, #32), each switchable.
 
     Source: the paper's fabrication notes (SI Note 5) and measurements (SI Fig. 10) where a
     field says so; the material densities are the manufacturers' figures; the contact and
     ground stiffnesses are morphshell's choices (their scale is given with each).
 
-    With every switch off the simulation is the reference model, bit for bit.  Units: mm, N,
-    s, MPa; densities in g/cm^3 (= 1e-9 t/mm^3; weights are ``rho * 1e-9 * V * g`` in N
-    for ``V`` in mm^3 and ``g`` in mm/s^2).  What each effect does and what it changed on
-    the built-in shapes: ``docs/physics.md``.
+    With every switch off (:data:`PHYSICS_OFF`, ``--physics none``) the simulation is the
+    reference model, bit for bit.  The simulator's default is :data:`PHYSICS_DEFAULT`, the
+    set chosen against the 3D scan of a printed shell (``docs/physics.md``, "Calibration on a
+    printed shell").  Units: mm, N, s, MPa, deg C; densities in g/cm^3 (= 1e-9 t/mm^3;
+    weights are ``rho * 1e-9 * V * g`` in N for ``V`` in mm^3 and ``g`` in mm/s^2).  What
+    each effect does and what it changes: ``docs/physics.md``.
 
     Attributes
     ----------
@@ -162,8 +169,13 @@ class PhysicsOptions:
     gravity : bool
         Weight and buoyancy in water; the shell rests on the tank floor (a plane).
     dry_rest : bool
-        After the morph, the dry resting shape on a table: brackets frozen at their final
-        lengths with their dry stiffness, full weight, contact with the plane.
+        After the morph, the dry resting shape on a table: the brackets cool under the load
+        they carry (each keeps its final force, further deformation meets the dry
+        stiffness), the membrane is back at ``lab_temp_c``, full weight, contact with the
+        plane.
+    drying_min : float, min
+        Time from taking the shell out of the water to the scan of the dry shell (SI Note 5
+        step 9: "roughly 15 minutes"); only the membrane's relaxation uses it.
     print_density : float, g/cm^3
         Printed parts (Stratasys J750 photopolymers are 1.15-1.20; VeroClear 1.18).
     water_density : float, g/cm^3
@@ -180,13 +192,36 @@ class PhysicsOptions:
     ground_points : int
         Contact points per base face: the rim of each far face (radius ``base_r``).
     rim : bool
-        The membrane as fabricated at the rim (SI Note 5 step 7): a strip of latex
-        ``rim_margin_mm`` wide around the outline, cut from the sheet after its release to
-        ``rim_stretch`` (instead of the free edge of the reference).
+        The membrane as fabricated at the rim (SI Note 5 steps 6-7): a strip of latex
+        ``rim_margin_mm`` wide around the outline, the "tiny amount of degenerated latex"
+        kept when the shell is cut out.  Glue was spread on it before the sheet was released
+        ("to freeze it"), so it keeps the flat shape it had when the glue set: it rests at
+        the flat layout divided by ``rim_stretch`` (1 = frozen, no pre-stress) and holds
+        the latex of a sheet stretched by ``tau`` (thickness ``membrane_h / tau^2``).
     rim_margin_mm : float, mm
         Width of the latex margin kept at the border (flat, as cut).
     rim_stretch : float
-        Pre-stretch of the margin after the release ("near 2").
+        Pre-stretch the margin keeps after the glue froze it (1: none; ``tau``: the sheet's,
+        i.e. unglued latex).  The SI's "stretch factor near 2" is the sheet released
+        *after* the margin was frozen, so it does not apply to the margin.
+    clearance : bool
+        The printed bumpers are ``UnitCell.clearance`` (0.05 mm) short at every tip
+        (``scad/bumper.scad``; the reference's printing gap), so a cell closes that much
+        further than the target: each bracket spring's contact length is its target
+        length minus ``clearance / |n_xy|`` for each of its two bumpers (``n_xy`` = the
+        in-plane part of the bumper's end-plane normal, as in
+        :func:`pysolver.design.layout.footprint_rectangles` with ``printed=True``).
+    membrane_temperature : bool
+        Rubber elasticity is entropic: at a fixed stretch the latex's stress is
+        proportional to the absolute temperature.  In the water the membrane modulus is
+        ``mu * (water_temp_c + 273.15) / (lab_temp_c + 273.15)`` (x 1.115 for 56 and 22
+        deg C); the dry rest is back at ``lab_temp_c``.
+    water_temp_c : float, deg C
+        Water temperature (SI Note 5 step 8: 56 deg C).
+    lab_temp_c : float, deg C
+        Room temperature at which the membrane's modulus and relaxation were measured and
+        the shell was fabricated and scanned (assumed 22 deg C; 20-25 changes the factor by
+        +-0.9 %).
     contact : bool
         Barrier contact between bases that are not neighbours (IPC Toolkit, ``ipctk``):
         every base a closed prism; no two non-neighbouring prisms pass through each other.
@@ -209,6 +244,7 @@ class PhysicsOptions:
     glue_to_water_min: float = 10.0
     gravity: bool = False
     dry_rest: bool = False
+    drying_min: float = 15.0
     print_density: float = 1.18
     water_density: float = 0.985
     latex_density: float = 0.93
@@ -218,16 +254,23 @@ class PhysicsOptions:
     ground_points: int = 8
     rim: bool = False
     rim_margin_mm: float = 1.0
-    rim_stretch: float = 2.0
+    rim_stretch: float = 1.0
     contact: bool = False
     contact_dhat_mm: float = 0.1
     contact_stiffness: float = 10.0
     contact_sides: int = 8
     bracket_bending: bool = False
+    clearance: bool = False
+    membrane_temperature: bool = False
+    water_temp_c: float = 56.0
+    lab_temp_c: float = 22.0
 
-    SWITCHES = ("relaxation", "gravity", "dry_rest", "rim", "contact", "bracket_bending")
+    SWITCHES = ("clearance", "relaxation", "membrane_temperature", "gravity", "dry_rest", "rim",
+                "contact", "bracket_bending")
     RANGES = {"stretch_to_glue_min": (0.0, 1e5), "glue_to_water_min": (0.0, 1e5),
-              "rim_stretch": (1.0, 10.0), "ground_points": (3, 64), "contact_sides": (3, 64)}
+              "drying_min": (0.0, 1e5), "rim_stretch": (1.0, 10.0),
+              "ground_points": (3, 64), "contact_sides": (3, 64),
+              "water_temp_c": (0.0, 100.0), "lab_temp_c": (0.0, 100.0)}
     """Accepted ranges (inclusive) of the options that are not simply positive; the
     barrier distance ``contact_dhat_mm`` must also stay below the gap that the bumpers keep
     between neighbouring bases, ``2 UnitCell.min_bumper`` (0.6 mm)."""
@@ -242,6 +285,13 @@ class PhysicsOptions:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def temperature_factor(self, wet: bool = True) -> float:
+        """Factor on the membrane modulus: ``T_water / T_lab`` (absolute temperatures) in
+        the water with ``membrane_temperature`` on, else 1."""
+        if not (self.membrane_temperature and wet):
+            return 1.0
+        return (self.water_temp_c + 273.15) / (self.lab_temp_c + 273.15)
 
 
 RELAXATION_PRONY = (
@@ -259,6 +309,12 @@ half decades, samples weighted by ``1/sqrt(t)``); a test refits it from the CSV.
 SIM = SimConstants()
 NEWTON = NewtonSettings()
 PHYSICS_OFF = PhysicsOptions()
+"""Every effect off: the reference simulator's model (``--physics none``)."""
+PHYSICS_DEFAULT = PhysicsOptions(clearance=True)
+"""The simulator's default physics (``--physics default``), chosen on the printed spiral's
+scan (issue #32): the effects that bring the simulation closer to the scan with measured or
+fabrication-given parameters.  The table of every option and the reasons are in
+``docs/physics.md``."""
 
 __all__ = ["SimConstants", "SIM", "NewtonSettings", "NEWTON", "PhysicsOptions", "PHYSICS_OFF",
-           "RELAXATION_PRONY"]
+           "PHYSICS_DEFAULT", "RELAXATION_PRONY"]

@@ -221,6 +221,7 @@ class Feasibility:
         self.material = temporal.load_material(mat_path if mat_path and Path(mat_path).is_file()
                                            else None)
         self.membrane = load_membrane_model(None)
+        self.closing = temporal.closing_lengths(self.folder, self.cells)  # as program closes
         fac = rec.get("membrane_factor")
         if fac is not None and len(fac) == len(self.cells["cell_id"]):
             self.factor = np.asarray(fac, float)
@@ -240,8 +241,8 @@ class Feasibility:
         """
         c = self.cells
         t_star = cell_target_times(np.asarray(landscape, float), c["vertex_a"], c["vertex_b"])
-        res = program_cells(c["bracket_length_mm"], c["collision_length_top_mm"],
-                            c["collision_length_bottom_mm"], c["boundary"], t_star,
+        res = program_cells(c["bracket_length_mm"], self.closing[:, 0], self.closing[:, 1],
+                            c["boundary"], t_star,
                             material=self.material, membrane=self.membrane, factor=self.factor)
         return {"t_star": t_star, "t_min": res["t_min"], "t_max": res["t_max"],
                 "clamped": np.asarray(res["clamped"], bool), "side": np.asarray(res["side"])}

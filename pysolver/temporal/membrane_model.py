@@ -66,7 +66,7 @@ from ..material.validate import (
 )
 from ..mechanics import MembraneMesh, membrane_mesh
 from ..mechanics.energies import SparsePattern, membrane_terms
-from ..mechanics.rim import rim_margin
+from ..mechanics.rim import margin_rest, rim_margin
 from ..mechanics.solver import LinearSolver, newton
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FILES, NEWTON, PROGRAMMING, SIM, UNIT_CELL
 from ..params import tol as TOL
@@ -275,7 +275,7 @@ class PlaneMembrane:
     ``(n, 2)`` mm; degrees of freedom are ordered ``2 * node + axis``.
     """
 
-    def __init__(self, X, tri, tau=SIM.tau, mu=SIM.mu, h=SIM.membrane_h):
+    def __init__(self, X, tri, tau=SIM.tau, mu=SIM.mu, h=SIM.membrane_h, area_factor=1.0):
         self.tri = np.asarray(tri)
         X = np.asarray(X, dtype=float)
         Dm = np.stack([X[self.tri[:, 1]] - X[self.tri[:, 0]],
@@ -286,7 +286,8 @@ class PlaneMembrane:
             Dm = Dm / np.asarray(tau, float)[:, None, None]
         self.Dm = Dm
         self.Dm_inv = np.linalg.inv(Dm)
-        self.area = 0.5 * np.abs(np.linalg.det(Dm))                            # rest area
+        # rest area (the rim margin holds less latex than its rest shape: margin_rest)
+        self.area = 0.5 * np.abs(np.linalg.det(Dm)) * np.asarray(area_factor, float)
         self.mu, self.h = mu, h
         n = len(X)
         self.dofs = np.stack([2 * self.tri, 2 * self.tri + 1], axis=-1).reshape(len(tri), 6)
@@ -660,7 +661,8 @@ def cell_membrane_factors(UV, F, cells, b0, d1, model: MembraneModel | None = No
         X, tri, body, margin = rim_margin(mesh.xy, mesh.tris, mesh.body, C,
                                           UNIT_CELL.base_r, float(rim[0]))
         run = dataclasses.replace(mesh, xy=X, tris=tri, body=body)
-        mem = PlaneMembrane(X, tri, tau=np.where(margin, float(rim[1]), SIM.tau))
+        stretch, area_factor = margin_rest(margin, SIM.tau, float(rim[1]))
+        mem = PlaneMembrane(X, tri, tau=stretch, area_factor=area_factor)
     x = relax_contracted(run, C, mem, s)
     T = cell_tractions(run, C, geometry["cell_bases"], mem, x)
     d = (1.0 - s) * lc

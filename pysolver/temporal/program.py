@@ -42,8 +42,9 @@ and listed in the summary.  If more than half of the cells are clamped the
 landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
-within ``UnitCell.clearance`` (the 0.05 mm printing clearance, see
-:func:`sim.model.collisions.completion_times`).
+within ``UnitCell.clearance`` (0.05 mm, the size of the printing clearance, see
+:func:`sim.model.collisions.completion_times`); the layers are programmed to close where the
+simulator closes them, at the printed bumpers' contact (:func:`closing_lengths`).
 
 Closing the loop (beyond the paper).  :func:`pysolver.refine.refine_design` compares simulated
 completion times with ``t*`` and corrects the requested times of the thickness
@@ -67,7 +68,8 @@ from ..design.time_landscape import cell_target_times, write_landscape
 from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
-from ..params import PROGRAMMING, SEQUENCING, SIM, UNIT_CELL
+from ..mechanics import bumper_clearance
+from ..params import PHYSICS_DEFAULT, PROGRAMMING, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
 from ..progress import say
 from ..tables import read_stencil
@@ -480,6 +482,30 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
     return f, info
 
 
+def closing_lengths(design_dir, cells: dict, physics=None) -> np.ndarray:
+    """Bracket length at which every cell's layers close, as the simulator closes them.
+
+    The target's collision lengths (``cells.csv``), less the printed bumpers' clearance
+    (:func:`pysolver.mechanics.bumper_clearance`) when ``physics.clearance`` is on.
+
+    Parameters
+    ----------
+    design_dir : path-like -- design folder (``bumpers.csv``, ``design.json``)
+    cells : dict of arrays -- ``cells.csv``
+    physics : PhysicsOptions, optional -- default :data:`~pysolver.params.PHYSICS_DEFAULT`
+
+    Returns
+    -------
+    (c, 2) float, mm -- per cell and layer (top, bottom)
+    """
+    physics = PHYSICS_DEFAULT if physics is None else physics
+    closing = np.c_[cells["collision_length_top_mm"], cells["collision_length_bottom_mm"]]
+    if physics.clearance:
+        closing = closing - bumper_clearance(tables.read_table(design_dir, "bumpers"), cells,
+                                             tables.read_unit_cell(design_dir))
+    return closing
+
+
 def program_design(design_dir, *, material=None, membrane=None, progress: bool = True,
                    correction: str = DEFAULT_CORRECTION, t_request=None,
                    picture: bool = True, fit_landscape: bool = False, physics=None) -> dict:
@@ -505,9 +531,12 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     picture : bool
         Draw the feasibility picture.
     physics : PhysicsOptions, optional
-        With ``rim`` on, the ``F_mem`` correction meshes the latex margin kept at the rim
-        (as the simulator does with the same option) and uses its FEM factor on boundary
-        cells instead of the paper's 0.6 cap.
+        The simulator's physics (default :data:`~pysolver.params.PHYSICS_DEFAULT`).  With
+        ``rim`` on, the ``F_mem`` correction meshes the latex margin kept at the rim (as the
+        simulator does with the same option) and uses its FEM factor on boundary cells
+        instead of the paper's 0.6 cap; with ``clearance`` on, each layer is programmed to
+        close at the printed bumpers' contact length
+        (:func:`pysolver.mechanics.bumper_clearance`), as the simulator closes it.
     fit_landscape : bool
         Map the landscape linearly (order kept) onto the achievable range that clamps
         the fewest cells before programming, and rewrite ``time_landscape.csv``.  The
@@ -537,15 +566,13 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     mem = load_membrane_model(membrane)
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
-    rim = ((physics.rim_margin_mm, physics.rim_stretch)
-           if physics is not None and physics.rim else None)
-    factor, finfo = membrane_factors(design_dir, cells, mem, correction, rim=rim)
+    models, finfo = _models(design_dir, cells, mat, mem, correction, physics)
     min_span = sequenced_span(design_dir) if fit_landscape else 0.0
-    p = Programme.solve(cells, land, mat, mem, factor, t_request, min_span)
+    p = Programme.solve(cells, land, models, t_request, min_span)
     rescaled = None
     if fit_landscape and t_request is None:
-        land, p, rescaled = _fit_landscape(design_dir, cells, land, p, (mat, mem, factor),
-                                           min_span, progress)
+        land, p, rescaled = _fit_landscape(design_dir, cells, land, p, models, min_span,
+                                           progress)
     summary = p.summary(cells, mat, mem, finfo, refined=t_request is not None,
                         rescaled=rescaled)
     if picture and p.n:
@@ -554,11 +581,22 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     if not summary["feasible"]:
         p.refuse(mat, design_dir)
     summary["seconds"] = round(time.perf_counter() - t0, 3)
-    p.write(design_dir, cells, summary, factor)
+    p.write(design_dir, cells, summary, models[2])
     h = p.res["thickness"]
     _log(f"{design_dir.name}: {p.n} cells, thickness {h.min():.3f}-{h.max():.3f} mm, "
          f"{len(p.clamped)} clamped ({100 * p.frac:.1f} %)", progress)
     return summary
+
+
+def _models(design_dir: Path, cells, mat, mem, correction: str, physics):
+    """What the cells are programmed with, for :meth:`Programme.solve`: ``(material,
+    membrane, factor, closing)`` -- the per-cell ``F_mem`` factor (:func:`membrane_factors`,
+    with the rim margin when ``physics.rim``) and the layers' closing lengths
+    (:func:`closing_lengths`); and the factor's record."""
+    physics = PHYSICS_DEFAULT if physics is None else physics
+    rim = (physics.rim_margin_mm, physics.rim_stretch) if physics.rim else None
+    factor, finfo = membrane_factors(design_dir, cells, mem, correction, rim=rim)
+    return (mat, mem, factor, closing_lengths(design_dir, cells, physics)), finfo
 
 
 def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, progress: bool):
@@ -568,7 +606,7 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
 
     Parameters
     ----------
-    models : (material, membrane, factor) -- as for :func:`program_cells`
+    models : (material, membrane, factor, closing) -- as for :meth:`Programme.solve`
 
     Returns
     -------
@@ -579,11 +617,10 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     m = p.ach.get("suggested_map")
     if m is None or not len(p.clamped) or m["fraction_clamped"] >= p.frac:
         return land, p, None
-    mat, mem, factor = models
     t_old = (float(land.min()), float(land.max()))
     land = _mapped_landscape(land, m)
     write_landscape(design_dir, land)
-    p = Programme.solve(cells, land, mat, mem, factor, None, min_span)
+    p = Programme.solve(cells, land, models, None, min_span)
     rescaled = {"from_s": list(t_old), "to_s": [float(land.min()), float(land.max())],
                 "min_span_s": m["min_span_s"]}
     _log(f"default time landscape {t_old[0]:.0f}-{t_old[1]:.0f} s mapped onto the "
@@ -625,10 +662,18 @@ class Programme:
     t_limit: float
 
     @classmethod
-    def solve(cls, cells, land, mat, mem, factor, t_request, min_span: float) -> Programme:
+    def solve(cls, cells, land, models, t_request, min_span: float) -> Programme:
+        """Programme the cells for the landscape ``land`` (s per vertex).
+
+        ``models`` = (material, membrane, factor, closing): the models and membrane factors
+        of :func:`program_cells`, and the layers' closing lengths (:func:`closing_lengths`,
+        (c, 2) mm); ``t_request`` and ``min_span`` as for :func:`program_cells` and
+        :func:`_achievable_summary`.
+        """
+        mat, mem, factor, closing = models
         t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
-        res = program_cells(cells["bracket_length_mm"], cells["collision_length_top_mm"],
-                            cells["collision_length_bottom_mm"], cells["boundary"], t_star,
+        res = program_cells(cells["bracket_length_mm"], closing[:, 0], closing[:, 1],
+                            cells["boundary"], t_star,
                             material=mat, membrane=mem, t_request=t_request, factor=factor)
         clamped = np.flatnonzero(res["clamped"])
         n = len(t_star)
@@ -757,6 +802,6 @@ def timing_errors(t_star, t_sim, exclude=None, t_end=None) -> dict:
 __all__ = ["sequenced_span", "load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
-           "program_cells", "program_design", "Programme", "timing_errors", "time_limit",
-           "REFINE_LOG",
+           "program_cells", "program_design", "closing_lengths", "Programme", "timing_errors",
+           "time_limit", "REFINE_LOG",
            "PICTURE", "STAGE_FILE"]

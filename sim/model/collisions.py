@@ -47,7 +47,8 @@ def completion_times(frames, collided=None, *, rule: str = "clearance",
     Rules:
 
     * ``"clearance"`` (default): each of the 4 bracket springs is collided or within
-      ``tol_mm`` (the 0.05 mm printing clearance) of its bumper contact length.  In
+      ``tol_mm`` (0.05 mm, the size of the printing clearance) of its bumper contact length
+      (``collision_length``: the printed bumpers' with ``PhysicsOptions.clearance``).  In
       irregular stencils the two springs of a layer have contact lengths a few hundredths
       of a millimetre apart, so a cell often closes one end and stays a hair short at the
       other, which a printed part could not tell apart from closed.  Needs

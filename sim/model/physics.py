@@ -1,7 +1,8 @@
-"""Physics beyond the reference simulator (issue #18): switches, masses, weight and a plane.
+"""Physics beyond the reference simulator (issues #18, #32): switches, masses, weight, a plane.
 
-Every effect is a field of :class:`pysolver.params.PhysicsOptions` (all off by default; with
-all off the simulation is the reference model bit for bit).  This module holds
+Every effect is a field of :class:`pysolver.params.PhysicsOptions`; with all off
+(:data:`~pysolver.params.PHYSICS_OFF`) the simulation is the reference model bit for bit, and
+the simulator's default is :data:`~pysolver.params.PHYSICS_DEFAULT`.  This module holds
 
 * :func:`parse_physics` / :func:`check_physics`: the ``--physics`` option and its validation;
 * :func:`base_volumes`, :func:`membrane_vertex_masses`: printed volume of every base (mm^3)
@@ -10,9 +11,10 @@ all off the simulation is the reference model bit for bit).  This module holds
   frictionless plane (tank floor in water, table when dry), with its reduced gradient and
   Hessian, added to :class:`pysolver.mechanics.energies.ShellEnergy` through its ``external`` hook.
 
-Relaxation (``mu`` scaled by the measured curve) lives in the time stepper
-(:mod:`sim.model.simulate`), the rim margin in :func:`pysolver.mechanics.build_model`; both
-reuse the one membrane energy of :mod:`pysolver.mechanics.energies`.
+Relaxation and the membrane's temperature (``mu`` scaled by the measured curve and by the
+absolute temperature) live in the time stepper (:mod:`sim.model.simulate`); the rim margin and
+the printing clearance of the bumpers in :func:`pysolver.mechanics.build_model`; they reuse
+the one membrane energy and the one contact spring of :mod:`pysolver.mechanics.energies`.
 
 Units: mm, N, s; densities in g/cm^3 = 1e-9 t/mm^3, so a volume ``V`` (mm^3) of density
 ``rho`` weighs ``rho * 1e-9 * V * g`` N with ``g = 9810 mm/s^2``.
@@ -28,7 +30,7 @@ import numpy as np
 
 from pysolver.errors import InputError
 from pysolver.mechanics.energies import jtkj, skew
-from pysolver.params import PHYSICS_OFF, UNIT_CELL, PhysicsOptions
+from pysolver.params import PHYSICS_DEFAULT, PHYSICS_OFF, UNIT_CELL, PhysicsOptions
 
 DENSITY_TO_T_MM3 = 1e-9  # g/cm^3 -> t/mm^3 (mm-N-s-t units: 1 t mm/s^2 = 1 N)
 FACE_DOWN = ("bottom", "top")
@@ -46,16 +48,18 @@ def check_physics(opts: PhysicsOptions) -> PhysicsOptions:
             raise InputError(f"physics option {k} = {v!r} must be a positive number",
                              fix=f"pass --{k.replace('_', '-')} with a value > 0")
     R = PhysicsOptions.RANGES
-    for k in ("stretch_to_glue_min", "glue_to_water_min"):
+    for k, unit in (("stretch_to_glue_min", "minutes"), ("glue_to_water_min", "minutes"),
+                    ("drying_min", "minutes"), ("water_temp_c", "deg C"),
+                    ("lab_temp_c", "deg C")):
         v, (lo, hi) = getattr(opts, k), R[k]
         if not (isinstance(v, int | float) and math.isfinite(v) and lo <= v <= hi):
-            raise InputError(f"physics option {k} = {v!r} must be in {lo:g}..{hi:g} minutes",
-                             fix=f"pass --{k.replace('_', '-')} in minutes")
+            raise InputError(f"physics option {k} = {v!r} must be in {lo:g}..{hi:g} {unit}",
+                             fix=f"pass --{k.replace('_', '-')} in {unit}")
     lo, hi = R["rim_stretch"]
     if not (isinstance(opts.rim_stretch, int | float) and lo <= opts.rim_stretch <= hi):
         raise InputError(f"rim_stretch = {opts.rim_stretch!r} must be in [{lo:g}, {hi:g}]",
-                         fix=f"pass --rim-stretch near {PHYSICS_OFF.rim_stretch:g} (the "
-                             "released sheet)")
+                         fix=f"pass --rim-stretch {PHYSICS_OFF.rim_stretch:g} (the margin "
+                             "frozen by the glue) up to the sheet's pre-stretch")
     if opts.face_down not in FACE_DOWN:
         raise InputError(f"face_down = {opts.face_down!r} must be one of {FACE_DOWN}",
                          fix="pass --face-down bottom or --face-down top")
@@ -73,13 +77,16 @@ def check_physics(opts: PhysicsOptions) -> PhysicsOptions:
 
 
 def parse_physics(spec: str | None = None, **params) -> PhysicsOptions:
-    """Physics options from ``--physics relaxation,gravity,...`` and parameter overrides.
+    """Physics options from ``--physics clearance,gravity,...`` and parameter overrides.
 
     Parameters
     ----------
     spec : str, optional
-        Comma-separated switches (:attr:`PhysicsOptions.SWITCHES`, ``-`` or ``_`` alike),
-        ``"none"`` or empty for none, ``"all"`` for every implemented one.
+        Comma-separated switches (:attr:`PhysicsOptions.SWITCHES`, ``-`` or ``_`` alike):
+        exactly those effects.  ``"default"`` (alone or in the list) stands for the
+        default set :data:`~pysolver.params.PHYSICS_DEFAULT`; ``None`` is the default set;
+        ``"none"`` or ``""`` is the reference model (:data:`~pysolver.params.PHYSICS_OFF`);
+        ``"all"`` is every implemented effect.
     **params
         Field overrides (``glue_to_water_min=30``, ``print_density=1.17``); ``None`` values
         are ignored.
@@ -89,15 +96,20 @@ def parse_physics(spec: str | None = None, **params) -> PhysicsOptions:
     PhysicsOptions
     """
     on = {}
+    base = PHYSICS_DEFAULT if spec is None else PHYSICS_OFF
     spec = (spec or "").strip()
     if spec and spec != "none":
         names = PhysicsOptions.SWITCHES if spec == "all" else [
             s.strip().replace("-", "_") for s in spec.split(",") if s.strip()]
         for n in names:
+            if n == "default":
+                on.update({k: True for k in PHYSICS_DEFAULT.switched_on()})
+                continue
             if n not in PhysicsOptions.SWITCHES:
                 raise InputError(f"unknown physics effect {n!r}",
                                  fix="use a comma-separated subset of "
-                                     f"{', '.join(PhysicsOptions.SWITCHES)} (or all, none)")
+                                     f"{', '.join(PhysicsOptions.SWITCHES)} (or default, "
+                                     "all, none)")
             on[n] = True
     fields = {f.name for f in dataclasses.fields(PhysicsOptions)}
     for k, v in params.items():
@@ -106,7 +118,7 @@ def parse_physics(spec: str | None = None, **params) -> PhysicsOptions:
         if k not in fields or k in PhysicsOptions.SWITCHES:
             raise InputError(f"unknown physics parameter {k!r}")
         on[k] = v
-    return check_physics(dataclasses.replace(PHYSICS_OFF, **on))
+    return check_physics(dataclasses.replace(base, **on))
 
 
 def physics_json(opts: PhysicsOptions) -> str:

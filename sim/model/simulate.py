@@ -73,7 +73,7 @@ from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics.energies import ShellEnergy, State
 from pysolver.mechanics.model import ShellModel, load_model
 from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newton
-from pysolver.params import NEWTON, PHYSICS_OFF, SIM, UNIT_CELL, PhysicsOptions
+from pysolver.params import NEWTON, PHYSICS_DEFAULT, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
 from pysolver.progress import Steps, say
 from pysolver.records import json_text
@@ -114,7 +114,9 @@ class SimSettings:
         runs every solve on one BLAS thread, ``reference`` as before it was measured.  Same
         results; the reference path is kept for ``make bench``'s comparison.
     physics : PhysicsOptions
-        Effects beyond the reference simulator (``docs/physics.md``); all off by default.
+        Effects beyond the reference simulator (``docs/physics.md``); default
+        :data:`~pysolver.params.PHYSICS_DEFAULT`, the reference model is
+        :data:`~pysolver.params.PHYSICS_OFF`.
     """
 
     t_end: float = SIM.t_end
@@ -128,7 +130,7 @@ class SimSettings:
     checkpoint_every: int = SIM.checkpoint_every
     predictor: bool | str = True
     solver: str = "fast"
-    physics: PhysicsOptions = PHYSICS_OFF
+    physics: PhysicsOptions = PHYSICS_DEFAULT
 
     def __post_init__(self):
 
@@ -161,6 +163,7 @@ class Simulation:
         if not hasattr(material, "coefficients"):
             raise InputError(f"material {material!r} has no coefficients(h, b, t, eta) method",
                              fix="pass a pysolver.material BracketModel")
+        check_model_physics(model, settings.physics)
         self.model = model
         self.material = material
         self.settings = settings
@@ -234,10 +237,8 @@ class Simulation:
         if ph.bracket_bending:
 
             self.energy.bending.k = bending_stiffness(md, coef0)
-        if ph.relaxation:
-
-            age = 60.0 * (ph.stretch_to_glue_min + ph.glue_to_water_min) + t
-            self.energy.mu_scale = float(relaxation_factor(age))
+        if ph.relaxation or ph.membrane_temperature:
+            self.energy.mu_scale = membrane_scale(ph, t, wet=True)
 
     def _record(self, t, res, L) -> None:
         md, s, k, fr = self.model, self.state, self.k, self.frames
@@ -457,33 +458,43 @@ class Simulation:
     def dry_rest(self):
         """The dry shell resting on a table after the morph; fills :attr:`rest_frame`.
 
-        The brackets cool and stiffen at their final shape: every spring's rest length is its
-        final length and its force law the dry one (material model at t = 0, no plasticity);
-        springs at their bumpers stay in contact.  The shell gets its full (dry) weight and a
-        frictionless table under its lowest point; the static equilibrium is solved.
+        The brackets cool and stiffen under the load they carry: a shape-memory polymer
+        cooled under load keeps its shape and its stress, so every bracket spring keeps the
+        force it had at the end of the morph, and any further deformation meets the dry
+        stiffness (material model at t = 0, no plasticity).  That is a dry spring whose rest
+        length sits ``x0`` beyond the final length, ``F_dry(x0) = F_end``
+        (:func:`frozen_rest_lengths`).  Springs at their bumpers stay in contact.  The
+        membrane is back at room temperature (``membrane_temperature``) and has relaxed
+        for ``drying_min`` more (``relaxation``).  The shell gets its full (dry) weight and
+        a frictionless table under its lowest point; the static equilibrium is solved.
 
         Returns
         -------
         NewtonResult
         """
         md, k = self.model, self.model.consts
+        ph = self.settings.physics
         L = self.spring_lengths()
+        f_end = spring_forces(self.energy.spring_coef, self.energy.spring_rest - L)
         coef = np.asarray(self.material.coefficients(md.spring_thickness,
                                                      md.spring_bracket_length, 0.0, eta=0.0),
                           float).reshape(-1, 4)
         if self.energy.bending is not None:
 
             self.energy.bending.k = bending_stiffness(md, coef[:, 0])
-        rest = L.copy()
+        rest = L + frozen_rest_lengths(coef, f_end, md.spring_bracket_length)
         rest[self.contact] = md.spring_collision[self.contact]
         coef[self.contact] = (k.kappa_c, 0.0, 0.0, 0.0)
         self.energy.spring_rest, self.energy.spring_coef = rest, coef
+        if ph.relaxation or ph.membrane_temperature:
+            t_out = float(self.frames["t"][self.k - 1]) if self.k else 0.0
+            self.energy.mu_scale = membrane_scale(ph, t_out + 60.0 * ph.drying_min, wet=False)
         ext = ExternalTerms(md, self.settings.physics, wet=False)
         ext.place_plane(self.state)
         self.energy.external = ext
         problem = StaticProblem(self.energy, self.state.copy())
         res = newton(problem, tol=self.settings.tol, linear=self.linear,
-                     max_iter=self.settings.max_iter_dry)
+                     max_iter=NEWTON.max_iter_rest)
         s = problem.state
         s.orthonormalize()
         X, _ = self.energy.positions(s)
@@ -528,6 +539,96 @@ class Simulation:
         self.stopped_early = bool(z["stopped_early"])
         self.linear.shift_hint = float(z["shift_hint"])
         self._free_hist = list(np.array(z["free_hist"]))
+
+
+# ------------------------------------------------------------------------------------------------
+# membrane and bracket state helpers
+
+
+MODEL_EFFECTS = ("rim", "rim_margin_mm", "rim_stretch", "clearance")
+"""Physics options that shape the model itself (:func:`pysolver.mechanics.build_model`)."""
+
+
+def check_model_physics(model: ShellModel, physics: PhysicsOptions) -> None:
+    """Refuse a model built with other model-level physics than the simulation's.
+
+    ``rim`` and ``clearance`` change the model (its membrane mesh, its contact lengths), so a
+    model built with one set of options cannot be simulated with another.
+    """
+    mp = getattr(model, "physics", None)
+    if mp is None:
+        return
+    if mp.rim != physics.rim or mp.clearance != physics.clearance or (
+            physics.rim and (mp.rim_margin_mm, mp.rim_stretch)
+            != (physics.rim_margin_mm, physics.rim_stretch)):
+        diff = [k for k in MODEL_EFFECTS if getattr(mp, k) != getattr(physics, k)]
+        raise InputError(f"the shell model was built with other physics than the simulation's "
+                         f"({', '.join(diff)})",
+                         fix="build the model with the simulation's options: "
+                             "load_model(folder, physics=settings.physics)")
+
+
+def membrane_scale(physics: PhysicsOptions, t: float, wet: bool) -> float:
+    """Factor on the membrane modulus ``mu`` at time ``t`` (s) after immersion.
+
+    The measured stress relaxation at the membrane's age (``relaxation``: stretched
+    ``stretch_to_glue_min + glue_to_water_min`` before immersion) times the entropic
+    temperature factor in the water (``membrane_temperature``,
+    :meth:`pysolver.params.PhysicsOptions.temperature_factor`).
+    """
+    g = 1.0
+    if physics.relaxation:
+        age = 60.0 * (physics.stretch_to_glue_min + physics.glue_to_water_min) + t
+        g = float(relaxation_factor(age))
+    return g * physics.temperature_factor(wet=wet)
+
+
+def spring_forces(coef, x) -> np.ndarray:
+    """Force of every bracket spring, N (compression positive), ``F(x) = c1 x + .. + c4 x^4``.
+
+    Parameters
+    ----------
+    coef : (n, 4) float -- force coefficients (the energy's ``spring_coef``)
+    x : (n,) float, mm -- compression ``rest - length``
+    """
+    c = np.asarray(coef, float)
+    x = np.asarray(x, float)
+    return x * (c[:, 0] + x * (c[:, 1] + x * (c[:, 2] + x * c[:, 3])))
+
+
+def frozen_rest_lengths(coef, force, limit, iters: int = 40) -> np.ndarray:
+    """Compression ``x0`` (mm) at which springs with force coefficients ``coef`` carry
+    ``force`` (N): the dry spring that keeps a cooled bracket's load.
+
+    Solved by safeguarded Newton on ``[-limit, limit]`` per spring (the force laws are
+    monotone there: ``F' >= 0`` on the fitted range, and the dry stiffness is large, so
+    ``x0`` stays small); a spring that carries no force gets ``x0 = 0``.
+
+    Parameters
+    ----------
+    coef : (n, 4) float -- dry force coefficients
+    force : (n,) float, N
+    limit : (n,) float, mm -- bracket length b (bound of the search)
+
+    Returns
+    -------
+    (n,) float, mm
+    """
+    c = np.asarray(coef, float)
+    f = np.asarray(force, float)
+    b = np.asarray(limit, float)
+    k0 = np.maximum(c[:, 0], TOL.tiny)
+    x = np.clip(f / k0, -b, b)
+    lo, hi = -b.copy(), b.copy()
+    for _ in range(iters):
+        r = spring_forces(c, x) - f
+        lo = np.where(r < 0, x, lo)
+        hi = np.where(r > 0, x, hi)
+        d = c[:, 0] + x * (2 * c[:, 1] + x * (3 * c[:, 2] + x * 4 * c[:, 3]))
+        xn = x - r / np.where(d > 0, d, np.inf)
+        bad = ~((xn > lo) & (xn < hi))
+        x = np.where(bad, 0.5 * (lo + hi), xn)
+    return np.where(f == 0.0, 0.0, x)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -614,11 +715,16 @@ def simulate_model(model: ShellModel, material, *, t_end: float = SIM.t_end,
                    dt: float = SIM.dt, progress: bool = False, **settings) -> dict:
     """Simulate a model in memory and return its frames (no files).
 
+    ``settings`` are :class:`SimSettings` fields; without ``physics`` the model is simulated
+    with the physics it was built with (``model.physics``: :func:`~pysolver.mechanics.load_model`
+    builds with the default, :func:`~pysolver.mechanics.build_model` with none).
+
     Returns
     -------
     frames : dict
         As in ``frames.npz``, plus ``"summary"`` (dict).
     """
+    settings.setdefault("physics", getattr(model, "physics", PHYSICS_DEFAULT))
     sim = Simulation(model, material, SimSettings(t_end=t_end, dt=dt, **settings))
     summary = run_simulation(sim, progress=progress)
     out = sim.frames_dict()
@@ -663,7 +769,7 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
     folder = Path(design_dir)
     mat = _resolve_material(material)  # a bad model file is refused before anything else
     made_from = tables_sha256(folder)   # the tables these frames are simulated from
-    model = load_model(folder, physics=settings.get("physics", PHYSICS_OFF))
+    model = load_model(folder, physics=settings.get("physics", PHYSICS_DEFAULT))
     st = SimSettings(t_end=float(t_end), dt=float(dt), checkpoint_every=checkpoint_every,
                      **settings)
     sim = Simulation(model, mat, st)
@@ -702,8 +808,9 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
 
 def _checkpoint_path(out_dir: Path, st: SimSettings) -> Path:
     """One checkpoint per set of physics options: the build's contact re-run
-    (:mod:`pysolver.build`) neither overwrites nor discards the plain run's, so both resume."""
-    if not st.physics.any:
+    (:mod:`pysolver.build`) neither overwrites nor discards the plain run's, so both resume
+    (the default physics keeps the plain name)."""
+    if st.physics == PHYSICS_DEFAULT:
         return out_dir / CHECKPOINT_NAME
     digest = hashlib.sha256(physics_json(st.physics).encode()).hexdigest()[:12]
     return out_dir / f"checkpoint-{digest}.npz"
@@ -726,4 +833,5 @@ def _resume(sim: Simulation, ckpt: Path, fingerprint: str, label: str, progress:
 
 
 __all__ = ["SimSettings", "Simulation", "simulate_design", "simulate_model", "run_simulation",
+           "membrane_scale", "spring_forces", "check_model_physics", "frozen_rest_lengths",
            "FRAMES_NAME", "CHECKPOINT_NAME"]

@@ -2,26 +2,32 @@
 
 Every base except the alignment bases carries a coloured marker dot on the far
 face of each layer (``design/pipeline.md`` §1.5); a scan of the morphed shell
-gives their positions as a point set.  :func:`compare_scan` registers that
-point set to the simulated marker tips of the final frame
-(``marker_top`` / ``marker_bottom`` in ``sim/frames.npz``) and reports the
-distances:
+gives their positions as a point set, read as given (an OBJ of ``v`` lines, a PLY or
+x y z columns), usually with some markers missing.  :func:`compare_scan` registers that
+point set to the simulated marker tips (``marker_top`` / ``marker_bottom`` in
+``sim/frames.npz``; the dry resting shape ``rest_marker_*`` when the simulation has
+one, since scans are of dried shells) and reports the distances, by the procedure of
+the printed shells' data (``../shared/printed-shells/README.md``): rigid registration
+without scaling (ICP, then one-to-one matching, then the rigid fit minimising the sum of
+the matched distances), and the mean matched distance.
 
-1. **Robust start**: centroids (median, so outliers do not drag them) and
-   principal axes of both sets; 24 starts = principal frames x 12 rotations of
-   30 deg about the smallest-variance axis (the shell's mean normal) x 2 flips,
-   plus the 24 rotations of the cube group for shapes without a clear normal.
-2. **Trimmed ICP** from every start (nearest marker per scan point, keep the
-   closest 80 %, Kabsch), the best by a truncated-distance score refined further.
-3. **One-to-one matching** (:func:`scipy.optimize.linear_sum_assignment` on the
-   distances capped at the gate) with **outlier rejection**: pairs farther
-   than the gate (default half the median marker spacing) are outliers.
-4. **L1 rigid fit**: the rigid motion minimising the *sum* of distances of the
-   matched pairs, by iteratively re-weighted Kabsch (weights 1/distance),
-   alternated with re-matching until the matches stop changing.
+1. **Starts**: centroids (median) and principal axes of both sets; 24 starts =
+   principal frames x 12 rotations of 30 deg about the smallest-variance axis (the
+   shell's mean normal) x 2 flips, plus the 24 rotations of the cube group.
+2. **Trimmed ICP** from every start (nearest marker per scan point, keep the closest
+   80 %, Kabsch).
+3. **One-to-one matching** (:func:`scipy.optimize.linear_sum_assignment`): every scan
+   point gets its own marker (a scan has at most as many dots as there are markers;
+   extra points stay unmatched).  With a ``gate`` (optional), pairs farther than it are
+   outliers and left out.
+4. **L1 rigid fit**: the rigid motion minimising the *sum* of distances of the matched
+   pairs, by iteratively re-weighted Kabsch (weights 1/distance), alternated with
+   re-matching until the matches stop changing.
 
-The scan may have fewer points than markers and outliers.  ``layer="auto"``
-registers both layers and keeps the one with the lower truncated error.
+Steps 3-4 run from the best distinct ICP results, and the registration with the lowest
+sum of matched distances is kept: a shell that is long and curled (a spiral) has local
+optima one marker row apart, about a millimetre worse (issue #32).  ``layer="auto"``
+registers both layers and keeps the one with the lower mean.
 """
 
 from __future__ import annotations
@@ -49,6 +55,12 @@ from .load import load_frames
 TRIM_FRACTION = 0.8
 """Fraction of closest pairs kept by each trimmed-ICP iteration (allows 20 % missing/outliers)."""
 ICP_MAX_ITER = 60
+MATCH_MAX_ITER = 20
+"""Rounds of one-to-one matching + L1 fit (they stop earlier when the matches repeat)."""
+REFINE_CANDIDATES = 16
+"""Distinct ICP results refined by matching + L1 fit (the best by their truncated score)."""
+DISTINCT_DEG, DISTINCT_MM = 2.0, 1.0
+"""Two ICP results closer than this (rotation, translation) are the same candidate."""
 IRLS_MAX_ITER = 100
 
 
@@ -153,8 +165,20 @@ def read_points(path):
     return P
 
 
-def simulated_markers(design_dir, layer, frame=-1):
-    """Simulated marker-dot tips of one layer at a frame, without alignment bases.
+STATES = ("auto", "final", "rest")
+"""Which simulated shape a scan is compared with: ``final`` = the last frame in water,
+``rest`` = the dry resting shape (``--physics dry-rest``), ``auto`` = rest when present."""
+
+
+def simulated_markers(design_dir, layer, frame=-1, state="final"):
+    """Simulated marker-dot tips of one layer, without alignment bases.
+
+    Parameters
+    ----------
+    design_dir : path-like
+    layer : {"top", "bottom"}
+    frame : int -- frame of the morph (``state="final"``)
+    state : {"final", "rest", "auto"} -- the frame, or the dry resting shape (:data:`STATES`)
 
     Returns
     -------
@@ -164,11 +188,19 @@ def simulated_markers(design_dir, layer, frame=-1):
     folder = Path(design_dir)
     bases = read_table(folder, "bases")
     fr = load_frames(folder / "sim" / "frames.npz", len(bases["base_id"]))
-    key = f"marker_{layer}"
-    if key not in fr:
-        raise InputError(f"{folder / 'sim/frames.npz'}: no {key} array",
-                         fix="re-run the simulation with the current sim.model.simulate")
-    M = np.asarray(fr[key][frame], float)
+    rest = f"rest_marker_{layer}"
+    if state == "rest" and rest not in fr:
+        raise InputError(f"{folder / 'sim/frames.npz'}: no dry resting shape ({rest})",
+                         fix="simulate with --physics ...,dry-rest, or compare the final "
+                             "frame (--state final)")
+    if state in ("rest", "auto") and rest in fr:
+        M = np.asarray(fr[rest], float)
+    else:
+        key = f"marker_{layer}"
+        if key not in fr:
+            raise InputError(f"{folder / 'sim/frames.npz'}: no {key} array",
+                             fix="re-run the simulation with the current sim.model.simulate")
+        M = np.asarray(fr[key][frame], float)
     keep = ~bases["alignment"].astype(bool) & np.isfinite(M).all(axis=1)
     return M[keep], np.flatnonzero(keep)
 
@@ -223,58 +255,20 @@ def _score(P, tree, Q, s, gate):
     return float(np.mean(np.minimum(d, gate)))
 
 
-def register(P, M, *, gate=None):
-    """Register scan points ``P`` to markers ``M`` (rigid), then match them one-to-one.
+def _match_and_fit(P, M, Q, s, gate):
+    """Alternate one-to-one matching and the L1 rigid fit until the matches repeat.
 
-    Parameters
-    ----------
-    P : (n, 3) float, mm
-        Scan points (any order, may miss markers and hold outliers).
-    M : (k, 3) float, mm
-        Simulated marker tips.
-    gate : float, mm, optional
-        Matches farther than this are outliers; default half the median
-        nearest-neighbour spacing of ``M``.
-
-    Returns
-    -------
-    dict with ``Q`` (3, 3), ``s`` (3,) (scan -> simulation: ``x -> Q x + s``),
-    ``pairs`` (m, 2) int (scan index, marker index), ``dist`` (m,) mm,
-    ``outliers`` (scan indices without a match), ``gate_mm``, ``score_mm``.
-    """
-    P = np.asarray(P, float)
-    M = np.asarray(M, float)
-    if len(M) < 3:
-        raise InputError(f"{len(M)} simulated markers, need at least 3 to register a scan")
-    tree = cKDTree(M)
-    if gate is None:
-        dnn, _ = tree.query(M, k=2)
-        gate = 0.5 * float(np.median(dnn[:, 1]))
-    gate = float(gate)
-    cm, _ = _pca(M)
-    cp, _ = _pca(P)
-    # coarse ICP from every start, then refine the best few
-    cand = []
-    for Q0 in _start_rotations(P, M):
-        s0 = cm - Q0 @ cp
-        Q, s = _trimmed_icp(P, tree, M, Q0, s0, max_iter=15)
-        cand.append((_score(P, tree, Q, s, gate), Q, s))
-    cand.sort(key=lambda c: c[0])
-    best = None
-    for _, Q, s in cand[:4]:
-        Q, s = _trimmed_icp(P, tree, M, Q, s)
-        sc = _score(P, tree, Q, s, gate)
-        if best is None or sc < best[0]:
-            best = (sc, Q, s)
-    _, Q, s = best
-    # one-to-one matching with a distance gate, alternated with the L1 rigid fit
+    Returns ``(objective, Q, s, r, c)``: sum of matched distances (mm), transform, matched
+    scan and marker indices."""
     prev = None
-    for _ in range(10):
+    r = c = np.zeros(0, dtype=np.int64)
+    for _ in range(MATCH_MAX_ITER):
         X = P @ Q.T + s
         D = np.linalg.norm(X[:, None, :] - M[None, :, :], axis=2)
-        r, c = linear_sum_assignment(np.minimum(D, gate))
-        ok = D[r, c] < gate
-        r, c = r[ok], c[ok]
+        r, c = linear_sum_assignment(D if gate is None else np.minimum(D, gate))
+        if gate is not None:
+            ok = D[r, c] < gate
+            r, c = r[ok], c[ok]
         if len(r) < 3:
             break
         key = (r.tobytes(), c.tobytes())
@@ -283,10 +277,67 @@ def register(P, M, *, gate=None):
         prev = key
         Q, s = l1_rigid_fit(P[r], M[c], Q0=Q, s0=s)
     X = P @ Q.T + s
+    d = np.linalg.norm(X[r] - M[c], axis=1)
+    return float(d.sum()), Q, s, r, c
+
+
+def register(P, M, *, gate=None):
+    """Register scan points ``P`` to markers ``M`` (rigid), then match them one-to-one.
+
+    Parameters
+    ----------
+    P : (n, 3) float, mm
+        Scan points (any order, may miss markers).
+    M : (k, 3) float, mm
+        Simulated marker tips.
+    gate : float, mm, optional
+        Outlier rejection: matches farther than this are left out.  Default none (the
+        printed shells' procedure): every scan point is matched when ``n <= k``.
+
+    Returns
+    -------
+    dict with ``Q`` (3, 3), ``s`` (3,) (scan -> simulation: ``x -> Q x + s``),
+    ``pairs`` (m, 2) int (scan index, marker index), ``dist`` (m,) mm,
+    ``outliers`` (scan indices without a match), ``gate_mm`` (None without a gate),
+    ``score_mm`` (mean nearest-marker distance, capped at half the median marker
+    spacing), ``candidates`` (registrations refined).
+    """
+    P = np.asarray(P, float)
+    M = np.asarray(M, float)
+    if len(M) < 3:
+        raise InputError(f"{len(M)} simulated markers, need at least 3 to register a scan")
+    tree = cKDTree(M)
+    dnn, _ = tree.query(M, k=2)
+    cap = 0.5 * float(np.median(dnn[:, 1]))
+    gate = None if gate is None else float(gate)
+    cm, _ = _pca(M)
+    cp, _ = _pca(P)
+    cand = []
+    for Q0 in _start_rotations(P, M):
+        Q, s = _trimmed_icp(P, tree, M, Q0, cm - Q0 @ cp)
+        cand.append((_score(P, tree, Q, s, cap), Q, s))
+    cand.sort(key=lambda c: c[0])
+    distinct = []
+    for sc, Q, s in cand:
+        if all(np.degrees(Rotation.from_matrix(Q @ Q2.T).magnitude()) > DISTINCT_DEG
+               or np.linalg.norm(s - s2) > DISTINCT_MM for _, Q2, s2 in distinct):
+            distinct.append((sc, Q, s))
+        if len(distinct) == REFINE_CANDIDATES:
+            break
+    best = None
+    for _, Q, s in distinct:
+        res = _match_and_fit(P, M, Q, s, gate)
+        # the most matches first (with a gate), then the lowest sum of distances
+        key = (-len(res[3]), res[0])
+        if best is None or key < best[0]:
+            best = (key, res)
+    _, (_, Q, s, r, c) = best
+    X = P @ Q.T + s
     dist = np.linalg.norm(X[r] - M[c], axis=1)
     outliers = np.setdiff1d(np.arange(len(P)), r)
     return {"Q": Q, "s": s, "pairs": np.c_[r, c], "dist": dist, "outliers": outliers,
-            "gate_mm": gate, "score_mm": _score(P, tree, Q, s, gate)}
+            "gate_mm": gate, "score_mm": _score(P, tree, Q, s, cap),
+            "candidates": len(distinct)}
 
 
 # --------------------------------------------------------------------------------------------
@@ -314,7 +365,33 @@ def _stats(reg, P, M):
     }
 
 
-def _plot(path, P, M, reg, title):
+def plot_error_on_shell(ax, flat_xy, base_ids, err, *, vmax=None, title=""):
+    """The flat layout of the bases, the scanned ones coloured by their error (mm).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    flat_xy : (m, 2) float, mm -- flat base centres (``bases.csv``)
+    base_ids : (k,) int -- bases with a matched scan dot
+    err : (k,) float, mm -- their distance to the scan
+    vmax : float, mm, optional -- top of the colour scale (default the largest error)
+
+    Returns
+    -------
+    the scatter (for a colour bar)
+    """
+    ax.scatter(*flat_xy.T, s=6, c="lightgray", label="not scanned")
+    vmax = float(np.max(err)) if vmax is None and len(err) else vmax
+    sc = ax.scatter(*flat_xy[base_ids].T, s=26, c=err, cmap="magma_r", vmin=0.0, vmax=vmax,
+                    edgecolors="k", linewidths=0.2)
+    ax.set_aspect("equal")
+    ax.set_xlabel("flat x (mm)")
+    ax.set_ylabel("flat y (mm)")
+    ax.set_title(title, fontsize=9)
+    return sc
+
+
+def _plot(path, P, M, reg, title, flat_xy=None, ids=None):
     import matplotlib  # optional heavy dependency: matplotlib loads only when a picture is drawn
 
     matplotlib.use("Agg")
@@ -327,8 +404,10 @@ def _plot(path, P, M, reg, title):
     X = P @ reg["Q"].T + reg["s"]
     pr = reg["pairs"]
     d = reg["dist"]
-    fig = plt.figure(figsize=(11, 5))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    on_shell = flat_xy is not None and ids is not None
+    fig = plt.figure(figsize=(16 if on_shell else 11, 5))
+    ncol = 3 if on_shell else 2
+    ax = fig.add_subplot(1, ncol, 1, projection="3d")
     ax.scatter(*M.T, s=8, c="tab:blue", label=f"simulated markers ({len(M)})", depthshade=False)
     ax.scatter(*X[pr[:, 0]].T, s=8, c="tab:orange", label=f"scan, matched ({len(pr)})",
                depthshade=False)
@@ -350,11 +429,18 @@ def _plot(path, P, M, reg, title):
     ax.set_zlabel("z (mm)")
     ax.legend(fontsize=7, loc="upper left")
     ax.set_title(title, fontsize=9)
-    ax2 = fig.add_subplot(1, 2, 2)
+    if on_shell:
+        ax3 = fig.add_subplot(1, ncol, 2)
+        sc = plot_error_on_shell(ax3, flat_xy, ids[pr[:, 1]], d,
+                                 title="error on the shell (flat layout)")
+        fig.colorbar(sc, ax=ax3, label="scan dot - simulated marker (mm)")
+    ax2 = fig.add_subplot(1, ncol, ncol)
     if len(d):
         ax2.hist(d, bins=min(40, max(5, len(d) // 5)), color="tab:orange")
         ax2.axvline(d.mean(), color="k", ls="--", label=f"mean {d.mean():.2f} mm")
-        ax2.axvline(reg["gate_mm"], color="red", ls=":", label=f"gate {reg['gate_mm']:.2f} mm")
+        if reg["gate_mm"] is not None:
+            ax2.axvline(reg["gate_mm"], color="red", ls=":",
+                        label=f"gate {reg['gate_mm']:.2f} mm")
         ax2.legend(fontsize=8)
     ax2.set_xlabel("distance scan dot - simulated marker (mm)")
     ax2.set_ylabel("matched pairs")
@@ -367,8 +453,8 @@ def _plot(path, P, M, reg, title):
 
 
 def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=None,
-                 frame=-1, progress=True) -> dict:
-    """Compare scanned marker dots with the simulated marker tips of the final frame.
+                 frame=-1, state="auto", progress=True) -> dict:
+    """Compare scanned marker dots with the simulated marker tips.
 
     Parameters
     ----------
@@ -377,41 +463,53 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
     scan_path : path-like
         Point set of detected marker dots, mm: OBJ vertices, PLY, or CSV x y z.
     layer : {"auto", "top", "bottom"}
-        Which layer's markers were scanned; "auto" keeps the layer with the
-        lower error (truncated mean distance).
+        Which layer's markers were scanned; "auto" keeps the layer with the lower mean.
     out_dir : path-like, optional
         Where ``scan_<stem>.json`` and ``scan_<stem>.png`` go (default
         ``<design_dir>/scan_report``; not inside ``report/``, which the report
         stage replaces as a whole).
     gate_mm : float, mm, optional
-        Outlier distance gate (default: half the median marker spacing).
+        Outlier rejection (matches farther than this are left out); default none, the
+        printed shells' procedure (every scan dot is matched).
     frame : int
-        Simulation frame to compare with (default the last).
+        Simulation frame to compare with (default the last; ``state="final"``).
+    state : {"auto", "final", "rest"}
+        The final frame in water, or the dry resting shape on a table (``rest``, from
+        ``--physics dry-rest``); ``auto`` (default) takes the resting shape when the
+        simulation has one: scanned shells are dry.
     progress : bool
         Print the result line.
 
     Returns
     -------
     dict
-        ``layer``, ``mean_mm``, ``max_mm``, ``std_mm``, ``mean_over_diameter``,
+        ``layer``, ``state``, ``mean_mm``, ``max_mm``, ``std_mm``, ``mean_over_diameter``,
         ``matched``, ``outliers``, ``unmatched_markers``, ``transform_scan_to_sim``,
         ``per_layer`` (auto), ``pairs`` (scan index, base id, distance), ``files``.
     """
     if layer not in ("auto", "top", "bottom"):
         raise InputError(f"layer = {layer!r}", fix="use 'auto', 'top' or 'bottom'")
+    if state not in STATES:
+        raise InputError(f"state = {state!r}", fix=f"use one of {', '.join(STATES)}")
+    if gate_mm is not None and not (np.isfinite(gate_mm) and gate_mm > 0):
+        raise InputError(f"gate = {gate_mm!r} mm", fix="give a positive distance in mm")
     folder = Path(design_dir)
     scan_path = Path(scan_path)
     P = read_points(scan_path)
     layers = ("top", "bottom") if layer == "auto" else (layer,)
     results = {}
     for ly in layers:
-        M, ids = simulated_markers(folder, ly, frame)
+        M, ids = simulated_markers(folder, ly, frame, state)
         reg = register(P, M, gate=gate_mm)
         results[ly] = (M, ids, reg)
-    chosen = min(results, key=lambda k: (results[k][2]["score_mm"], -len(results[k][2]["dist"])))
+    chosen = min(results, key=lambda k: (-len(results[k][2]["dist"]),
+                                         float(results[k][2]["dist"].mean())))
     M, ids, reg = results[chosen]
+    with np.load(folder / "sim" / "frames.npz", allow_pickle=False) as z:
+        has_rest = f"rest_marker_{chosen}" in z.files
+    used = "rest" if state in ("rest", "auto") and has_rest else "final"
     out = {"design_dir": str(folder), "scan": str(scan_path), "layer": chosen,
-           "layer_option": layer, **_stats(reg, P, M)}
+           "layer_option": layer, "state": used, **_stats(reg, P, M)}
     if layer == "auto":
         out["per_layer"] = {k: {kk: vv for kk, vv in _stats(v[2], P, v[0]).items()
                                 if kk in ("mean_mm", "max_mm", "matched", "score_mm")}
@@ -421,15 +519,18 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
     out_dir = Path(out_dir) if out_dir is not None else folder / "scan_report"
     make_dirs(out_dir)
     stem = scan_path.stem
+    bases = read_table(folder, "bases")
+    flat = np.c_[bases["flat_x_mm"], bases["flat_y_mm"]]
     png = _plot(out_dir / f"scan_{stem}.png", P, M, reg,
-                f"{scan_path.name} vs simulated {chosen} markers: mean {out['mean_mm']:.2f} mm")
+                f"{scan_path.name} vs simulated {chosen} markers ({used}): mean "
+                f"{out['mean_mm']:.2f} mm", flat_xy=flat, ids=ids)
     out["files"] = {"png": str(png), "json": str(out_dir / f"scan_{stem}.json")}
 
     atomic_write_text(out_dir / f"scan_{stem}.json",
                       json_text(out, sort_keys=False, strict=True))
     if progress:
-        print(f"scan vs simulation ({chosen} layer): mean {out['mean_mm']:.3f} mm, max "
-              f"{out['max_mm']:.3f} mm, std {out['std_mm']:.3f} mm, mean/diameter "
+        print(f"scan vs simulation ({chosen} layer, {used} shape): mean {out['mean_mm']:.3f} mm, "
+              f"max {out['max_mm']:.3f} mm, std {out['std_mm']:.3f} mm, mean/diameter "
               f"{100 * out['mean_over_diameter']:.2f} %, {out['matched']} matched, "
               f"{out['outliers']} outliers -> {png}")
     return out
@@ -442,14 +543,17 @@ def main(argv=None) -> int:
     ap.add_argument("design_dir")
     ap.add_argument("scan")
     ap.add_argument("--layer", default="auto", choices=("auto", "top", "bottom"))
+    ap.add_argument("--state", default="auto", choices=STATES)
+    ap.add_argument("--gate-mm", type=float, default=None)
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    compare_scan(a.design_dir, a.scan, layer=a.layer, out_dir=a.out)
+    compare_scan(a.design_dir, a.scan, layer=a.layer, out_dir=a.out, state=a.state,
+                 gate_mm=a.gate_mm)
     return 0
 
 
 __all__ = ["l1_rigid_fit", "read_points", "simulated_markers", "register",
-           "compare_scan"]
+           "compare_scan", "plot_error_on_shell", "STATES"]
 
 if __name__ == "__main__":
     sys.exit(main())
