@@ -117,52 +117,48 @@ def writers_in(source: str, module: str) -> dict[str, set[str]]:
     return out
 
 
-def code_writers() -> dict[str, set[str]]:
-    out: dict[str, set[str]] = {}
+def _modules():
+    """(dotted module name parts, source text) of every module of pysolver and sim."""
     for top in ("pysolver", "sim"):
         for path in sorted((ROOT / top).rglob("*.py")):
             parts = list(path.relative_to(ROOT).with_suffix("").parts)
             if parts[-1] == "__init__":
                 parts = parts[:-1]
-            for file, funcs in writers_in(path.read_text(encoding="utf-8"),
-                                          ".".join(parts)).items():
-                out.setdefault(file, set()).update(funcs)
+            yield parts, path.read_text(encoding="utf-8")
+
+
+def code_writers() -> dict[str, set[str]]:
+    out: dict[str, set[str]] = {}
+    for parts, text in _modules():
+        for file, funcs in writers_in(text, ".".join(parts)).items():
+            out.setdefault(file, set()).update(funcs)
     return out
 
 
 def _functions() -> set[str]:
     """Every function and method of the project, as dotted names."""
     out = set()
-    for top in ("pysolver", "sim"):
-        for path in sorted((ROOT / top).rglob("*.py")):
-            parts = list(path.relative_to(ROOT).with_suffix("").parts)
-            if parts[-1] == "__init__":
-                parts = parts[:-1]
-            tree = ast.parse(path.read_text(encoding="utf-8"))
-            for node in tree.body:
-                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                    out.add(".".join(parts + [node.name]))
-                elif isinstance(node, ast.ClassDef):
-                    out |= {".".join(parts + [node.name, m.name]) for m in node.body
-                            if isinstance(m, (ast.FunctionDef, ast.AsyncFunctionDef))}
+    for parts, text in _modules():
+        for node in ast.parse(text).body:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                out.add(".".join(parts + [node.name]))
+            elif isinstance(node, ast.ClassDef):
+                out |= {".".join(parts + [node.name, m.name]) for m in node.body
+                        if isinstance(m, (ast.FunctionDef, ast.AsyncFunctionDef))}
     return out
 
 
 def _module_names() -> set[str]:
     """Every module-level name of the project (functions, classes, constants), dotted."""
     out = set()
-    for top in ("pysolver", "sim"):
-        for path in sorted((ROOT / top).rglob("*.py")):
-            parts = list(path.relative_to(ROOT).with_suffix("").parts)
-            if parts[-1] == "__init__":
-                parts = parts[:-1]
-            for node in ast.parse(path.read_text(encoding="utf-8")).body:
-                targets = ([node] if isinstance(node, (ast.FunctionDef, ast.ClassDef)) else
-                           node.targets if isinstance(node, ast.Assign) else [])
-                for t in targets:
-                    name = getattr(t, "name", None) or getattr(t, "id", None)
-                    if name:
-                        out.add(".".join(parts + [name]))
+    for parts, text in _modules():
+        for node in ast.parse(text).body:
+            targets = ([node] if isinstance(node, (ast.FunctionDef, ast.ClassDef)) else
+                       node.targets if isinstance(node, ast.Assign) else [])
+            for t in targets:
+                name = getattr(t, "name", None) or getattr(t, "id", None)
+                if name:
+                    out.add(".".join(parts + [name]))
     return out
 
 
