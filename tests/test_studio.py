@@ -391,7 +391,7 @@ def _fake_parts(folder):
 
 
 def test_the_report_never_lists_parts_older_than_its_tables(small_build, tmp_path):
-    from pysolver.build import build_parts
+    from pysolver.simulator import build_parts
     from sim.report import make_report
 
     f = _copy(small_build, tmp_path)

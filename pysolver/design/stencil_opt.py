@@ -428,7 +428,7 @@ def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: fl
 
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
                      settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False,
-                     rounds: int | None = None):
+                     converge: bool = False):
     """Move the interior stencil vertices to shorten the longest flat cell.
 
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
@@ -445,14 +445,11 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     cell per unit of 3D scaling, ``log lmax - log s3``, and ``opt_pin_weight (log s3)^2`` (exact
     s3) holds the shell at its target's size: the count search's last pass.
 
-    Each outer round runs L-BFGS on the linearised lift, then checks the result on the
-    exact lift (:func:`accept_step`): an improving round is never thrown away for a soft
-    penalty's overshoot.  The rounds go on (up to ``rounds``) until one gains less than
-    ``opt_round_tol``: a converged stencil does not depend on where L-BFGS's path through
-    the ill-conditioned objective happened to stop, so the last bits of the input or of the
-    machine do not move it.  When no point of the step keeps the hard limits, the round is
-    solved again with the clearance penalty ``opt_stiffen`` times stiffer; only when that
-    fails too is the round dropped (and the rounds stop).
+    Each outer round runs L-BFGS on the linearised lift and checks it on the exact lift
+    (:func:`accept_step`, :func:`_round`): an improving round is never thrown away for a soft
+    penalty's overshoot.  With ``converge`` the rounds go on until one gains less than
+    ``opt_round_tol``, so that where L-BFGS's path through the ill-conditioned objective
+    happened to stop does not move the stencil picked.
 
     Parameters
     ----------
@@ -471,16 +468,17 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         more flat length and 3D scaling than it saves (measured on the stand and cover).
     pin : bool
         Hold the 3D scaling at 1 and minimise the longest flat cell per unit of scaling.
-    rounds : int, optional
-        Most outer rounds (default ``settings.opt_rounds``; the pick of the count search
-        converges with ``settings.opt_converge_rounds``).
+    converge : bool
+        Run up to ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS
+        iterations each, until a round gains less than ``opt_round_tol`` (the pick of the
+        count search); otherwise ``opt_rounds`` rounds (each candidate).
 
     Returns
     -------
     P : (n, 2) float, mm
         Optimised flat positions (every triangle still positively oriented).
     info : dict
-        ``rounds``: outer rounds kept; ``converged``: the last round gained less than
+        ``rounds``: outer rounds kept; ``converged``: the last round kept gained less than
         ``opt_round_tol``; ``history``: one record per round tried
         (``round``, ``start``, ``lbfgs``, ``iterations``, ``stiffened``, and
         :func:`accept_step`'s ``kept``, ``step``, ``objective``, ``clearance_shortfall``,
@@ -491,30 +489,41 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     problem = StencilObjective(domain, P, F, params, settings, t_vertex, pin)
     if problem.n_cells == 0:
         return P, {"rounds": 0, "history": [], "converged": True}
+    st = settings
+    n_rounds, maxiter = ((st.opt_converge_rounds, st.opt_converge_iterations) if converge
+                         else (st.opt_rounds, problem.iterations()))
     current, short_now = problem.exact(P)
-    history = []
-    for r in range(settings.opt_rounds if rounds is None else int(rounds)):
-        rec = {"round": r + 1, "start": round(current, 6)}
-        for stiffened, w in enumerate((settings.opt_clearance_weight,
-                                       settings.opt_clearance_weight * settings.opt_stiffen)):
-            fun = problem.linearised(P, w)
-            res = minimize(fun, P[problem.free].ravel(), jac=True, method="L-BFGS-B",
-                           options={"maxiter": problem.iterations()})
-            step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
-            rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),
-                       stiffened=bool(stiffened), **_rounded(step))
-            if Q is not None:
-                break
-        history.append(rec)
+    history, converged = [], False
+    for r in range(n_rounds):
+        rec, step, Q = _round(problem, P, current, short_now, maxiter)
+        history.append({"round": r + 1, **rec})
         if Q is None:
             break
-        gain = current - step["objective"]
+        converged = current - step["objective"] < st.opt_round_tol
         P, current, short_now = Q, step["objective"], step["clearance_shortfall"]
-        if gain < settings.opt_round_tol:
+        if converge and converged:
             break
     return P, {"rounds": sum(h["kept"] for h in history), "history": history,
-               "converged": bool(history) and history[-1]["kept"]
-               and history[-1]["start"] - history[-1]["objective"] < settings.opt_round_tol}
+               "converged": converged}
+
+
+def _round(problem: StencilObjective, P, current: float, short_now: float, maxiter: int):
+    """One outer round: L-BFGS on the lift linearised at ``P``, the step checked on the exact
+    lift (:func:`accept_step`), once more with the clearance penalty ``opt_stiffen`` times
+    stiffer when no point of it is kept.  Returns the round's record, the step and the point
+    kept (None when none is)."""
+    st = problem.settings
+    rec = {"start": round(current, 6)}
+    for stiffened, w in enumerate((st.opt_clearance_weight,
+                                   st.opt_clearance_weight * st.opt_stiffen)):
+        res = minimize(problem.linearised(P, w), P[problem.free].ravel(), jac=True,
+                       method="L-BFGS-B", options={"maxiter": maxiter})
+        step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
+        rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),
+                   stiffened=bool(stiffened), **_rounded(step))
+        if Q is not None:
+            break
+    return rec, step, Q
 
 
 def _rounded(step: dict) -> dict:

@@ -87,15 +87,17 @@ class StencilSearch:
     opt_rounds, opt_iterations : int
         Most outer rounds (re-lifting onto the target) per candidate of the count search,
         and L-BFGS iterations per round.
-    opt_converge_rounds, opt_round_tol : int, float
+    opt_converge_rounds, opt_converge_iterations, opt_round_tol : int, int, float
         The stencil picked is optimised on, and held at scale 1, for up to
-        ``opt_converge_rounds`` rounds, until a round lowers the exact objective (log units)
-        by less than ``opt_round_tol``: it then sits at the objective's minimum to within
-        0.1 % of its longest cell.  Stopped after 2 rounds, as the candidates are, it sat
-        where L-BFGS's path through the ill-conditioned objective happened to end, so a 1e-9
-        jitter of the input moved the longest flat cell by up to 0.13 mm (``dome:size=0.7``,
-        69 bases: 8.40-8.52 mm over five jitters); converged, by 0.004 mm
-        (``tests/test_stability.py``).
+        ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS iterations,
+        until a round lowers the exact objective (log units) by less than ``opt_round_tol``
+        (0.1 % of the longest cell).  Stopped after 2 rounds, as the candidates are, it sat
+        where L-BFGS's path through the ill-conditioned objective (a sharp maximum over the
+        cells) happened to end: jitters of 1e-9 of the input moved the longest flat cell of
+        ``dome:size=0.7`` (69 bases) over 8.40-8.52 mm; with these rounds most jitters give
+        8.486-8.487 mm.  Not all: some end in another local minimum (8.34 mm), also with 400
+        iterations a round and a tolerance of 1e-4, which cost petal's design 26 s more
+        (these rounds: 3 s).
     opt_barrier : float
         Weight of the log barrier that keeps flat triangles positively oriented.
     opt_timing_weight : float
@@ -248,6 +250,7 @@ class StencilSearch:
     opt_tiny: float = 1e-30
     opt_rounds: int = 2
     opt_converge_rounds: int = 8
+    opt_converge_iterations: int = 100
     opt_round_tol: float = 1e-3
     opt_iterations: int = 50
     opt_barrier: float = 1e-3
