@@ -340,8 +340,9 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
         ``latest`` s; ``best_constant`` (time s, fraction of cells that can reach it);
         ``suggested_map`` {``t0``, ``t1``, ``a``, ``b``, ``fraction_clamped``,
         ``min_span_s``}: mapping the landscape's [t0, t1] linearly onto [a, b] s
-        (a + min_span <= b, order kept) gives the fewest clamped cells (ties: the
-        widest [a, b]).
+        (a + min_span <= b, order kept) is the widest that clamps at most
+        ``Programming.fit_clamped_fraction`` of the cells, else the one clamping fewest
+        (ties: the widest).
     """
     fin = np.isfinite(t_lo)
     out: dict = {"common": None, "earliest": None, "latest": None, "best_constant": None,
@@ -368,12 +369,17 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
             break
         tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
         bad = ((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
+        # maps clamping no more than the allowance are equal: the widest of them keeps most
+        # of the order the landscape asks for
+        bad = np.round(np.maximum(bad, PROGRAMMING.fit_clamped_fraction), 9)
         j = np.lexsort((-(bs - a), bad))[0]
-        key = (round(float(bad[j]), 9), -float(bs[j] - a))
+        key = (float(bad[j]), -float(bs[j] - a))
         if best is None or key < best[0]:
             best = (key, float(a), float(bs[j]))
+    tt = best[1] + u * (best[2] - best[1])
+    clamped = float(np.mean((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)))
     out["suggested_map"] = {"t0": t0, "t1": t1, "a": best[1], "b": best[2],
-                            "fraction_clamped": best[0][0], "min_span_s": span}
+                            "fraction_clamped": round(clamped, 9), "min_span_s": span}
     return out
 
 
@@ -600,8 +606,9 @@ def _models(design_dir: Path, cells, mat, mem, correction: str, physics):
 
 
 def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, progress: bool):
-    """Map a shape's default landscape linearly (order kept) onto the achievable range that
-    clamps fewest cells, when that clamps fewer than it does now; rewrite
+    """Map a shape's default landscape linearly (order kept) onto the widest achievable range
+    that clamps at most ``Programming.fit_clamped_fraction`` of the cells (else the one
+    clamping fewest), when that clamps fewer than it does now; rewrite
     ``time_landscape.csv`` and programme the cells again.
 
     Parameters
