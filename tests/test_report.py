@@ -359,6 +359,12 @@ def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeyp
     r = json.loads((tmp_path / "b" / "report" / "report.json").read_text())
     assert r["verdict"] == "PASS" and r["metrics"]["physics"] == with_contact
     assert any("contact" in n for n in r["notes"])
+    # what the check can promise, from the printed shell's scan (issue #32), and in the page
+    from pysolver.params import SCAN_AGREEMENT
+    assert SCAN_AGREEMENT.promise() in r["notes"]
+    assert "1.44 mm mean (2.2 % of its span)" in SCAN_AGREEMENT.promise()
+    page = (tmp_path / "b" / "report" / "index.html").read_text()
+    assert "What this check can promise" in page
 
 
 def test_thresholds_validate_and_tighten(good):

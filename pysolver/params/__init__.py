@@ -19,7 +19,7 @@ module                                     settings
                                            :class:`PhysicsOptions`
 :mod:`~pysolver.params.material`           :class:`ModelFileRules`, :class:`ModelFits`, the
                                            committed model files
-:mod:`~pysolver.params.report`             :class:`ReportThresholds`, :class:`Pictures`
+:mod:`~pysolver.params.report`             :class:`ReportThresholds`, :class:`Pictures`, :class:`ScanAgreement`
 :mod:`~pysolver.params.fabrication`        :class:`Fabrication`
 :mod:`~pysolver.params.uncertainty`        :class:`Uncertainty`, :class:`ToleranceRun`
 :mod:`~pysolver.params.limits`             :class:`Limits`: bounds of options and inputs
@@ -45,7 +45,7 @@ from .material import (
     ModelFits,
 )
 from .programming import DEFAULT_REFINE, PROGRAMMING, Programming
-from .report import PICTURES, REPORT, Pictures, ReportThresholds
+from .report import PICTURES, REPORT, SCAN_AGREEMENT, Pictures, ReportThresholds, ScanAgreement
 from .simulation import (
     NEWTON,
     PHYSICS_DEFAULT,
@@ -79,7 +79,7 @@ __all__ = [
     "PHYSICS_DEFAULT", "RELAXATION_PRONY",
     "ModelFileRules", "MODEL_FILES", "ModelFits", "MODEL_FITS", "PAPER_BRACKET_HEIGHT_MM",
     "DATA_DIR", "BRACKET_MODEL_FILE", "MEMBRANE_MODEL_FILE",
-    "ReportThresholds", "REPORT", "Pictures", "PICTURES",
+    "ReportThresholds", "REPORT", "Pictures", "PICTURES", "ScanAgreement", "SCAN_AGREEMENT",
     "Fabrication", "FABRICATION",
     "Uncertainty", "UNCERTAINTY", "ToleranceRun", "TOLERANCE_RUN",
     "Limits", "LIMITS",

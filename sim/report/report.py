@@ -32,7 +32,7 @@ import numpy as np
 
 from pysolver.atomic import atomic_dir
 from pysolver.errors import InputError
-from pysolver.params import PICTURES, ReportThresholds
+from pysolver.params import PICTURES, SCAN_AGREEMENT, ReportThresholds
 from pysolver.progress import Steps
 from pysolver.records import finite, json_text
 from pysolver.tables import read_table, tables_sha256
@@ -146,8 +146,9 @@ def _made_from(folder: Path, frames: dict) -> dict:
 
 
 def _notes(metrics: dict, frames: dict) -> list[str]:
-    """The report's notes on how the frames were made (early stop, physics options); the
-    physics switched on also go into ``metrics["physics"]``."""
+    """The report's notes on how the frames were made (early stop, physics options) and what
+    the check can promise (:data:`pysolver.params.SCAN_AGREEMENT`); the physics switched on
+    also go into ``metrics["physics"]``."""
     notes = []
     if metrics.get("stopped_early"):
         # the simulator stops only when every cell rests on its bumpers in both layers and
@@ -160,6 +161,7 @@ def _notes(metrics: dict, frames: dict) -> list[str]:
             metrics["physics"] = on
             notes.append("Simulated with physics beyond the reference model: "
                          f"{', '.join(on)} (docs/physics.md).")
+    notes.append(SCAN_AGREEMENT.promise())
     return notes
 
 
