@@ -162,3 +162,34 @@ def test_sequenced_span_reads_the_design_levels(tmp_path):
         json.dumps({"options": {"sequencing": {"levels": ["x", 1]}}}))
     with pytest.raises(InputError, match="levels"):
         sequenced_span(tmp_path)
+
+
+def test_fitted_landscape_keeps_its_order_within_the_clamping_allowance():
+    """The fit spends at most ``fit_clamped_fraction`` of the cells on width, and not for a
+    few seconds of it; beyond the allowance it clamps fewest."""
+    from pysolver.params import PROGRAMMING
+    from pysolver.temporal.program import _achievable_summary
+
+    n = 100
+    t_star = np.linspace(30.0, 80.0, n)
+    # 8 cells spread over the landscape reach only 58-62 s, the others 40-80 s: clamping none
+    # squeezes the landscape into 4 s; allowing 7 % keeps all of 40-80 s
+    t_lo, t_hi = np.full(n, 40.0), np.full(n, 80.0)
+    t_lo[::13], t_hi[::13] = 58.0, 62.0
+    m = _achievable_summary(t_star, t_lo, t_hi, 120.0)["suggested_map"]
+    assert (m["a"], m["b"]) == (40.0, 80.0)
+    mapped = 40.0 + (t_star - 30.0) * 40.0 / 50.0
+    out = (mapped < t_lo) | (mapped > t_hi)   # 7 of the 8 (one maps into 58-62 s)
+    assert m["fraction_clamped"] == pytest.approx(out.mean()) and out.sum() == 7
+    assert m["fraction_clamped"] <= PROGRAMMING.fit_clamped_fraction
+    # every cell reaches only 40-60 s and 5 reach nothing: the 40-60 s map (5 %) is taken,
+    # not a map 2 s wider that clamps 4 % more
+    t_lo, t_hi = np.full(n, 40.0), np.full(n, 60.0)
+    t_lo[::20] = np.inf
+    m = _achievable_summary(t_star, t_lo, t_hi, 120.0)["suggested_map"]
+    assert (m["a"], m["b"]) == (40.0, 60.0) and m["fraction_clamped"] == pytest.approx(0.05)
+    # 30 % reach nothing: over the allowance, the fewest clamped (then the widest)
+    t_lo[::3] = np.inf
+    m = _achievable_summary(t_star, t_lo, t_hi, 120.0)["suggested_map"]
+    assert (m["a"], m["b"]) == (40.0, 60.0)
+    assert m["fraction_clamped"] == pytest.approx(np.mean(~np.isfinite(t_lo)))

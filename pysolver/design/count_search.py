@@ -455,9 +455,11 @@ class CountSearch:
         old = self.tried[best]
         Vc = self.dom.lift(P)
         c = self.figures(Vc, F2)
+        limit = self.params.max_cell_length
+        if old["max_cell_length_mm"] <= limit - st.margin:
+            limit -= st.margin  # (a pick within the margin stays within it)
         if not opt["rounds"] or not _laid_out(c) or (at_size(old, st) and not at_size(c, st)) \
-                or c["max_cell_length_mm"] > max(old["max_cell_length_mm"],
-                                                 self.params.max_cell_length):
+                or c["max_cell_length_mm"] > max(old["max_cell_length_mm"], limit):
             return  # (the objective fell, but the figures the pick took it for did not hold)
         self.flat[best] = (P, t_P)
         self.meshes[best] = (Vc, F2, before)

@@ -19,7 +19,8 @@ module                                     settings
                                            :class:`PhysicsOptions`
 :mod:`~pysolver.params.material`           :class:`ModelFileRules`, :class:`ModelFits`, the
                                            committed model files
-:mod:`~pysolver.params.report`             :class:`ReportThresholds`, :class:`Pictures`, :class:`ScanAgreement`
+:mod:`~pysolver.params.report`             :class:`ReportThresholds`, :class:`Pictures`,
+                                           :class:`ScanAgreement`
 :mod:`~pysolver.params.fabrication`        :class:`Fabrication`
 :mod:`~pysolver.params.uncertainty`        :class:`Uncertainty`, :class:`ToleranceRun`
 :mod:`~pysolver.params.limits`             :class:`Limits`: bounds of options and inputs

@@ -136,8 +136,6 @@ class Pictures:
 
 PICTURES = Pictures()
 
-__all__ = ["ReportThresholds", "REPORT", "Pictures", "PICTURES"]
-
 
 @dataclass(frozen=True)
 class ScanAgreement:
@@ -179,3 +177,6 @@ class ScanAgreement:
 
 
 SCAN_AGREEMENT = ScanAgreement()
+
+
+__all__ = ["ReportThresholds", "REPORT", "Pictures", "PICTURES", "ScanAgreement", "SCAN_AGREEMENT"]

@@ -319,7 +319,7 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
 
 def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
                         min_span: float = 0.0) -> dict:
-    """Where the achievable times lie, and the order-preserving rescaling that clamps least.
+    """Where the achievable times lie, and the order-preserving rescaling to suggest.
 
     Parameters
     ----------
@@ -331,7 +331,7 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
         Grid of the candidate ends a, b.
     min_span : float, s
         Smallest width b - a of a suggested map (:func:`sequenced_span`); when no map of
-        that width fits in [0, t_limit], the widest of the fewest-clamping maps is taken.
+        that width fits in [0, t_limit], any width is allowed.
 
     Returns
     -------
@@ -340,9 +340,7 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
         ``latest`` s; ``best_constant`` (time s, fraction of cells that can reach it);
         ``suggested_map`` {``t0``, ``t1``, ``a``, ``b``, ``fraction_clamped``,
         ``min_span_s``}: mapping the landscape's [t0, t1] linearly onto [a, b] s
-        (a + min_span <= b, order kept) is the widest that clamps at most
-        ``Programming.fit_clamped_fraction`` of the cells, else the one clamping fewest
-        (ties: the widest).
+        (a + min_span <= b, order kept) as :func:`_order_keeping_map` chooses it.
     """
     fin = np.isfinite(t_lo)
     out: dict = {"common": None, "earliest": None, "latest": None, "best_constant": None,
@@ -362,25 +360,34 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
     t0, t1 = float(np.min(t_star)), float(np.max(t_star))
     u = (t_star - t0) / (t1 - t0) if t1 > t0 else np.zeros_like(t_star)
     span = float(min_span) if t1 > t0 and grid[-1] >= min_span else 0.0
-    best = None
+    maps = []  # (a, b, fraction clamped) of every map on the grid
     for a in grid:
         bs = grid[grid >= a + span - TOL.time]
         if not len(bs):
             break
         tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
         bad = ((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
-        # maps clamping no more than the allowance are equal: the widest of them keeps most
-        # of the order the landscape asks for
-        bad = np.round(np.maximum(bad, PROGRAMMING.fit_clamped_fraction), 9)
-        j = np.lexsort((-(bs - a), bad))[0]
-        key = (float(bad[j]), -float(bs[j] - a))
-        if best is None or key < best[0]:
-            best = (key, float(a), float(bs[j]))
-    tt = best[1] + u * (best[2] - best[1])
-    clamped = float(np.mean((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)))
-    out["suggested_map"] = {"t0": t0, "t1": t1, "a": best[1], "b": best[2],
-                            "fraction_clamped": round(clamped, 9), "min_span_s": span}
+        maps.append(np.c_[np.full(len(bs), a), bs, np.round(bad, 9)])
+    a, b, clamped = _order_keeping_map(np.vstack(maps))
+    out["suggested_map"] = {"t0": t0, "t1": t1, "a": a, "b": b,
+                            "fraction_clamped": clamped, "min_span_s": span}
     return out
+
+
+def _order_keeping_map(maps):
+    """The map ``[a, b]`` to take among ``maps`` ((k, 3): a s, b s, fraction clamped): the
+    widest that clamps at most ``Programming.fit_clamped_fraction``, then, among the maps at
+    least ``fit_width_fraction`` as wide, the one clamping fewest (ties: the widest, then the
+    earliest); when every map clamps more, the one clamping fewest (ties: the widest)."""
+    a, b, bad = maps.T
+    width = b - a
+    ok = bad <= PROGRAMMING.fit_clamped_fraction + TOL.exact
+    if ok.any():
+        ok &= width >= PROGRAMMING.fit_width_fraction * width[ok].max() - TOL.time
+    else:
+        ok = bad <= bad.min() + TOL.exact
+    i = np.flatnonzero(ok)[np.lexsort((a[ok], -width[ok], bad[ok]))[0]]
+    return float(a[i]), float(b[i]), float(bad[i])
 
 
 def sequenced_span(design_dir) -> float:

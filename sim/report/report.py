@@ -32,7 +32,7 @@ import numpy as np
 
 from pysolver.atomic import atomic_dir
 from pysolver.errors import InputError
-from pysolver.params import PICTURES, SCAN_AGREEMENT, ReportThresholds
+from pysolver.params import PHYSICS_DEFAULT, PICTURES, SCAN_AGREEMENT, ReportThresholds
 from pysolver.progress import Steps
 from pysolver.records import finite, json_text
 from pysolver.tables import read_table, tables_sha256
@@ -161,7 +161,11 @@ def _notes(metrics: dict, frames: dict) -> list[str]:
             metrics["physics"] = on
             notes.append("Simulated with physics beyond the reference model: "
                          f"{', '.join(on)} (docs/physics.md).")
-    notes.append(SCAN_AGREEMENT.promise())
+    promise = SCAN_AGREEMENT.promise()
+    if set(metrics.get("physics") or ()) != set(PHYSICS_DEFAULT.switched_on()):
+        promise += (" That was measured with the default physics, not with the physics of "
+                    "this simulation.")
+    notes.append(promise)
     return notes
 
 
