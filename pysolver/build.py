@@ -169,6 +169,11 @@ def check_build_options(options: BuildOptions) -> None:
         requested and OpenSCAD is missing.
     """
     o = options
+    if o.thickness_file is not None:  # (the program stage would overwrite them, unrecorded)
+        raise InputError("a build programs the bracket thicknesses itself: thickness_file is "
+                         "an option of the design stage only",
+                         fix="morphshell design MESH --stencil --thickness-file FILE --out DIR, "
+                             "then morphshell simulate DIR and morphshell report DIR")
     if o.jobs is not None and (int(o.jobs) != o.jobs or not 1 <= o.jobs <= LIMITS.max_jobs):
         raise InputError(f"--jobs must be a whole number from 1 to {LIMITS.max_jobs}, got "
                          f"{o.jobs}.",

@@ -376,3 +376,17 @@ def test_stencil_flag_refuses_a_built_in_shape(tmp_path, capsys):
     rc, err = _cli(["design", "petal", "--stencil", "--out", str(tmp_path / "c")], capsys)
     assert rc == 2 and "built-in shape" in err, err
     assert not (tmp_path / "c").exists()
+
+
+def test_a_build_refuses_a_thickness_file_before_any_work(tmp_path):
+    """The program stage would overwrite the file's thicknesses (and the output claim does
+    not hash it): a build refuses it, naming the design-stage route, and writes nothing."""
+    from pysolver.build import build
+    from pysolver.errors import InputError
+
+    tf = tmp_path / "cells.csv"
+    tf.write_text("cell,thickness_plus_normal_mm\n")
+    with pytest.raises(InputError) as e:
+        build("regular", out=tmp_path / "b", thickness_file=tf, render=False, progress=False)
+    assert "design stage only" in e.value.problem and "--thickness-file" in e.value.fix
+    assert not (tmp_path / "b").exists()
