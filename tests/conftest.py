@@ -7,11 +7,21 @@ bounded below by the longest file and by half the total, so the longest files go
 lists them, longest first (measured with ``pytest -n 2 --dist loadfile --durations=0``,
 summed per file); the others keep pytest's order.  A stale list only costs balance, never
 a test.
+
+Each worker is one process on one core: numpy's OpenBLAS runs single-threaded in the test
+session (``OPENBLAS_NUM_THREADS=1`` unless set; the workers and the subprocesses the tests
+start inherit it).  Its default, one thread per core, spins two threads per worker on a
+2-core machine: a design (``dome:size=0.7``) measured 49 s of CPU against 26 s with one
+thread, the same figures.  That the thread count changes no result is itself tested
+(``tests/test_stability.py`` designs with 1 and 2 BLAS threads, set explicitly).
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 LONGEST = (
     "test_stability.py",

@@ -30,7 +30,9 @@ def _nonmanifold_edges(m: trimesh.Trimesh) -> int:
     return int((counts != 2).sum())
 
 
-@pytest.mark.parametrize("name", list(surfaces.BUILTIN))
+# (in the reverse of tests/test_surfaces.py's order: run side by side on two workers, the two
+# files design different shapes first and meet in the middle, rather than one waiting)
+@pytest.mark.parametrize("name", list(surfaces.BUILTIN)[::-1])
 def test_builtin_shape_stls_are_watertight(name, tmp_path, tmp_path_factory):
     out = tmp_path / name
     shutil.copytree(designed(name, tmp_path_factory), out)
