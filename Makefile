@@ -128,7 +128,7 @@ specimens: $(STAMP)
 	@$(RUN) $(PY) -m pysolver.cli specimens $${MS_JOBS:+--jobs "$$MS_JOBS"}
 
 test: $(STAMP)
-	@$(RUN) $(PY) -m pytest -q -n 2 --dist loadfile $$MS_ARGS
+	@$(RUN) $(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder $$MS_ARGS
 
 bench: $(STAMP)
 	@$(RUN) $(PY) bench/run.py $$MS_ARGS

@@ -103,7 +103,8 @@ def designed(shape: str, tmp_path_factory) -> Path:
     root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "designed"
     root.mkdir(parents=True, exist_ok=True)
     out = root / shape.replace(":", "_").replace("=", "-").replace(",", "_")
-    with open(root / ".lock", "w") as lock:
+    # one lock per shape: two workers wanting two shapes design them side by side
+    with open(root / f".{out.name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (out / "design.json").is_file():
             run_design(shape, out, progress=False, plots=False)

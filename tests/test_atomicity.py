@@ -83,11 +83,14 @@ def test_kill_during_render_keeps_the_previous_complete_build(tmp_path):
     out = tmp_path / "build" / SMALL
     before = _snapshot(out)
     assert "summary.json" in before and "cells.csv" in before
-    _kill_when(["build", SMALL, "--no-program", "--no-sim"], tmp_path, f"{SMALL}: render ...")
+    # (the fast renderer: the subject is the folder swap, not the parts' renderer)
+    fast = ["--renderer", "fast"]
+    _kill_when(["build", SMALL, "--no-program", "--no-sim", *fast], tmp_path,
+               f"{SMALL}: render ...")
     assert _snapshot(out) == before                  # the old complete folder, untouched
     assert _visible(tmp_path / "build") == [SMALL]   # no half-written sibling
     # a re-run with the same inputs resumes the staging folder and completes
-    r = _run(["build", SMALL, "--no-program", "--no-sim"], tmp_path)
+    r = _run(["build", SMALL, "--no-program", "--no-sim", *fast], tmp_path)
     assert r.returncode == 0, r.stderr
     assert "resuming the interrupted build" in r.stderr
     after = _snapshot(out)

@@ -1,21 +1,28 @@
 """Every built-in shape renders to watertight STLs (issue: "the STLs are watertight").
 
 Each default built-in shape is designed and programmed (its thicknesses vary per cell and
-layer, as printed), then rendered with the fast renderer (openscad-evaluator; its parts
-agree with Debian OpenSCAD's, ``tests/test_render_fast.py``) including the actuated
-preview.  Every written STL, re-read from its float32 file, must be watertight and a
-volume; each printed layer must be one solid.  (The Debian OpenSCAD renderer takes
-1-3 min per shape on 2 cores: its figures are in the build summaries, not here.)
+layer, as printed) as ``build(name, simulate=False)`` does it, then rendered with the fast
+renderer (openscad-evaluator; its parts agree with Debian OpenSCAD's,
+``tests/test_render_fast.py``) including the actuated preview.  Every written STL, re-read
+from its float32 file, must be watertight and a volume; each printed layer must be one
+solid.  The design is the session's shared one (``_shared.designed``, the same
+``run_design(name)`` whose golden figures ``tests/test_surfaces.py`` checks), programmed
+and rendered here on a copy.  (The Debian OpenSCAD renderer takes 1-3 min per shape on 2
+cores: its figures are in the build summaries, not here.)
 """
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import trimesh
+from _shared import designed
 
-from pysolver.build import build
 from pysolver.design import surfaces
+from pysolver.render import render_design
+from pysolver.temporal import program_design
 
 
 def _nonmanifold_edges(m: trimesh.Trimesh) -> int:
@@ -23,11 +30,15 @@ def _nonmanifold_edges(m: trimesh.Trimesh) -> int:
     return int((counts != 2).sum())
 
 
-@pytest.mark.parametrize("name", list(surfaces.BUILTIN))
-def test_builtin_shape_stls_are_watertight(name, tmp_path):
+# (in the reverse of tests/test_surfaces.py's order: run side by side on two workers, the two
+# files design different shapes first and meet in the middle, rather than one waiting)
+@pytest.mark.parametrize("name", list(surfaces.BUILTIN)[::-1])
+def test_builtin_shape_stls_are_watertight(name, tmp_path, tmp_path_factory):
     out = tmp_path / name
-    build(name, out=out, simulate=False, renderer="fast", progress=False,
-          jobs=1)
+    shutil.copytree(designed(name, tmp_path_factory), out)
+    # the build's program and render stages (pysolver/stage_runs.py), the fast renderer
+    program_design(out, progress=False, picture=False, fit_landscape=True)
+    render_design(out, jobs=1, progress=False, renderer="fast")
     stls = sorted((out / "stl").glob("*.stl"))
     assert {p.stem for p in stls} >= {"top", "bottom", "actuated", "support_frame_top",
                                        "support_frame_bottom", "markers_top", "markers_bottom"}

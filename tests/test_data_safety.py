@@ -164,7 +164,9 @@ def test_other_outputs_are_claimed_too(room, capsys):
 def test_skipped_render_keeps_unchanged_stls_and_says_when_it_drops_them(tmp_path, capsys,
                                                                           monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert main(["--quiet", "build", SHAPE, "--no-sim", "--time", "60"]) == 0
+    # (the fast renderer: the subject is what a skipped render keeps, not the renderer)
+    assert main(["--quiet", "build", SHAPE, "--no-sim", "--time", "60",
+                 "--renderer", "fast"]) == 0
     out = tmp_path / "build" / SHAPE
     stls = {k: v for k, v in _tree(out).items() if k.startswith(("stl/", "scad/"))}
     assert "stl/top.stl" in stls and any(k.startswith("scad/") for k in stls)

@@ -110,9 +110,15 @@ def test_the_local_cluster_is_loopback_tls_and_only_ours():
             assert b"200 OK" not in answer, (port, answer)
 
 
-def test_a_plain_tcp_scheduler_is_warned_about():
+def test_a_plain_tcp_scheduler_is_warned_about(monkeypatch):
+    import distributed
+
     from pysolver.distributed import PlainSchedulerWarning, dask_client
 
+    # nothing listens: the client gives up after its timeout (20 s), 1 s here
+    real = distributed.Client
+    monkeypatch.setattr(distributed, "Client",
+                        lambda address, timeout: real(address, timeout="1s"))
     with socket.socket() as s:                           # a closed port: nothing listens
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

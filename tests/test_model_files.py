@@ -223,7 +223,7 @@ def test_program_refuses_bad_material_file(name, make, patterns, tmp_path, desig
 
 
 @pytest.mark.parametrize("kind", ["folder", "missing", "not-utf8", "device"])
-def test_bad_material_paths(kind, tmp_path, design_dir):
+def test_bad_material_paths(kind, tmp_path, design_dir, capsys, monkeypatch):
     p = Path("/dev/null") if kind == "device" else tmp_path / "model.json"
     rule = {"folder": r"is a folder, not a file\.", "missing": r"does not exist\.",
             "not-utf8": r"is not UTF-8 text", "device": r"is not a regular file"}[kind]
@@ -234,7 +234,7 @@ def test_bad_material_paths(kind, tmp_path, design_dir):
     for args in (["build", "regular", "--out", tmp_path / "out", "--no-render", "--no-sim"],
                  ["program", design_dir],
                  ["simulate", design_dir, "--t-end", "1"]):
-        r = _cli([*args, "--material", p], tmp_path)
+        r = _main([*args, "--material", p], tmp_path, capsys, monkeypatch)
         _assert_refused(r, p, [rule])
         assert not (tmp_path / "out").exists() and not (design_dir / "sim").exists()
 

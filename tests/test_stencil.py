@@ -10,7 +10,7 @@ import autograd.numpy as anp
 import igl
 import numpy as np
 import pytest
-from _shared import shared_file
+from _shared import QUICK_SEARCH, quick_stencil_search, shared_file
 from autograd import grad
 
 from pysolver.design import count_search, remesh, run_design, stencil_opt, surfaces
@@ -206,6 +206,7 @@ def test_size_refusal_names_measured_alternatives():
 def test_design_refuses_a_stencil_off_the_size_asked_for(tmp_path, monkeypatch):
     from pysolver.design import pipeline
 
+    quick_stencil_search(monkeypatch)   # the subject is the refusal, not the optimisation
     real = pipeline.remesh_surface
     seen = []
 
@@ -274,8 +275,9 @@ def test_paper_cover_designs_printable_from_its_target(tmp_path):
         "max_cell_length_mm"]
 
 
-def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path):
+def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path, monkeypatch):
     params = replace(UNIT_CELL, max_cell_length=6.0)  # far below what the dome needs
+    quick_stencil_search(monkeypatch)   # the subject is the refusal, not the optimisation
     with pytest.raises(InputError) as e:
         run_design("dome", tmp_path / "d", params=params, vertices=60, seed=0,
                    progress=False, plots=False)
@@ -395,8 +397,9 @@ def test_constant_landscape_leaves_the_optimisation_as_it_was(dome_domain):
 
 def test_constant_landscape_through_the_search_is_no_landscape():
     # interpolating a constant leaves round-off (1e-14 s) that must not switch the term on
+    # (the optimisation at the smaller budget: its subject is the landscape, not the result)
     s = surfaces.builtin("dome")
-    kw = dict(vertices=50, seed=0, settings=replace(STENCIL, opt_rounds=1))
+    kw = dict(vertices=50, seed=0, settings=replace(STENCIL, **QUICK_SEARCH))
     V0, F0, _ = count_search.remesh_surface(s.V, s.F, **kw)
     V1, F1, _ = count_search.remesh_surface(s.V, s.F, time=np.full(len(s.V), 60.0), **kw)
     assert np.array_equal(F0, F1) and np.array_equal(V0, V1)
@@ -558,9 +561,11 @@ def test_time_graded_stencil_is_finer_where_the_landscape_is_late():
 def test_time_graded_search_falls_back_when_the_grading_is_unprintable():
     s = surfaces.builtin("dome")
     t = np.interp(s.V[:, 2], (s.V[:, 2].min(), s.V[:, 2].max()), (30.0, 80.0))
-    # a grading far too steep for 9.5 mm cells: redone without, and printable
+    # a grading far too steep for 9.5 mm cells: redone without, and printable (the
+    # optimisation at the smaller budget: the subject is the fallback)
     _, _, info = count_search.remesh_surface(s.V, s.F, time=t, user_times=True, seed=0,
-                                       settings=replace(STENCIL, timing_grading=3.0))
+                                       settings=replace(STENCIL, timing_grading=3.0,
+                                                        **QUICK_SEARCH))
     tg = info["timing_grading"]
     assert tg["taken"] is False and tg["grading"] == 3.0
     assert not (tg["max_cell_length_mm"] <= UNIT_CELL.max_cell_length

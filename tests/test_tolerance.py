@@ -1,7 +1,8 @@
 """Tolerance analysis and sweeps on Dask (pysolver.tolerance, pysolver.distributed, pysolver.sweep).
 
-Small on purpose: the regular shell (60 bases, 79 cells), 8 samples simulated to 70 s
-(t* = 60 s), LocalClusters of 1 and 2 single-threaded workers.
+Small on purpose: a 12-base patch of the regular shell (``regular:rows=2,cols=3``, 13 cells;
+what is checked, the same figures whatever the workers, does not depend on the shell's size),
+8 samples simulated to 70 s (t* = 60 s), LocalClusters of 1 and 2 single-threaded workers.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ T_END = 70.0
 SAMPLES = 8
 UNC = dataclasses.replace(UNCERTAINTY, material_sd=0.2)   # explicit: no fit-data reading
 SAME = 1e-9
+SHAPE = "regular:rows=2,cols=3"
+N_BASES, N_CELLS = 12, 13
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +33,7 @@ def design(tmp_path_factory):
     from pysolver.build import build
 
     out = tmp_path_factory.mktemp("tol") / "regular"
-    build("regular", out=out, render=False, simulate=False, refine=0, progress=False)
+    build(SHAPE, out=out, render=False, simulate=False, refine=0, progress=False)
     return out
 
 
@@ -165,7 +168,7 @@ def test_two_workers_give_the_one_worker_figures(design, two_worker_run, tmp_pat
     assert f["completion_sd_s_max"] > 0.1                       # the scatter matters
     assert f["position_sd_mm_max"] > 0.0
     assert 0.0 <= f["p_pass"] <= f["p_not_fail"] <= 1.0
-    assert len(s2["cells"]) == 79 and len(s2["bases"]) == 60
+    assert len(s2["cells"]) == N_CELLS and len(s2["bases"]) == N_BASES
     s1 = _run(design, tmp_path / "one", workers=1)
     assert s1["run"]["workers"] == 1
     _assert_same(s1, s2)
@@ -255,7 +258,7 @@ SPEC = """
 name = "tiny"
 
 [base]
-shape = "regular"
+shape = "regular:rows=2,cols=3"
 refine = 0
 t_end = 70.0
 
@@ -280,7 +283,8 @@ def test_sweep_of_four_variants_writes_its_table(cluster2, tmp_path):
     assert len(rows) == 4 and tuple(rows[0]) == COLUMNS
     assert len({r["variant"] for r in rows}) == 4
     for r in rows:
-        assert r["n_bases"] == "60" and r["n_cells"] == "79" and r["exit_code"] in ("0", "3")
+        assert r["n_bases"] == str(N_BASES) and r["n_cells"] == str(N_CELLS)
+        assert r["exit_code"] in ("0", "3")
         simulated = r["variant"].endswith("simulate-True")
         assert (r["verdict"] in ("PASS", "WARN", "FAIL")) == simulated
         assert (r["shape_rms_pct"] != "") == simulated
