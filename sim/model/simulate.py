@@ -69,8 +69,8 @@ import numpy as np
 from pysolver.atomic import atomic_file, atomic_write_text, remove_file
 from pysolver.errors import InputError, MorphshellError
 from pysolver.geometry import rigid_fit
-from pysolver.material.model import load_bracket_model
 from pysolver.material.bumper import bumper_modulus, dry_bumper_modulus
+from pysolver.material.model import load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics.energies import ShellEnergy, State
 from pysolver.mechanics.model import ShellModel, load_model
@@ -236,7 +236,7 @@ class Simulation:
 
     def update_brackets(self, t: float, dry: bool) -> None:
         """Set rest lengths, force coefficients and contact switches for the solve at t."""
-        md, k = self.model, self.model.consts
+        md = self.model
         eta = 0.0 if dry else self.settings.eta
         coef = np.asarray(self.material.coefficients(md.spring_thickness,
                                                      md.spring_bracket_length, t, eta=eta),
