@@ -22,7 +22,8 @@ Runs after ``bench/bench_printed.py`` (it reads that run's design folder and its
    penalty ``kappa_c`` and the shear-resisting elements ``kappa_s`` scaled, the
    ``bumper-compliance`` option, and the same wet bumper stiffness with one value for every
    spring and with the convex-side layer's bumpers 2x softer or stiffer than the concave
-   side's (what the point-spring contact cannot tell).
+   side's (what the point-spring contact cannot tell), and with the printed ends' contact
+   geometry (face to face on the convex side, far edges on the concave side).
 
 Writes ``<out>/printed_diagnostics.json`` and prints the figures.
 
@@ -224,7 +225,34 @@ def _wet_uniform(convex_ratio):
     return k
 
 
-def compliance(sh: _Shell, design: Path, work: Path) -> dict:
+def _face_and_edge(sh: _Shell, fr_default):
+    """The wet bumpers as the printed ends meet: face to face on the convex side
+    (``E A / (2 L)``), along the far edges on the concave side, where the ends open by the
+    cell's fold angle ``psi``: a wedge pressed by ``x`` at its edge carries
+    ``E w x^2 / (4 psi L)`` per spring (a Winkler layer of depth ``L``), taken at its secant
+    stiffness under the load the closed spring carries in the default run (the point springs
+    are two-sided, so a one-sided quadratic law cannot be given to them), at most the face's.
+    """
+    psi = np.arccos(np.clip(np.einsum("ij,ij->i", sh.normal[sh.cells["base_a"]],
+                                      sh.normal[sh.cells["base_b"]]), -1.0, 1.0))
+
+    def k(model, t):
+        u = model.unit
+        E, H = float(bumper_modulus(t)), u.base_th
+        stub = np.maximum(model.spring_collision - 2.0 * u.base_r * (1.0 - math.cos(u.alpha_rad)),
+                          2.0 * u.min_bumper)
+        Lc = model.spring_collision.reshape(-1, 2, 2).mean(axis=2)
+        convex = np.repeat(Lc >= Lc[:, ::-1], 2, axis=1).reshape(-1)
+        face = E * H * u.base_th / (2.0 * stub)
+        x0 = model.spring_collision - fr_default["bracket_length"][-1].reshape(-1)
+        F0 = np.clip(x0, 0.0, None) * model.consts.kappa_c
+        F0 = np.where(F0 > 0, F0, np.median(F0[F0 > 0]))
+        edge = np.sqrt(F0 * E * u.base_th / (4.0 * np.repeat(psi, 4) * stub))
+        return np.where(convex, face, np.minimum(edge, face))
+    return k
+
+
+def compliance(sh: _Shell, design: Path, work: Path, fr_default) -> dict:
     rows = {}
 
     def run(name, physics, **kw):
@@ -247,6 +275,8 @@ def compliance(sh: _Shell, design: Path, work: Path) -> dict:
     for r in CONVEX_RATIOS:
         run(f"wet_uniform_convex_x{r:g}", "clearance,bumper-compliance",
             contact=_wet_uniform(r))
+    run("wet_face_convex_edge_concave", "clearance,bumper-compliance",
+        contact=_face_and_edge(sh, fr_default))
     return rows
 
 
@@ -274,7 +304,8 @@ def main() -> int:
            "default_deviation_from_target_amplified": deviation_amplified(sh, runs["default"])}
     print(json.dumps(res, indent=1), flush=True)
     if not a.no_sims:
-        res["compliance"] = compliance(sh, base / "design", base / "diagnostics")
+        res["compliance"] = compliance(sh, base / "design", base / "diagnostics",
+                                       runs["default"])
     atomic_write_text(a.out / "printed_diagnostics.json",
                       json.dumps(res, indent=1, sort_keys=True) + "\n")
     return 0
