@@ -61,10 +61,10 @@ from sim.report.scan import plot_error_on_shell, read_points, register  # noqa: 
 SHELLS = ROOT.parent / "shared" / "printed-shells"
 VARIANTS = (
     "none",
-    "clearance", "relaxation", "membrane-temperature", "gravity", "dry-rest", "rim",
-    "bracket-bending", "contact",
+    "clearance", "bumper-compliance", "relaxation", "membrane-temperature", "gravity",
+    "dry-rest", "rim", "bracket-bending", "contact",
     "relaxation,membrane-temperature",
-    "clearance,relaxation", "clearance,membrane-temperature",
+    "clearance,bumper-compliance", "clearance,relaxation", "clearance,membrane-temperature",
     "clearance,relaxation,membrane-temperature", "clearance,gravity", "clearance,dry-rest",
     "clearance,gravity,dry-rest", "clearance,rim", "clearance,bracket-bending",
     "clearance,relaxation,membrane-temperature,gravity,dry-rest",

@@ -134,8 +134,8 @@ OPTIONS = {o.dest: o for o in (
         help="start over, ignore a checkpoint"),
     opt("--physics", default=None, metavar="EFFECTS",
         help="effects beyond the reference simulator, comma-separated: clearance, "
-             "relaxation, membrane-temperature, gravity, dry-rest, rim, contact, "
-             "bracket-bending; 'default' stands for the default set "
+             "bumper-compliance, relaxation, membrane-temperature, gravity, dry-rest, rim, "
+             "contact, bracket-bending; 'default' stands for the default set "
              f"({','.join(PHYSICS_DEFAULT.switched_on()).replace('_', '-')}), 'none' for the "
              "reference model, 'all' for every effect (default: default; docs/physics.md)"),
     opt("--thickness-file", default=None, metavar="FILE",

@@ -413,6 +413,75 @@ def test_dry_rest_keeps_the_shape_it_cooled_in(patch_dir):
     assert np.abs(A2 @ Q.T + t - sim.state.c).max() > 1e-3
 
 
+def test_bumper_modulus_is_the_measured_one():
+    """The committed modulus of the polymer (``BUMPER_MODULUS``) is the one the unit-cell
+    tests give through the V-bracket beam model (rtol 2e-3); the beam model holds on the dry
+    tests (every long cell within a factor 3 of the median, a rigid photopolymer's 2-4 GPa);
+    in water the modulus falls monotonically, each median over at least 5 series."""
+    from pysolver.material.bumper import (
+        bumper_modulus,
+        dry_bumper_modulus,
+        dry_modulus,
+        wet_modulus,
+    )
+    from pysolver.material.measurements import load_measurements
+    from pysolver.params import BUMPER_MODULUS
+
+    meas = load_measurements(MEAS)
+    E_dry = dry_modulus(meas.dry)
+    med = float(np.median(E_dry))
+    assert 2000.0 < med < 4000.0
+    assert np.all((E_dry > med / 3) & (E_dry < 3 * med))
+    assert dry_bumper_modulus() == pytest.approx(med, rel=2e-3)
+    t = np.asarray(BUMPER_MODULUS[0])
+    E, n = wet_modulus(meas, t)
+    assert np.allclose(E, BUMPER_MODULUS[1], rtol=2e-3)
+    assert np.all(n >= 5) and np.all(np.diff(E) < 0)
+    assert np.allclose(bumper_modulus(t), BUMPER_MODULUS[1], rtol=1e-12)
+    assert bumper_modulus(1e4) == pytest.approx(BUMPER_MODULUS[1][-1], rel=1e-12)
+
+
+def test_bumper_compliance_gives_closed_cells_the_wet_bumpers_stiffness(patch_dir):
+    """With ``bumper_compliance`` a spring at its bumpers has half its layer's bumper pair,
+    ``E(t) A / (2 L)`` with ``L = L_c - 2 base_r (1 - cos 37deg)`` (floored at 2 min_bumper);
+    the closed cells carry the same load as with the reference's penalty ``kappa_c`` (within
+    25 %), so their compression scales with the ratio of the stiffnesses (within 25 %); the
+    dry rest keeps that shape (< 1e-4 mm with a negligible weight)."""
+    from pysolver.material.bumper import bumper_modulus
+    from sim.model.physics import bumper_stiffness
+
+    ph = parse_physics("clearance,bumper-compliance,dry-rest", gravity_mm_s2=1e-6)
+    model = load_model(patch_dir, physics=ph)
+    u = model.unit
+    L = model.spring_collision - 2 * u.base_r * (1 - np.cos(np.radians(37.0)))
+    k = bumper_stiffness(model, 20.0)
+    assert np.allclose(k, 20.0 * 4.0 / (2 * np.maximum(L, 2 * u.min_bumper)), rtol=1e-12)
+    runs = {}
+    for name, phys in (("rigid", parse_physics("clearance")), ("soft", ph)):
+        sim = Simulation(load_model(patch_dir, physics=phys), StandInBracketModel(t_soft=10.0),
+                         SimSettings(t_end=60.0, physics=phys))
+        while not sim.done:
+            sim.step()
+        c = sim.contact
+        assert c.mean() > 0.5
+        x = sim.model.spring_collision[c] - sim.spring_lengths()[c]
+        runs[name] = (sim, c, x, sim.energy.spring_coef[c, 0])
+    sim, c, x, kc = runs["soft"]
+    t_last = float(sim.frames["t"][sim.k - 1])  # (the run stops once every cell is still)
+    assert np.allclose(kc, bumper_stiffness(model, float(bumper_modulus(t_last)))[c],
+                       rtol=1e-12)
+    _, c0, x0, k0 = runs["rigid"]
+    assert np.array_equal(c, c0) and np.all(k0 == SIM.kappa_c)
+    assert abs((kc * x).sum() / (k0 * x0).sum() - 1.0) < 0.25  # the same load, so the
+    ratio = (x / x0).mean() / (k0 / kc).mean()                   # compression follows the
+    assert abs(ratio - 1.0) < 0.25                               # bumpers' stiffness
+    A = sim.frames["marker_top"][sim.k - 1]
+    assert sim.dry_rest().converged
+    B = sim.rest_frame["rest_marker_top"]
+    Q, t = _kabsch(B, A)
+    assert np.abs(B @ Q.T + t - A).max() < 1e-4
+
+
 def _kabsch(P, Q):
     pc, qc = P.mean(0), Q.mean(0)
     U, _, Vt = np.linalg.svd((P - pc).T @ (Q - qc))

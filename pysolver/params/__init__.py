@@ -48,6 +48,7 @@ from .material import (
 from .programming import DEFAULT_REFINE, PROGRAMMING, Programming
 from .report import PICTURES, REPORT, SCAN_AGREEMENT, Pictures, ReportThresholds, ScanAgreement
 from .simulation import (
+    BUMPER_MODULUS,
     NEWTON,
     PHYSICS_DEFAULT,
     PHYSICS_OFF,
@@ -77,7 +78,7 @@ __all__ = [
     "Sequencing", "SEQUENCING",
     "Programming", "PROGRAMMING", "DEFAULT_REFINE",
     "SimConstants", "SIM", "NewtonSettings", "NEWTON", "PhysicsOptions", "PHYSICS_OFF",
-    "PHYSICS_DEFAULT", "RELAXATION_PRONY",
+    "PHYSICS_DEFAULT", "RELAXATION_PRONY", "BUMPER_MODULUS",
     "ModelFileRules", "MODEL_FILES", "ModelFits", "MODEL_FITS", "PAPER_BRACKET_HEIGHT_MM",
     "DATA_DIR", "BRACKET_MODEL_FILE", "MEMBRANE_MODEL_FILE",
     "ReportThresholds", "REPORT", "Pictures", "PICTURES", "ScanAgreement", "SCAN_AGREEMENT",

@@ -233,6 +233,15 @@ class PhysicsOptions:
         ~1 N at a tenth of dhat, the scale of the membrane's pull on a cell).
     contact_sides : int
         Sides of the prism that stands for a base disc.
+    bumper_compliance : bool
+        The bumpers of a closed cell are the printed polymer in hot water, not a rigid stop:
+        each bracket spring at its bumpers gets half the axial stiffness of its layer's
+        bumper pair, ``E(t) A / (2 L)`` (``A = base_th^2``, the bumpers' square section;
+        ``L`` = the two bumpers' length beyond the base discs, ``L_c - 2 base_r (1 -
+        cos alpha)``, at least ``2 min_bumper``), with ``E(t)`` the polymer's effective
+        modulus after ``t`` in the water (:data:`BUMPER_MODULUS`, from the unit-cell creep
+        tests) instead of the reference's penalty ``kappa_c``.  The dry rest keeps the
+        bumpers' final force and meets the dry modulus.
     bracket_bending : bool
         Out-of-plane bending of the brackets (the 1 mm x h section): a rotational spring on
         the relative tilt of the two bases of every cell, its stiffness estimated from the
@@ -262,11 +271,12 @@ class PhysicsOptions:
     bracket_bending: bool = False
     clearance: bool = False
     membrane_temperature: bool = False
+    bumper_compliance: bool = False
     water_temp_c: float = 56.0
     lab_temp_c: float = 22.0
 
-    SWITCHES = ("clearance", "relaxation", "membrane_temperature", "gravity", "dry_rest", "rim",
-                "contact", "bracket_bending")
+    SWITCHES = ("clearance", "bumper_compliance", "relaxation", "membrane_temperature",
+                "gravity", "dry_rest", "rim", "contact", "bracket_bending")
     RANGES = {"stretch_to_glue_min": (0.0, 1e5), "glue_to_water_min": (0.0, 1e5),
               "drying_min": (0.0, 1e5), "rim_stretch": (1.0, 10.0),
               "ground_points": (3, 64), "contact_sides": (3, 64),
@@ -306,6 +316,18 @@ Fitted by :func:`pysolver.material.relaxation.fit_relaxation` (NNLS, relaxation 
 half decades, samples weighted by ``1/sqrt(t)``); a test refits it from the CSV."""
 
 
+BUMPER_MODULUS = (
+    (5.0, 10.0, 20.0, 30.0, 45.0, 60.0, 90.0, 120.0),
+    (379.7, 288.4, 161.0, 78.82, 49.04, 31.70, 21.35, 16.32),
+    3095.0,
+)
+"""The printed polymer's effective modulus in 56 C water, for the bumpers of closed cells
+(``PhysicsOptions.bumper_compliance``): ``(t (s) in water, E(t) (MPa), dry E (MPa))``.
+Medians over the unit-cell creep tests read through the V-bracket beam model (long cells,
+loads of 1-2 N, small deflection), and the dry modulus from the long dry cells;
+:mod:`pysolver.material.bumper` derives them and a test recomputes them from the CSVs."""
+
+
 SIM = SimConstants()
 NEWTON = NewtonSettings()
 PHYSICS_OFF = PhysicsOptions()
@@ -317,4 +339,4 @@ fabrication-given parameters.  The table of every option and the reasons are in
 ``docs/physics.md``."""
 
 __all__ = ["SimConstants", "SIM", "NewtonSettings", "NEWTON", "PhysicsOptions", "PHYSICS_OFF",
-           "PHYSICS_DEFAULT", "RELAXATION_PRONY"]
+           "PHYSICS_DEFAULT", "RELAXATION_PRONY", "BUMPER_MODULUS"]

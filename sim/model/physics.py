@@ -320,6 +320,32 @@ __all__ = ["check_physics", "parse_physics", "physics_json", "base_volumes",
 # bracket bending out of plane
 
 
+def bumper_stiffness(model, modulus) -> np.ndarray:
+    """Contact stiffness of every bracket spring at its bumpers, N/mm (``bumper_compliance``).
+
+    A layer's two bumpers of a cell meet end to end: two square prisms (side ``base_th``) in
+    series, of total length ``L`` beyond the two base discs, which the layer's two bracket
+    springs share.  At contact the spring's root-to-root length is ``L_c`` and the bases'
+    centre distance ``L_c + 2 base_r cos alpha``, so ``L = L_c - 2 base_r (1 - cos alpha)``,
+    floored at ``2 min_bumper`` (the design keeps every bumper at least that far out of
+    its disc).  Each spring gets half the pair's ``E A / L``.  The discs add compliance that
+    this leaves out, so the stiffness is an upper bound for the pair.
+
+    Parameters
+    ----------
+    model : ShellModel -- ``spring_collision`` (4c,) mm and ``unit``
+    modulus : float, MPa -- the polymer's (effective) modulus
+
+    Returns
+    -------
+    (4c,) float, N/mm
+    """
+    u = model.unit
+    stub = model.spring_collision - 2.0 * u.base_r * (1.0 - math.cos(u.alpha_rad))
+    stub = np.maximum(stub, 2.0 * u.min_bumper)
+    return float(modulus) * u.base_th ** 2 / (2.0 * stub)
+
+
 def bending_stiffness(model, c1) -> np.ndarray:
     """Out-of-plane bending stiffness of every unit cell (N mm / rad) from the brackets'
     in-plane stiffness.

@@ -8,7 +8,8 @@ previous equilibrium:
 2. Every later step (``t = dt, 2 dt, ..., t_end``) is **wet**: force coefficients at time t
    with plastic scaling ``F(x / (1 - eta))``; rest length ``l = min(l, L0 - eta (L0 - ps))``;
    a spring whose ``ps <= L_c`` is in **bumper contact** for this step: rest ``L_c`` and
-   ``E = kappa_c/2 (L - L_c)^2`` (two-sided, decided from the previous frame).
+   ``E = kappa_c/2 (L - L_c)^2`` (two-sided, decided from the previous frame; with
+   ``bumper_compliance`` the wet bumper pair's stiffness at t instead of ``kappa_c``).
 3. Newton solve (:func:`pysolver.mechanics.solver.newton`, tolerance 1e-6 N), warm-started
    from the linear extrapolation of the last two frames (or the previous equilibrium when it
    still is one).
@@ -68,6 +69,7 @@ import numpy as np
 from pysolver.atomic import atomic_file, atomic_write_text, remove_file
 from pysolver.errors import InputError, MorphshellError
 from pysolver.geometry import rigid_fit
+from pysolver.material.bumper import bumper_modulus, dry_bumper_modulus
 from pysolver.material.model import load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics.energies import ShellEnergy, State
@@ -81,7 +83,14 @@ from pysolver.tables import tables_sha256
 
 from .collisions import completion_times
 from .contact import BaseContact
-from .physics import BracketBending, ExternalTerms, bending_stiffness, check_physics, physics_json
+from .physics import (
+    BracketBending,
+    ExternalTerms,
+    bending_stiffness,
+    bumper_stiffness,
+    check_physics,
+    physics_json,
+)
 
 FRAMES_NAME = "frames.npz"
 CHECKPOINT_NAME = "checkpoint.npz"
@@ -211,6 +220,15 @@ class Simulation:
             self.energy.bending = BracketBending(model)
 
     # -- helpers -------------------------------------------------------------------------------
+    def contact_stiffness(self, t: float) -> np.ndarray:
+        """Stiffness of each bracket spring at its bumpers at ``t`` s in water, N/mm: the
+        reference's penalty ``kappa_c``, or with ``bumper_compliance`` the wet bumper pair's
+        (:func:`sim.model.physics.bumper_stiffness` of the polymer's modulus at ``t``)."""
+        md = self.model
+        if self.settings.physics.bumper_compliance:
+            return bumper_stiffness(md, float(bumper_modulus(t)))
+        return np.full(len(md.spring_collision), md.consts.kappa_c)
+
     def spring_lengths(self, state: State | None = None) -> np.ndarray:
         X, _ = self.energy.positions(self.state if state is None else state)
         sp_ = self.model.spring_points
@@ -218,7 +236,7 @@ class Simulation:
 
     def update_brackets(self, t: float, dry: bool) -> None:
         """Set rest lengths, force coefficients and contact switches for the solve at t."""
-        md, k = self.model, self.model.consts
+        md = self.model
         eta = 0.0 if dry else self.settings.eta
         coef = np.asarray(self.material.coefficients(md.spring_thickness,
                                                      md.spring_bracket_length, t, eta=eta),
@@ -230,7 +248,8 @@ class Simulation:
             self.rest = np.minimum(self.rest, L0 - eta * (L0 - ps))
             self.contact = ps <= md.spring_collision
             self.rest[self.contact] = md.spring_collision[self.contact]
-            coef[self.contact] = (k.kappa_c, 0.0, 0.0, 0.0)
+            coef[self.contact] = 0.0
+            coef[self.contact, 0] = self.contact_stiffness(t)[self.contact]
         self.energy.spring_rest = self.rest
         self.energy.spring_coef = coef
         ph = self.settings.physics
@@ -483,8 +502,15 @@ class Simulation:
 
             self.energy.bending.k = bending_stiffness(md, coef[:, 0])
         rest = L + frozen_rest_lengths(coef, f_end, md.spring_bracket_length)
-        rest[self.contact] = md.spring_collision[self.contact]
-        coef[self.contact] = (k.kappa_c, 0.0, 0.0, 0.0)
+        c = self.contact
+        if ph.bumper_compliance:  # the bumpers cooled under their load, as the brackets
+            kd = bumper_stiffness(md, dry_bumper_modulus())
+            rest[c] = L[c] + f_end[c] / kd[c]
+        else:
+            kd = np.full(len(L), k.kappa_c)
+            rest[c] = md.spring_collision[c]
+        coef[c] = 0.0
+        coef[c, 0] = kd[c]
         self.energy.spring_rest, self.energy.spring_coef = rest, coef
         if ph.relaxation or ph.membrane_temperature:
             t_out = float(self.frames["t"][self.k - 1]) if self.k else 0.0
