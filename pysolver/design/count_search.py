@@ -333,7 +333,7 @@ class CountSearch:
         if self.optimize and not self.hopeless(*before):
             t_P = None if self.time is None else self.dom.interpolate(self.time, P)
             P, opt = optimize_stencil(self.dom, P, F2, self.params, self.settings,
-                                      t_vertex=t_P)
+                                      t_vertex=t_P, rim=self.dom.boundary_polygon(inset))
             self.flat[(n, sd, float(inset))] = (P, t_P)
             self.optimisation[(n, sd, float(inset))] = opt
         return self.dom.lift(P), F2, before
@@ -451,7 +451,7 @@ class CountSearch:
         V2, F2, before = self.meshes[best]
         P, t_P = self.flat[best]
         P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P,
-                                  converge=True)
+                                  converge=True, rim=self.dom.boundary_polygon(best[2]))
         old = self.tried[best]
         Vc = self.dom.lift(P)
         c = self.figures(Vc, F2)
@@ -490,7 +490,7 @@ class CountSearch:
         chosen = self.tried[best]
         P, t_P = self.flat[best]
         P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P, pin=True,
-                                  converge=True)
+                                  converge=True, rim=self.dom.boundary_polygon(best[2]))
         Vp = self.dom.lift(P)
         fig = self.figures(Vp, F2)
         L0 = chosen["max_cell_length_mm"]
