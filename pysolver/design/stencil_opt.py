@@ -336,8 +336,8 @@ class StencilObjective:
                 t_vertex, cells.verts[:, 0], cells.verts[:, 1]), settings.opt_tiny))
             # cells with a base on the rim (temporal programming's ``boundary`` flag instead
             # asks for an end of the shared edge on the rim; they differ on about 1 % of cells)
-            rim = np.any(face_adjacency(F) < 0, axis=1)
-            self.bnd = (rim[self.fa] | rim[self.fb]).astype(float)
+            on_rim = np.any(face_adjacency(F) < 0, axis=1)
+            self.bnd = (on_rim[self.fa] | on_rim[self.fb]).astype(float)
         self.log_cap = np.log(params.max_cell_length - settings.margin)
         self.pin = settings.opt_pin_weight if pin else 0.0
         self.fixed = np.zeros(len(P), dtype=bool)
