@@ -451,7 +451,7 @@ class CountSearch:
         V2, F2, before = self.meshes[best]
         P, t_P = self.flat[best]
         P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P,
-                                  converge=True, rim=self.dom.boundary_polygon(best[2]))
+                                  converge=True)
         old = self.tried[best]
         Vc = self.dom.lift(P)
         c = self.figures(Vc, F2)
@@ -490,7 +490,7 @@ class CountSearch:
         chosen = self.tried[best]
         P, t_P = self.flat[best]
         P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P, pin=True,
-                                  converge=True, rim=self.dom.boundary_polygon(best[2]))
+                                  converge=True)
         Vp = self.dom.lift(P)
         fig = self.figures(Vp, F2)
         L0 = chosen["max_cell_length_mm"]

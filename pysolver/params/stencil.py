@@ -263,7 +263,7 @@ class StencilSearch:
     seeds: int = 2
     count_start: float = 1.5
     count_steps: int = 4
-    count_tolerance: float = 0.05
+    count_tolerance: float = 0.02
     count_secant_min: float = 1e-9
     dense_min_angle_deg: float = 15.0
     dense_min_faces: int = 2000
