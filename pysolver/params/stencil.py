@@ -270,7 +270,7 @@ class StencilSearch:
     remesh_surface_dist: float = 0.05
     candidates: tuple = ()
     margin: float = 0.3
-    opt_pin_weight: float = 100.0
+    opt_pin_weight: float = 10000.0
     polish_tolerance: float = 0.02
     hopeless_log_scale: float = 0.35
     refusal_size_factor: float = 0.8
