@@ -81,6 +81,12 @@ class StencilSearch:
     opt_stiffen : float
         When no point of the step is kept, the round is solved once more with the clearance
         penalty this many times stiffer.
+    opt_slide_rim : bool
+        The rim vertices slide along the curve the CVT put them on
+        (:class:`pysolver.design.stencil_opt.RimCurve`) in each candidate's optimisation.
+        Held, the longest flat cell was a rim cell at every count of the stand's search and
+        moved by up to 1.7 mm between neighbouring counts (``bench/scan_counts.py``; figures
+        in ``docs/results.md``, "The rim slides").
     opt_tiny : float
         Floor of the arguments of the barrier's and penalties' logarithms, and the guard
         added under the square root of the half fold's tangent (finite gradient when flat).
@@ -274,6 +280,7 @@ class StencilSearch:
     candidates: tuple = ()
     margin: float = 0.3
     opt_pin_weight: float = 10000.0
+    opt_slide_rim: bool = True
     polish_tolerance: float = 0.02
     hopeless_log_scale: float = 0.35
     refusal_size_factor: float = 0.8
