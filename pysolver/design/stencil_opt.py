@@ -11,8 +11,8 @@ and the longest flat cell is ``s2 max_c d_c``.  A cell's centroid distance is a 
 distance between the two vertices opposite its edge, so every quantity is a smooth function
 of the stencil vertices away from the max.  :func:`optimize_stencil` minimises that longest
 flat cell over the interior vertex positions in the conformal plane of the dense target (so
-the vertices stay on the target), and over the rim vertices' places along the rim curve, with the three maxima smoothed by log-sum-exp, penalties
-that keep flat corners within 30-90 deg and every base centre clear of its triangle's edges,
+the vertices stay on the target) and the rim vertices' places along the rim curve, with
+the three maxima smoothed by log-sum-exp, penalties that keep flat corners within 30-90 deg and every base centre clear of its triangle's edges,
 and a log barrier that keeps every flat triangle positively oriented.  Given a time
 landscape that varies, a fourth term moves each cell's achievable completion times
 (estimated from its bracket length and compression, :func:`timing_misfit`) toward its
