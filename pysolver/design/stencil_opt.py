@@ -12,8 +12,9 @@ distance between the two vertices opposite its edge, so every quantity is a smoo
 of the stencil vertices away from the max.  :func:`optimize_stencil` minimises that longest
 flat cell over the interior vertex positions in the conformal plane of the dense target (so
 the vertices stay on the target) and the rim vertices' places along the rim curve, with
-the three maxima smoothed by log-sum-exp, penalties that keep flat corners within 30-90 deg and every base centre clear of its triangle's edges,
-and a log barrier that keeps every flat triangle positively oriented.  Given a time
+the three maxima smoothed by log-sum-exp, penalties that keep flat corners within 30-90 deg
+and every base centre clear of its triangle's edges, and a log barrier that keeps every flat
+triangle positively oriented.  Given a time
 landscape that varies, a fourth term moves each cell's achievable completion times
 (estimated from its bracket length and compression, :func:`timing_misfit`) toward its
 requested time: on the paper's cover with its own landscape this clamps 17 % of the cells
