@@ -525,7 +525,7 @@ def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: fl
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
                      settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False,
                      converge: bool = False, rim=None):
-    """Move the interior stencil vertices to shorten the longest flat cell.
+    """Move the stencil vertices (the rim ones along the rim) to shorten the longest flat cell.
 
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
     corner angles outside ``opt_min_angle_deg``-``opt_max_angle_deg`` and on base centres
@@ -558,15 +558,13 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     params : UnitCell
     settings : StencilSearch
     t_vertex : (n,) float, s, optional
-        The time landscape at the stencil vertices (kept fixed while they move).  A
-        constant landscape leaves the term out: temporal programming then picks the
-        constant time most cells can reach, and evening the cells' speeds for it costs
-        more flat length and 3D scaling than it saves (measured on the stand and cover).
+        The time landscape at the stencil vertices (fixed while they move).  A constant one
+        leaves the term out: programming then picks the constant most cells can reach, and
+        evening the cells' speeds for it costs more than it saves (stand and cover).
     pin : bool
         Hold the 3D scaling at 1 and minimise the longest flat cell per unit of scaling.
     rim : (r, 2) float, mm, optional
-        The closed curve the stencil's rim vertices were put on (the CVT's boundary): they
-        slide along it (:class:`RimCurve`); otherwise they stay where they are.
+        The curve the rim vertices lie on: they slide along it (:class:`RimCurve`).
     converge : bool
         Run up to ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS
         iterations each, until a round gains less than ``opt_round_tol`` (the pick of the
