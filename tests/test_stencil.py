@@ -124,6 +124,43 @@ def test_optimisation_shortens_the_longest_cell(dome_domain):
     assert len(bnd) and np.array_equal(Q[bnd], P[bnd])  # the rim stays where it was
 
 
+def test_rim_curve_is_parametrised_by_arc_length():
+    # a 2 x 1 rectangle: arc length 6 mm, corners at 0, 2, 3, 5
+    rim = stencil_opt.RimCurve(np.array([[0, 0], [2, 0], [2, 1], [0, 1.0]]))
+    assert rim.total == pytest.approx(6.0, abs=1e-12)
+    s = np.array([0.5, 2.25, 4.0, 5.5, 6.5])
+    P = rim.point(s)
+    np.testing.assert_allclose(P, [[0.5, 0], [2, 0.25], [1, 1], [0, 0.5], [0.5, 0]],
+                               atol=1e-12)  # periodic: 6.5 is 0.5
+    back, d = rim.project(P + [[0, -0.1], [0.1, 0], [0, 0.1], [-0.1, 0], [0, -0.1]])
+    np.testing.assert_allclose(back, np.mod(s, 6.0), atol=1e-12)
+    np.testing.assert_allclose(d, 0.1, atol=1e-12)
+    np.testing.assert_allclose(rim.tangent(s[:4]), [[1, 0], [0, 1], [-1, 0], [0, -1]],
+                               atol=1e-12)
+    assert rim.shortest(5.5, 0.5) == pytest.approx(1.0)  # across the seam, the short way
+    assert rim.shortest(0.5, 5.5) == pytest.approx(-1.0)
+
+
+def test_rim_vertices_slide_along_their_curve(dome_domain):
+    """Given the curve the CVT put the rim on, the rim vertices slide along it: they stay on
+    it (to 1e-6 mm), some move, and the longest flat cell ends no longer than with the rim
+    held (fixed rim points made each count's longest cell depend on where they fell)."""
+    P, F = dome_domain.stencil(70, seed=0)
+    C = dome_domain.boundary_polygon(0.0)
+    Q0, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
+    Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+                                           rim=C)
+    assert info["rounds"] >= 1
+    bnd = np.asarray(igl.boundary_loop(F))
+    _, d = stencil_opt.RimCurve(C).project(Q[bnd])
+    assert d.max() <= 1e-6
+    assert np.linalg.norm(Q[bnd] - P[bnd], axis=1).max() > 0.1  # mm, in the plane
+    assert np.all(stencil_opt._signed_areas(Q, F) > 0)
+    fixed = count_search.stencil_figures(dome_domain.lift(Q0), F)["max_cell_length_mm"]
+    slid = count_search.stencil_figures(dome_domain.lift(Q), F)["max_cell_length_mm"]
+    assert slid <= fixed + 0.02
+
+
 def test_an_improving_round_is_kept_when_the_step_overshoots_a_soft_penalty():
     """The clearance is a soft penalty: L-BFGS may end beyond its hard limit.  The round is
     then backtracked toward its start (or solved again, stiffer), never thrown away."""

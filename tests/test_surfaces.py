@@ -19,10 +19,10 @@ from pysolver.errors import InputError
 # shapes come from the automatic vertex-count search (nothing tuned per shape)
 GOLDEN = {
     "regular": (60, 7.0),
-    "dome": (120, 8.12),
-    "saddle": (127, 7.73),
-    "petal": (192, 8.77),
-    "spiral": (207, 8.84),
+    "dome": (127, 7.14),
+    "saddle": (131, 8.01),
+    "petal": (192, 8.53),
+    "spiral": (235, 7.14),
     "weave": (255, 5.85),
 }
 

@@ -333,7 +333,9 @@ class CountSearch:
         if self.optimize and not self.hopeless(*before):
             t_P = None if self.time is None else self.dom.interpolate(self.time, P)
             P, opt = optimize_stencil(self.dom, P, F2, self.params, self.settings,
-                                      t_vertex=t_P)
+                                      t_vertex=t_P, rim=(self.dom.boundary_polygon(inset)
+                                                         if self.settings.opt_slide_rim
+                                                         else None))
             self.flat[(n, sd, float(inset))] = (P, t_P)
             self.optimisation[(n, sd, float(inset))] = opt
         return self.dom.lift(P), F2, before

@@ -27,9 +27,11 @@ log-scale 0, :func:`pysolver.design.flatten.cetm`):
    that turns in plane in water and locks with its cells closed at one end) is dropped and
    its two triangles merged, where the merged triangle neither folds nor has an angle under
    ``StencilSearch.flap_min_angle_deg`` (:func:`remove_flaps`).
-5. **Optimisation** (:mod:`pysolver.design.stencil_opt`): the interior vertices move in the plane
-   to minimise the longest flat cell after both scaling rules and, given the time landscape,
-   to suit each cell's speed to its requested time.
+5. **Optimisation** (:mod:`pysolver.design.stencil_opt`): the interior vertices move in the plane,
+   and the rim vertices slide along the curve of step 1
+   (:class:`~pysolver.design.stencil_opt.RimCurve`), to minimise the longest flat cell after
+   both scaling rules and, given the time landscape, to suit each cell's speed to its
+   requested time.
 6. **Lift**: every flat point is mapped to 3D through its dense flat triangle.
 
 Method ``"pymeshlab"`` (pymeshlab's isotropic explicit

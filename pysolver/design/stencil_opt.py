@@ -11,9 +11,10 @@ and the longest flat cell is ``s2 max_c d_c``.  A cell's centroid distance is a 
 distance between the two vertices opposite its edge, so every quantity is a smooth function
 of the stencil vertices away from the max.  :func:`optimize_stencil` minimises that longest
 flat cell over the interior vertex positions in the conformal plane of the dense target (so
-the vertices stay on the target), with the three maxima smoothed by log-sum-exp, penalties
-that keep flat corners within 30-90 deg and every base centre clear of its triangle's edges,
-and a log barrier that keeps every flat triangle positively oriented.  Given a time
+the vertices stay on the target) and the rim vertices' places along the rim curve, with
+the three maxima smoothed by log-sum-exp, penalties that keep flat corners within 30-90 deg
+and every base centre clear of its triangle's edges, and a log barrier that keeps every flat
+triangle positively oriented.  Given a time
 landscape that varies, a fourth term moves each cell's achievable completion times
 (estimated from its bracket length and compression, :func:`timing_misfit`) toward its
 requested time: on the paper's cover with its own landscape this clamps 17 % of the cells
@@ -245,6 +246,61 @@ def timing_misfit(Q, X, F, fa, fb, o1, o2, boundary, log_t_star, log_s3, log_s2,
     return anp.mean(early**2 + late**2)
 
 
+class RimCurve:
+    """A closed flat curve along which the stencil's rim vertices slide (the boundary the
+    CVT put them on: the target's rim, or the inset curve), by arc length.
+
+    Fixed rim vertices made each candidate's longest cell depend on where its rim points
+    happened to fall: on the stand, the longest flat cell is a rim cell at every count, and
+    moves by 1.7 mm between neighbouring counts.  Sliding keeps them on the curve, so the
+    stencil still covers the same part of the target.
+
+    Parameters
+    ----------
+    C : (r, 2) float, mm
+        The curve, closed (last row = first).
+    """
+
+    def __init__(self, C):
+        C = np.asarray(C, float)
+        if np.linalg.norm(C[-1] - C[0]) > 0:
+            C = np.vstack([C, C[:1]])
+        seg = np.diff(C, axis=0)
+        keep = np.linalg.norm(seg, axis=1) > 0
+        self.A, self.D = C[:-1][keep], seg[keep]          # segment starts and vectors
+        self.len = np.linalg.norm(self.D, axis=1)
+        self.s = np.r_[0.0, np.cumsum(self.len)]          # arc length at segment starts
+        self.total = float(self.s[-1])
+
+    def project(self, P):
+        """Arc length (mm) of the nearest curve point of each of ``P`` (k, 2) and the
+        distance (mm) to it."""
+        P = np.asarray(P, float)
+        w = P[:, None, :] - self.A[None]                  # (k, r, 2)
+        t = np.clip(np.einsum("krj,rj->kr", w, self.D) / self.len**2, 0.0, 1.0)
+        d = np.linalg.norm(w - t[..., None] * self.D[None], axis=2)
+        j = np.argmin(d, axis=1)
+        k = np.arange(len(P))
+        return self.s[j] + t[k, j] * self.len[j], d[k, j]
+
+    def point(self, s):
+        """(k, 2) float, mm: the curve points at arc lengths ``s`` (k,) (periodic)."""
+        s = np.mod(np.asarray(s, float), self.total)
+        j = np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, len(self.len) - 1)
+        return self.A[j] + ((s - self.s[j]) / self.len[j])[:, None] * self.D[j]
+
+    def tangent(self, s):
+        """(k, 2) float: unit tangents at arc lengths ``s``."""
+        s = np.mod(np.asarray(s, float), self.total)
+        j = np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, len(self.len) - 1)
+        return self.D[j] / self.len[j][:, None]
+
+    def shortest(self, s0, s1):
+        """Signed arc length (mm) from ``s0`` to ``s1`` the short way round."""
+        return np.mod(np.asarray(s1) - np.asarray(s0) + self.total / 2, self.total) \
+            - self.total / 2
+
+
 class StencilObjective:
     """The objective of :func:`optimize_stencil` for one stencil: its fixed data and terms.
 
@@ -261,10 +317,13 @@ class StencilObjective:
     settings : StencilSearch
     t_vertex : (n,) float, s, optional
     pin : bool
+    rim : (r, 2) float, mm, optional
+        The closed curve the rim vertices lie on (:class:`RimCurve`); they then slide along
+        it.  Rim vertices off it (an ear's or a flap's removal made them rim) stay fixed.
     """
 
     def __init__(self, domain, P, F, params: UnitCell, settings: StencilSearch,
-                 t_vertex=None, pin: bool = False):
+                 t_vertex=None, pin: bool = False, rim=None):
         self.domain, self.F, self.params, self.settings = domain, F, params, settings
         cells = unit_cells(F, face_adjacency(F))
         self.n_cells = len(cells.faces)
@@ -278,13 +337,21 @@ class StencilObjective:
                 t_vertex, cells.verts[:, 0], cells.verts[:, 1]), settings.opt_tiny))
             # cells with a base on the rim (temporal programming's ``boundary`` flag instead
             # asks for an end of the shared edge on the rim; they differ on about 1 % of cells)
-            rim = np.any(face_adjacency(F) < 0, axis=1)
-            self.bnd = (rim[self.fa] | rim[self.fb]).astype(float)
+            on_rim = np.any(face_adjacency(F) < 0, axis=1)
+            self.bnd = (on_rim[self.fa] | on_rim[self.fb]).astype(float)
         self.log_cap = np.log(params.max_cell_length - settings.margin)
         self.pin = settings.opt_pin_weight if pin else 0.0
         self.fixed = np.zeros(len(P), dtype=bool)
         self.fixed[igl.boundary_loop(F)] = True
         self.free = np.flatnonzero(~self.fixed)
+        self.rim, self.slides = None, np.zeros(0, dtype=np.int64)
+        if rim is not None:
+            self.rim = RimCurve(rim)
+            rows = np.flatnonzero(self.fixed)
+            _, d = self.rim.project(P[rows])
+            self.slides = rows[d <= TOL.merge]
+            if not len(self.slides):
+                self.rim = None
         # Q = concat(free rows, fixed rows)[perm]: indexing keeps autograd's tape simple
         order = np.r_[self.free, np.flatnonzero(self.fixed)]
         self.perm = np.empty(len(P), dtype=np.int64)
@@ -350,10 +417,18 @@ class StencilObjective:
         penalties and the orientation barrier."""
         st, F = self.settings, self.F
         X0, J = self.domain.lift(P0), self.domain.lift_jacobian(P0)
-        Pfix = P0[self.fixed]
+        Pfix, k2 = P0[self.fixed], 2 * len(self.free)
+        T = np.zeros_like(Pfix)  # rim tangents of the sliding rows (0: fixed)
+        if self.rim is not None:
+            T[np.searchsorted(np.flatnonzero(self.fixed), self.slides)] = self.rim.tangent(
+                self.rim.project(P0[self.slides])[0])
 
         def objective(x):
-            Q = anp.concatenate([anp.reshape(x, (-1, 2)), Pfix])[self.perm]
+            if self.rim is not None:
+                Qfix = Pfix + T * anp.reshape(x[k2:], (-1, 1))
+                Q = anp.concatenate([anp.reshape(x[:k2], (-1, 2)), Qfix])[self.perm]
+            else:
+                Q = anp.concatenate([anp.reshape(x, (-1, 2)), Pfix])[self.perm]
             X = X0 + anp.einsum("nij,nj->ni", J, Q - P0)
             A = _signed_areas(Q, F) / self.A0
             log_s3, log_s2, log_d = self._logs(Q, X, st.opt_sharpness)
@@ -376,11 +451,32 @@ class StencilObjective:
             return float(f), np.asarray(g, dtype=float)
         return fun
 
+    def start(self, P):
+        """The variables of :meth:`linearised` at ``P``: the free vertices' coordinates, and
+        (sliding) every fixed vertex's arc-length step along the rim, 0."""
+        x = P[self.free].ravel()
+        return x if self.rim is None else np.r_[x, np.zeros(int(self.fixed.sum()))]
+
     def embed(self, P0, x):
-        """(n, 2) float: ``P0`` with its free vertices at ``x``."""
+        """(n, 2) float: ``P0`` with its free vertices at ``x`` and its sliding rim
+        vertices moved along the rim by the arc lengths ``x`` gives them."""
         P = P0.copy()
-        P[self.free] = np.reshape(x, (-1, 2))
+        k2 = 2 * len(self.free)
+        P[self.free] = np.reshape(x[:k2], (-1, 2))
+        if self.rim is not None:
+            ds = np.asarray(x[k2:])[np.searchsorted(np.flatnonzero(self.fixed), self.slides)]
+            P[self.slides] = self.rim.point(self.rim.project(P0[self.slides])[0] + ds)
         return P
+
+    def along(self, P0, Pn, a: float):
+        """(n, 2) float: the point ``a`` of the way from ``P0`` to ``Pn`` (straight for the
+        free vertices, along the rim for the sliding ones)."""
+        Q = P0 + a * (Pn - P0)
+        if self.rim is not None:
+            s0 = self.rim.project(P0[self.slides])[0]
+            sn = self.rim.project(Pn[self.slides])[0]
+            Q[self.slides] = self.rim.point(s0 + a * self.rim.shortest(s0, sn))
+        return Q
 
     def iterations(self) -> int:
         st = self.settings
@@ -411,7 +507,7 @@ def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: fl
     first = None
     for k in range(st.opt_backtracks + 1):
         a = 0.5**k
-        Q = P0 + a * (Pn - P0)
+        Q = problem.along(P0, Pn, a)
         if not np.all(_signed_areas(Q, problem.F) > 0):
             first = first or {"why": "a flat triangle turns over"}
             continue
@@ -428,8 +524,8 @@ def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: fl
 
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
                      settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False,
-                     converge: bool = False):
-    """Move the interior stencil vertices to shorten the longest flat cell.
+                     converge: bool = False, rim=None):
+    """Move the stencil vertices (the rim ones along the rim) to shorten the longest flat cell.
 
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
     corner angles outside ``opt_min_angle_deg``-``opt_max_angle_deg`` and on base centres
@@ -462,12 +558,13 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     params : UnitCell
     settings : StencilSearch
     t_vertex : (n,) float, s, optional
-        The time landscape at the stencil vertices (kept fixed while they move).  A
-        constant landscape leaves the term out: temporal programming then picks the
-        constant time most cells can reach, and evening the cells' speeds for it costs
-        more flat length and 3D scaling than it saves (measured on the stand and cover).
+        The time landscape at the stencil vertices (fixed while they move).  A constant one
+        leaves the term out: programming then picks the constant most cells can reach, and
+        evening the cells' speeds for it costs more than it saves (stand and cover).
     pin : bool
         Hold the 3D scaling at 1 and minimise the longest flat cell per unit of scaling.
+    rim : (r, 2) float, mm, optional
+        The curve the rim vertices lie on: they slide along it (:class:`RimCurve`).
     converge : bool
         Run up to ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS
         iterations each, until a round gains less than ``opt_round_tol`` (the pick of the
@@ -486,7 +583,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     """
     P = np.array(P, dtype=float)
     F = np.asarray(F, dtype=np.int64)
-    problem = StencilObjective(domain, P, F, params, settings, t_vertex, pin)
+    problem = StencilObjective(domain, P, F, params, settings, t_vertex, pin, rim)
     if problem.n_cells == 0:
         return P, {"rounds": 0, "history": [], "converged": True}
     st = settings
@@ -516,7 +613,7 @@ def _round(problem: StencilObjective, P, current: float, short_now: float, maxit
     rec = {"start": round(current, 6)}
     for stiffened, w in enumerate((st.opt_clearance_weight,
                                    st.opt_clearance_weight * st.opt_stiffen)):
-        res = minimize(problem.linearised(P, w), P[problem.free].ravel(), jac=True,
+        res = minimize(problem.linearised(P, w), problem.start(P), jac=True,
                        method="L-BFGS-B", options={"maxiter": maxiter})
         step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
         rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),

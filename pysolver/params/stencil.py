@@ -81,6 +81,12 @@ class StencilSearch:
     opt_stiffen : float
         When no point of the step is kept, the round is solved once more with the clearance
         penalty this many times stiffer.
+    opt_slide_rim : bool
+        The rim vertices slide along the curve the CVT put them on
+        (:class:`pysolver.design.stencil_opt.RimCurve`) in each candidate's optimisation.
+        Held, the longest flat cell was a rim cell at every count of the stand's search and
+        moved by up to 1.7 mm between neighbouring counts (``bench/scan_counts.py``; figures
+        in ``docs/results.md``, "The rim slides").
     opt_tiny : float
         Floor of the arguments of the barrier's and penalties' logarithms, and the guard
         added under the square root of the half fold's tangent (finite gradient when flat).
@@ -132,7 +138,8 @@ class StencilSearch:
     count_steps : int
         Secant steps of the vertex count toward a 3D scaling of 1.
     count_tolerance : float
-        |log scale3d| under which the secant search stops.
+        |log scale3d| under which the secant search stops (2 %: the pick's polish moves the
+        scaling by a few per cent at most, and a stop at 5 % left petal's at 0.957).
     count_secant_min : float
         Smallest difference of log vertex counts of the last two trials over which the
         secant slope is taken (else the uniform-mesh slope 1/2).
@@ -154,7 +161,9 @@ class StencilSearch:
         stencil is optimised once more for its longest flat cell per unit of scaling
         (:func:`pysolver.design.count_search.remesh_surface`; 0 = no second pass): the count
         search's scaling lands within a few per cent of 1 (its tolerance, and the seeds'
-        noise), this pass brings it within 0.5 % (30 left 1-4 %).
+        noise), this pass brings it within 0.5 % (30 left 1-4 %).  It must outweigh the
+        timing term (of order 10 on petal's landscape): at 100 petal's stencil stayed at
+        0.970, at 1e4 it holds 0.995.
     hopeless_log_scale : float
         A candidate whose stencil, before optimisation, is off the size asked for by more than
         this (|log 3D scaling|, 42 %) is not optimised: the optimisation moves the scaling by
@@ -263,14 +272,15 @@ class StencilSearch:
     seeds: int = 2
     count_start: float = 1.5
     count_steps: int = 4
-    count_tolerance: float = 0.05
+    count_tolerance: float = 0.02
     count_secant_min: float = 1e-9
     dense_min_angle_deg: float = 15.0
     dense_min_faces: int = 2000
     remesh_surface_dist: float = 0.05
     candidates: tuple = ()
     margin: float = 0.3
-    opt_pin_weight: float = 100.0
+    opt_pin_weight: float = 10000.0
+    opt_slide_rim: bool = True
     polish_tolerance: float = 0.02
     hopeless_log_scale: float = 0.35
     refusal_size_factor: float = 0.8
