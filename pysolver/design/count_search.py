@@ -448,7 +448,9 @@ class CountSearch:
     def converge(self, best) -> None:
         """The pick optimised on until its rounds converge (``opt_converge_rounds``,
         ``opt_round_tol``): its figures then no longer depend on where the candidate's
-        rounds stopped.  Updates the candidate's stencil, figures and record in place."""
+        rounds stopped.  Updates the candidate's stencil, figures and record in place.
+        (The rim stays where the candidate's rounds slid it: sliding it on here lowered
+        petal's 3D scaling from 0.982 to 0.954, and the pick was taken for its scaling.)"""
         st = self.settings
         V2, F2, before = self.meshes[best]
         P, t_P = self.flat[best]
