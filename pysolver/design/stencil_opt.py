@@ -412,7 +412,8 @@ class StencilObjective:
                 self.shortfall(Q, float(ex[1])))
 
     def linearised(self, P0, clearance_weight: float):
-        """``fun(x) -> (f, g)`` over the free vertices' coordinates ``x`` (2 k,), with the
+        """``fun(x) -> (f, g)`` over :meth:`start`'s variables ``x`` (the free vertices'
+        coordinates, then with a rim one arc-length step per fixed vertex), with the
         lift linearised at ``P0`` (the Jacobian of the dense piecewise linear map), and the
         penalties and the orientation barrier."""
         st, F = self.settings, self.F
@@ -485,7 +486,7 @@ class StencilObjective:
 
 def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: float):
     """The farthest point from ``P0`` toward ``Pn`` that keeps the hard limits and lowers
-    the exact objective: ``P0 + a (Pn - P0)`` for ``a = 1, 1/2, 1/4, ...``
+    the exact objective: ``problem.along(P0, Pn, a)`` for ``a = 1, 1/2, 1/4, ...``
     (``StencilSearch.opt_backtracks`` halvings).
 
     The hard limits: every flat triangle positively oriented, and no base centre's clearance
@@ -552,7 +553,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     domain : pysolver.design.remesh.FlatDomain
         Dense target and its conformal plane (``lift``, ``lift_jacobian``).
     P : (n, 2) float, mm
-        Stencil vertices in the conformal plane; boundary vertices stay where they are.
+        Stencil vertices in the conformal plane; rim vertices stay (or slide, ``rim``).
     F : (m, 3) int
         Stencil triangles (positively oriented in the plane); the connectivity is kept.
     params : UnitCell
