@@ -354,9 +354,15 @@ class CountSearch:
                                                                    V2)
         return stencil_figures(V2, F2, self.params, time=t2, settings=self.settings)
 
-    def trial(self, n, sd, inset) -> int:
-        """Make and measure candidate ``(n, sd, inset)`` once (later calls reuse it)."""
-        n = max(int(n), 8)
+    def rung(self, n) -> int:
+        """The count of the ladder (``StencilSearch.count_ladder``) nearest ``n``."""
+        q = np.log(self.settings.count_ladder)
+        return max(int(round(np.exp(q * round(np.log(max(float(n), 1.0)) / q)))), 8)
+
+    def trial(self, n, sd, inset, given: bool = False) -> int:
+        """Make and measure candidate ``(n, sd, inset)`` once (later calls reuse it); a
+        searched count (not ``given``) is snapped to the ladder (:meth:`rung`)."""
+        n = max(int(n), 8) if given else self.rung(n)
         key = (n, int(sd), float(inset))
         if key in self.tried:
             return n
@@ -392,7 +398,10 @@ class CountSearch:
             if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > st.count_secant_min:
                 k = float(np.clip((pts[-1][1] - pts[-2][1]) / (pts[-1][0] - pts[-2][0]),
                                   0.25, 1.0))
-            n = self.trial(round(n * s3 ** (-1.0 / k)), sd0, inset)
+            n_next = self.trial(n * s3 ** (-1.0 / k), sd0, inset)
+            if n_next == n:
+                break  # (the step is within half a rung)
+            n = n_next
         return n
 
     def search_inset(self, inset: float, vertices, seeds, start: list) -> None:
@@ -402,7 +411,7 @@ class CountSearch:
         st, limit = self.settings, self.params.max_cell_length
         if vertices is not None:
             for sd in seeds:
-                self.trial(int(vertices), sd, inset)
+                self.trial(int(vertices), sd, inset, given=True)
             return
         n = start[0] = self.secant(inset, start[0], seeds[0])
         for f in st.candidates:

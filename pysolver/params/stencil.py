@@ -137,6 +137,15 @@ class StencilSearch:
         spiral).
     count_steps : int
         Secant steps of the vertex count toward a 3D scaling of 1.
+    count_ladder : float
+        Ratio of neighbouring vertex counts the search may try: every searched count is
+        snapped to a rung ``round(count_ladder ** j)`` of one fixed geometric ladder.  A
+        secant step to a continuous count, rounded to the next integer, moved with the last
+        bits of the scaling it was computed from, and the search's path (and the count
+        picked) with it: peer-saddle at 346 or 364 vertices under a 1e-9 jitter.  On the
+        ladder a perturbation changes the count only when a step lands at the middle
+        between two rungs, and then by one rung: 3 %, the bound issue #28 sets on the
+        vertex count.
     count_tolerance : float
         |log scale3d| under which the secant search stops (2 %: the pick's polish moves the
         scaling by a few per cent at most, and a stop at 5 % left petal's at 0.957).
@@ -272,6 +281,7 @@ class StencilSearch:
     seeds: int = 2
     count_start: float = 1.5
     count_steps: int = 4
+    count_ladder: float = 1.03
     count_tolerance: float = 0.02
     count_secant_min: float = 1e-9
     dense_min_angle_deg: float = 15.0
