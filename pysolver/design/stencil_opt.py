@@ -501,6 +501,15 @@ class StencilObjective:
         x = P[self.free].ravel()
         return x if self.rim is None else np.r_[x, np.zeros(int(self.fixed.sum()))]
 
+    def bounds(self, P):
+        """Box bounds of :meth:`start`'s variables at ``P``: the round's trust region,
+        ``opt_trust`` times the median flat edge around ``P`` (the rim steps from 0)."""
+        E = igl.edges(self.F)
+        r = self.settings.opt_trust * float(np.median(np.linalg.norm(P[E[:, 0]] - P[E[:, 1]],
+                                                                     axis=1)))
+        x = self.start(P)
+        return np.c_[x - r, x + r]
+
     def embed(self, P0, x):
         """(n, 2) float: ``P0`` with its free vertices at ``x`` and its sliding rim
         vertices moved along the rim by the arc lengths ``x`` gives them."""
@@ -649,7 +658,8 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
 
 def _round(problem: StencilObjective, P, current: float, short_now: float, maxiter: int):
-    """One outer round: L-BFGS on the lift linearised at ``P``, the step checked on the exact
+    """One outer round: L-BFGS within the round's trust region (:meth:`StencilObjective.bounds`)
+    on the lift linearised at ``P``, the step checked on the exact
     lift (:func:`accept_step`), once more with the clearance penalty ``opt_stiffen`` times
     stiffer when no point of it is kept.  Returns the round's record, the step and the point
     kept (None when none is)."""
@@ -658,7 +668,8 @@ def _round(problem: StencilObjective, P, current: float, short_now: float, maxit
     for stiffened, w in enumerate((st.opt_clearance_weight,
                                    st.opt_clearance_weight * st.opt_stiffen)):
         res = minimize(problem.linearised(P, w), problem.start(P), jac=True,
-                       method="L-BFGS-B", options={"maxiter": maxiter})
+                       method="L-BFGS-B", bounds=problem.bounds(P),
+                       options={"maxiter": maxiter})
         step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
         rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),
                    stiffened=bool(stiffened), **_rounded(step))
