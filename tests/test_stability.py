@@ -22,7 +22,6 @@ from hypothesis import strategies as st
 
 from pysolver.design import run_design, surfaces
 from pysolver.errors import InputError
-from pysolver.params import STENCIL
 
 REPO = Path(__file__).resolve().parent.parent
 SHAPE = "dome:size=0.7"
@@ -41,13 +40,13 @@ def figures(source, out) -> dict:
             "max_cell_mm": s["cell_length_mm"]["max"]}
 
 
-def assert_same(a: dict, b: dict, cell_atol_mm: float = CELL_ATOL_MM) -> None:
+def assert_same(a: dict, b: dict) -> None:
     assert a["verdict"] == b["verdict"], (a, b)
     if a["verdict"] == "refused":
         return
     assert abs(a["bases"] - b["bases"]) <= VERTEX_RTOL * a["bases"], (a, b)
     assert abs(a["scale3d"] / b["scale3d"] - 1) <= SCALE_RTOL, (a, b)
-    assert abs(a["max_cell_mm"] - b["max_cell_mm"]) <= cell_atol_mm, (a, b)
+    assert abs(a["max_cell_mm"] - b["max_cell_mm"]) <= CELL_ATOL_MM, (a, b)
 
 
 @pytest.fixture(scope="module")
@@ -63,15 +62,14 @@ def test_reference_design_is_printable_at_size(reference):
 @settings(max_examples=3, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_design_is_stable_under_input_jitter(reference, tmp_path_factory, seed):
-    """Verdict, bases and 3D scaling within the issue's tolerances; the longest flat cell
-    within the count search's margin below the limit (``StencilSearch.margin``, 0.3 mm),
-    the spread that cannot change a verdict: not within the issue's 0.1 mm.  A jitter can
-    send the stencil optimisation into another local minimum of its sharp maximum over the
-    cells (measured: 8.486 mm for most jitters, 8.34 mm for some; issue #28 stays open)."""
+    """Verdict, bases, 3D scaling and longest flat cell within the issue's tolerances.
+    (Before each round of the stencil optimisation had a trust region, a jitter could send
+    it into another local minimum: 8.486 mm for most jitters, 8.34 mm for some.  Measured
+    with it on six jitters: 7.453-7.464 mm.)"""
     s = surfaces.builtin(SHAPE)
     rng = np.random.default_rng(seed)
     s.V = s.V + 1e-9 * np.ptp(s.V, axis=0).max() * rng.standard_normal(s.V.shape)
-    assert_same(reference, figures(s, tmp_path_factory.mktemp("jitter")), STENCIL.margin)
+    assert_same(reference, figures(s, tmp_path_factory.mktemp("jitter")))
 
 
 PROBE = (
