@@ -6,8 +6,9 @@ shell's size.  :func:`remesh_surface` searches N so that the shell keeps the siz
 (3D scaling about 1) with every flat cell printable (``UnitCell.max_cell_length``):
 
 1. **Secant steps** on the 3D scaling (about ``sqrt(N)``) toward 1, from the paper's estimate
-   ``0.38 A / 7^2`` times ``StencilSearch.count_start``; then another seed when the first
-   leaves no margin, then the next rim inset when nothing is printable
+   ``0.38 A / 7^2`` times ``StencilSearch.count_start``, every count on one fixed geometric
+   ladder (``StencilSearch.count_ladder``, :meth:`CountSearch.rung`); then another seed
+   when the first leaves no margin, then the next rim inset when nothing is printable
    (:meth:`CountSearch.secant`).
 2. **The pick** (:func:`_pick`): among candidates that keep the size
    (:func:`at_size`: 3D scaling within ``[min_scale3d, 1 / min_scale3d]``), the one whose

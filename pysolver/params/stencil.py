@@ -108,13 +108,11 @@ class StencilSearch:
         The stencil picked is optimised on, and held at scale 1, for up to
         ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS iterations,
         until a round lowers the exact objective (log units) by less than ``opt_round_tol``
-        (0.1 % of the longest cell).  Stopped after 2 rounds, as the candidates are, it sat
-        where L-BFGS's path through the ill-conditioned objective (a sharp maximum over the
-        cells) happened to end: jitters of 1e-9 of the input moved the longest flat cell of
-        ``dome:size=0.7`` (69 bases) over 8.40-8.52 mm; with these rounds most jitters give
-        8.486-8.487 mm.  Not all: some end in another local minimum (8.34 mm), also with 400
-        iterations a round and a tolerance of 1e-4, which cost petal's design 26 s more
-        (these rounds: 3 s).
+        (0.1 % of the longest cell).  Before each round had a trust region (``opt_trust``),
+        the pick sat where L-BFGS's path happened to end unless it converged: jitters of
+        1e-9 of the input moved the longest flat cell of ``dome:size=0.7`` over 8.34-8.52
+        mm.  With the trust region six jitters give 7.453-7.464 mm; 4 rounds (8 gave
+        petal the same stencil, 8.83 mm, in 5 s more).
     opt_barrier : float
         Weight of the log barrier that keeps flat triangles positively oriented.
     opt_timing_weight : float
