@@ -22,14 +22,12 @@ instead of 22 % (``bench/bench_design_cover.py``).  The target positions are the
 lift of the flat points, linearised per vertex (the Jacobian of the dense piecewise linear
 map) inside each of a few outer rounds and lifted again after each.
 
-Gradients are taken by :mod:`autograd` (reverse mode over numpy) rather than by hand: the
-objective chains normals, half fold angles and three smoothed maxima, and a hand-written
-gradient of that chain would be a second place for the layout rules to drift.  autograd's
-cost is per operation, not per cell (about 20 us each way), so the objective computes the
-cells' geometry and the flat triangles' edges once per evaluation and derives every term
-from them: about 190 operations, 4.7 ms on petal's 132-vertex stencil (10 ms when each
-term recomputed its own geometry).  The rules
-themselves are restated here only in their closed form and checked against
+The functions here state the rules once, autograd-friendly.  The optimiser evaluates them
+with the hand-written forward and reverse passes of :mod:`.objective_grad` (0.7 ms per
+evaluation on petal's 132-vertex stencil; autograd's differentiation of these functions,
+``StencilObjective.linearised(..., autodiff=True)``, took 4.7 ms, its cost being per
+operation), which ``tests/test_stencil.py`` checks against autograd to 1e-9 and against
+finite differences.  The rules themselves are checked against
 :func:`pysolver.design.layout.build_layout` by ``tests/test_stencil.py``.
 """
 
@@ -45,6 +43,7 @@ from scipy.optimize import minimize
 from ..geometry import face_adjacency, unit_cells
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ..params import tol as TOL
+from . import objective_grad as og
 from .time_landscape import cell_target_times
 
 
@@ -453,11 +452,15 @@ class StencilObjective:
         return (float(self.main_terms(a, b, c, ex) + self.timing(g, a, b, ex)),
                 self.shortfall(Q, float(ex[1])))
 
-    def linearised(self, P0, clearance_weight: float):
+    def linearised(self, P0, clearance_weight: float, autodiff: bool = False):
         """``fun(x) -> (f, g)`` over :meth:`start`'s variables ``x`` (the free vertices'
         coordinates, then with a rim one arc-length step per fixed vertex), with the
         lift linearised at ``P0`` (the Jacobian of the dense piecewise linear map), and the
-        penalties and the orientation barrier."""
+        penalties and the orientation barrier.
+
+        The gradient is the hand-written reverse pass of :mod:`.objective_grad`;
+        ``autodiff`` differentiates this module's functions by autograd instead (10 times
+        slower: the check of the hand pass in ``tests/test_stencil.py``)."""
         st, F = self.settings, self.F
         X0, J = self.domain.lift(P0), self.domain.lift_jacobian(P0)
         Pfix, k2 = P0[self.fixed], 2 * len(self.free)
@@ -465,6 +468,8 @@ class StencilObjective:
         if self.rim is not None:
             T[np.searchsorted(np.flatnonzero(self.fixed), self.slides)] = self.rim.tangent(
                 self.rim.project(P0[self.slides])[0])
+        if not autodiff:
+            return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight)
 
         def objective(x):
             if self.rim is not None:
@@ -493,6 +498,70 @@ class StencilObjective:
         def fun(x):
             f, g = fg(x)
             return float(f), np.asarray(g, dtype=float)
+        return fun
+
+    def _by_hand(self, P0, X0, J, Pfix, T, k2: int, clearance_weight: float):
+        """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective_grad`."""
+        st, F, params = self.settings, self.F, self.params
+        fixed_rows = np.flatnonzero(self.fixed)
+
+        def fun(x):
+            Q = np.empty_like(P0)
+            Q[self.free] = np.reshape(x[:k2], (-1, 2))
+            Q[fixed_rows] = Pfix + (T * np.reshape(x[k2:], (-1, 1)) if self.rim is not None
+                                    else 0.0)
+            X = X0 + np.einsum("nij,nj->ni", J, Q - P0)
+            geo = og.CellGeometry(Q, X, F, self.fa, self.fb, self.o1, self.o2, st.opt_tiny)
+            sm = og.Scalings(geo, params, st.opt_sharpness)
+            ex = og.Scalings(geo, params, None)
+            flat = og.FlatTriangles(Q, F)
+            # the objective, term by term, with each term's gradient in the logs
+            g_sm = [0.0, 1.0, 1.0]  # (log s3, log s2, log d), smoothed
+            g_ex = [0.0, 0.0, 0.0]  # exact
+            if self.pin > 0:
+                f = sm.log_s2 + sm.log_d - sm.log_s3 + self.pin * ex.log_s3**2
+                g_sm[0] = -1.0
+                g_ex[0] = 2.0 * self.pin * ex.log_s3
+            else:
+                f = sm.log_s2 + sm.log_d + st.opt_s3_weight * sm.log_s3
+                g_sm[0] = st.opt_s3_weight
+            back_t = None
+            if self.w_t > 0:
+                mis, back_t = og.timing(geo, sm, self.bnd, self.log_ts, params, st)
+                over = max(ex.log_s2 + ex.log_d - self.log_cap, 0.0)
+                f += self.w_t * mis + st.opt_cap_weight * over**2
+                g_ex[1] += 2.0 * st.opt_cap_weight * over
+                g_ex[2] += 2.0 * st.opt_cap_weight * over
+            ang = flat.angles
+            low, high = self.floor - ang, ang - self.cap
+            bad = np.maximum(low, 0.0) + np.maximum(high, 0.0)
+            f += st.opt_angle_weight * np.sum(bad**2)
+            flat.g_angles += 2.0 * st.opt_angle_weight * bad * ((high > 0) * 1.0 - (low > 0))
+            clear = np.maximum(flat.clearance, st.opt_tiny)
+            near = np.maximum(self.log_clear - ex.log_s2 - np.log(clear), 0.0)
+            f += clearance_weight * np.sum(near**2)
+            g_near = 2.0 * clearance_weight * near
+            g_ex[1] -= float(np.sum(g_near))
+            flat.g_clearance -= np.where(flat.clearance > st.opt_tiny, g_near / clear, 0.0)
+            Ar = flat.A / self.A0
+            f -= st.opt_barrier * np.sum(np.log(np.maximum(Ar, st.opt_tiny)))
+            flat.g_A -= np.where(Ar > st.opt_tiny, st.opt_barrier / (Ar * self.A0), 0.0)
+            # backward
+            if back_t is not None:
+                d3, d2 = back_t(self.w_t)
+                g_sm[0] += d3
+                g_sm[1] += d2
+            sm.backward(*g_sm)
+            ex.backward(*g_ex)
+            gX = np.zeros_like(X)
+            gQ = np.zeros_like(Q)
+            geo.backward(gX, gQ)
+            flat.backward(gQ)
+            gQ += np.einsum("nij,ni->nj", J, gX)
+            g = gQ[self.free].ravel()
+            if self.rim is not None:
+                g = np.r_[g, np.sum(gQ[fixed_rows] * T, axis=1)]
+            return float(f), g
         return fun
 
     def start(self, P):
