@@ -44,7 +44,7 @@ def scan(V, F, counts, params, settings, seed: int = 0) -> list:
     inset = search.insets[0]
     rows = []
     for n in counts:
-        search.trial(n, seed, inset)
+        n = search.trial(n, seed, inset, given=True)  # (the count asked for, off the ladder)
         V2, F2, _ = search.meshes[(n, seed, float(inset))]
         UV, _, _ = cetm(V2, F2)
         lay = build_layout(V2, UV, F2, params)

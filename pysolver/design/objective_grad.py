@@ -33,13 +33,13 @@ def _scatter(idx, values, n: int):
 
 def smax(v, sharpness):
     """Log of the smoothed maximum of positive ``v`` (c,) (log-sum-exp of ``sharpness log v``
-    over ``sharpness``; None: the exact maximum) and its gradient (c,) in ``v``."""
+    over ``sharpness``; None: the exact maximum) and its gradient (c,) in ``v`` (at an
+    exact maximum reached by several entries, shared evenly among them, as autograd does)."""
     lv = np.log(v)
     if sharpness is None:
-        k = int(np.argmax(lv))
-        w = np.zeros_like(v)
-        w[k] = 1.0 / v[k]
-        return float(lv[k]), w
+        top = lv.max()
+        at = lv == top
+        return float(top), at / (at.sum() * v)
     z = sharpness * lv
     top = z.max()
     e = np.exp(z - top)
@@ -58,6 +58,12 @@ class CellGeometry:
     F : (m, 3) int
     fa, fb, o1, o2 : (c,) int -- each cell's two bases and the vertices opposite its edge
     tiny : float -- the guard under the tangent's square root
+
+    Attributes
+    ----------
+    cos_t, tan_t : (c,) float -- of each cell's half fold angle on the target
+    D : (c,) float, mm -- target centroid distance; d : (c,) float -- flat, in Q's units
+    g_cos, g_tan, g_D, g_d : (c,) float -- the gradients gathered for :meth:`backward`
     """
 
     def __init__(self, Q, X, F, fa, fb, o1, o2, tiny: float):
@@ -72,7 +78,6 @@ class CellGeometry:
         self.live = (cphi != -0.99) & (cphi != 1.0)  # (the clip passes no gradient at bounds)
         self.cphi = cphi
         self.cos_t = np.sqrt((1.0 + cphi) / 2.0)
-        self.open = 1.0 - cphi > 0.0
         self.tan_t = np.sqrt(np.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + tiny)
         self.dX = X[o1] - X[o2]
         self.Dl = np.sqrt(np.sum(self.dX**2, axis=1))
@@ -91,9 +96,8 @@ class CellGeometry:
         n = len(gX)
         c = self.cphi
         g_c = self.g_cos / (4.0 * self.cos_t)
-        g_c += np.where(self.open, self.g_tan / (2.0 * self.tan_t) * (-2.0 / (1.0 + c) ** 2),
-                        0.0)
-        g_c *= self.live
+        g_c += self.g_tan / (2.0 * self.tan_t) * (-2.0 / (1.0 + c) ** 2)
+        g_c *= self.live  # (cphi < 1 there, so the maximum under the tangent is 1 - cphi)
         g_Nh = (_scatter(self.fa, g_c[:, None] * self.Nh[self.fb], len(self.Nh))
                 + _scatter(self.fb, g_c[:, None] * self.Nh[self.fa], len(self.Nh)))
         g_N = (g_Nh - self.Nh * np.sum(g_Nh * self.Nh, axis=1, keepdims=True)) / self.nn[:, None]
@@ -147,12 +151,19 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
     """The timing misfit (:func:`pysolver.design.stencil_opt.timing_misfit`) at the smoothed
     scalings, and its backward pass.
 
+    Parameters
+    ----------
+    geo : CellGeometry
+    sharp : Scalings -- the smoothed ones
+    boundary : (c,) float -- 1 for cells with a base on the rim
+    log_t_star : (c,) float -- log of each cell's requested time (s)
+
     Returns
     -------
     value : float
     backward : callable ``(g) -> (g_log_s3, g_log_s2)``, adding the rest to ``geo``.
     """
-    s2, s3 = np.exp(sharp.log_s2), np.exp(sharp.log_s3)
+    s2, s3 = np.exp(sharp.log_s2), sharp.s3
     L = s2 * geo.d
     C = s3 * geo.D / geo.cos_t
     tiny = settings.opt_tiny
@@ -186,7 +197,16 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
 class FlatTriangles:
     """Signed areas, squared edge lengths, corner cosines and angles and centre clearances
     of the flat triangles (:func:`pysolver.design.stencil_opt._flat_triangles`), with the
-    backward pass into the flat positions."""
+    backward pass into the flat positions.
+
+    Attributes
+    ----------
+    A : (m,) float -- signed areas, in Q's units squared
+    L2 : (m, 3) float -- squared length of edge k (corner k to k + 1)
+    angles : (m, 3) float, rad -- corner angles
+    clearance : (m, 3) float -- centroid to edge k, in Q's units
+    g_A, g_angles, g_clearance -- the gradients gathered for :meth:`backward`
+    """
 
     def __init__(self, Q, F):
         self.F, self.n = F, len(Q)
@@ -203,7 +223,6 @@ class FlatTriangles:
         self.sqL = np.sqrt(self.L2)
         self.clearance = 2.0 * self.A[:, None] / (3.0 * self.sqL)
         self.g_A = np.zeros_like(self.A)
-        self.g_L2 = np.zeros_like(self.L2)
         self.g_angles = np.zeros_like(self.L2)
         self.g_clearance = np.zeros_like(self.L2)
 
@@ -211,7 +230,7 @@ class FlatTriangles:
         """Add the gradients gathered in ``g_A``, ``g_angles``, ``g_clearance`` to ``gQ``."""
         E = self.E
         g_A = self.g_A + np.sum(self.g_clearance * 2.0 / (3.0 * self.sqL), axis=1)
-        g_L2 = self.g_L2 - self.g_clearance * self.clearance / (2.0 * self.L2)
+        g_L2 = -self.g_clearance * self.clearance / (2.0 * self.L2)
         inside = (self.cc != -1.0 + TOL.exact) & (self.cc != 1.0 - TOL.exact)
         g_cos = np.where(inside, -self.g_angles / np.sqrt(1.0 - self.cc**2), 0.0)
         g_dot = g_cos / self.den

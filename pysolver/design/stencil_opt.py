@@ -129,7 +129,7 @@ def flat_corner_angles(Q, F):
     return _corner_angles(_flat_triangles(Q, F)[2])
 
 
-def _cell_geometry(Q, X, F, fa, fb, o1, o2):
+def _cell_geometry(Q, X, F, fa, fb, o1, o2, tiny: float = STENCIL.opt_tiny):
     """Per-cell half-fold cosine and tangent, target and flat centroid distances
     (autograd-friendly).
 
@@ -147,7 +147,7 @@ def _cell_geometry(Q, X, F, fa, fb, o1, o2):
     # (the layout refuses folds over 178 deg; -0.99 keeps tan finite before that)
     cphi = anp.clip(anp.sum(N[fa] * N[fb], axis=1), -0.99, 1.0)
     cos_t = anp.sqrt((1.0 + cphi) / 2.0)
-    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + STENCIL.opt_tiny)
+    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + tiny)
     D = anp.sqrt(anp.sum((X[o1] - X[o2]) ** 2, axis=1)) / 3.0
     d = anp.sqrt(anp.sum((Q[o1] - Q[o2]) ** 2, axis=1)) / 3.0
     return cos_t, tan_t, D, d
@@ -410,7 +410,8 @@ class StencilObjective:
                                     log_s2 + np.log(_np(centroid_edge_distances(P, F))))
 
     def _geometry(self, Q, X):
-        return _cell_geometry(Q, X, self.F, self.fa, self.fb, self.o1, self.o2)
+        return _cell_geometry(Q, X, self.F, self.fa, self.fb, self.o1, self.o2,
+                              self.settings.opt_tiny)
 
     def _logs(self, geometry, sharpness):
         return _scaling_logs(geometry, self.params, sharpness)
@@ -459,8 +460,8 @@ class StencilObjective:
         penalties and the orientation barrier.
 
         The gradient is the hand-written reverse pass of :mod:`.objective_grad`;
-        ``autodiff`` differentiates this module's functions by autograd instead (10 times
-        slower: the check of the hand pass in ``tests/test_stencil.py``)."""
+        ``autodiff`` differentiates this module's functions by autograd instead (about five
+        times slower: the check of the hand pass in ``tests/test_stencil.py``)."""
         st, F = self.settings, self.F
         X0, J = self.domain.lift(P0), self.domain.lift_jacobian(P0)
         Pfix, k2 = P0[self.fixed], 2 * len(self.free)
