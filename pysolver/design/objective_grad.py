@@ -117,10 +117,13 @@ class Scalings:
     (:func:`pysolver.design.stencil_opt.layout_logs`) from a :class:`CellGeometry`, with
     their backward pass into it."""
 
-    def __init__(self, geo: CellGeometry, params: UnitCell, sharpness):
+    def __init__(self, geo: CellGeometry, params: UnitCell, sharpness, like=None):
         self.geo, self.h = geo, params.layer_h
-        self.K = 2.0 * (params.base_r + params.min_bumper + self.h * geo.tan_t)
-        self.r3 = self.K * geo.cos_t / geo.D
+        if like is None:  # (the per-cell 3D rules; ``like``: Scalings of the same geometry)
+            self.K = 2.0 * (params.base_r + params.min_bumper + self.h * geo.tan_t)
+            self.r3 = self.K * geo.cos_t / geo.D
+        else:
+            self.K, self.r3 = like.K, like.r3
         self.log_s3, self.w3 = smax(self.r3, sharpness)
         self.s3 = np.exp(self.log_s3)
         num = self.s3 * geo.D / (2.0 * geo.cos_t) + self.h * geo.tan_t + params.min_gap / 2.0

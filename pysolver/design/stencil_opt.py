@@ -381,6 +381,7 @@ class StencilObjective:
             self.bnd = (on_rim[self.fa] | on_rim[self.fb]).astype(float)
         self.log_cap = np.log(params.max_cell_length - settings.margin)
         self.pin = settings.opt_pin_weight if pin else 0.0
+        self.edges = igl.edges(F)
         self.fixed = np.zeros(len(P), dtype=bool)
         self.fixed[igl.boundary_loop(F)] = True
         self.free = np.flatnonzero(~self.fixed)
@@ -514,7 +515,7 @@ class StencilObjective:
             X = X0 + np.einsum("nij,nj->ni", J, Q - P0)
             geo = og.CellGeometry(Q, X, F, self.fa, self.fb, self.o1, self.o2, st.opt_tiny)
             sm = og.Scalings(geo, params, st.opt_sharpness)
-            ex = og.Scalings(geo, params, None)
+            ex = og.Scalings(geo, params, None, like=sm)
             flat = og.FlatTriangles(Q, F)
             # the objective, term by term, with each term's gradient in the logs
             g_sm = [0.0, 1.0, 1.0]  # (log s3, log s2, log d), smoothed
@@ -580,7 +581,7 @@ class StencilObjective:
         figures are held by the pin itself, not by where the path ends."""
         if self.pin > 0:
             return None
-        E = igl.edges(self.F)
+        E = self.edges
         r = self.settings.opt_trust * float(np.median(np.linalg.norm(P[E[:, 0]] - P[E[:, 1]],
                                                                      axis=1)))
         x = self.start(P)
