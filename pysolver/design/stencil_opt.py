@@ -572,14 +572,28 @@ class StencilObjective:
         x = P[self.free].ravel()
         return x if self.rim is None else np.r_[x, np.zeros(int(self.fixed.sum()))]
 
+    @property
+    def proximal(self) -> bool:
+        """Whether each round is a converged proximal step (``StencilSearch.opt_prox``):
+        unpinned and without the timing term, the objective is smooth."""
+        return self.pin <= 0 and self.w_t <= 0 and self.settings.opt_prox > 0
+
+    def proximal_weight(self, P) -> float:
+        """Weight (1/mm^2) of the round's proximal term at ``P``: ``opt_prox`` over the
+        square of the median flat edge."""
+        E = self.edges
+        e = float(np.median(np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)))
+        return self.settings.opt_prox / e**2
+
     def bounds(self, P):
         """Box bounds of :meth:`start`'s variables at ``P``: the round's trust region,
         ``opt_trust`` times the median flat edge around ``P`` (the rim steps from 0).
 
         None when pinned: the pin holds the exact 3D scaling, a maximum over the cells,
         and L-BFGS-B stalled at the box with the scaling 3 % off (a hemisphere); the pinned
-        figures are held by the pin itself, not by where the path ends."""
-        if self.pin > 0:
+        figures are held by the pin itself, not by where the path ends.  None for a
+        proximal round (:attr:`proximal`), which its proximal term holds."""
+        if self.pin > 0 or self.proximal:
             return None
         E = self.edges
         r = self.settings.opt_trust * float(np.median(np.linalg.norm(P[E[:, 0]] - P[E[:, 1]],
@@ -735,24 +749,43 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
 
 def _round(problem: StencilObjective, P, current: float, short_now: float, maxiter: int):
-    """One outer round: L-BFGS within the round's trust region (:meth:`StencilObjective.bounds`)
-    on the lift linearised at ``P``, the step checked on the exact
+    """One outer round: L-BFGS on the lift linearised at ``P``, converged with the proximal
+    term (:attr:`StencilObjective.proximal`) or within the round's trust region
+    (:meth:`StencilObjective.bounds`) and iteration budget, the step checked on the exact
     lift (:func:`accept_step`), once more with the clearance penalty ``opt_stiffen`` times
     stiffer when no point of it is kept.  Returns the round's record, the step and the point
     kept (None when none is)."""
     st = problem.settings
     rec = {"start": round(current, 6)}
+    x0 = problem.start(P)
+    options = {"maxiter": maxiter}
+    if problem.proximal:
+        lam = problem.proximal_weight(P)
+        # converged, not stopped by the relative decrease of f (ftol 0): the unique minimum
+        options = {"maxiter": st.opt_prox_iterations, "gtol": st.opt_gtol, "ftol": 0.0,
+                   "maxcor": st.opt_memory}
     for stiffened, w in enumerate((st.opt_clearance_weight,
                                    st.opt_clearance_weight * st.opt_stiffen)):
-        res = minimize(problem.linearised(P, w), problem.start(P), jac=True,
-                       method="L-BFGS-B", bounds=problem.bounds(P),
-                       options={"maxiter": maxiter})
+        fun = problem.linearised(P, w)
+        if problem.proximal:
+            fun = _proximal(fun, x0, lam)
+        res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=problem.bounds(P),
+                       options=options)
         step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
         rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),
                    stiffened=bool(stiffened), **_rounded(step))
         if Q is not None:
             break
     return rec, step, Q
+
+
+def _proximal(fun, x0, lam: float):
+    """``fun`` (value and gradient) plus ``lam |x - x0|^2 / 2``."""
+    def prox(x):
+        f, g = fun(x)
+        d = x - x0
+        return f + 0.5 * lam * float(d @ d), g + lam * d
+    return prox
 
 
 def _rounded(step: dict) -> dict:

@@ -98,6 +98,19 @@ class StencilSearch:
         candidate is kept whole, the objective after 8 rounds is 10.5 (16.0 free), and the
         two conditions agree to 0.1 % in scaling and 0.03 mm in the longest cell.  (0.2:
         a half step again in the first round; 0.05: 12.0 after 8 rounds.)
+    opt_prox, opt_gtol, opt_memory, opt_prox_iterations : float, float, int, int
+        Without a timing term, each unpinned round minimises its linearised objective plus
+        the proximal term ``opt_prox / e^2 |x - x0|^2 / 2`` (``e`` the median flat edge,
+        mm; ``x0`` the round's start) to convergence: until the projected gradient is under
+        ``opt_gtol`` (1/mm), with ``opt_memory`` L-BFGS corrections, at most
+        ``opt_prox_iterations`` iterations.  A round then ends at the unique minimum of a
+        strongly convex problem rather than where an iteration budget stops L-BFGS's path,
+        which 1e-9 of the input or another code path moved: the stand's 283-vertex
+        candidate after two rounds had 3D scaling 1.003 or 0.993 (jitter) and its pick's
+        count moved by a rung; with the proximal rounds the two agree to 2e-5
+        (``bench/bench_stability.py``; figures in ``docs/results.md``).  The trust region
+        (``opt_trust``) and the iteration budgets stay for the timing term, whose estimated
+        ranges are clipped (not smooth): converged rounds stalled on it (petal).
     opt_tiny : float
         Floor of the arguments of the barrier's and penalties' logarithms, and the guard
         added under the square root of the half fold's tangent (finite gradient when flat).
@@ -275,6 +288,10 @@ class StencilSearch:
     opt_backtracks: int = 6
     opt_stiffen: float = 10.0
     opt_trust: float = 0.1
+    opt_prox: float = 0.05
+    opt_gtol: float = 1e-5
+    opt_memory: int = 30
+    opt_prox_iterations: int = 2000
     opt_tiny: float = 1e-30
     opt_rounds: int = 2
     opt_converge_rounds: int = 4
