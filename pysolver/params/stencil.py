@@ -106,11 +106,13 @@ class StencilSearch:
         ``opt_prox_iterations`` iterations.  A round then ends at the unique minimum of a
         strongly convex problem rather than where an iteration budget stops L-BFGS's path,
         which 1e-9 of the input or another code path moved: the stand's 283-vertex
-        candidate after two rounds had 3D scaling 1.003 or 0.993 (jitter) and its pick's
-        count moved by a rung; with the proximal rounds the two agree to 2e-5
-        (``bench/bench_stability.py``; figures in ``docs/results.md``).  The trust region
-        (``opt_trust``) and the iteration budgets stay for the timing term, whose estimated
-        ranges are clipped (not smooth): converged rounds stalled on it (petal).
+        candidate after two rounds had 3D scaling 1.003 or 0.993 (jitter), and the count
+        picked moved by a rung; with the proximal rounds, 1.01366 and 1.01370, and the five
+        such cases of ``bench/bench_stability.py`` are stable (``docs/results.md``).  0.05:
+        0.2 gave 1e-5 but gained less per round; 0.02 took 2-4 times the iterations.  The
+        trust region (``opt_trust``) and the iteration budgets stay for the timing term,
+        whose estimated ranges are clipped (not smooth): converged rounds did not converge
+        on it (petal: thousands of iterations, and the objective left 3 times higher).
     opt_tiny : float
         Floor of the arguments of the barrier's and penalties' logarithms, and the guard
         added under the square root of the half fold's tangent (finite gradient when flat).
