@@ -112,12 +112,14 @@ def designed(shape: str, tmp_path_factory) -> Path:
 
 
 QUICK_SEARCH = {"opt_rounds": 1, "opt_iterations": 30, "opt_timing_iterations": 30,
-                "opt_converge_rounds": 1, "opt_converge_iterations": 30, "opt_pin_weight": 0.0}
-"""A smaller stencil-optimisation budget (one round of 30 L-BFGS iterations, one more for the
-pick, no polish at scale 1) for tests whose subject is not the optimisation (a landscape
-carried onto the stencil, an option recorded): about 10x less time in the design stage
-(24 -> 2 s CPU for a 60-vertex dome with a vertex-property landscape).  The optimisation
-itself is tested at the full budget (the built-in shapes' designs, ``tests/test_stencil.py``)."""
+                "opt_converge_rounds": 1, "opt_converge_iterations": 30, "opt_pin_weight": 0.0,
+                "opt_prox_iterations": 30}
+"""A smaller stencil-optimisation budget (one round of 30 L-BFGS iterations, proximal or
+not, one more for the pick, no polish at scale 1) for tests whose subject is not the
+optimisation (a landscape carried onto the stencil, an option recorded): about 10x less
+time in the design stage (24 -> 2 s CPU for a 60-vertex dome with a vertex-property
+landscape).  The optimisation itself is tested at the full budget (the built-in shapes'
+designs, ``tests/test_stencil.py``)."""
 
 
 def quick_stencil_search(monkeypatch) -> None:

@@ -578,12 +578,21 @@ class StencilObjective:
         unpinned and without the timing term, the objective is smooth."""
         return self.pin <= 0 and self.w_t <= 0 and self.settings.opt_prox > 0
 
-    def proximal_weight(self, P) -> float:
-        """Weight (1/mm^2) of the round's proximal term at ``P``: ``opt_prox`` over the
-        square of the median flat edge."""
+    def median_edge(self, P) -> float:
+        """The median flat edge (mm) of the stencil at flat points ``P`` (n, 2)."""
         E = self.edges
-        e = float(np.median(np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)))
-        return self.settings.opt_prox / e**2
+        return float(np.median(np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)))
+
+    def lbfgs(self, P, maxiter: int):
+        """The round's L-BFGS-B setup at ``P``: ``(options, lam)``; a proximal round
+        (:attr:`proximal`) runs to ``opt_gtol`` (``ftol`` 0: not stopped by a small
+        decrease of the objective) with its proximal weight ``lam`` (1/mm^2, ``opt_prox``
+        over the median flat edge squared), else ``maxiter`` iterations and ``lam`` 0."""
+        st = self.settings
+        if not self.proximal:
+            return {"maxiter": maxiter}, 0.0
+        return ({"maxiter": st.opt_prox_iterations, "gtol": st.opt_gtol, "ftol": 0.0,
+                 "maxcor": st.opt_memory}, st.opt_prox / self.median_edge(P) ** 2)
 
     def bounds(self, P):
         """Box bounds of :meth:`start`'s variables at ``P``: the round's trust region,
@@ -595,9 +604,7 @@ class StencilObjective:
         proximal round (:attr:`proximal`), which its proximal term holds."""
         if self.pin > 0 or self.proximal:
             return None
-        E = self.edges
-        r = self.settings.opt_trust * float(np.median(np.linalg.norm(P[E[:, 0]] - P[E[:, 1]],
-                                                                     axis=1)))
+        r = self.settings.opt_trust * self.median_edge(P)
         x = self.start(P)
         return np.c_[x - r, x + r]
 
@@ -687,7 +694,10 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
     Each outer round runs L-BFGS on the linearised lift and checks it on the exact lift
     (:func:`accept_step`, :func:`_round`): an improving round is never thrown away for a soft
-    penalty's overshoot.  With ``converge`` the rounds go on until one gains less than
+    penalty's overshoot.  Without a timing term and unpinned, a round runs L-BFGS to
+    convergence with a proximal term (``opt_prox``: where it ends does not hang on last
+    bits); otherwise within a trust region (``opt_trust``) for an iteration budget.
+    With ``converge`` the rounds go on until one gains less than
     ``opt_round_tol``, so that where L-BFGS's path through the ill-conditioned objective
     happened to stop does not move the stencil picked.
 
@@ -710,9 +720,10 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     rim : (r, 2) float, mm, optional
         The curve the rim vertices lie on: they slide along it (:class:`RimCurve`).
     converge : bool
-        Run up to ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS
-        iterations each, until a round gains less than ``opt_round_tol`` (the pick of the
-        count search); otherwise ``opt_rounds`` rounds (each candidate).
+        Run up to ``opt_converge_rounds`` rounds (of ``opt_converge_iterations`` L-BFGS
+        iterations each, or proximal ones), until a round gains less than
+        ``opt_round_tol`` (the pick of the count search); otherwise ``opt_rounds`` rounds
+        (each candidate).
 
     Returns
     -------
@@ -721,7 +732,8 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     info : dict
         ``rounds``: outer rounds kept; ``converged``: the last round kept gained less than
         ``opt_round_tol``; ``history``: one record per round tried
-        (``round``, ``start``, ``lbfgs``, ``iterations``, ``stiffened``, and
+        (``round``, ``start``, ``lbfgs``, ``iterations``, ``lbfgs_converged``,
+        ``stiffened``, and
         :func:`accept_step`'s ``kept``, ``step``, ``objective``, ``clearance_shortfall``,
         ``why``).
     """
@@ -758,22 +770,18 @@ def _round(problem: StencilObjective, P, current: float, short_now: float, maxit
     st = problem.settings
     rec = {"start": round(current, 6)}
     x0 = problem.start(P)
-    options = {"maxiter": maxiter}
-    if problem.proximal:
-        lam = problem.proximal_weight(P)
-        # converged, not stopped by the relative decrease of f (ftol 0): the unique minimum
-        options = {"maxiter": st.opt_prox_iterations, "gtol": st.opt_gtol, "ftol": 0.0,
-                   "maxcor": st.opt_memory}
+    options, lam = problem.lbfgs(P, maxiter)
     for stiffened, w in enumerate((st.opt_clearance_weight,
                                    st.opt_clearance_weight * st.opt_stiffen)):
         fun = problem.linearised(P, w)
-        if problem.proximal:
+        if lam > 0:
             fun = _proximal(fun, x0, lam)
         res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=problem.bounds(P),
                        options=options)
         step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
         rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),
-                   stiffened=bool(stiffened), **_rounded(step))
+                   lbfgs_converged=bool(res.status == 0), stiffened=bool(stiffened),
+                   **_rounded(step))
         if Q is not None:
             break
     return rec, step, Q

@@ -100,28 +100,36 @@ class StencilSearch:
         a half step again in the first round; 0.05: 12.0 after 8 rounds.)
     opt_prox, opt_gtol, opt_memory, opt_prox_iterations : float, float, int, int
         Without a timing term, each unpinned round minimises its linearised objective plus
-        the proximal term ``opt_prox / e^2 |x - x0|^2 / 2`` (``e`` the median flat edge,
-        mm; ``x0`` the round's start) to convergence: until the projected gradient is under
-        ``opt_gtol`` (1/mm), with ``opt_memory`` L-BFGS corrections, at most
-        ``opt_prox_iterations`` iterations.  A round then ends at the unique minimum of a
-        strongly convex problem rather than where an iteration budget stops L-BFGS's path,
-        which 1e-9 of the input or another code path moved: the stand's 283-vertex
-        candidate after two rounds had 3D scaling 1.003 or 0.993 (jitter), and the count
-        picked moved by a rung; with the proximal rounds, 1.01366 and 1.01370, and the five
-        such cases of ``bench/bench_stability.py`` are stable (``docs/results.md``).  0.05:
-        0.2 gave 1e-5 but gained less per round; 0.02 took 2-4 times the iterations.  The
-        trust region (``opt_trust``) and the iteration budgets stay for the timing term,
-        whose estimated ranges are clipped (not smooth): converged rounds did not converge
-        on it (petal: thousands of iterations, and the objective left 3 times higher).
+        the proximal term ``opt_prox / e^2 ||x - x0||^2 / 2`` (``e`` the median flat edge,
+        mm; ``x0`` the round's start) until the projected gradient is under ``opt_gtol``
+        (1/mm), with ``opt_memory`` L-BFGS corrections and at most ``opt_prox_iterations``
+        iterations (a guard: the rounds measured took 80-1300).  A round then ends at a
+        minimum, not where an iteration budget stops L-BFGS's path, which 1e-9 of the input
+        or another code path moved: the stand's 283-vertex candidate after two rounds had
+        3D scaling 1.003 or 0.993 (jitter), and the count picked moved by a rung; with the
+        proximal rounds, 1.01366 and 1.01370, and every case without a landscape in
+        ``bench/bench_stability.py`` is stable (``docs/results.md``).  ``opt_prox`` 0.2
+        agreed to 1e-5 but gained less per round; 0.02 took 2-4 times the iterations.  The
+        term barely outweighs the objective's least curvature at the start (so the minimum
+        is not unique in general), and the first round's step is still cut back by
+        :func:`~pysolver.design.stencil_opt.accept_step` where it runs past the
+        linearisation; both were the same under every perturbation measured.
+        ``opt_memory`` 30: 0.8 s per candidate on the peer hemisphere at 176 vertices
+        (1.7 s with scipy's 10).  The trust region (``opt_trust``) and the iteration
+        budgets stay for the timing term: there, converged rounds without the box did not
+        converge (petal: thousands of iterations, the objective left 3 times higher), and
+        with it cost 2-4 s per candidate (``docs/results.md``).
     opt_tiny : float
         Floor of the arguments of the barrier's and penalties' logarithms, and the guard
         added under the square root of the half fold's tangent (finite gradient when flat).
     opt_rounds, opt_iterations : int
         Most outer rounds (re-lifting onto the target) per candidate of the count search,
-        and L-BFGS iterations per round.
+        and L-BFGS iterations per round in the trust region (with a timing term; proximal
+        rounds run to ``opt_gtol``).
     opt_converge_rounds, opt_converge_iterations, opt_round_tol : int, int, float
         The stencil picked is optimised on, and held at scale 1, for up to
-        ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS iterations,
+        ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS iterations
+        (proximal rounds: to ``opt_gtol``),
         until a round lowers the exact objective (log units) by less than ``opt_round_tol``
         (0.1 % of the longest cell).  Before each round had a trust region (``opt_trust``),
         the pick sat where L-BFGS's path happened to end unless it converged: jitters of
