@@ -681,25 +681,19 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
     corner angles outside ``opt_min_angle_deg``-``opt_max_angle_deg`` and on base centres
     nearer than ``opt_centroid_edge_mm`` to their triangle's edges, and a log barrier on flat
-    orientation.  With a time landscape, ``opt_timing_weight`` times the cells' timing
-    misfit (:func:`timing_misfit`) joins it: cells whose speed suits their requested time
-    need fewer clamped thicknesses.
-    Shortening the longest flat cells mostly enlarges the smallest target cells, which lowers
-    the 3D scaling at a given vertex count; the count search of
-    :func:`pysolver.design.count_search.remesh_surface` then restores the size with more vertices.
-    A negative ``opt_s3_weight`` credits that back (the default -0.7: measured figures in
-    :class:`pysolver.params.StencilSearch`).  With ``pin`` the objective is the longest flat
-    cell per unit of 3D scaling, ``log lmax - log s3``, and ``opt_pin_weight (log s3)^2`` (exact
-    s3) holds the shell at its target's size: the count search's last pass.
+    orientation; with a time landscape, ``opt_timing_weight`` times the cells' timing misfit
+    (:func:`timing_misfit`).  Shortening the longest flat cells lowers the 3D scaling at a
+    given vertex count (the count search restores it with more vertices); a negative
+    ``opt_s3_weight`` credits that back (:class:`pysolver.params.StencilSearch`).  With
+    ``pin`` the objective is the longest flat cell per unit of 3D scaling, ``log lmax - log
+    s3``, and ``opt_pin_weight (log s3)^2`` (exact s3) holds the shell at its target's size:
+    the count search's last pass.
 
     Each outer round runs L-BFGS on the linearised lift and checks it on the exact lift
     (:func:`accept_step`, :func:`_round`): an improving round is never thrown away for a soft
     penalty's overshoot.  Without a timing term and unpinned, a round runs L-BFGS to
     convergence with a proximal term (``opt_prox``: where it ends does not hang on last
     bits); otherwise within a trust region (``opt_trust``) for an iteration budget.
-    With ``converge`` the rounds go on until one gains less than
-    ``opt_round_tol``, so that where L-BFGS's path through the ill-conditioned objective
-    happened to stop does not move the stencil picked.
 
     Parameters
     ----------
@@ -722,8 +716,8 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     converge : bool
         Run up to ``opt_converge_rounds`` rounds (of ``opt_converge_iterations`` L-BFGS
         iterations each, or proximal ones), until a round gains less than
-        ``opt_round_tol`` (the pick of the count search); otherwise ``opt_rounds`` rounds
-        (each candidate).
+        ``opt_round_tol`` (the pick of the count search: where L-BFGS's path happened to
+        stop does not move it); otherwise ``opt_rounds`` rounds (each candidate).
 
     Returns
     -------
