@@ -575,7 +575,8 @@ class StencilObjective:
     @property
     def proximal(self) -> bool:
         """Whether each round is a converged proximal step (``StencilSearch.opt_prox``):
-        unpinned and without the timing term, the objective is smooth."""
+        unpinned and without the timing term (whose clipped ranges and exact cap did not
+        converge in such rounds; the pin holds an exact maximum)."""
         return self.pin <= 0 and self.w_t <= 0 and self.settings.opt_prox > 0
 
     def median_edge(self, P) -> float:
@@ -765,13 +766,13 @@ def _round(problem: StencilObjective, P, current: float, short_now: float, maxit
     rec = {"start": round(current, 6)}
     x0 = problem.start(P)
     options, lam = problem.lbfgs(P, maxiter)
+    box = problem.bounds(P)
     for stiffened, w in enumerate((st.opt_clearance_weight,
                                    st.opt_clearance_weight * st.opt_stiffen)):
         fun = problem.linearised(P, w)
         if lam > 0:
             fun = _proximal(fun, x0, lam)
-        res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=problem.bounds(P),
-                       options=options)
+        res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=box, options=options)
         step, Q = accept_step(problem, P, problem.embed(P, res.x), current, short_now)
         rec.update(lbfgs=round(float(res.fun), 6), iterations=int(res.nit),
                    lbfgs_converged=bool(res.status == 0), stiffened=bool(stiffened),
