@@ -221,13 +221,20 @@ def test_an_improving_round_is_kept_when_the_step_overshoots_a_soft_penalty():
     assert r["clearance_shortfall"] <= stiff.opt_clearance_slack
 
 
-def test_proximal_rounds_do_not_hang_on_last_bits():
-    """Without a landscape every round converges, with a proximal term (``opt_prox``), to
-    a minimum rather than to where an iteration budget stops L-BFGS's path: targets
-    jittered by 1e-9 of their size give the same stencil within 0.3 % in 3D scaling (a
-    fifth of the count ladder's spacing) and 0.03 mm in the longest flat cell.  Measured:
-    1.13022-1.13059, 6.866-6.869 mm; with two rounds of 50 iterations in a trust region
-    (``opt_prox=0``), 1.146-1.172 and 7.16-7.41 mm."""
+@pytest.mark.parametrize("landscape, s3_rtol, cell_atol", [(False, 3e-3, 0.03),
+                                                            (True, 3e-4, 3e-3)])
+def test_proximal_rounds_do_not_hang_on_last_bits(landscape, s3_rtol, cell_atol):
+    """Every unpinned round converges, with a proximal term (``opt_prox``), to a minimum
+    rather than to where an iteration budget stops L-BFGS's path, and the objective is
+    smooth where L-BFGS goes (``opt_fold_floor_deg``, ``timing_compression_floor``):
+    targets jittered by 1e-9 of their size give the same stencil, without a landscape or
+    with the dome's own (the timing term's rounds, in their trust region, to
+    ``opt_timing_gtol`` with ``opt_timing_prox``).  Without, within 0.3 % in 3D scaling (a
+    fifth of the count ladder's spacing) and 0.03 mm in the longest flat cell: measured
+    1.130224-1.130595 and 0.003 mm; with the rounds of before (two of 50 iterations in a
+    trust region, ``opt_prox=0``), 1.146-1.172 and 0.25 mm.  With, within 3e-4 and 0.003
+    mm: measured 1.130044-1.130048 and 1e-4 mm; with the rounds of before (budgeted,
+    clearance weight 1000, no smooth floors), 1.12934-1.13031 and 0.009 mm."""
     s = surfaces.builtin("dome:size=0.7")
     figs = []
     for seed in (0, 1, 2):
@@ -235,15 +242,16 @@ def test_proximal_rounds_do_not_hang_on_last_bits():
         V = s.V + jitter * np.random.default_rng(seed).standard_normal(s.V.shape)
         dom = remesh.FlatDomain(V, s.F, STENCIL)
         P, F = dom.stencil(60, seed=0)
-        Q, info = stencil_opt.optimize_stencil(dom, P, F, UNIT_CELL, STENCIL,
+        t = s.time(dom.lift(P)) if landscape else None
+        Q, info = stencil_opt.optimize_stencil(dom, P, F, UNIT_CELL, STENCIL, t_vertex=t,
                                                rim=dom.boundary_polygon(0.0))
         assert info["rounds"] == STENCIL.opt_rounds
-        assert all(h["iterations"] < STENCIL.opt_prox_iterations for h in info["history"])
+        assert all(h["lbfgs_converged"] for h in info["history"])
         figs.append(count_search.stencil_figures(dom.lift(Q), F))
     s3 = [f["scale3d"] for f in figs]
     cell = [f["max_cell_length_mm"] for f in figs]
-    assert max(s3) / min(s3) - 1 <= 3e-3, s3
-    assert max(cell) - min(cell) <= 0.03, cell
+    assert max(s3) / min(s3) - 1 <= s3_rtol, s3
+    assert max(cell) - min(cell) <= cell_atol, cell
 
 
 def test_accept_step_backtracks_to_an_oriented_improving_point(dome_domain):
@@ -478,9 +486,10 @@ def test_optimisation_suits_the_cells_to_the_time_landscape(dome_domain):
     assert info["rounds"] >= 1
     assert misfit(Q1) < 0.7 * misfit(Q0), (misfit(P), misfit(Q0), misfit(Q1))
     assert np.all(stencil_opt._signed_areas(Q1, F) > 0)
-    # the cap: the trade stays printable, under the count search's margin
+    # the cap: the trade stays printable, within 0.1 mm of the count search's margin (the
+    # cap is exact at each round's start and smooth within it; measured 9.27 mm, cap 9.2)
     lay = build_layout(dome_domain.lift(Q1), Q1, F, UNIT_CELL, enforce_gap=False)
-    assert lay.central_length.max() <= UNIT_CELL.max_cell_length - STENCIL.margin + 0.02
+    assert lay.central_length.max() <= UNIT_CELL.max_cell_length - STENCIL.margin + 0.1
 
 
 def test_constant_landscape_leaves_the_optimisation_as_it_was(dome_domain):
@@ -524,8 +533,12 @@ def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
     contact = central - 1.0
     bnd = np.zeros(3)
     lo, hi = stencil_opt.log_time_range(central, contact, bnd, UNIT_CELL, STENCIL)
-    c, a = STENCIL.timing_fastest[:2]
-    assert lo[0] == pytest.approx(c + a * np.log(4.0))         # log x = 0
+    c, a, e = STENCIL.timing_fastest[:3]
+    # log x = 0, but for the compression's smooth floor: x_f log(1 + exp(1 mm / x_f))
+    xf = STENCIL.timing_compression_floor
+    log_x = np.log(xf * np.log1p(np.exp(1.0 / xf)))
+    assert 0 < log_x < 1e-4
+    assert lo[0] == pytest.approx(c + a * np.log(4.0) + e * log_x)
     t_in, t_early, t_late = np.exp(0.5 * (lo[0] + hi[0])), np.exp(lo[0]) / 2, np.exp(hi[0]) * 2
     f = stencil_opt.estimated_clamping(central, contact, bnd, [t_in, t_early, t_late])
     assert f == pytest.approx(2 / 3)

@@ -171,7 +171,9 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
     C = s3 * geo.D / geo.cos_t
     tiny = settings.opt_tiny
     b0_raw, x_raw = L - params.bracket_offset, L - C
-    b0, x = np.maximum(b0_raw, tiny), np.maximum(x_raw, tiny)
+    b0 = np.maximum(b0_raw, tiny)
+    xm = settings.timing_compression_floor
+    x = xm * np.logaddexp(0.0, x_raw / xm)  # (smooth floor: stencil_opt.log_time_range)
     lb0, lx = np.log(b0), np.log(x)
     fast, slow = settings.timing_fastest, settings.timing_slowest
     lo = fast[0] + fast[1] * lb0 + fast[2] * lx + fast[3] * boundary
@@ -186,7 +188,7 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
         g_lo, g_hi = k * early, -k * late
         g_lb0 = fast[1] * g_lo + slow[1] * g_hi
         g_lx = fast[2] * g_lo + slow[2] * g_hi
-        g_x = np.where(x_raw > tiny, g_lx / x, 0.0)
+        g_x = g_lx / x * np.exp(-np.logaddexp(0.0, -x_raw / xm))  # (x's slope: a sigmoid)
         g_L = np.where(b0_raw > tiny, g_lb0 / b0, 0.0) + g_x
         g_C = -g_x
         geo.g_d += g_L * s2

@@ -206,7 +206,8 @@ def log_time_range(central, contact, boundary, params: UnitCell = UNIT_CELL,
     ``log t ~ c + a log b0 + e log x + k [boundary]`` with the coefficients
     ``settings.timing_fastest`` / ``timing_slowest`` (thinnest / thickest bracket); the
     bracket length is ``b0 = central - bracket_offset`` and the compression
-    ``x = central - contact``.
+    ``x = central - contact``, floored smoothly (softplus) at
+    ``settings.timing_compression_floor``.
 
     Parameters
     ----------
@@ -221,7 +222,8 @@ def log_time_range(central, contact, boundary, params: UnitCell = UNIT_CELL,
         Log of the times (s).
     """
     log_b0 = anp.log(anp.maximum(central - params.bracket_offset, settings.opt_tiny))
-    log_x = anp.log(anp.maximum(central - contact, settings.opt_tiny))
+    xm = settings.timing_compression_floor
+    log_x = anp.log(xm * anp.logaddexp(0.0, (central - contact) / xm))
 
     def estimate(m):
         return m[0] + m[1] * log_b0 + m[2] * log_x + m[3] * boundary
@@ -380,6 +382,9 @@ class StencilObjective:
             on_rim = np.any(face_adjacency(F) < 0, axis=1)
             self.bnd = (on_rim[self.fa] | on_rim[self.fb]).astype(float)
         self.log_cap = np.log(params.max_cell_length - settings.margin)
+        # the half fold's tangent floored smoothly (``opt_fold_floor_deg``): at a flat cell
+        # its square root has a kink, whose rounding noise L-BFGS amplified
+        self.fold_floor = np.tan(np.radians(settings.opt_fold_floor_deg) / 2.0) ** 2
         self.pin = settings.opt_pin_weight if pin else 0.0
         self.edges = igl.edges(F)
         self.fixed = np.zeros(len(P), dtype=bool)
@@ -412,7 +417,7 @@ class StencilObjective:
 
     def _geometry(self, Q, X):
         return _cell_geometry(Q, X, self.F, self.fa, self.fb, self.o1, self.o2,
-                              self.settings.opt_tiny)
+                              self.fold_floor)
 
     def _logs(self, geometry, sharpness):
         return _scaling_logs(geometry, self.params, sharpness)
@@ -425,15 +430,17 @@ class StencilObjective:
             return log_s2 + log_d - log_s3 + self.pin * ex[0] ** 2
         return log_s2 + log_d + self.settings.opt_s3_weight * log_s3
 
-    def timing(self, geometry, log_s3, log_s2, ex):
+    def timing(self, geometry, log_s3, log_s2, log_longest):
         """The timing misfit at the smoothed scalings (they over-estimate s2 by 6-7 %, so
         every flat length, which the margin absorbs; at the exact, non-smooth ones L-BFGS
         stalls and the count search lost its footing, measured on cover and dome), and a
-        penalty that keeps the exact longest flat cell ``ex`` under the limit less the
-        search's margin."""
+        penalty that keeps the longest flat cell (log, ``log_longest``) under the limit less
+        the search's margin: the exact one, or within a round the smoothed one less its
+        excess at the round's start (exact there; the exact maximum has a kink wherever two
+        cells tie, at which the cover's first rounds stopped, or not, with the last bits)."""
         if self.w_t <= 0:
             return 0.0
-        over = anp.maximum(ex[1] + ex[2] - self.log_cap, 0.0)
+        over = anp.maximum(log_longest - self.log_cap, 0.0)
         return (self.w_t * _misfit(geometry, self.bnd, self.log_ts, log_s3, log_s2,
                                    self.params, self.settings)
                 + self.settings.opt_cap_weight * over**2)
@@ -451,7 +458,7 @@ class StencilObjective:
         g = self._geometry(Q, self.domain.lift(Q))
         a, b, c = self._logs(g, self.settings.opt_sharpness)
         ex = self._logs(g, None)
-        return (float(self.main_terms(a, b, c, ex) + self.timing(g, a, b, ex)),
+        return (float(self.main_terms(a, b, c, ex) + self.timing(g, a, b, ex[1] + ex[2])),
                 self.shortfall(Q, float(ex[1])))
 
     def linearised(self, P0, clearance_weight: float, autodiff: bool = False):
@@ -470,8 +477,11 @@ class StencilObjective:
         if self.rim is not None:
             T[np.searchsorted(np.flatnonzero(self.fixed), self.slides)] = self.rim.tangent(
                 self.rim.project(P0[self.slides])[0])
+        sm0 = self._logs(self._geometry(P0, X0), st.opt_sharpness)
+        ex0 = self._logs(self._geometry(P0, X0), None)
+        cap_excess = float(sm0[1] + sm0[2] - ex0[1] - ex0[2])  # (see :meth:`timing`)
         if not autodiff:
-            return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight)
+            return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight, cap_excess)
 
         def objective(x):
             if self.rim is not None:
@@ -489,7 +499,7 @@ class StencilObjective:
             near = anp.maximum(self.log_clear - ex[1] - anp.log(anp.maximum(
                 _clearances(A, L2), st.opt_tiny)), 0.0)
             return (self.main_terms(log_s3, log_s2, log_d, ex)
-                    + self.timing(geo, log_s3, log_s2, ex)
+                    + self.timing(geo, log_s3, log_s2, log_s2 + log_d - cap_excess)
                     + st.opt_angle_weight * anp.sum(bad**2)
                     + clearance_weight * anp.sum(near**2)
                     - st.opt_barrier * anp.sum(anp.log(anp.maximum(A / self.A0,
@@ -502,8 +512,11 @@ class StencilObjective:
             return float(f), np.asarray(g, dtype=float)
         return fun
 
-    def _by_hand(self, P0, X0, J, Pfix, T, k2: int, clearance_weight: float):
-        """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective_grad`."""
+    def _by_hand(self, P0, X0, J, Pfix, T, k2: int, clearance_weight: float,
+                 cap_excess: float):
+        """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective_grad`
+        (``cap_excess``: the smoothed log longest flat cell's over the exact one at ``P0``,
+        :meth:`timing`)."""
         st, F, params = self.settings, self.F, self.params
         fixed_rows = np.flatnonzero(self.fixed)
 
@@ -513,7 +526,7 @@ class StencilObjective:
             Q[fixed_rows] = Pfix + (T * np.reshape(x[k2:], (-1, 1)) if self.rim is not None
                                     else 0.0)
             X = X0 + np.einsum("nij,nj->ni", J, Q - P0)
-            geo = og.CellGeometry(Q, X, F, self.fa, self.fb, self.o1, self.o2, st.opt_tiny)
+            geo = og.CellGeometry(Q, X, F, self.fa, self.fb, self.o1, self.o2, self.fold_floor)
             sm = og.Scalings(geo, params, st.opt_sharpness)
             ex = og.Scalings(geo, params, None, like=sm)
             flat = og.FlatTriangles(Q, F)
@@ -530,10 +543,10 @@ class StencilObjective:
             back_t = None
             if self.w_t > 0:
                 mis, back_t = og.timing(geo, sm, self.bnd, self.log_ts, params, st)
-                over = max(ex.log_s2 + ex.log_d - self.log_cap, 0.0)
+                over = max(sm.log_s2 + sm.log_d - cap_excess - self.log_cap, 0.0)
                 f += self.w_t * mis + st.opt_cap_weight * over**2
-                g_ex[1] += 2.0 * st.opt_cap_weight * over
-                g_ex[2] += 2.0 * st.opt_cap_weight * over
+                g_sm[1] += 2.0 * st.opt_cap_weight * over
+                g_sm[2] += 2.0 * st.opt_cap_weight * over
             ang = flat.angles
             low, high = self.floor - ang, ang - self.cap
             bad = np.maximum(low, 0.0) + np.maximum(high, 0.0)
@@ -575,9 +588,9 @@ class StencilObjective:
     @property
     def proximal(self) -> bool:
         """Whether each round is a converged proximal step (``StencilSearch.opt_prox``):
-        unpinned and without the timing term (whose clipped ranges and exact cap did not
-        converge in such rounds; the pin holds an exact maximum)."""
-        return self.pin <= 0 and self.w_t <= 0 and self.settings.opt_prox > 0
+        unpinned (the pin holds an exact maximum, whose kinks stop L-BFGS short of
+        converging)."""
+        return self.pin <= 0 and self.settings.opt_prox > 0
 
     def median_edge(self, P) -> float:
         """The median flat edge (mm) of the stencil at flat points ``P`` (n, 2)."""
@@ -586,14 +599,17 @@ class StencilObjective:
 
     def lbfgs(self, P, maxiter: int):
         """The round's L-BFGS-B setup at ``P``: ``(options, lam)``; a proximal round
-        (:attr:`proximal`) runs to ``opt_gtol`` (``ftol`` 0: not stopped by a small
-        decrease of the objective) with its proximal weight ``lam`` (1/mm^2, ``opt_prox``
-        over the median flat edge squared), else ``maxiter`` iterations and ``lam`` 0."""
+        (:attr:`proximal`) runs to ``opt_gtol`` (``opt_timing_gtol`` with the timing term;
+        ``ftol`` 0: not stopped by a small decrease of the objective) with its proximal
+        weight ``lam`` (1/mm^2, ``opt_prox`` over the median flat edge squared), else
+        ``maxiter`` iterations and ``lam`` 0."""
         st = self.settings
         if not self.proximal:
             return {"maxiter": maxiter}, 0.0
-        return ({"maxiter": st.opt_prox_iterations, "gtol": st.opt_gtol, "ftol": 0.0,
-                 "maxcor": st.opt_memory}, st.opt_prox / self.median_edge(P) ** 2)
+        gtol, prox = ((st.opt_timing_gtol, st.opt_timing_prox) if self.w_t > 0
+                      else (st.opt_gtol, st.opt_prox))
+        return ({"maxiter": st.opt_prox_iterations, "gtol": gtol, "ftol": 0.0,
+                 "maxcor": st.opt_memory}, prox / self.median_edge(P) ** 2)
 
     def bounds(self, P):
         """Box bounds of :meth:`start`'s variables at ``P``: the round's trust region,
@@ -602,8 +618,10 @@ class StencilObjective:
         None when pinned: the pin holds the exact 3D scaling, a maximum over the cells,
         and L-BFGS-B stalled at the box with the scaling 3 % off (a hemisphere); the pinned
         figures are held by the pin itself, not by where the path ends.  None for a
-        proximal round (:attr:`proximal`), which its proximal term holds."""
-        if self.pin > 0 or self.proximal:
+        proximal round (:attr:`proximal`) without the timing term, which its proximal term
+        holds; with it, a round left free ran past its linearisation (petal, 143 vertices:
+        1/16 of its step kept, objective 56 instead of 16 in the box)."""
+        if self.pin > 0 or (self.proximal and self.w_t <= 0):
             return None
         r = self.settings.opt_trust * self.median_edge(P)
         x = self.start(P)
@@ -692,9 +710,9 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
     Each outer round runs L-BFGS on the linearised lift and checks it on the exact lift
     (:func:`accept_step`, :func:`_round`): an improving round is never thrown away for a soft
-    penalty's overshoot.  Without a timing term and unpinned, a round runs L-BFGS to
-    convergence with a proximal term (``opt_prox``: where it ends does not hang on last
-    bits); otherwise within a trust region (``opt_trust``) for an iteration budget.
+    penalty's overshoot.  An unpinned round runs L-BFGS to convergence with a proximal
+    term (``opt_prox``: where it ends does not hang on last bits), inside the trust region
+    (``opt_trust``) when the timing term is on; a pinned round, for an iteration budget.
 
     Parameters
     ----------
@@ -757,8 +775,8 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
 def _round(problem: StencilObjective, P, current: float, short_now: float, maxiter: int):
     """One outer round: L-BFGS on the lift linearised at ``P``, converged with the proximal
-    term (:attr:`StencilObjective.proximal`) or within the round's trust region
-    (:meth:`StencilObjective.bounds`) and iteration budget, the step checked on the exact
+    term (:attr:`StencilObjective.proximal`) or for an iteration budget, within the round's
+    trust region (:meth:`StencilObjective.bounds`) if it has one, the step checked on the exact
     lift (:func:`accept_step`), once more with the clearance penalty ``opt_stiffen`` times
     stiffer when no point of it is kept.  Returns the round's record, the step and the point
     kept (None when none is)."""

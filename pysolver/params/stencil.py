@@ -70,7 +70,14 @@ class StencilSearch:
         region the simulator's and the F_mem correction's meshes give each base (the
         reference's stencils keep >= 2.6 mm).
     opt_clearance_weight : float
-        Weight of the squared log shortfall of a base centre's clearance.
+        Weight of the squared log shortfall of a base centre's clearance; the hard limit is
+        :func:`~pysolver.design.stencil_opt.accept_step`'s.  200: with a landscape, 1000
+        made the timing rounds' objective stiff, twice the L-BFGS iterations (petal's
+        143-vertex candidate: 637 + 908, objective 16.198; with 200, 289 + 373 and 16.167;
+        cover's 380-vertex one 1034 + 1605 and 519 + 654).  100 halved them again, but then
+        the count search took petal to 135 vertices, whose design left one rim cell open in
+        simulation (WARN).  Without a landscape they agree (the stand's 283-vertex candidate:
+        1.01370 and 1.01375).
     opt_clearance_slack : float
         Log shortfall of the clearance (2 %) a round may leave and still be kept (a hard
         limit of :func:`pysolver.design.stencil_opt.accept_step`).
@@ -115,17 +122,38 @@ class StencilSearch:
         :func:`~pysolver.design.stencil_opt.accept_step` where it runs past the
         linearisation; both were the same under every perturbation measured.
         ``opt_memory`` 30: 0.8 s per candidate on the peer hemisphere at 176 vertices
-        (1.7 s with scipy's 10).  The trust region (``opt_trust``) and the iteration
-        budgets stay for the timing term: there, converged rounds without the box did not
-        converge (petal: thousands of iterations, the objective left 3 times higher), and
-        with it cost 2-4 s per candidate (``docs/results.md``).
+        (1.7 s with scipy's 10).  With the timing term the rounds are proximal too, inside
+        the trust region (``opt_trust``), to ``opt_timing_gtol``.
+    opt_timing_gtol : float, 1/mm
+        The projected gradient a proximal round with the timing term runs to (its objective
+        is stiffer than the longest cell's alone, and 1e-5 took 2-3 times the iterations).
+        As installed and jittered by 1e-9, dome's 82-vertex candidate gave 3D scaling
+        1.02066 both times (1e-3: 1.02067 both), petal's 143-vertex one 0.99376 both times
+        (1e-4: the same, in 630 iterations instead of 490).  Budgeted rounds (100
+        iterations, before) gave dome 1.0185 and 1.0218, and moved dome and spiral by a rung
+        under the perturbations of ``bench/bench_stability.py``.
+    opt_fold_floor_deg : float, deg
+        The half fold's tangent in the stencil objective is ``sqrt(tan^2 t + tan^2(f / 2))``
+        with ``f`` this angle: smooth where a cell is flat, where the exact square root has
+        a kink.  Its rounding noise there (a jump of 2e-7 in the objective over a step of
+        1e-9 mm, petal) sent L-BFGS's path elsewhere with the last bits and stopped its line
+        searches.  0.1 deg moves a flat cell's 3D rule by under 0.1 % and a folded one's
+        (5 deg) by under 1e-5.
+    timing_compression_floor : float, mm
+        The timing estimates' compression ``x`` is floored smoothly, ``x_f log(1 +
+        exp(x / x_f))`` (softplus): where a cell's bumpers nearly touch flat, ``log x``
+        then has a slope of at most ``1 / x_f``; floored at 1e-30 it sent the timing rounds'
+        line searches to a stop (petal).  The cells programmed compress by 0.6 mm or more
+        (petal), where 0.1 mm moves ``log x`` by under 5e-4.
     opt_tiny : float
         Floor of the arguments of the barrier's and penalties' logarithms, and the guard
-        added under the square root of the half fold's tangent (finite gradient when flat).
+        added under the square root of the half fold's tangent in
+        :func:`~pysolver.design.stencil_opt.layout_logs` (the optimiser's is
+        ``opt_fold_floor_deg``).
     opt_rounds, opt_iterations : int
         Most outer rounds (re-lifting onto the target) per candidate of the count search,
-        and L-BFGS iterations per round in the trust region (with a timing term; proximal
-        rounds run to ``opt_gtol``).
+        and L-BFGS iterations per round when rounds are budgeted (``opt_prox`` 0; proximal
+        rounds run to ``opt_gtol`` or ``opt_timing_gtol``).
     opt_converge_rounds, opt_converge_iterations, opt_round_tol : int, int, float
         The stencil picked is optimised on, and held at scale 1, for up to
         ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS iterations
@@ -154,12 +182,14 @@ class StencilSearch:
         The misfit narrows each cell's estimated range by this much (log time) at both ends:
         the estimates' own error is 0.22-0.27.
     opt_timing_iterations : int
-        L-BFGS iterations per round when the timing term is on (it needs more than the
-        longest cell alone).
+        L-BFGS iterations per budgeted round (``opt_prox`` 0) when the timing term is on
+        (it needs more than the longest cell alone).
     opt_cap_weight : float
-        With the timing term, weight (per log^2) of the penalty that keeps the exact longest
-        flat cell under ``max_cell_length - margin``: without it the timing term can trade
-        the count search's footing away (measured on cover: 3D scaling 0.82 at 418 bases).
+        With the timing term, weight (per log^2) of the penalty that keeps the longest flat
+        cell under ``max_cell_length - margin`` (exact at each round's start, smooth within
+        it: :meth:`~pysolver.design.stencil_opt.StencilObjective.timing`): without it the
+        timing term can trade the count search's footing away (measured on cover: 3D
+        scaling 0.82 at 418 bases).
     seeds : int
         Seeds tried at the chosen vertex count when none is given and the first seed
         leaves less than ``margin`` below the limit.
@@ -293,7 +323,7 @@ class StencilSearch:
     opt_max_angle_deg: float = 90.0
     opt_centroid_edge_mm: float = 2.3
     opt_angle_weight: float = 100.0
-    opt_clearance_weight: float = 1000.0
+    opt_clearance_weight: float = 200.0
     opt_clearance_slack: float = 0.02
     opt_backtracks: int = 6
     opt_stiffen: float = 10.0
@@ -303,6 +333,10 @@ class StencilSearch:
     opt_memory: int = 30
     opt_prox_iterations: int = 2000
     opt_tiny: float = 1e-30
+    opt_fold_floor_deg: float = 0.1
+    timing_compression_floor: float = 0.1
+    opt_timing_gtol: float = 3e-4
+    opt_timing_prox: float = 0.5
     opt_rounds: int = 2
     opt_converge_rounds: int = 4
     opt_converge_iterations: int = 100
