@@ -599,10 +599,10 @@ class StencilObjective:
 
     def lbfgs(self, P, maxiter: int):
         """The round's L-BFGS-B setup at ``P``: ``(options, lam)``; a proximal round
-        (:attr:`proximal`) runs to ``opt_gtol`` (``opt_timing_gtol`` with the timing term;
-        ``ftol`` 0: not stopped by a small decrease of the objective) with its proximal
-        weight ``lam`` (1/mm^2, ``opt_prox`` over the median flat edge squared), else
-        ``maxiter`` iterations and ``lam`` 0."""
+        (:attr:`proximal`) runs to ``opt_gtol`` (``ftol`` 0: not stopped by a small
+        decrease of the objective) with its proximal weight ``lam`` (1/mm^2, ``opt_prox``
+        over the median flat edge squared; with the timing term ``opt_timing_gtol`` and
+        ``opt_timing_prox``), else ``maxiter`` iterations and ``lam`` 0."""
         st = self.settings
         if not self.proximal:
             return {"maxiter": maxiter}, 0.0

@@ -74,10 +74,10 @@ class StencilSearch:
         :func:`~pysolver.design.stencil_opt.accept_step`'s.  200: with a landscape, 1000
         made the timing rounds' objective stiff, twice the L-BFGS iterations (petal's
         143-vertex candidate: 637 + 908, objective 16.198; with 200, 289 + 373 and 16.167;
-        cover's 380-vertex one 1034 + 1605 and 519 + 654).  100 halved them again, but then
-        the count search took petal to 135 vertices, whose design left one rim cell open in
-        simulation (WARN).  Without a landscape they agree (the stand's 283-vertex candidate:
-        1.01370 and 1.01375).
+        cover's 380-vertex one 1034 + 1605 and 519 + 654).  100 halved them again, but the
+        count search then took petal to 135 vertices, a design with one rim cell left open
+        in simulation (WARN).  Without a landscape they agree (the stand's 283-vertex
+        candidate: 1.01370 and 1.01375).
     opt_clearance_slack : float
         Log shortfall of the clearance (2 %) a round may leave and still be kept (a hard
         limit of :func:`pysolver.design.stencil_opt.accept_step`).
@@ -106,7 +106,7 @@ class StencilSearch:
         two conditions agree to 0.1 % in scaling and 0.03 mm in the longest cell.  (0.2:
         a half step again in the first round; 0.05: 12.0 after 8 rounds.)
     opt_prox, opt_gtol, opt_memory, opt_prox_iterations : float, float, int, int
-        Without a timing term, each unpinned round minimises its linearised objective plus
+        Each unpinned round minimises its linearised objective plus
         the proximal term ``opt_prox / e^2 ||x - x0||^2 / 2`` (``e`` the median flat edge,
         mm; ``x0`` the round's start) until the projected gradient is under ``opt_gtol``
         (1/mm), with ``opt_memory`` L-BFGS corrections and at most ``opt_prox_iterations``
@@ -122,16 +122,21 @@ class StencilSearch:
         :func:`~pysolver.design.stencil_opt.accept_step` where it runs past the
         linearisation; both were the same under every perturbation measured.
         ``opt_memory`` 30: 0.8 s per candidate on the peer hemisphere at 176 vertices
-        (1.7 s with scipy's 10).  With the timing term the rounds are proximal too, inside
-        the trust region (``opt_trust``), to ``opt_timing_gtol``.
-    opt_timing_gtol : float, 1/mm
-        The projected gradient a proximal round with the timing term runs to (its objective
-        is stiffer than the longest cell's alone, and 1e-5 took 2-3 times the iterations).
-        As installed and jittered by 1e-9, dome's 82-vertex candidate gave 3D scaling
-        1.02066 both times (1e-3: 1.02067 both), petal's 143-vertex one 0.99376 both times
-        (1e-4: the same, in 630 iterations instead of 490).  Budgeted rounds (100
-        iterations, before) gave dome 1.0185 and 1.0218, and moved dome and spiral by a rung
-        under the perturbations of ``bench/bench_stability.py``.
+        (1.7 s with scipy's 10).  With the timing term, inside the trust region
+        (``opt_trust``; left free, petal's first round ran past its linearisation and kept
+        1/16 of its step), to ``opt_timing_gtol`` with ``opt_timing_prox``.
+    opt_timing_gtol, opt_timing_prox : float, float
+        With the timing term, a proximal round runs until the projected gradient is under
+        ``opt_timing_gtol`` (1/mm; its objective is stiffer than the longest cell's alone,
+        and 1e-5 took 2-3 times the iterations), with the proximal weight
+        ``opt_timing_prox`` (over the median flat edge squared, as ``opt_prox``): the
+        timing objective is less convex, and at 0.05 dome's 82-vertex candidate ended in
+        one of two minima, 3D scaling 1.02092 as installed and 1.01712 jittered by 1e-9 (at
+        0.2: 1.02100 and 1.02101; at 0.5: 1.02075 and 1.02074, and 1.02074-1.02075 with
+        ``opt_timing_gtol`` 1e-3).  Petal's 143-vertex candidate: 0.99576 and 0.99578
+        (1e-4: the same, in 490 iterations instead of 430; 0.05: 0.99571 in 660).  Budgeted
+        rounds (100 iterations, before) gave dome 1.0185 and 1.0218 and moved dome and
+        spiral by a rung under the perturbations of ``bench/bench_stability.py``.
     opt_fold_floor_deg : float, deg
         The half fold's tangent in the stencil objective is ``sqrt(tan^2 t + tan^2(f / 2))``
         with ``f`` this angle: smooth where a cell is flat, where the exact square root has
