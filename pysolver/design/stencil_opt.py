@@ -477,9 +477,11 @@ class StencilObjective:
         if self.rim is not None:
             T[np.searchsorted(np.flatnonzero(self.fixed), self.slides)] = self.rim.tangent(
                 self.rim.project(P0[self.slides])[0])
-        sm0 = self._logs(self._geometry(P0, X0), st.opt_sharpness)
-        ex0 = self._logs(self._geometry(P0, X0), None)
-        cap_excess = float(sm0[1] + sm0[2] - ex0[1] - ex0[2])  # (see :meth:`timing`)
+        cap_excess = 0.0  # (see :meth:`timing`)
+        if self.w_t > 0:
+            geo0 = self._geometry(P0, X0)
+            sm0, ex0 = self._logs(geo0, st.opt_sharpness), self._logs(geo0, None)
+            cap_excess = float(sm0[1] + sm0[2] - ex0[1] - ex0[2])
         if not autodiff:
             return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight, cap_excess)
 
