@@ -115,7 +115,8 @@ class StencilSearch:
         or another code path moved: the stand's 283-vertex candidate after two rounds had
         3D scaling 1.003 or 0.993 (jitter), and the count picked moved by a rung; with the
         proximal rounds, 1.01366 and 1.01370, and every case without a landscape in
-        ``bench/bench_stability.py`` is stable (``docs/results.md``).  ``opt_prox`` 0.2
+        ``bench/bench_stability.py`` is stable but peer-hemisphere-0.1, whose 3D scaling
+        the pinned polish sets (``docs/results.md``).  ``opt_prox`` 0.2
         agreed to 1e-5 but gained less per round; 0.02 took 2-4 times the iterations.  The
         term barely outweighs the objective's least curvature at the start (so the minimum
         is not unique in general), and the first round's step is still cut back by
@@ -162,7 +163,7 @@ class StencilSearch:
     opt_converge_rounds, opt_converge_iterations, opt_round_tol : int, int, float
         The stencil picked is optimised on, and held at scale 1, for up to
         ``opt_converge_rounds`` rounds of ``opt_converge_iterations`` L-BFGS iterations
-        (proximal rounds: to ``opt_gtol``),
+        (proximal rounds: to ``opt_gtol``, or ``opt_timing_gtol`` with the timing term),
         until a round lowers the exact objective (log units) by less than ``opt_round_tol``
         (0.1 % of the longest cell).  Before each round had a trust region (``opt_trust``),
         the pick sat where L-BFGS's path happened to end unless it converged: jitters of
@@ -192,7 +193,8 @@ class StencilSearch:
     opt_cap_weight : float
         With the timing term, weight (per log^2) of the penalty that keeps the longest flat
         cell under ``max_cell_length - margin`` (exact at each round's start, smooth within
-        it: :meth:`~pysolver.design.stencil_opt.StencilObjective.timing`): without it the
+        it, so a soft cap: 0.07 mm over in ``tests/test_stencil.py``'s dome at 70 vertices;
+        :meth:`~pysolver.design.stencil_opt.StencilObjective.timing`): without it the
         timing term can trade the count search's footing away (measured on cover: 3D
         scaling 0.82 at 418 bases).
     seeds : int
