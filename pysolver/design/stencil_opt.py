@@ -422,12 +422,14 @@ class StencilObjective:
     def _logs(self, geometry, sharpness):
         return _scaling_logs(geometry, self.params, sharpness)
 
-    def main_terms(self, log_s3, log_s2, log_d, ex):
-        """Pinned: the longest flat cell per unit of 3D scaling, with the exact 3D scaling
-        held at 1 (the shell keeps its target's size, so the count search can trade vertices
-        for flat length); else the longest flat cell (+ the optional 3D scaling weight)."""
+    def main_terms(self, log_s3, log_s2, log_d, log_pinned):
+        """Pinned: the longest flat cell per unit of 3D scaling, with the 3D scaling (log,
+        ``log_pinned``: the exact one, or within a round the smoothed one less its excess at
+        the round's start, as the timing cap's) held at 1 (the shell keeps its target's
+        size, so the count search can trade vertices for flat length); else the longest flat
+        cell (+ the optional 3D scaling weight)."""
         if self.pin > 0:
-            return log_s2 + log_d - log_s3 + self.pin * ex[0] ** 2
+            return log_s2 + log_d - log_s3 + self.pin * log_pinned ** 2
         return log_s2 + log_d + self.settings.opt_s3_weight * log_s3
 
     def timing(self, geometry, log_s3, log_s2, log_longest):
@@ -458,7 +460,7 @@ class StencilObjective:
         g = self._geometry(Q, self.domain.lift(Q))
         a, b, c = self._logs(g, self.settings.opt_sharpness)
         ex = self._logs(g, None)
-        return (float(self.main_terms(a, b, c, ex) + self.timing(g, a, b, ex[1] + ex[2])),
+        return (float(self.main_terms(a, b, c, ex[0]) + self.timing(g, a, b, ex[1] + ex[2])),
                 self.shortfall(Q, float(ex[1])))
 
     def linearised(self, P0, clearance_weight: float, autodiff: bool = False):
@@ -477,13 +479,15 @@ class StencilObjective:
         if self.rim is not None:
             T[np.searchsorted(np.flatnonzero(self.fixed), self.slides)] = self.rim.tangent(
                 self.rim.project(P0[self.slides])[0])
-        cap_excess = 0.0  # (see :meth:`timing`)
-        if self.w_t > 0:
+        pin_excess = cap_excess = 0.0  # (see :meth:`main_terms`, :meth:`timing`)
+        if self.w_t > 0 or self.pin > 0:
             geo0 = self._geometry(P0, X0)
             sm0, ex0 = self._logs(geo0, st.opt_sharpness), self._logs(geo0, None)
+            pin_excess = float(sm0[0] - ex0[0])
             cap_excess = float(sm0[1] + sm0[2] - ex0[1] - ex0[2])
         if not autodiff:
-            return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight, cap_excess)
+            return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight,
+                                 (pin_excess, cap_excess))
 
         def objective(x):
             if self.rim is not None:
@@ -500,7 +504,7 @@ class StencilObjective:
             ex = self._logs(geo, None)
             near = anp.maximum(self.log_clear - ex[1] - anp.log(anp.maximum(
                 _clearances(A, L2), st.opt_tiny)), 0.0)
-            return (self.main_terms(log_s3, log_s2, log_d, ex)
+            return (self.main_terms(log_s3, log_s2, log_d, log_s3 - pin_excess)
                     + self.timing(geo, log_s3, log_s2, log_s2 + log_d - cap_excess)
                     + st.opt_angle_weight * anp.sum(bad**2)
                     + clearance_weight * anp.sum(near**2)
@@ -514,11 +518,11 @@ class StencilObjective:
             return float(f), np.asarray(g, dtype=float)
         return fun
 
-    def _by_hand(self, P0, X0, J, Pfix, T, k2: int, clearance_weight: float,
-                 cap_excess: float):
+    def _by_hand(self, P0, X0, J, Pfix, T, k2: int, clearance_weight: float, excess):
         """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective_grad`
-        (``cap_excess``: the smoothed log longest flat cell's over the exact one at ``P0``,
-        :meth:`timing`)."""
+        (``excess``: the smoothed log 3D scaling's and log longest flat cell's over the exact
+        ones at ``P0``, :meth:`main_terms`, :meth:`timing`)."""
+        pin_excess, cap_excess = excess
         st, F, params = self.settings, self.F, self.params
         fixed_rows = np.flatnonzero(self.fixed)
 
@@ -536,9 +540,9 @@ class StencilObjective:
             g_sm = [0.0, 1.0, 1.0]  # (log s3, log s2, log d), smoothed
             g_ex = [0.0, 0.0, 0.0]  # exact
             if self.pin > 0:
-                f = sm.log_s2 + sm.log_d - sm.log_s3 + self.pin * ex.log_s3**2
-                g_sm[0] = -1.0
-                g_ex[0] = 2.0 * self.pin * ex.log_s3
+                pinned = sm.log_s3 - pin_excess
+                f = sm.log_s2 + sm.log_d - sm.log_s3 + self.pin * pinned**2
+                g_sm[0] = -1.0 + 2.0 * self.pin * pinned
             else:
                 f = sm.log_s2 + sm.log_d + st.opt_s3_weight * sm.log_s3
                 g_sm[0] = st.opt_s3_weight
