@@ -594,8 +594,8 @@ class StencilObjective:
     @property
     def proximal(self) -> bool:
         """Whether each round is a converged proximal step (``StencilSearch.opt_prox``):
-        unpinned (the pin holds an exact maximum, whose kinks stop L-BFGS short of
-        converging)."""
+        unpinned (pinned rounds keep a budget, with the pin holding the figures: the polish,
+        once per design)."""
         return self.pin <= 0 and self.settings.opt_prox > 0
 
     def median_edge(self, P) -> float:
@@ -621,8 +621,8 @@ class StencilObjective:
         """Box bounds of :meth:`start`'s variables at ``P``: the round's trust region,
         ``opt_trust`` times the median flat edge around ``P`` (the rim steps from 0).
 
-        None when pinned: the pin holds the exact 3D scaling, a maximum over the cells,
-        and L-BFGS-B stalled at the box with the scaling 3 % off (a hemisphere); the pinned
+        None when pinned: the pin holds the 3D scaling, a maximum over the cells, and
+        L-BFGS-B stalled at the box with the scaling 3 % off (a hemisphere); the pinned
         figures are held by the pin itself, not by where the path ends.  None for a
         proximal round (:attr:`proximal`) without the timing term, which its proximal term
         holds; with it, a round left free ran past its linearisation (petal, 143 vertices:
@@ -711,8 +711,9 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     given vertex count (the count search restores it with more vertices); a negative
     ``opt_s3_weight`` credits that back (:class:`pysolver.params.StencilSearch`).  With
     ``pin`` the objective is the longest flat cell per unit of 3D scaling, ``log lmax - log
-    s3``, and ``opt_pin_weight (log s3)^2`` (exact s3) holds the shell at its target's size:
-    the count search's last pass.
+    s3``, and ``opt_pin_weight (log s3)^2`` (s3 exact at each round's start, smooth within
+    it: :meth:`StencilObjective.main_terms`) holds the shell at its target's size: the count
+    search's last pass.
 
     Each outer round runs L-BFGS on the linearised lift and checks it on the exact lift
     (:func:`accept_step`, :func:`_round`): an improving round is never thrown away for a soft
