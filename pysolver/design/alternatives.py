@@ -71,7 +71,7 @@ def try_smaller_size(search, extent_mm: float, factor: float, params: UnitCell):
 
 
 def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=None,
-                           extent_mm=None, target=None) -> str:
+                           extent_mm=None, target=None, u_boundary=None) -> str:
     """What would make an unprintable remeshed stencil printable, measured, for the error's fix.
 
     Tries the same stencil at the reference's 0.1 mm minimal bumper, a smaller size (when the
@@ -92,6 +92,8 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=Non
     target : (V, F), optional
         The target surface: the fix then starts with its measured bound
         (:func:`pysolver.design.feasibility.target_bound`).
+    u_boundary : (n,) float, optional
+        The stencil's boundary log-scale, when its rim's scale is free.
 
     Returns
     -------
@@ -102,7 +104,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=Non
         lines.append(describe_bound(target_bound(*target, params), params))
     low = REFERENCE_MIN_BUMPER_MM
     if params.min_bumper > low + TOL.rel:
-        alt = stencil_figures(V, F, replace(params, min_bumper=low))
+        alt = stencil_figures(V, F, replace(params, min_bumper=low), u_boundary=u_boundary)
         if alt["max_cell_length_mm"] is not None:
             ok = alt["max_cell_length_mm"] <= params.max_cell_length
             lines.append(f"--min-bumper {low:g} (the reference's) gives a longest cell of "

@@ -23,6 +23,11 @@ shell's size.  :func:`remesh_surface` searches N so that the shell keeps the siz
    scaling held.
 5. **The trade** (:func:`_trade`), with a landscape the user gave: fewer, larger cells when
    they clamp markedly fewer cells, at a kept size.
+6. **The rim's scale** (``StencilSearch.rim_scale``, :func:`_free_rim`): when no stencil
+   prints at size with the rim's lengths kept, the search runs again in the flattening
+   whose boundary log-scale lowers the measured bound
+   (:func:`pysolver.design.feasibility.rim_log_scale`), and its stencil is taken if it
+   prints, or comes closer.
 
 Every candidate's optimisation rounds (kept or not, and why) are recorded
 (``info["optimisation"]``), and a stencil whose optimisation keeps no round is warned about.
@@ -39,6 +44,7 @@ import numpy as np
 from ..errors import InputError
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ..params import tol as TOL
+from .feasibility import rim_log_scale
 from .flatten import cetm
 from .layout import build_layout
 from .remesh import (
@@ -59,7 +65,7 @@ from .time_landscape import cell_target_times, interpolate_to_stencil
 
 
 def stencil_figures(V, F, params: UnitCell = UNIT_CELL, time=None,
-                    settings: StencilSearch = STENCIL) -> dict:
+                    settings: StencilSearch = STENCIL, u_boundary=None) -> dict:
     """Layout margins and regularity of a stencil (its CETM layout after both scaling rules).
 
     Parameters
@@ -70,6 +76,8 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL, time=None,
     time : (n,) float, s, optional
         The time landscape at the stencil's vertices: adds ``clamped_estimate``.
     settings : StencilSearch
+    u_boundary : (n,) float, optional
+        The layout's boundary log-scale (:func:`pysolver.design.flatten.cetm`; default 0).
 
     Returns
     -------
@@ -88,7 +96,7 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL, time=None,
     out = {"edge_spread": round(float(np.percentile(edge, 95) / np.percentile(edge, 5)), 4),
            "min_angle_deg": round(float(np.degrees(igl.internal_angles(V, F).min())), 2)}
     try:
-        UV, _, _ = cetm(V, F)
+        UV, _, _ = cetm(V, F, u_boundary=u_boundary)
         lay = build_layout(V, UV, F, params)
     except InputError as e:
         out.update(scale3d=None, max_cell_length_mm=None, bumper_mm=None,
@@ -300,7 +308,9 @@ class CountSearch:
         self.optimisation: dict = {}  # key -> optimise_stencil's info
         self.dom = None
         if method == "cvt":
-            self.dom = FlatDomain(V, F, settings, time=time if graded else None)
+            h = rim_log_scale(V, F, params, settings) if settings.rim_scale == "free" else None
+            self.dom = FlatDomain(V, F, settings, time=time if graded else None,
+                                  rim_log_scale=h)
             # insets in mm: a fraction of the edge of the smallest regular cell the
             # min-bumper rule allows (fixed, so that the 3D scaling stays monotone in N)
             edge = np.sqrt(3) * 2 * (params.base_r + params.min_bumper)
@@ -347,13 +357,20 @@ class CountSearch:
         pick: ``|log scale3d| > hopeless_log_scale``.  Its figures are then taken as they
         are, for the secant steps only.  (Its longest cell is no such test: a target that
         prints nowhere is refused naming the closest stencil tried, which must be optimised.)"""
-        c = stencil_figures(V2, F2, self.params, settings=self.settings)
+        c = stencil_figures(V2, F2, self.params, settings=self.settings,
+                            u_boundary=self.rim_scale_at(V2))
         return not _laid_out(c) or abs(np.log(c["scale3d"])) > self.settings.hopeless_log_scale
+
+    def rim_scale_at(self, V2):
+        """(k,) float or None: the boundary log-scale of the layout of a stencil ``V2``
+        (k, 3) mm (:meth:`pysolver.design.remesh.FlatDomain.rim_scale_at`)."""
+        return None if self.dom is None else self.dom.rim_scale_at(V2)
 
     def figures(self, V2, F2) -> dict:
         t2 = None if self.time is None else interpolate_to_stencil(self.time, self.V, self.F,
                                                                    V2)
-        return stencil_figures(V2, F2, self.params, time=t2, settings=self.settings)
+        return stencil_figures(V2, F2, self.params, time=t2, settings=self.settings,
+                               u_boundary=self.rim_scale_at(V2))
 
     def rung(self, n) -> int:
         """The count of the ladder (``StencilSearch.count_ladder``) nearest ``n``."""
@@ -490,23 +507,22 @@ class CountSearch:
     def polish(self, best):
         """The chosen stencil optimised again with its 3D scaling held at 1 (the longest flat
         cell per unit of scaling); kept when it is nearer the target's size at no longer cell
-        (or still printable, with no longer cell per unit of scaling).
+        (or still printable, with no longer cell per unit of scaling).  When neither prints,
+        it is held instead at the smallest scaling the size allows with the polish's
+        tolerance to spare, ``min_scale3d exp(polish_tolerance)`` (:meth:`floor`).
 
         Returns
         -------
         V2 : (k, 3) float, mm -- the stencil kept
         chosen : dict -- its figures
         record : dict -- ``scale3d``, ``max_cell_length_mm`` of the polished stencil,
-            ``kept``, ``held`` (its scaling within ``polish_tolerance`` of 1), ``rounds``
+            ``kept``, ``held`` (its scaling within ``polish_tolerance`` of 1), ``rounds``,
+            and ``floor`` (:meth:`floor`) when it was tried
         """
         st, limit = self.settings, self.params.max_cell_length
         V2, F2, _ = self.meshes[best]
         chosen = self.tried[best]
-        P, t_P = self.flat[best]
-        P, opt = optimize_stencil(self.dom, P, F2, self.params, st, t_vertex=t_P, pin=True,
-                                  converge=True)
-        Vp = self.dom.lift(P)
-        fig = self.figures(Vp, F2)
+        Vp, fig, opt = self._pinned(best, 1.0)
         L0 = chosen["max_cell_length_mm"]
         if _laid_out(fig) and abs(np.log(fig["scale3d"])) <= abs(np.log(chosen["scale3d"])) \
                 and (fig["max_cell_length_mm"] <= max(L0, limit - st.margin)
@@ -522,7 +538,41 @@ class CountSearch:
                  + ("(kept)" if chosen is fig else "(dropped)")
                  + ("" if held else f"; could not hold the scaling at 1 (the stencil kept "
                                     f"is at {chosen['scale3d']:.3f})"))
+        if chosen["max_cell_length_mm"] > limit and _laid_out(fig) \
+                and fig["max_cell_length_mm"] > limit:
+            V2, chosen, record["floor"] = self.floor(best, V2, chosen)
         return V2, chosen, record
+
+    def _pinned(self, best, scale3d: float):
+        """The pick ``best`` optimised with its 3D scaling held at ``scale3d``: its vertices
+        (mm), figures and :func:`optimize_stencil`'s info."""
+        P, t_P = self.flat[best]
+        P, opt = optimize_stencil(self.dom, P, self.meshes[best][1], self.params,
+                                  self.settings, t_vertex=t_P, pin=True, converge=True,
+                                  pin_scale3d=scale3d)
+        Vp = self.dom.lift(P)
+        return Vp, self.figures(Vp, self.meshes[best][1]), opt
+
+    def floor(self, best, V2, chosen):
+        """No stencil prints at scale 1: the pick held at the smallest 3D scaling the size
+        allows, ``min_scale3d exp(polish_tolerance)`` (a shell's longest flat cell shrinks
+        about with its scaling), kept when it prints at that size.
+
+        Returns
+        -------
+        V2, chosen : the stencil kept and its figures
+        record : dict -- ``scale3d_held``, ``scale3d``, ``max_cell_length_mm``, ``kept``
+        """
+        st = self.settings
+        s = st.min_scale3d * float(np.exp(st.polish_tolerance))
+        Vp, fig, _ = self._pinned(best, s)
+        kept = _prints(fig, self.params, st)
+        self.say(f"N={best[0]} seed={best[1]} held at scale {s:.3f}: " + (
+            f"scale3d {fig['scale3d']:.3f}, longest flat cell {fig['max_cell_length_mm']:.2f} mm"
+            if _laid_out(fig) else "no layout") + (" (kept)" if kept else " (dropped)"))
+        record = {"scale3d_held": round(s, 4), "scale3d": fig["scale3d"],
+                  "max_cell_length_mm": fig["max_cell_length_mm"], "kept": bool(kept)}
+        return (Vp, fig, record) if kept else (V2, chosen, record)
 
     def records(self) -> list:
         """Every candidate's optimisation rounds, for ``design.json``."""
@@ -607,7 +657,53 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     info["timing_grading"] = {"grading": settings.timing_grading if graded else 0.0,
                               "taken": bool(graded)}
     _record(info, search, best, (V2, F2, before), chosen, rim, optimize, A)
+    if settings.rim_scale == "auto" and search.dom is not None and vertices is None \
+            and not _prints(chosen, params, settings):
+        return _free_rim(call, settings, (V2, F2, info), search)
+    info["rim_scale"] = {"scale": "free" if search.dom is not None and search.dom.rim_u
+                         is not None else "kept", "why": f"rim_scale={settings.rim_scale!r}"}
+    if info["rim_scale"]["scale"] == "free":
+        info["rim_log_scale"] = search.rim_scale_at(V2)
     return V2, F2, info
+
+
+def _prints(c: dict, params: UnitCell, settings: StencilSearch) -> bool:
+    """Whether a stencil's figures ``c`` print at the size asked for."""
+    return at_size(c, settings) and c["max_cell_length_mm"] <= params.max_cell_length
+
+
+def _free_rim(call: dict, settings: StencilSearch, kept, search: CountSearch):
+    """No stencil of the search with the rim's lengths kept printed at size: the search
+    again with the rim's scale free (``call``: the arguments of :func:`remesh_surface`;
+    ``kept = (V2, F2, info)`` its result).  The free stencil is taken when it prints at size,
+    or when neither does and its longest flat cell is shorter at size (or nearer the size).
+
+    Returns
+    -------
+    V2, F2, info : as :func:`remesh_surface`; ``info["rim_scale"]`` says which was taken
+    and why, with the other's figures.
+    """
+    V2, F2, info = kept
+    search.say("no stencil prints at size with the rim's lengths kept: searching again with "
+               "the rim's scale free")
+    V3, F3, free = remesh_surface(**call, settings=replace(settings, rim_scale="free"))
+    a, b = info["after_optimisation"], free["after_optimisation"]
+    params = call["params"]
+    take = _laid_out(b) and (_prints(b, params, settings) or (
+        not _prints(a, params, settings) and _laid_out(a)
+        and (at_size(b, settings), -b["max_cell_length_mm"], -abs(np.log(b["scale3d"])))
+        > (at_size(a, settings), -a["max_cell_length_mm"], -abs(np.log(a["scale3d"])))))
+    figures = {k: info[k] for k in ("vertices", "scale3d", "max_cell_length_mm", "at_size")}
+    if not take:
+        info["rim_scale"] = {"scale": "kept", "why": "the rim's scale free printed no better",
+                             "free": {k: free[k] for k in figures}}
+        return V2, F2, info
+    free["rim_scale"] = {"scale": "free", "why": "no stencil printed at size with the rim's "
+                         "lengths kept", "kept": figures}
+    search.say(f"rim scale free: {free['vertices']} vertices, scale3d {free['scale3d']:.3f}, "
+               f"longest flat cell {free['max_cell_length_mm']:.2f} mm (kept: "
+               f"{info['max_cell_length_mm']:.2f} mm at {info['scale3d']:.3f})")
+    return V3, F3, free
 
 
 def _polish_and_trade(search: CountSearch, best, info: dict, seeds, trade: bool):
@@ -694,8 +790,9 @@ def _record(info: dict, search: CountSearch, best, stencil, chosen: dict, rim, o
                 rim_inset_mm=float(best[2]), rim=rim, scale3d=chosen["scale3d"],
                 max_cell_length_mm=chosen["max_cell_length_mm"],
                 at_size=bool(at_size(chosen, search.settings)),
-                before_optimisation=(stencil_figures(*before, search.params) if optimize
-                                     else None),
+                before_optimisation=(stencil_figures(*before, search.params,
+                                                     u_boundary=search.rim_scale_at(before[0]))
+                                     if optimize else None),
                 after_optimisation=chosen,
                 candidates=[[k[0], k[1], k[2], v["scale3d"], v["max_cell_length_mm"]]
                             for k, v in sorted(search.tried.items())],

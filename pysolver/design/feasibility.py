@@ -34,9 +34,10 @@ from __future__ import annotations
 import igl
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import linprog
+from scipy.optimize import linprog, minimize
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
+from scipy.special import logsumexp
 
 from ..geometry import face_normals
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
@@ -151,6 +152,84 @@ def harmonic_basis(V, F, modes: int = 24) -> np.ndarray:
     return H
 
 
+def _needs(V, F, params: UnitCell, rim_mm, u) -> dict:
+    """What each point of the target needs (module docstring), measured at cell scale.
+
+    Returns
+    -------
+    dict
+        ``keep`` (k,) int (the points at least ``rim_mm``, default ``base_r``, from the
+        rim), per point (n,): ``Dmin`` (mm, inf where no cell bends that far), ``t`` (half
+        fold, rad), ``us`` (the log-scale ``u``, default CETM's, averaged over a ball of one
+        shortest cell); per kept point (k,): ``a = log Dmin``, ``b = log rho_min``.
+    """
+    if u is None:
+        _, u, _ = cetm(V, F)
+    r = shortest_cell(params)
+    k1, k2, _ = cell_scale_curvature(V, F, r)
+    kap = worst_cell_curvature(k1, k2)
+    Dmin = min_cell_length(kap, params)
+    t = kap * np.where(np.isfinite(Dmin), Dmin, r) / 2.0
+    rho = 1.0 / np.cos(np.minimum(t, np.radians(89.0))) + params.layer_h * kap \
+        + params.min_gap / params.max_cell_length
+    tree = cKDTree(V)
+    us = np.array([u[nb].mean() for nb in tree.query_ball_point(V, r)])
+    bnd = np.asarray(igl.boundary_loop(F), dtype=np.int64)
+    d_rim, _ = cKDTree(V[bnd]).query(V)
+    keep = np.flatnonzero(d_rim >= (params.base_r if rim_mm is None else rim_mm))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = np.log(Dmin[keep]), np.log(rho[keep])
+    return {"keep": keep, "Dmin": Dmin, "t": t, "us": us, "a": a, "b": b}
+
+
+def rim_log_scale(V, F, params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL,
+                  u=None) -> np.ndarray:
+    """The boundary log-scale of the flattening that lowers the measured bound: the
+    harmonic function ``h = H c`` (:func:`harmonic_basis`) minimising the bound's two
+    extremes, each smoothed by a log-sum-exp of sharpness ``settings.rim_scale_sharpness``,
+    plus ``settings.rim_scale_ridge |c|^2 / 2``.  (The bound itself is a linear programme,
+    :func:`conformal_bound`; its minimiser is a vertex that may jump between equally good
+    ones with the last bits, while this one is unique and smooth in the input.)
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm -- the target, finely meshed
+    F : (m, 3) int
+    params : UnitCell
+    settings : StencilSearch
+    u : (n,) float, optional -- CETM's log-scale with 0 on the rim
+
+    Returns
+    -------
+    h : (n,) float
+        Log-scale to add to the flattening's, harmonic, with mean 0 on the rim (its values
+        on the rim are the Dirichlet data of :func:`pysolver.design.flatten.cetm`); zeros
+        when some point bends too tightly for any cell (no boundary scale helps there).
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    need = _needs(V, F, params, None, u)
+    keep = need["keep"]
+    if not np.all(np.isfinite(need["Dmin"][keep])) or not len(keep):
+        return np.zeros(len(V))
+    H = harmonic_basis(V, F)
+    Hk, us, a, b = H[keep], need["us"][keep], need["a"], need["b"]
+    beta, mu = settings.rim_scale_sharpness, settings.rim_scale_ridge
+
+    def smoothed(c):  # log of the smoothed bound, and its gradient
+        h = Hk @ c
+        p, q = beta * (us + h + a), -beta * (us + h - b)
+        lp, lq = logsumexp(p), logsumexp(q)
+        return ((lp + lq) / beta + 0.5 * mu * c @ c,
+                Hk.T @ (np.exp(p - lp) - np.exp(q - lq)) + mu * c)
+
+    res = minimize(smoothed, np.zeros(H.shape[1]), jac=True, method="L-BFGS-B",
+                   options={"gtol": 1e-10, "maxiter": 2000})
+    h = H @ res.x
+    bnd = np.asarray(igl.boundary_loop(F), dtype=np.int64)
+    return h - h[bnd].mean()
+
+
 def conformal_bound(V, F, params: UnitCell = UNIT_CELL, *, rim_mm: float | None = None,
                     u=None) -> dict:
     """The least longest flat cell any conformal stencil of a target can have (module
@@ -179,44 +258,30 @@ def conformal_bound(V, F, params: UnitCell = UNIT_CELL, *, rim_mm: float | None 
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
-    if u is None:
-        _, u, _ = cetm(V, F)
-    r = shortest_cell(params)
-    k1, k2, _ = cell_scale_curvature(V, F, r)
-    kap = worst_cell_curvature(k1, k2)
-    Dmin = min_cell_length(kap, params)
-    t = kap * np.where(np.isfinite(Dmin), Dmin, r) / 2.0
-    rho = 1.0 / np.cos(np.minimum(t, np.radians(89.0))) + params.layer_h * kap \
-        + params.min_gap / params.max_cell_length
-    # the log-scale a cell sees: averaged over a ball of one shortest cell
-    tree = cKDTree(V)
-    us = np.array([u[nb].mean() for nb in tree.query_ball_point(V, r)])
-    bnd = np.asarray(igl.boundary_loop(F), dtype=np.int64)
-    rim = params.base_r if rim_mm is None else rim_mm
-    d_rim, _ = cKDTree(V[bnd]).query(V)
-    keep = np.flatnonzero(d_rim >= rim)
+    need = _needs(V, F, params, rim_mm, u)
+    keep, Dmin, t = need["keep"], need["Dmin"], need["t"]
     if not np.all(np.isfinite(Dmin[keep])):
         i = keep[np.argmax(~np.isfinite(Dmin[keep]))]
         return {"bound_mm": float("inf"), "bound_rim_fixed_mm": float("inf"),
                 "printable": False, "limit_mm": params.max_cell_length,
                 "where": V[i].round(1).tolist(), "contraction": None,
                 "fold_deg": 180.0, "shortest_cell_mm": [float(np.nanmin(Dmin)), float("inf")]}
-    a, b = np.log(Dmin[keep]), np.log(rho[keep])
-    fixed = float(np.max(us[keep] + a) - np.min(us[keep] - b))
+    us, a, b = need["us"][keep], need["a"], need["b"]
+    fixed = float(np.max(us + a) - np.min(us - b))
     # minimise over boundary data h = H c: t s.t. us + Hc + a <= s + t, us + Hc - b >= s
     Hk = harmonic_basis(V, F)[keep]
     m, nb = Hk.shape
     one = np.ones((m, 1))
     A = np.vstack([np.hstack([Hk, -one, -one]), np.hstack([-Hk, one, np.zeros((m, 1))])])
-    rhs = np.r_[-(us[keep] + a), us[keep] - b]
+    rhs = np.r_[-(us + a), us - b]
     cost = np.r_[np.zeros(nb + 1), 1.0]
     res = linprog(cost, A_ub=A, b_ub=rhs, bounds=[(None, None)] * (nb + 2), method="highs-ds")
     best = float(res.fun) if res.status == 0 else fixed
     h = Hk @ res.x[:nb] if res.status == 0 else np.zeros(m)
-    i = keep[int(np.argmax(us[keep] + h + a))]
+    i = keep[int(np.argmax(us + h + a))]
     return {"bound_mm": round(float(np.exp(best)), 3),
             "bound_rim_fixed_mm": round(float(np.exp(fixed)), 3),
-            "contraction": round(float(np.exp(np.ptp(us[keep] + h))), 3),
+            "contraction": round(float(np.exp(np.ptp(us + h))), 3),
             "fold_deg": round(float(np.degrees(2 * t[keep].max())), 1),
             "shortest_cell_mm": [round(float(Dmin[keep].min()), 3),
                                  round(float(Dmin[keep].max()), 3)],
@@ -227,12 +292,18 @@ def conformal_bound(V, F, params: UnitCell = UNIT_CELL, *, rim_mm: float | None 
 
 def target_bound(V, F, params: UnitCell = UNIT_CELL, settings: StencilSearch = STENCIL) -> dict:
     """:func:`conformal_bound` of a target meshed as the stencil search meshes it (resampled
-    finely when its triangles are poor or few)."""
+    finely when its triangles are poor or few); ``printable`` is that of the layouts the
+    search makes: with ``settings.rim_scale`` other than ``"kept"`` the rim's scale may be
+    free, and the best conformal layout's bound applies (``rim_scale`` records which)."""
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
     if needs_dense(V, F, settings):
         V, F = resample_dense(V, F, settings.dense_faces)
-    return conformal_bound(V, F, params)
+    b = conformal_bound(V, F, params)
+    b["rim_scale"] = "kept" if settings.rim_scale == "kept" else "free"
+    if b["rim_scale"] == "free":
+        b["printable"] = bool(b["bound_mm"] <= params.max_cell_length)
+    return b
 
 
 def describe_bound(b: dict, params: UnitCell = UNIT_CELL) -> str:
@@ -241,9 +312,12 @@ def describe_bound(b: dict, params: UnitCell = UNIT_CELL) -> str:
         return (f"the target bends too tightly for any cell to keep its bumpers near "
                 f"({', '.join(f'{x:.1f}' for x in b['where'])}) mm")
     most = params.max_cell_length / shortest_cell(params)
+    free = (", as morphshell lays it out when the first does not print"
+            if b.get("rim_scale") == "free" else "")
     head = (f"measured bound: every stencil of this target has a flat cell of at least "
-            f"{b['bound_rim_fixed_mm']:.2f} mm in morphshell's conformal layout (rim scale "
-            f"kept), {b['bound_mm']:.2f} mm in the best conformal layout; its cells must "
+            f"{b['bound_rim_fixed_mm']:.2f} mm in a conformal layout that keeps the rim's "
+            f"lengths, {b['bound_mm']:.2f} mm in the best conformal layout (the rim's scale "
+            f"free{free}); its cells must "
             f"contract {b['contraction']:.2f} times more in one place than in another and "
             f"fold by up to {b['fold_deg']:.0f} deg, and a cell can contract at most "
             f"{most:.2f} times at {params.min_bumper:g} mm bumpers")
@@ -254,4 +328,4 @@ def describe_bound(b: dict, params: UnitCell = UNIT_CELL) -> str:
 
 
 __all__ = ["shortest_cell", "cell_scale_curvature", "worst_cell_curvature", "min_cell_length",
-           "harmonic_basis", "conformal_bound", "target_bound", "describe_bound"]
+           "harmonic_basis", "rim_log_scale", "conformal_bound", "target_bound", "describe_bound"]

@@ -117,19 +117,24 @@ def _cetm_energy(lam0, F, u, theta, interior):
     return e + np.sum(theta[interior] * u[interior])
 
 
-def cetm(V, F, *, max_iter: int = 60, tol: float = TOL.cetm_stop):
-    """CETM flattening with u = 0 on the boundary.
+def cetm(V, F, *, max_iter: int = 60, tol: float = TOL.cetm_stop, u_boundary=None):
+    """CETM flattening with u = 0 on the boundary, or the boundary log-scale given.
 
     Parameters
     ----------
     V : (n, 3) float
     F : (m, 3) int
         A connected disk-like triangle mesh.
+    u_boundary : (n,) float, optional
+        Log-scale factors; the values on the boundary vertices are the Dirichlet data (a
+        boundary edge's flat length is its 3D length times ``exp((u_a + u_b) / 2)``), the
+        others are ignored.  Default 0: boundary edge lengths kept.
 
     Returns
     -------
     UV : (n, 2) float
-        Flat layout (same scale as V: boundary edge lengths are kept).
+        Flat layout (same scale as V: boundary edge lengths are kept unless
+        ``u_boundary``).
     u : (n,) float
         Log scale factors (flat length = 3D length * exp((u_a + u_b)/2)).
     info : dict
@@ -145,6 +150,8 @@ def cetm(V, F, *, max_iter: int = 60, tol: float = TOL.cetm_stop):
     interior = np.flatnonzero(~bnd)
     theta = np.full(n, 2 * np.pi)
     u = np.zeros(n)
+    if u_boundary is not None:
+        u[bnd] = np.asarray(u_boundary, float).reshape(n)[bnd]
     # Hessian pattern: edges of each face (hand assembled so that degenerate triangles get
     # zero cotangent weight, which igl.cotmatrix_intrinsic would turn into inf/nan)
     I = F[:, [1, 2, 0]].ravel()
@@ -319,10 +326,12 @@ def canonical_orientation(UV) -> np.ndarray:
     return X @ E + c
 
 
-def flatten(V, F, method: str = "cetm") -> FlattenResult:
-    """Flatten with ``method`` in {"cetm", "lscm"}; the result's long axis is x."""
+def flatten(V, F, method: str = "cetm", u_boundary=None) -> FlattenResult:
+    """Flatten with ``method`` in {"cetm", "lscm"}; the result's long axis is x.
+    ``u_boundary`` (n,) float: CETM's boundary log-scale (:func:`cetm`; LSCM's boundary is
+    free)."""
     if method == "cetm":
-        UV, u, info = cetm(V, F)
+        UV, u, info = cetm(V, F, u_boundary=u_boundary)
         return FlattenResult(canonical_orientation(UV), "cetm", dict(info), u)
     if method == "lscm":
         return FlattenResult(canonical_orientation(lscm(V, F)), "lscm", {})
@@ -330,16 +339,17 @@ def flatten(V, F, method: str = "cetm") -> FlattenResult:
 
 
 def compare_flattenings(V, F, params: UnitCell = UNIT_CELL,
-                        methods=("cetm", "lscm")) -> dict[str, FlattenResult]:
+                        methods=("cetm", "lscm"), u_boundary=None) -> dict[str, FlattenResult]:
     """Run every method and fill its metrics (distortion + max cell length after layout).
 
     A method that fails records ``{"error": message}`` and has ``UV = None``.
+    ``u_boundary`` (n,) float: CETM's boundary log-scale (:func:`cetm`).
     """
     res = {}
     for m in methods:
         t0 = time.perf_counter()
         try:
-            r = flatten(V, F, m)
+            r = flatten(V, F, m, u_boundary=u_boundary)
         except InputError as e:
             res[m] = FlattenResult(None, m, {"error": e.problem})
             continue

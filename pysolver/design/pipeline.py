@@ -410,7 +410,8 @@ class _Stencil:
     """The stencil of a design before its layout: target ``V`` (n, 3) mm, flat ``UV``
     (n, 2) mm, faces ``F`` (m, 3); how it was made (``remesh``, the flattenings'
     ``comparison``) and ``rerun(factor, params) -> remesh record``, which searches the target
-    again (the refusals' measured alternatives), or None."""
+    again (the refusals' measured alternatives), or None; ``rim_u`` (n,) the CETM's boundary
+    log-scale when the search freed the rim's scale (``remesh["rim_scale"]``), else None."""
 
     V: np.ndarray
     UV: np.ndarray
@@ -418,6 +419,7 @@ class _Stencil:
     remesh: dict
     comparison: dict
     rerun: object = None
+    rim_u: np.ndarray | None = None
 
 
 def _stencil(surf, src_desc: str, land: DesignLandscape, clock: Clock, *, vertices, seed,
@@ -447,14 +449,15 @@ def _stencil(surf, src_desc: str, land: DesignLandscape, clock: Clock, *, vertic
             if progress else None)
         rerun = lambda f, p: search(f, p)[2]  # the refusals' measured alternatives
     clock.step("remesh")
-    results = compare_flattenings(V0, F0, params=params)
+    rim_u = remesh_info.pop("rim_log_scale", None)  # (per vertex: not for design.json)
+    results = compare_flattenings(V0, F0, params=params, u_boundary=rim_u)
     chosen = results[flattening]
     if chosen.UV is None:
         raise InputError(f"flattening {flattening!r} failed: {chosen.metrics['error']}",
                          fix="try the other flattening or remesh the surface")
     clock.step("flatten")
     return _Stencil(V0, chosen.UV, F0, remesh_info, {k: r.metrics for k, r in results.items()},
-                    rerun)
+                    rerun, rim_u)
 
 
 def _check(surf, st: _Stencil, lay: Layout, params: UnitCell, vertices):
@@ -485,7 +488,8 @@ def _check(surf, st: _Stencil, lay: Layout, params: UnitCell, vertices):
     if (remesh_info.get("remeshed")
             and lay.central_length.max() > params.max_cell_length):
         report.errors.append(("", printable_alternatives(st.V, st.F, remesh_info, params,
-                                                         st.rerun, extent, (surf.V, surf.F))))
+                                                         st.rerun, extent, (surf.V, surf.F),
+                                                         u_boundary=st.rim_u)))
     elif remesh_info.get("remeshed") and vertices is None \
             and not remesh_info.get("at_size", True):
         raise size_refusal(remesh_info, params, st.rerun, extent)

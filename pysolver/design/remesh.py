@@ -1,7 +1,8 @@
 """Stencil generation: isotropic remeshing of the target surface into N vertices, optimised.
 
 Method ``"cvt"`` (default), in the conformal plane of the dense target (CETM, boundary
-log-scale 0, :func:`pysolver.design.flatten.cetm`):
+log-scale 0, or the one that lowers the measured bound with ``StencilSearch.rim_scale``
+free, :func:`pysolver.design.flatten.cetm`):
 
 1. **Boundary**: points along the target's boundary, or along a curve inset from it by a
    fraction of a cell spacing (``StencilSearch.rim_insets``), equally spaced in 3D arc length.
@@ -244,13 +245,19 @@ class FlatDomain:
     V : (n, 3) float, mm
     F : (m, 3) int
     settings : StencilSearch
+    time : (n,) float, s, optional -- the landscape the spacing follows
+    rim_log_scale : (n,) float, optional
+        The flattening's boundary log-scale (:func:`pysolver.design.feasibility.
+        rim_log_scale`, harmonic; its rim values are the Dirichlet data); default 0, the
+        rim's lengths kept.
     """
 
-    def __init__(self, V, F, settings: StencilSearch = STENCIL, time=None):
+    def __init__(self, V, F, settings: StencilSearch = STENCIL, time=None, rim_log_scale=None):
         self.V = np.asarray(V, float)
         self.F = np.asarray(F, dtype=np.int64)
         self.settings = settings
-        self.UV, self.u, _ = cetm(self.V, self.F)
+        self.rim_u = None if rim_log_scale is None else np.asarray(rim_log_scale, float)
+        self.UV, self.u, _ = cetm(self.V, self.F, u_boundary=self.rim_u)
         # log of the relative 3D spacing the time landscape asks for (0 without one)
         self.w = (np.zeros(len(self.V)) if time is None
                   else time_spacing_log(time, settings.timing_grading))
@@ -300,6 +307,17 @@ class FlatDomain:
         fi, B = self._barycentric(P)
         return np.einsum("ij,ij->i", B, np.asarray(values, float)[self.F[fi]])
 
+    def rim_scale_at(self, X):
+        """(k,) float or None: the flattening's harmonic rim log-scale at target points
+        ``X`` (k, 3) mm (on the target: a stencil's vertices), the boundary data of a
+        stencil's own flattening; None when the rim's lengths are kept."""
+        if self.rim_u is None:
+            return None
+        _, fi, C = igl.point_mesh_squared_distance(np.asarray(X, float), self.V, self.F)
+        T = self.V[self.F[fi]]
+        B = igl.barycentric_coordinates(C, T[:, 0].copy(), T[:, 1].copy(), T[:, 2].copy())
+        return np.einsum("ij,ij->i", B, self.rim_u[self.F[fi]])
+
     def log_scale(self, P) -> np.ndarray:
         """(k,) float: conformal log-scale u at flat points (flat length = exp(u) 3D)."""
         fi, B = self._barycentric(P)
@@ -326,7 +344,8 @@ class FlatDomain:
 
     def boundary_polygon(self, inset_mm: float = 0.0) -> np.ndarray:
         """(r, 2) float: the flat boundary, or the curve ``inset_mm`` inside it (the boundary
-        log-scale is 0, so flat and 3D distances agree there), closed (last = first)."""
+        log-scale is 0, or of mean 0 with a free rim scale, so flat and 3D distances agree
+        there, on average), closed (last = first)."""
         C = self.UV[np.r_[self.loop, self.loop[:1]]]
         if inset_mm <= 0:
             return C

@@ -362,10 +362,12 @@ class StencilObjective:
     rim : (r, 2) float, mm, optional
         The closed curve the rim vertices lie on (:class:`RimCurve`); they then slide along
         it.  Rim vertices off it (an ear's or a flap's removal made them rim) stay fixed.
+    pin_scale3d : float
+        The 3D scaling the pin holds (default 1).
     """
 
     def __init__(self, domain, P, F, params: UnitCell, settings: StencilSearch,
-                 t_vertex=None, pin: bool = False, rim=None):
+                 t_vertex=None, pin: bool = False, rim=None, pin_scale3d: float = 1.0):
         self.domain, self.F, self.params, self.settings = domain, F, params, settings
         cells = unit_cells(F, face_adjacency(F))
         self.n_cells = len(cells.faces)
@@ -386,6 +388,7 @@ class StencilObjective:
         # its square root has a kink, whose rounding noise L-BFGS amplified
         self.fold_floor = np.tan(np.radians(settings.opt_fold_floor_deg) / 2.0) ** 2
         self.pin = settings.opt_pin_weight if pin else 0.0
+        self.pin_log = float(np.log(pin_scale3d))
         self.edges = igl.edges(F)
         self.fixed = np.zeros(len(P), dtype=bool)
         self.fixed[igl.boundary_loop(F)] = True
@@ -425,7 +428,8 @@ class StencilObjective:
     def main_terms(self, log_s3, log_s2, log_d, log_pinned):
         """Pinned: the longest flat cell per unit of 3D scaling, with the 3D scaling (log,
         ``log_pinned``: the exact one, or within a round the smoothed one less its excess at
-        the round's start, as the timing cap's) held at 1 (the shell keeps its target's
+        the round's start, as the timing cap's; either less the log of ``pin_scale3d``) held
+        at 1 (or ``pin_scale3d``) (the shell keeps its target's
         size, so the count search can trade vertices for flat length); else the longest flat
         cell (+ the optional 3D scaling weight)."""
         if self.pin > 0:
@@ -460,7 +464,8 @@ class StencilObjective:
         g = self._geometry(Q, self.domain.lift(Q))
         a, b, c = self._logs(g, self.settings.opt_sharpness)
         ex = self._logs(g, None)
-        return (float(self.main_terms(a, b, c, ex[0]) + self.timing(g, a, b, ex[1] + ex[2])),
+        return (float(self.main_terms(a, b, c, ex[0] - self.pin_log)
+                      + self.timing(g, a, b, ex[1] + ex[2])),
                 self.shortfall(Q, float(ex[1])))
 
     def linearised(self, P0, clearance_weight: float, autodiff: bool = False):
@@ -483,7 +488,7 @@ class StencilObjective:
         if self.w_t > 0 or self.pin > 0:
             geo0 = self._geometry(P0, X0)
             sm0, ex0 = self._logs(geo0, st.opt_sharpness), self._logs(geo0, None)
-            pin_excess = float(sm0[0] - ex0[0])
+            pin_excess = float(sm0[0] - ex0[0]) + self.pin_log  # (and the scaling held)
             cap_excess = float(sm0[1] + sm0[2] - ex0[1] - ex0[2])
         if not autodiff:
             return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight,
@@ -700,7 +705,7 @@ def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: fl
 
 def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
                      settings: StencilSearch = STENCIL, t_vertex=None, pin: bool = False,
-                     converge: bool = False, rim=None):
+                     converge: bool = False, rim=None, pin_scale3d: float = 1.0):
     """Move the stencil vertices (the rim ones along the rim) to shorten the longest flat cell.
 
     The objective is ``log lmax + opt_s3_weight * log s3``, plus quadratic penalties on flat
@@ -736,7 +741,8 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         leaves the term out: programming then picks the constant most cells can reach, and
         evening the cells' speeds for it costs more than it saves (stand and cover).
     pin : bool
-        Hold the 3D scaling at 1 and minimise the longest flat cell per unit of scaling.
+        Hold the 3D scaling at 1 (or ``pin_scale3d``) and minimise the longest flat cell per
+        unit of scaling.
     rim : (r, 2) float, mm, optional
         The curve the rim vertices lie on: they slide along it (:class:`RimCurve`).
     converge : bool
@@ -759,7 +765,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     """
     P = np.array(P, dtype=float)
     F = np.asarray(F, dtype=np.int64)
-    problem = StencilObjective(domain, P, F, params, settings, t_vertex, pin, rim)
+    problem = StencilObjective(domain, P, F, params, settings, t_vertex, pin, rim, pin_scale3d)
     if problem.n_cells == 0:
         return P, {"rounds": 0, "history": [], "converged": True}
     st = settings
