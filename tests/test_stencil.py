@@ -358,6 +358,12 @@ def test_pick_prefers_size_among_printable_and_never_a_failed_layout():
     long_ = {"scale3d": 1.0, "max_cell_length_mm": 9.9}
     longer = {"scale3d": 1.0, "max_cell_length_mm": 10.5}
     assert count_search._pick({(4, 0, 0.0): longer, (5, 0, 0.0): long_}, P, 0.3) == (5, 0, 0.0)
+    # nothing prints: the shortest longest cell per unit of scaling, at size first
+    small = {"scale3d": 0.950, "max_cell_length_mm": 9.70}  # (10.21 mm per unit)
+    large = {"scale3d": 1.009, "max_cell_length_mm": 9.72}  # (9.63 mm per unit)
+    tiny = {"scale3d": 1.10, "max_cell_length_mm": 9.9}     # (9.00 mm per unit, not at size)
+    assert count_search._pick({(6, 0, 0.0): small, (7, 0, 0.0): large, (8, 0, 0.0): tiny}, P,
+                              0.3, STENCIL) == (7, 0, 0.0)
     assert count_search._pick({(3, 0, 0.0): failed}, P, 0.3) is None
 
 
@@ -378,6 +384,25 @@ def test_paper_cover_designs_printable_from_its_target(tmp_path):
     r = s["remesh"]
     assert r["after_optimisation"]["max_cell_length_mm"] < r["before_optimisation"][
         "max_cell_length_mm"]
+
+
+def test_peer_beetle_prints_with_the_rim_scale_free(tmp_path):
+    """The peer beetle at its README's 150 mm and 0.1 mm bumpers: no stencil prints with the
+    rim's lengths kept (the bound is 9.64 mm; the search reaches 9.76 mm), so the search
+    frees the rim's scale and, with no stencil printable at scale 1 (9.54 mm), holds the
+    scaling at the size's floor (0.969): measured 184 vertices, 9.38 mm."""
+    src = shared_file("peer-shapes", "beetle.obj")
+    m = load_input(src, size=150.0)
+    s = run_design(surfaces.Surface("beetle", m.V - m.V.mean(axis=0), m.F), tmp_path,
+                   params=replace(UNIT_CELL, min_bumper=0.1), progress=False, plots=False)
+    assert s["checks"]["ok"]
+    assert s["cell_length_mm"]["max"] <= 9.5
+    r = s["remesh"]
+    assert r["rim_scale"]["scale"] == "free"
+    assert r["rim_scale"]["kept"]["max_cell_length_mm"] > 9.5
+    floor = r["polish"]["floor"]
+    assert floor["kept"] and floor["scale3d"] == pytest.approx(floor["scale3d_held"], abs=0.005)
+    assert 0.95 <= s["scale"]["scale3d"] <= 1.0
 
 
 def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path, monkeypatch):
@@ -511,17 +536,19 @@ def test_constant_landscape_through_the_search_is_no_landscape():
     assert np.array_equal(F0, F1) and np.array_equal(V0, V1)
 
 
-@pytest.mark.parametrize("n", [50, 70])
-def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome_domain, n):
+@pytest.mark.parametrize(("n", "held"), [(50, 1.0), (70, 1.0), (70, 0.969)])
+def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome_domain, n,
+                                                                           held):
     """The count search's last pass: the 3D scaling held at 1 (from 0.80 and 0.97 here, to
-    0.5 %), the longest flat cell per unit of scaling shorter than before."""
+    0.5 %), or at the size's floor (``CountSearch.floor``), the longest flat cell per unit
+    of scaling shorter than before."""
     P, F = dome_domain.stencil(n, seed=0)
     before = count_search.stencil_figures(dome_domain.lift(P), F)
     Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
-                                           pin=True)
+                                           pin=True, pin_scale3d=held)
     after = count_search.stencil_figures(dome_domain.lift(Q), F)
     assert info["rounds"] >= 1
-    assert after["scale3d"] == pytest.approx(1.0, abs=0.005)
+    assert after["scale3d"] == pytest.approx(held, abs=0.005)
     assert (after["max_cell_length_mm"] / after["scale3d"]
             < before["max_cell_length_mm"] / before["scale3d"] - 0.2)
     assert np.all(stencil_opt._signed_areas(Q, F) > 0)

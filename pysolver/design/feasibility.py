@@ -204,7 +204,8 @@ def rim_log_scale(V, F, params: UnitCell = UNIT_CELL, settings: StencilSearch = 
     h : (n,) float
         Log-scale to add to the flattening's, harmonic, with mean 0 on the rim (its values
         on the rim are the Dirichlet data of :func:`pysolver.design.flatten.cetm`); zeros
-        when some point bends too tightly for any cell (no boundary scale helps there).
+        when some point bends too tightly for any cell (no boundary scale helps there), or
+        when the bound it gives is no lower than the rim's lengths kept give.
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
@@ -216,15 +217,29 @@ def rim_log_scale(V, F, params: UnitCell = UNIT_CELL, settings: StencilSearch = 
     Hk, us, a, b = H[keep], need["us"][keep], need["a"], need["b"]
     beta, mu = settings.rim_scale_sharpness, settings.rim_scale_ridge
 
-    def smoothed(c):  # log of the smoothed bound, and its gradient
+    def weights(c):  # the two log-sum-exps' softmax weights at c
         h = Hk @ c
         p, q = beta * (us + h + a), -beta * (us + h - b)
         lp, lq = logsumexp(p), logsumexp(q)
-        return ((lp + lq) / beta + 0.5 * mu * c @ c,
-                Hk.T @ (np.exp(p - lp) - np.exp(q - lq)) + mu * c)
+        return (lp + lq) / beta, np.exp(p - lp), np.exp(q - lq)
 
-    res = minimize(smoothed, np.zeros(H.shape[1]), jac=True, method="L-BFGS-B",
-                   options={"gtol": 1e-10, "maxiter": 2000})
+    def smoothed(c):  # log of the smoothed bound plus the ridge, and its gradient
+        f, wp, wq = weights(c)
+        return f + 0.5 * mu * c @ c, Hk.T @ (wp - wq) + mu * c
+
+    def hessian(c):
+        _, wp, wq = weights(c)
+        gp, gq = Hk.T @ wp, Hk.T @ wq
+        return beta * (Hk.T @ ((wp + wq)[:, None] * Hk) - np.outer(gp, gp)
+                       - np.outer(gq, gq)) + mu * np.eye(len(c))
+
+    # Newton's method with an exact Hessian (24 modes): converged to round-off, so that the
+    # last bits of the input move the result by no more than they move the problem
+    res = minimize(smoothed, np.zeros(H.shape[1]), jac=True, hess=hessian,
+                   method="trust-exact", options={"gtol": 1e-12, "maxiter": 200})
+    spread = lambda h: np.max(us + h + a) - np.min(us + h - b)  # log of the bound
+    if spread(Hk @ res.x) >= spread(0.0):
+        return np.zeros(len(V))  # (the smoothed extremes' minimiser can miss the exact ones)
     h = H @ res.x
     bnd = np.asarray(igl.boundary_loop(F), dtype=np.int64)
     return h - h[bnd].mean()
