@@ -5,8 +5,11 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import igl
 import numpy as np
 import pytest
+import trimesh
+from _shared import shared_file
 
 from pysolver.design import surfaces
 from pysolver.design.feasibility import (
@@ -126,8 +129,6 @@ def test_rim_log_scale_is_harmonic_lowers_the_bound_and_ignores_last_bits():
     """The rim's log-scale the free layout takes: harmonic, of mean 0 on the rim; the bound
     it gives lies between the linear programme's minimum and the rim kept (measured 5.587 <=
     5.626 < 5.652 mm); and 1e-9 of the size on the input moves it by under 1e-6."""
-    import igl
-
     V, F = _off_centre_bowl()
     _, u, _ = cetm(V, F)
     h = rim_log_scale(V, F, P)
@@ -148,10 +149,6 @@ def test_rim_scale_free_admits_the_peer_beetle():
     """The peer beetle at 150 mm with 0.1 mm bumpers: kept, the rim excludes it (9.64 mm
     over the 9.5 mm limit); free, the bound is 8.94 mm, and the smoothed choice of the rim's
     scale reaches 9.04 mm."""
-    import trimesh
-
-    from _shared import shared_file
-
     m = trimesh.load(shared_file("peer-shapes", "beetle.obj"), process=False)
     V = np.asarray(m.vertices, float)
     V = (V - V.mean(axis=0)) * 150.0 / np.ptp(V, axis=0).max()

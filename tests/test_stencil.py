@@ -795,3 +795,10 @@ def test_stencils_have_no_flaps_where_they_can_merge():
     for v in igl.boundary_loop(F):
         if count[v] == 2:
             assert _flap_left_for_a_reason(P, F, v, STENCIL.flap_min_angle_deg)
+
+
+def test_an_unknown_rim_scale_is_refused_naming_the_choices():
+    s = surfaces.builtin("dome")
+    with pytest.raises(InputError, match="rim_scale") as e:
+        count_search.remesh_surface(s.V, s.F, settings=replace(STENCIL, rim_scale="loose"))
+    assert '"auto", "kept" or "free"' in e.value.fix

@@ -642,6 +642,9 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)
+    if settings.rim_scale not in ("auto", "kept", "free"):
+        raise InputError(f"StencilSearch.rim_scale={settings.rim_scale!r}",
+                         fix='use "auto", "kept" or "free"')
     call = dict(V=V, F=F, vertices=vertices, seed=seed, target_bases=target_bases,
                 params=params, method=method, dense=dense, optimize=optimize, time=time,
                 user_times=user_times, progress=progress)
@@ -666,12 +669,22 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     info["timing_grading"] = {"grading": settings.timing_grading if graded else 0.0,
                               "taken": bool(graded)}
     _record(info, search, best, (V2, F2, before), chosen, rim, optimize, A)
-    if settings.rim_scale == "auto" and search.dom is not None and vertices is None \
-            and not _prints(chosen, params, settings):
-        return _free_rim(call, settings, (V2, F2, info), search)
-    info["rim_scale"] = {"scale": "free" if search.dom is not None and search.dom.rim_u
-                         is not None else "kept", "why": f"rim_scale={settings.rim_scale!r}"}
-    if info["rim_scale"]["scale"] == "free":
+    return _rim_scale(call, settings, (V2, F2, info), search)
+
+
+def _rim_scale(call: dict, settings: StencilSearch, result, search: CountSearch):
+    """A search's ``result = (V2, F2, info)`` with its rim's scale recorded
+    (``info["rim_scale"]``, and ``info["rim_log_scale"]``, (k,) per stencil vertex, when
+    free); with ``rim_scale="auto"`` and no stencil printable at size, the search again with
+    the rim's scale free (:func:`_free_rim`)."""
+    V2, F2, info = result
+    if settings.rim_scale == "auto" and search.dom is not None and call["vertices"] is None \
+            and not _prints(info["after_optimisation"], call["params"], settings):
+        return _free_rim(call, settings, result, search)
+    free = search.dom is not None and search.dom.rim_u is not None
+    info["rim_scale"] = {"scale": "free" if free else "kept",
+                         "why": f"rim_scale={settings.rim_scale!r}"}
+    if free:
         info["rim_log_scale"] = search.rim_scale_at(V2)
     return V2, F2, info
 

@@ -741,8 +741,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
         leaves the term out: programming then picks the constant most cells can reach, and
         evening the cells' speeds for it costs more than it saves (stand and cover).
     pin : bool
-        Hold the 3D scaling at 1 (or ``pin_scale3d``) and minimise the longest flat cell per
-        unit of scaling.
+        Hold the 3D scaling at ``pin_scale3d``; minimise the longest flat cell per scaling.
     rim : (r, 2) float, mm, optional
         The curve the rim vertices lie on: they slide along it (:class:`RimCurve`).
     converge : bool

@@ -253,7 +253,11 @@ class StencilSearch:
         targets whose first counts land far off.
     polish_tolerance : float
         The polish "held" the scaling at 1 when the stencil kept is within this (log) of it;
-        otherwise the search says that it could not.
+        otherwise the search says that it could not.  When the stencil at scale 1 leaves
+        less than ``margin`` below the limit, the polish also holds ``min_scale3d
+        exp(polish_tolerance)`` (0.969: the smallest scaling at size, with the polish's
+        tolerance to spare) and keeps that if it prints with a shorter longest cell
+        (:meth:`pysolver.design.count_search.CountSearch.floor`).
     refusal_size_factor : float
         A target none of whose stencils prints at any size is searched once more at this
         fraction of its size, so that its refusal names a measured smaller ``--size``.
@@ -323,7 +327,8 @@ class StencilSearch:
         ``"auto"``: kept; free when no stencil of the kept search prints at size
         (``remesh.rim_scale``).  Measured on the peer beetle (``--size 150 --min-bumper
         0.1``): kept, the bound is 9.64 mm (over the 9.5 mm limit) and the search's best is
-        9.61-9.76 mm; free, the bound is 9.04 mm and the polish at scale 1 reaches 9.54 mm.
+        9.72 mm; free, the bound is 8.94 mm (9.04 mm with the smoothed choice), the polish
+        at scale 1 reaches 9.50-9.53 mm and at the floor (``polish_tolerance``) 9.38 mm.
     rim_scale_sharpness : float, 1 / log
         Sharpness of the log-sum-exp that smooths the bound's two extremes when
         :func:`~pysolver.design.feasibility.rim_log_scale` chooses the rim's log-scale:
