@@ -393,7 +393,7 @@ def test_peer_beetle_prints_with_the_rim_scale_free(tmp_path):
     scaling at the size's floor (0.969): measured 184 vertices, 9.38 mm."""
     src = shared_file("peer-shapes", "beetle.obj")
     m = load_input(src, size=150.0)
-    s = run_design(surfaces.Surface("beetle", m.V - m.V.mean(axis=0), m.F), tmp_path,
+    s = run_design(surfaces.Surface("beetle", m.V - m.V.mean(axis=0), m.F), tmp_path / "d",
                    params=replace(UNIT_CELL, min_bumper=0.1), progress=False, plots=False)
     assert s["checks"]["ok"]
     assert s["cell_length_mm"]["max"] <= 9.5

@@ -44,7 +44,7 @@ import numpy as np
 from ..errors import InputError
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ..params import tol as TOL
-from .feasibility import rim_log_scale
+from .feasibility import conformal_bound, rim_log_scale
 from .flatten import cetm
 from .layout import build_layout
 from .remesh import (
@@ -546,8 +546,10 @@ class CountSearch:
                  + ("(kept)" if chosen is fig else "(dropped)")
                  + ("" if held else f"; could not hold the scaling at 1 (the stencil kept "
                                     f"is at {chosen['scale3d']:.3f})"))
-        if chosen["max_cell_length_mm"] > limit - st.margin:
-            V2, chosen, record["floor"] = self.floor(best, V2, chosen)
+        floor = st.min_scale3d * float(np.exp(st.polish_tolerance))
+        if limit - st.margin < chosen["max_cell_length_mm"] \
+                <= limit * chosen["scale3d"] / floor:  # (hopeless beyond: see floor)
+            V2, chosen, record["floor"] = self.floor(best, V2, chosen, floor)
         return V2, chosen, record
 
     def _pinned(self, best, scale3d: float):
@@ -560,11 +562,13 @@ class CountSearch:
         Vp = self.dom.lift(P)
         return Vp, self.figures(Vp, self.meshes[best][1]), opt
 
-    def floor(self, best, V2, chosen):
-        """The pick held at the smallest 3D scaling the size allows, ``min_scale3d
-        exp(polish_tolerance)`` (a shell's longest flat cell shrinks about with its
-        scaling), kept when it prints at that size with a shorter longest cell than
-        ``chosen``, the stencil at scale 1 (:meth:`polish`).
+    def floor(self, best, V2, chosen, s: float):
+        """The pick held at the smallest 3D scaling the size allows, ``s = min_scale3d
+        exp(polish_tolerance)``, kept when it prints at that size with a shorter longest cell
+        than ``chosen``, the stencil at scale 1 (:meth:`polish`).  A shell's longest flat
+        cell shrinks at most about in proportion to its scaling (the beetle's: 9.53 mm at
+        1.000, 9.38 mm at 0.969), so :meth:`polish` does not try it when even that would
+        leave the cell over the limit.
 
         Returns
         -------
@@ -572,7 +576,6 @@ class CountSearch:
         record : dict -- ``scale3d_held``, ``scale3d``, ``max_cell_length_mm``, ``kept``
         """
         st = self.settings
-        s = st.min_scale3d * float(np.exp(st.polish_tolerance))
         Vp, fig, _ = self._pinned(best, s)
         kept = _prints(fig, self.params, st) \
             and fig["max_cell_length_mm"] < chosen["max_cell_length_mm"]
@@ -676,14 +679,19 @@ def _rim_scale(call: dict, settings: StencilSearch, result, search: CountSearch)
     """A search's ``result = (V2, F2, info)`` with its rim's scale recorded
     (``info["rim_scale"]``, and ``info["rim_log_scale"]``, (k,) per stencil vertex, when
     free); with ``rim_scale="auto"`` and no stencil printable at size, the search again with
-    the rim's scale free (:func:`_free_rim`)."""
+    the rim's scale free (:func:`_free_rim`), unless the measured bound excludes that too
+    (:func:`pysolver.design.feasibility.conformal_bound`: a hopeless search cut)."""
     V2, F2, info = result
+    why = f"rim_scale={settings.rim_scale!r}"
     if settings.rim_scale == "auto" and search.dom is not None and call["vertices"] is None \
             and not _prints(info["after_optimisation"], call["params"], settings):
-        return _free_rim(call, settings, result, search)
+        bound = conformal_bound(search.V, search.F, call["params"])["bound_mm"]
+        if bound <= call["params"].max_cell_length:
+            return _free_rim(call, settings, result, search)
+        why = (f"no stencil printed with the rim's lengths kept, and the bound excludes its "
+               f"scale free too ({bound:.2f} mm)")
     free = search.dom is not None and search.dom.rim_u is not None
-    info["rim_scale"] = {"scale": "free" if free else "kept",
-                         "why": f"rim_scale={settings.rim_scale!r}"}
+    info["rim_scale"] = {"scale": "free" if free else "kept", "why": why}
     if free:
         info["rim_log_scale"] = search.rim_scale_at(V2)
     return V2, F2, info
