@@ -388,9 +388,10 @@ def test_paper_cover_designs_printable_from_its_target(tmp_path):
 
 def test_peer_beetle_prints_with_the_rim_scale_free(tmp_path):
     """The peer beetle at its README's 150 mm and 0.1 mm bumpers: no stencil prints with the
-    rim's lengths kept (the bound is 9.64 mm; the search reaches 9.76 mm), so the search
-    frees the rim's scale and, with no stencil printable at scale 1 (9.54 mm), holds the
-    scaling at the size's floor (0.969): measured 184 vertices, 9.38 mm."""
+    rim's lengths kept (the bound is 9.64 mm; the search reaches 9.72 mm), so the search
+    frees the rim's scale and, with no margin at scale 1 (9.50-9.53 mm), holds the scaling
+    at the size's floor (0.969): measured 323 bases, 9.38 mm.  The layout written is the
+    one the search measured (its boundary log-scale reaches the final flattening)."""
     src = shared_file("peer-shapes", "beetle.obj")
     m = load_input(src, size=150.0)
     s = run_design(surfaces.Surface("beetle", m.V - m.V.mean(axis=0), m.F), tmp_path / "d",
@@ -403,6 +404,7 @@ def test_peer_beetle_prints_with_the_rim_scale_free(tmp_path):
     floor = r["polish"]["floor"]
     assert floor["kept"] and floor["scale3d"] == pytest.approx(floor["scale3d_held"], abs=0.005)
     assert 0.95 <= s["scale"]["scale3d"] <= 1.0
+    assert s["cell_length_mm"]["max"] == pytest.approx(r["max_cell_length_mm"], abs=1e-3)
 
 
 def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path, monkeypatch):
@@ -802,3 +804,37 @@ def test_an_unknown_rim_scale_is_refused_naming_the_choices():
     with pytest.raises(InputError, match="rim_scale") as e:
         count_search.remesh_surface(s.V, s.F, settings=replace(STENCIL, rim_scale="loose"))
     assert '"auto", "kept" or "free"' in e.value.fix
+
+
+def test_free_rim_search_is_taken_only_when_it_prints_or_ranks_higher(monkeypatch):
+    """``_free_rim``: the free stencil replaces the kept one when it prints at size, or when
+    neither does and it is at size with a shorter longest cell per unit of scaling; a failed
+    free search leaves the kept result (whose refusal names measured alternatives)."""
+    class Search:
+        def say(self, line):
+            pass
+
+    def fig(s3, L):
+        return {"scale3d": s3, "max_cell_length_mm": L, "at_size": count_search.at_size(
+            {"scale3d": s3, "max_cell_length_mm": L})}
+
+    def result(V, c, n):
+        return V, "F", {"after_optimisation": c, "vertices": n, **c}
+
+    call = {"params": UNIT_CELL}
+    kept = fig(1.0, 9.72)
+
+    def fails(**kw):
+        raise InputError("CETM did not converge", fix="remesh")
+    monkeypatch.setattr(count_search, "remesh_surface", fails)
+    V, _, info = count_search._free_rim(call, STENCIL, result("kept", kept, 182), Search())
+    assert V == "kept" and "failed" in info["rim_scale"]["why"]
+    for free, taken in [(fig(0.969, 9.38), True),   # prints at size
+                        (fig(0.80, 9.0), False),    # prints, but 20 % under the size
+                        (fig(1.0, 9.6), True),      # neither prints: 9.6 < 9.72 per unit
+                        (fig(0.96, 9.6), False)]:   # neither prints: 10.0 > 9.72 per unit
+        monkeypatch.setattr(count_search, "remesh_surface",
+                            lambda free=free, **kw: result("free", free, 184))
+        V, _, info = count_search._free_rim(call, STENCIL, result("kept", kept, 182), Search())
+        assert (V == "free") == taken, free
+        assert info["rim_scale"]["scale"] == ("free" if taken else "kept")

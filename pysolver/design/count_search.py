@@ -524,8 +524,9 @@ class CountSearch:
         V2 : (k, 3) float, mm -- the stencil kept
         chosen : dict -- its figures
         record : dict -- ``scale3d``, ``max_cell_length_mm`` of the polished stencil,
-            ``kept``, ``held`` (its scaling within ``polish_tolerance`` of 1), ``rounds``,
-            and ``floor`` (:meth:`floor`) when it was tried
+            ``kept`` (it is the stencil returned), ``held`` (the stencil returned is within
+            ``polish_tolerance`` of scale 1), ``rounds``, and ``floor`` (:meth:`floor`) when
+            it was tried
         """
         st, limit = self.settings, self.params.max_cell_length
         V2, F2, _ = self.meshes[best]
@@ -547,9 +548,11 @@ class CountSearch:
                  + ("" if held else f"; could not hold the scaling at 1 (the stencil kept "
                                     f"is at {chosen['scale3d']:.3f})"))
         floor = st.min_scale3d * float(np.exp(st.polish_tolerance))
-        if limit - st.margin < chosen["max_cell_length_mm"] \
+        if chosen["scale3d"] > floor and limit - st.margin < chosen["max_cell_length_mm"] \
                 <= limit * chosen["scale3d"] / floor:  # (hopeless beyond: see floor)
             V2, chosen, record["floor"] = self.floor(best, V2, chosen, floor)
+            if record["floor"]["kept"]:  # (the stencil returned is the floor's)
+                record.update(kept=False, held=False)
         return V2, chosen, record
 
     def _pinned(self, best, scale3d: float):
@@ -706,7 +709,9 @@ def _free_rim(call: dict, settings: StencilSearch, kept, search: CountSearch):
     """No stencil of the search with the rim's lengths kept printed at size: the search
     again with the rim's scale free (``call``: the arguments of :func:`remesh_surface`;
     ``kept = (V2, F2, info)`` its result).  The free stencil is taken when it prints at size,
-    or when neither does and its longest flat cell is shorter at size (or nearer the size).
+    or when neither does and it ranks higher: at size first, then by its longest flat cell
+    per unit of 3D scaling (as :func:`_pick`).  When the free search fails, the kept
+    result stands.
 
     Returns
     -------
@@ -716,13 +721,17 @@ def _free_rim(call: dict, settings: StencilSearch, kept, search: CountSearch):
     V2, F2, info = kept
     search.say("no stencil prints at size with the rim's lengths kept: searching again with "
                "the rim's scale free")
-    V3, F3, free = remesh_surface(**call, settings=replace(settings, rim_scale="free"))
+    try:
+        V3, F3, free = remesh_surface(**call, settings=replace(settings, rim_scale="free"))
+    except InputError as e:  # (the kept result's refusal names measured alternatives)
+        info["rim_scale"] = {"scale": "kept", "why": f"the search with the rim's scale free "
+                             f"failed: {e.problem}"}
+        return V2, F2, info
     a, b = info["after_optimisation"], free["after_optimisation"]
-    params = call["params"]
-    take = _laid_out(b) and (_prints(b, params, settings) or (
-        not _prints(a, params, settings) and _laid_out(a)
-        and (at_size(b, settings), -b["max_cell_length_mm"], -abs(np.log(b["scale3d"])))
-        > (at_size(a, settings), -a["max_cell_length_mm"], -abs(np.log(a["scale3d"])))))
+
+    def rank(c):  # at size first, then the longest cell per unit of scaling (as _pick)
+        return (at_size(c, settings), -c["max_cell_length_mm"] / c["scale3d"])
+    take = _laid_out(b) and (_prints(b, call["params"], settings) or rank(b) > rank(a))
     figures = {k: info[k] for k in ("vertices", "scale3d", "max_cell_length_mm", "at_size")}
     if not take:
         info["rim_scale"] = {"scale": "kept", "why": "the rim's scale free printed no better",

@@ -238,7 +238,7 @@ def rim_log_scale(V, F, params: UnitCell = UNIT_CELL, settings: StencilSearch = 
     res = minimize(smoothed, np.zeros(H.shape[1]), jac=True, hess=hessian,
                    method="trust-exact", options={"gtol": 1e-12, "maxiter": 200})
     spread = lambda h: np.max(us + h + a) - np.min(us + h - b)  # log of the bound
-    if spread(Hk @ res.x) >= spread(0.0):
+    if not np.all(np.isfinite(res.x)) or not spread(Hk @ res.x) < spread(0.0):
         return np.zeros(len(V))  # (the smoothed extremes' minimiser can miss the exact ones)
     h = H @ res.x
     bnd = np.asarray(igl.boundary_loop(F), dtype=np.int64)
@@ -264,12 +264,13 @@ def conformal_bound(V, F, params: UnitCell = UNIT_CELL, *, rim_mm: float | None 
     -------
     dict
         ``bound_mm`` (the least longest flat cell, boundary scale optimised: any conformal
-        stencil), ``bound_rim_fixed_mm`` (with the rim's scale kept, as the layout's
-        flattening, CETM with u = 0 on the rim, does), ``contraction`` (``e^{u_max - u_min}``
+        stencil), ``bound_rim_fixed_mm`` (with the rim's scale kept, as CETM with u = 0 on
+        the rim does, or with the log-scale ``u`` given), ``contraction`` (``e^{u_max - u_min}``
         over the region, cell-scale, boundary scale optimised), ``fold_deg`` (largest cell
         fold the curvature forces), ``shortest_cell_mm`` (``D_min`` range), ``limit_mm``,
-        ``printable`` (``bound_rim_fixed_mm <= max_cell_length``: not excluded for the
-        layout morphshell makes), ``where`` (the point, mm, that sets the bound).
+        ``printable`` (``bound_rim_fixed_mm <= max_cell_length``: not excluded for a layout
+        that keeps the rim's lengths; :func:`target_bound` gives the verdict for the
+        layouts the search makes), ``where`` (the point, mm, that sets the bound).
     """
     V = np.asarray(V, float)
     F = np.asarray(F, dtype=np.int64)

@@ -334,7 +334,9 @@ class FlatDomain:
 
     # -- stencil -----------------------------------------------------------------------
     def spacing(self, n: int, inside=None, rim_length=None) -> float:
-        """3D edge length h (mm) at the rim (u = 0) of a mesh of ``n`` vertices graded as
+        """3D edge length h (mm) at the rim (u = 0, or of mean 0 with the rim's scale free,
+        where the rim cells then differ from their neighbours by ``exp(-grading h)``) of a
+        mesh of ``n`` vertices graded as
         ``exp(u)^(-grading)`` (Euler's formula on the graded area) on this target, or on the
         part of it whose quadrature points are ``inside`` (mask) with rim length (mm)."""
         g = self.settings.grading

@@ -324,11 +324,13 @@ class StencilSearch:
         The conformal flattening's scale on the target's rim.  ``"kept"``: log-scale 0, rim
         lengths kept (the reference's layout).  ``"free"``: the boundary log-scale that
         lowers the measured bound (:func:`pysolver.design.feasibility.rim_log_scale`).
-        ``"auto"``: kept; free when no stencil of the kept search prints at size
-        (``remesh.rim_scale``).  Measured on the peer beetle (``--size 150 --min-bumper
-        0.1``): kept, the bound is 9.64 mm (over the 9.5 mm limit) and the search's best is
-        9.72 mm; free, the bound is 8.94 mm (9.04 mm with the smoothed choice), the polish
-        at scale 1 reaches 9.50-9.53 mm and at the floor (``polish_tolerance``) 9.38 mm.
+        ``"auto"``: kept; free when no stencil of the kept search prints at size, the count
+        searched (not ``--vertices``), the CVT stencil (not pymeshlab's), and the bound with
+        the rim free does not exclude the target (``remesh.rim_scale``).  Measured on the
+        peer beetle (``--size 150 --min-bumper 0.1``): kept, the bound is 9.64 mm (over the
+        9.5 mm limit) and the search's best is 9.72 mm; free, the bound is 8.94 mm (9.04 mm
+        with the smoothed choice), the polish at scale 1 reaches 9.50-9.53 mm and at the
+        floor (``polish_tolerance``) 9.38 mm.
     rim_scale_sharpness : float, 1 / log
         Sharpness of the log-sum-exp that smooths the bound's two extremes when
         :func:`~pysolver.design.feasibility.rim_log_scale` chooses the rim's log-scale:
