@@ -148,7 +148,13 @@ def _pick(tried: dict, params: UnitCell, margin: float,
                 return min(ok, key=lambda k: (round(abs(np.log(pool[k]["scale3d"])), 3),
                                               pool[k]["max_cell_length_mm"], k))
     pool = pools[0] or tried
-    return min(pool, key=lambda k: (pool[k]["max_cell_length_mm"] / pool[k]["scale3d"], k))
+    return min(pool, key=lambda k: (_per_scale(pool[k]), k))
+
+
+def _per_scale(c: dict) -> float:
+    """A laid-out candidate's longest flat cell per unit of 3D scaling (mm): what the
+    polish, holding the scaling, keeps."""
+    return c["max_cell_length_mm"] / c["scale3d"]
 
 
 def _covered(V, F, area: float) -> float:
@@ -730,7 +736,7 @@ def _free_rim(call: dict, settings: StencilSearch, kept, search: CountSearch):
     a, b = info["after_optimisation"], free["after_optimisation"]
 
     def rank(c):  # at size first, then the longest cell per unit of scaling (as _pick)
-        return (at_size(c, settings), -c["max_cell_length_mm"] / c["scale3d"])
+        return (at_size(c, settings), -_per_scale(c))
     take = _laid_out(b) and (_prints(b, call["params"], settings) or rank(b) > rank(a))
     figures = {k: info[k] for k in ("vertices", "scale3d", "max_cell_length_mm", "at_size")}
     if not take:

@@ -237,7 +237,9 @@ def rim_log_scale(V, F, params: UnitCell = UNIT_CELL, settings: StencilSearch = 
     # last bits of the input move the result by no more than they move the problem
     res = minimize(smoothed, np.zeros(H.shape[1]), jac=True, hess=hessian,
                    method="trust-exact", options={"gtol": 1e-12, "maxiter": 200})
-    spread = lambda h: np.max(us + h + a) - np.min(us + h - b)  # log of the bound
+    def spread(h):  # log of the bound
+        return np.max(us + h + a) - np.min(us + h - b)
+
     if not np.all(np.isfinite(res.x)) or not spread(Hk @ res.x) < spread(0.0):
         return np.zeros(len(V))  # (the smoothed extremes' minimiser can miss the exact ones)
     h = H @ res.x
