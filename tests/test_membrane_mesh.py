@@ -142,3 +142,32 @@ def test_membrane_mesh_properties(layout):
         L = np.linalg.norm(M.xy[S[:, 1]] - M.xy[S[:, 0]], axis=1).sum()
         assert L == pytest.approx(np.linalg.norm(q - p), rel=1e-9)
         assert np.all(M.body[np.setdiff1d(ids, ends)] < 0)                # free inside
+
+
+def test_base_holes_outside_the_points_are_left_to_the_concavities(monkeypatch):
+    """A base with two boundary edges (one cell) has an open outline; the mean of its six
+    corners can lie outside the PSLG's points (here the grid's two corner bases), and Triangle
+    crashed the process on such a hole (a spiral design, 0.05 mm outside).  Every hole given
+    to Triangle lies inside the points' convex hull, and dropping the others changes no
+    triangle of the mesh: their regions join the outside."""
+    import triangle
+    from scipy.spatial import Delaunay
+
+    import pysolver.mechanics.model as mechanics_model
+    UV, F = regular_grid(4, 4, 7.0 * np.sqrt(3))
+    V = np.c_[UV, np.zeros(len(UV))]
+    g = model_arrays(V, UV, F)
+    given = []
+    real = triangle.triangulate
+
+    def spy(pslg, opts):
+        given.append(pslg)
+        return real(pslg, opts)
+    monkeypatch.setattr(triangle, "triangulate", spy)
+    mesh = membrane_mesh(UV, F, g, max_area=1.0)
+    P, H = given[-1]["vertices"], given[-1]["holes"]
+    assert len(H) == len(F) - 2 and np.all(Delaunay(P).find_simplex(H) >= 0)
+    monkeypatch.setattr(mechanics_model, "_base_holes", lambda P, centres: centres)
+    every = membrane_mesh(UV, F, g, max_area=1.0)
+    assert Delaunay(given[-1]["vertices"]).find_simplex(given[-1]["holes"]).min() < 0
+    assert np.array_equal(mesh.xy, every.xy) and np.array_equal(mesh.tris, every.tris)

@@ -447,3 +447,25 @@ def test_count_bodies_matches_decompose():
     m = render.union(solids)
     assert render.count_bodies(m) == len(m.decompose()) == 3
     assert render.count_bodies(render.union([])) == 0
+
+
+def test_stl_export_welds_what_float32_merges(tmp_path):
+    """A closed mesh with two vertices 1e-9 mm apart (a tetrahedron with a vertex split in
+    two, joined by two sliver triangles): written as it is, the STL's float32 merges them
+    and the slivers leave edges of three or four triangles; :func:`as_float32` welds them
+    and drops the slivers, and the file is watertight with the same volume."""
+    import trimesh
+
+    from pysolver.render.parts import as_float32
+    A, B, C, D = [0.3, 0.2, 0.1], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 10.0]
+    A2 = [0.3 + 1e-9, 0.2, 0.1]
+    V = np.array([A, B, C, D, A2])
+    F = np.array([[0, 4, 1], [4, 2, 1], [4, 3, 2], [0, 3, 4], [0, 1, 3], [1, 2, 3]])
+    raw = trimesh.Trimesh(V, F, process=False)
+    assert raw.is_watertight  # in float64
+    raw.export(tmp_path / "raw.stl")
+    assert not trimesh.load(tmp_path / "raw.stl", force="mesh").is_watertight
+    as_float32(raw).export(tmp_path / "welded.stl")
+    m = trimesh.load(tmp_path / "welded.stl", force="mesh")
+    assert m.is_watertight and m.is_volume and len(m.faces) == 4
+    assert m.volume == pytest.approx(abs(raw.volume), rel=1e-6)

@@ -57,7 +57,7 @@ from .remesh import (
     resample_dense,
     surface_area,
 )
-from .stencil_opt import estimated_clamping, optimize_stencil
+from .stencil_opt import estimated_clamping, layout_timing_terms, optimize_stencil
 from .time_landscape import cell_target_times, interpolate_to_stencil
 
 # --------------------------------------------------------------------------------------
@@ -110,7 +110,7 @@ def stencil_figures(V, F, params: UnitCell = UNIT_CELL, time=None,
         c = lay.cells
         t_star = cell_target_times(np.asarray(time, float), c.verts[:, 0], c.verts[:, 1])
         out["clamped_estimate"] = round(estimated_clamping(
-            lay.central_length, lay.target_length, c.boundary, t_star, params, settings), 4)
+            *layout_timing_terms(lay), t_star, params, settings), 4)
     return out
 
 

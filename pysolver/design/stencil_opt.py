@@ -231,6 +231,27 @@ def log_time_range(central, contact, boundary, params: UnitCell = UNIT_CELL,
     return estimate(settings.timing_fastest), estimate(settings.timing_slowest)
 
 
+def layout_timing_terms(lay):
+    """What :func:`log_time_range` reads of a laid-out stencil, as the optimiser states it
+    (:func:`timing_misfit`).
+
+    Parameters
+    ----------
+    lay : pysolver.design.layout.Layout
+
+    Returns
+    -------
+    central, contact : (c,) float, mm
+        Flat central length; the length at bumper contact, ``s3 D / cos t`` (the 3D
+        centroid distance over the cosine of the half fold).
+    boundary : (c,) float
+        1 for cells with an end of their edge on the rim (temporal programming's flag).
+    """
+    contact = lay.target_length / np.cos(np.radians(lay.fold_angle_deg) / 2.0)
+    return (np.asarray(lay.central_length, float), contact,
+            np.asarray(lay.cells.boundary, float))
+
+
 def estimated_clamping(central, contact, boundary, t_star, params: UnitCell = UNIT_CELL,
                        settings: StencilSearch = STENCIL) -> float:
     """Fraction of cells whose time ``t_star`` (s) lies outside :func:`log_time_range`.
@@ -825,6 +846,6 @@ def _rounded(step: dict) -> dict:
     return {k: round(v, 6) if isinstance(v, float) else v for k, v in step.items()}
 
 
-__all__ = ["opposite_vertices", "log_time_range", "estimated_clamping", "flat_corner_angles",
-           "centroid_edge_distances", "layout_logs", "timing_misfit", "StencilObjective",
-           "accept_step", "optimize_stencil"]
+__all__ = ["opposite_vertices", "log_time_range", "layout_timing_terms", "estimated_clamping",
+           "flat_corner_angles", "centroid_edge_distances", "layout_logs", "timing_misfit",
+           "StencilObjective", "accept_step", "optimize_stencil"]

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 from pysolver.errors import InputError
 from pysolver.geometry import Cells, base_rotations, face_centroids, rotvec_to_matrix
@@ -342,9 +343,24 @@ def membrane_mesh(UV, F, geometry: dict, *, max_area=SIM.membrane_max_area,
     mark = np.r_[o.outline_face + 2, np.ones(len(free_seg), np.int64), -(np.arange(c) + 1)]
     vmark = np.r_[o.used // 6 + 2, np.zeros(len(P) - len(o.used), np.int64)]
     pslg = {"vertices": P, "segments": seg, "segment_markers": mark[:, None].astype(np.int32),
-            "vertex_markers": vmark[:, None].astype(np.int32),
-            "holes": o.xy_all.reshape(len(F), 6, 2).mean(axis=1)}
+            "vertex_markers": vmark[:, None].astype(np.int32)}
+    holes = _base_holes(P, o.xy_all.reshape(len(F), 6, 2).mean(axis=1))
+    if len(holes):  # (Triangle's wrapper refuses an empty array of holes)
+        pslg["holes"] = holes
     return _membrane_from_triangle(triangle.triangulate(pslg, f"pzq{min_angle:g}a{max_area:g}Q"))
+
+
+def _base_holes(P, centres):
+    """The base centres (k, 2) that lie inside the convex hull of the PSLG's points ``P``.
+
+    Triangle crashes the process (a segmentation fault) on a hole point outside the
+    triangulation.  A base with two boundary edges has an open outline (one cell), so the
+    mean of its six corners can lie beyond the points its outline uses (measured: 0.05 mm,
+    on a spiral design); its region joins the outside and is removed with the concavities
+    without a hole.
+    """
+    inside = Delaunay(P).find_simplex(centres) >= 0
+    return centres[inside]
 
 
 def _corner_id(f, j, k):

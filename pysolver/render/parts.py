@@ -130,9 +130,9 @@ EXPORT_SIMPLIFY_MM = 0.0
 0 drops only zero-area triangles and doubled vertices.  A larger tolerance does not
 help against the non-manifold edges that float32 STL rounding can make: 1e-4 mm removed
 neither those of the former two-part bracket apexes (faces of two parts passing within
-~1e-5 mm of each other without sharing an edge) nor the rare one left now, where a V
-end of one part crosses the neighbour's disc rim ~2e-6 mm from a polygon vertex
-(simplify keeps both corners); 1e-5 mm neither."""
+~1e-5 mm of each other without sharing an edge) nor the rare ones where a V end of one
+part crosses the neighbour's disc rim ~2e-6 mm from a polygon vertex (simplify keeps both
+corners); 1e-5 mm neither.  Those are welded as the STL stores them (:func:`as_float32`)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -701,6 +701,22 @@ def from_manifold(m):
     return trimesh.Trimesh(V, F, process=False)
 
 
+def as_float32(mesh):
+    """A trimesh as an STL stores it: vertices rounded to float32 and welded where they then
+    coincide, and the triangles that collapse there dropped (zero area).  Written as they
+    were, the collapsed ones made non-manifold edges: two vertices of a spiral design's
+    ``actuated.stl`` 1e-6 mm apart, where a V end of one node met the neighbour's rim
+    (``EXPORT_SIMPLIFY_MM``).  Without a collapse the triangles are the same, in the same
+    order."""
+    import trimesh  # heavy: trimesh loads only for STL work
+
+    V, inv = np.unique(np.asarray(mesh.vertices).astype(np.float32), axis=0,
+                       return_inverse=True)
+    F = inv.reshape(-1)[np.asarray(mesh.faces)]
+    keep = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])
+    return trimesh.Trimesh(V.astype(np.float64), F[keep], process=False)
+
+
 def union(solids):
     """Boolean union of a list of manifold3d solids."""
     import manifold3d  # heavy: manifold3d loads only for STL booleans
@@ -902,7 +918,7 @@ def _export(design_dir: Path, outputs: dict, made_from: str) -> dict:
             # faces can leave (they lie within manifold3d's ~1e-11 mm tolerance, so nothing
             # moves): written as float32 they made the STL non-manifold
             m = outputs[key] = m.simplify(EXPORT_SIMPLIFY_MM)
-            from_manifold(m).export(str(tmp / STL_FILES[key]), file_type="stl")
+            as_float32(from_manifold(m)).export(str(tmp / STL_FILES[key]), file_type="stl")
             info[key] = describe_stl(tmp / STL_FILES[key], m)
         (tmp / Path(PARTS_RECORD).name).write_text(json_text(
             {"made_by": "morphshell render", "tables_sha256": made_from,
