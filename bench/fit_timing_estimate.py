@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 from pysolver import tables  # noqa: E402
 from pysolver.design import run_design  # noqa: E402
 from pysolver.design.layout import build_layout  # noqa: E402
-from pysolver.design.stencil_opt import layout_timing_terms  # noqa: E402
+from pysolver.design.stencil_opt import layout_timing_terms, log_time_terms  # noqa: E402
 from pysolver.params import STENCIL  # noqa: E402
 from pysolver.temporal import program_design  # noqa: E402
 
@@ -69,9 +69,7 @@ def design_terms(design_dir: Path) -> dict:
         # (a design laid out at a central length given, as the built-in regular lattice)
         raise SystemExit(f"{design_dir}: the stencil's layout by the scaling rules is not "
                          "its cells' table")
-    xf = STENCIL.timing_compression_floor
-    log_x = np.log(xf * np.logaddexp(0.0, (central - contact) / xf))
-    log_b0 = np.log(central - params.bracket_offset)
+    log_b0, log_x = log_time_terms(central, contact, params)
     return {"X": np.column_stack([np.ones_like(central), log_b0, log_x, boundary]),
             "t_min": cells["t_min_s"], "t_max": cells["t_max_s"]}
 

@@ -199,6 +199,26 @@ def _scaling_logs(geometry, params: UnitCell, sharpness: float | None):
     return log_s3, smax(r2), smax(d)
 
 
+def log_time_terms(central, contact, params: UnitCell = UNIT_CELL,
+                   settings: StencilSearch = STENCIL):
+    """The logs of each cell's bracket length ``b0 = central - bracket_offset`` and of its
+    compression ``x = central - contact``, floored smoothly (softplus) at
+    ``settings.timing_compression_floor``: the terms of :func:`log_time_range`
+    (autograd-friendly).
+
+    Parameters
+    ----------
+    central, contact : (c,) float, mm
+
+    Returns
+    -------
+    log_b0, log_x : (c,) float
+    """
+    log_b0 = anp.log(anp.maximum(central - params.bracket_offset, settings.opt_tiny))
+    xm = settings.timing_compression_floor
+    return log_b0, anp.log(xm * anp.logaddexp(0.0, (central - contact) / xm))
+
+
 def log_time_range(central, contact, boundary, params: UnitCell = UNIT_CELL,
                    settings: StencilSearch = STENCIL):
     """Estimated log of the fastest and slowest completion time of each cell (autograd-friendly).
@@ -221,9 +241,7 @@ def log_time_range(central, contact, boundary, params: UnitCell = UNIT_CELL,
     lo, hi : (c,) float
         Log of the times (s).
     """
-    log_b0 = anp.log(anp.maximum(central - params.bracket_offset, settings.opt_tiny))
-    xm = settings.timing_compression_floor
-    log_x = anp.log(xm * anp.logaddexp(0.0, (central - contact) / xm))
+    log_b0, log_x = log_time_terms(central, contact, params, settings)
 
     def estimate(m):
         return m[0] + m[1] * log_b0 + m[2] * log_x + m[3] * boundary
@@ -846,6 +864,6 @@ def _rounded(step: dict) -> dict:
     return {k: round(v, 6) if isinstance(v, float) else v for k, v in step.items()}
 
 
-__all__ = ["opposite_vertices", "log_time_range", "layout_timing_terms", "estimated_clamping",
-           "flat_corner_angles", "centroid_edge_distances", "layout_logs", "timing_misfit",
-           "StencilObjective", "accept_step", "optimize_stencil"]
+__all__ = ["opposite_vertices", "log_time_terms", "log_time_range", "layout_timing_terms",
+           "estimated_clamping", "flat_corner_angles", "centroid_edge_distances", "layout_logs",
+           "timing_misfit", "StencilObjective", "accept_step", "optimize_stencil"]
