@@ -21,10 +21,10 @@ from pysolver.errors import InputError
 # flat cell 0.1 mm (``tests/test_stability.py``).
 GOLDEN = {
     "regular": (60, 7.0),
-    "dome": (126, 7.33),
-    "saddle": (128, 7.30),
-    "petal": (215, 8.82),
-    "spiral": (230, 8.92),
+    "dome": (110, 7.58),
+    "saddle": (109, 7.46),
+    "petal": (183, 9.16),
+    "spiral": (201, 8.28),
     "weave": (255, 5.85),
 }
 BASES_RTOL, CELL_ATOL_MM = 0.03, 0.1

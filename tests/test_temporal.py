@@ -215,6 +215,26 @@ def test_program_design_writes_cells_and_clamps_out_of_range(tmp_path):
     assert s["feasible"]
 
 
+@pytest.mark.parametrize("t_right, kept", [(137.0, True), (160.0, False)])
+def test_a_default_landscape_within_the_bar_is_kept_as_given(tmp_path, t_right, kept):
+    """The fit of a shape's own landscape (``fit_landscape``) maps it onto the achievable
+    times only when it clamps more than ``Programming.fit_clamped_fraction``.  On the
+    30-cell patch, 50-137 s clamps 3 cells (10 %, the bar; the widest map, onto 39-120 s,
+    would clamp 1): kept, file and all.  50-160 s clamps 10: mapped, and the map clamps at
+    most the bar."""
+    d = _write_patch(tmp_path / "p", lambda V: 50.0 + (t_right - 50.0)
+                     * (V[:, 0] - V[:, 0].min()) / np.ptp(V[:, 0]))
+    given = (d / "time_landscape.csv").read_text()
+    s = program_design(d, material=StandIn(), progress=False, picture=False,
+                       fit_landscape=True)
+    assert ((d / "time_landscape.csv").read_text() == given) == kept
+    assert (s["landscape_rescaled"] is None) == kept
+    assert s["fraction_clamped"] <= PROGRAMMING.fit_clamped_fraction + 1e-9
+    if kept:
+        assert s["n_clamped"] == 3 and s["achievable_range_s"]["suggested_map"][
+            "fraction_clamped"] < s["fraction_clamped"]
+
+
 def test_mostly_infeasible_landscape_raises_with_the_range(tmp_path):
     d = _write_patch(tmp_path / "late", lambda V: np.full(len(V), 400.0))
     cells_before = (d / "cells.csv").read_text()

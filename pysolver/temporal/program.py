@@ -616,7 +616,9 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     """Map a shape's default landscape linearly (order kept) onto the widest achievable range
     that clamps at most ``Programming.fit_clamped_fraction`` of the cells (else the one
     clamping fewest), when that clamps fewer than it does now; rewrite
-    ``time_landscape.csv`` and programme the cells again.
+    ``time_landscape.csv`` and programme the cells again.  A landscape that already clamps
+    at most ``fit_clamped_fraction`` is kept as given: its times are the shape's, and a map
+    would trade them for a few cells (``Programming.fit_clamped_fraction``).
 
     Parameters
     ----------
@@ -629,7 +631,8 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     rescaled : dict or None -- ``from_s``, ``to_s``, ``min_span_s`` when mapped
     """
     m = p.ach.get("suggested_map")
-    if m is None or not len(p.clamped) or m["fraction_clamped"] >= p.frac:
+    if (m is None or m["fraction_clamped"] >= p.frac
+            or p.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact):
         return land, p, None
     t_old = (float(land.min()), float(land.max()))
     land = _mapped_landscape(land, m)
