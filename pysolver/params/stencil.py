@@ -193,8 +193,8 @@ class StencilSearch:
         these designs.  The cover carrying the reference's landscape, held out, clamped 16.3 %
         of its cells with them, 8.7 % with these.  Fitting again on the designs these
         coefficients give does not settle: the cover then clamps 19.6 % and petal's timing
-        warns (docs/results.md).  They only steer the stencil optimisation; temporal programming computes each cell's
-        times from the material and membrane models.
+        warns (docs/results.md).  They only steer the stencil optimisation; temporal
+        programming computes each cell's times from the material and membrane models.
     timing_margin : float
         The misfit narrows each cell's estimated range by this much (log time) at both ends:
         the estimates' own error is 0.22.
