@@ -249,7 +249,8 @@ def build(source: str, options: BuildOptions | None = None, **changes) -> dict:
                      "run": {"render": bool(opts.render), "renderer": opts.renderer,
                              "solver": opts.solver}}
     # A shape's own landscape gives the order of completion; its seconds are mapped onto
-    # what the material can achieve.  A user's landscape is only checked.
+    # what the material can achieve when too many cells cannot reach them.  A user's
+    # landscape is only checked.
     ctx = StageContext(staging_dir(out), opts, name=name, source=source, build=summary,
                        fit_landscape=opts.time is None and opts.time_file is None)
     _run_build(ctx, out, STAGES, digest)

@@ -272,7 +272,8 @@ class StageContext:
         ``substage(key, fn, *a, **kw)``: run a step of the stage as its own entry of the
         build's summary (timing, progress line); None outside a build.
     fit_landscape : bool
-        The program stage maps the landscape onto the achievable times (a shape's own
+        The program stage maps the landscape onto the achievable times when it clamps
+        more than ``Programming.fit_clamped_fraction`` of the cells (a shape's own
         landscape in a build; a user's landscape is only checked).
     physics : PhysicsOptions, optional
         Physics the build switched on along the way (contact), for the later stages.

@@ -582,10 +582,11 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
     on a built-in design: the median residual within the fit's spread between designs
     (0.16 in log t for the fastest; the slowest's uncensored cells, those under 119.5 s,
     are the faster ones, so they sit below it: -0.01 to -0.22), and a robust spread (MAD)
-    under 0.3.  (The former coefficients, fitted before the printed bumpers' clearance was
-    programmed, put dome's fastest 0.21 and petal's slowest 0.41 too early.  A few long rim
-    cells close early at any thickness, 2.5 in log t under the slowest estimate on petal:
-    hence the robust statistics.)"""
+    under 0.3.  (The former coefficients, fitted on ``../shared``'s cover and stand before the
+    printed bumpers' clearance was programmed, fail the slowest's bound on these designs:
+    medians +0.28 (dome) and +0.44 (petal) against 0.05; their fastest, +0.14 and -0.01,
+    stays within its band.  A few long rim cells close early at any thickness, 2.5 in log t
+    under the slowest estimate on petal: hence the robust statistics.)"""
     from _shared import designed
 
     from pysolver import tables

@@ -33,11 +33,11 @@ class Programming:
         fewest; when every map clamps more, by the one clamping fewest.  The
         fewest-clamping map alone could squash a landscape to a near-constant: petal's
         35-75 s onto 56-62 s (6.9 % clamped; completion order against t*: Spearman 0.55;
-        with these rules 31-65 s, 9.2 %, Spearman 0.925) and the spiral's onto a constant;
-        it kept the cells' count, not the order the landscape asks for.  The width fraction
-        keeps the allowance from buying a few seconds of width with cells.  0.10 is the
-        project's timing bar for a programmed shell (at most 10 % clamped; the reference's
-        cover with its own landscape: 9.5 %).
+        with these rules, at 6ab95a1, 31-65 s, 9.2 %, Spearman 0.925) and the spiral's onto
+        a constant; it kept the cells' count, not the order the landscape asks for.  The
+        width fraction keeps the allowance from buying a few seconds of width with cells.
+        0.10 is the project's timing bar for a programmed shell (at most 10 % clamped; the
+        reference's cover with its own landscape: 9.5 %).
     bisection_steps : int
         Bisection steps of the thickness and completion-time solves (50 halvings of the
         0.30-0.65 mm range or the model's 120 s: 3e-16 mm and 1e-13 s, the

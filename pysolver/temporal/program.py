@@ -551,12 +551,12 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         close at the printed bumpers' contact length
         (:func:`pysolver.mechanics.bumper_clearance`), as the simulator closes it.
     fit_landscape : bool
-        Map the landscape linearly (order kept) onto the achievable range that clamps
-        the fewest cells before programming, and rewrite ``time_landscape.csv``.  The
-        build does this for a shape's *default* landscape only (the built-in landscapes
-        give the order in which regions finish; the achievable seconds depend on the
-        material model); a landscape the user gave is never changed, only checked.  An
-        automatic sequencing landscape keeps its parts apart (:func:`sequenced_span`).
+        Map the landscape (order kept) onto the achievable range when it clamps too many
+        cells (:func:`_fit_landscape`) and rewrite ``time_landscape.csv``.  The build does
+        this for a shape's *default* landscape only (the built-in landscapes give the order
+        in which regions finish; the achievable seconds depend on the material model); a
+        landscape the user gave is never changed, only checked.  An automatic sequencing
+        landscape keeps its parts apart (:func:`sequenced_span`).
 
     Returns
     -------
@@ -617,8 +617,9 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     that clamps at most ``Programming.fit_clamped_fraction`` of the cells (else the one
     clamping fewest), when that clamps fewer than it does now; rewrite
     ``time_landscape.csv`` and programme the cells again.  A landscape that already clamps
-    at most ``fit_clamped_fraction`` is kept as given: its times are the shape's, and a map
-    would trade them for a few cells (``Programming.fit_clamped_fraction``).
+    at most ``fit_clamped_fraction`` (and is at least ``min_span`` wide, s) is kept as given:
+    its times are the shape's, and a map would trade them for a few cells
+    (``Programming.fit_clamped_fraction``).
 
     Parameters
     ----------
@@ -631,8 +632,9 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     rescaled : dict or None -- ``from_s``, ``to_s``, ``min_span_s`` when mapped
     """
     m = p.ach.get("suggested_map")
-    if (m is None or m["fraction_clamped"] >= p.frac
-            or p.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact):
+    within_bar = (p.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact
+                  and np.ptp(land) >= min_span - TOL.time)
+    if m is None or m["fraction_clamped"] >= p.frac or within_bar:
         return land, p, None
     t_old = (float(land.min()), float(land.max()))
     land = _mapped_landscape(land, m)
