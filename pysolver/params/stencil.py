@@ -189,9 +189,10 @@ class StencilSearch:
         sigma 0.215 and 0.219 in log t.  Only the project's own shapes: the former
         coefficients were least squares on designs of ``../shared``'s cover and stand, test
         surfaces nothing may be tuned to (and programmed before the printed bumpers'
-        clearance); they put the fastest 0.12 and the slowest 0.32 in log t too early on
-        these designs.  The cover carrying the reference's landscape, held out, clamped 16.3 %
-        of its cells with them, 8.7 % with these.  Fitting again on the designs these
+        clearance); on these designs they put the fastest 0.12 and the slowest 0.32 in log t
+        too early on average (up to 0.27 and 0.50 per design).  The cover carrying the
+        reference's landscape, held out, clamped 16.3 % of its cells with them, 8.7 % with
+        these.  Fitting again on the designs these
         coefficients give does not settle: the cover then clamps 19.6 % and petal's timing
         warns (docs/results.md).  They only steer the stencil optimisation; temporal
         programming computes each cell's times from the material and membrane models.
