@@ -50,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..child import python_argv
 from ..params import LIMITS
 from ..provenance import package_version
 from .scad_io import Part, part_text
@@ -320,12 +321,9 @@ class _Worker:
         env = dict(os.environ)
         if ast_dir is not None:
             env["OPENSCAD_PARSER_CACHE_DIR"] = str(ast_dir)
-        root = str(Path(__file__).resolve().parents[2])
-        env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH")
-                                    else "")
         self.log = tempfile.TemporaryFile(mode="w+b")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "pysolver.render.fast"], stdin=subprocess.PIPE,
+            python_argv("pysolver.render.fast"), stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, stderr=self.log, text=True, bufsize=1, env=env)
         self.ready = False
 

@@ -46,7 +46,6 @@ from __future__ import annotations
 import errno
 import hmac
 import json
-import os
 import re
 import secrets
 import subprocess
@@ -62,6 +61,7 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 
 from ..build import report_figures
+from ..child import python_argv
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, PROGRAMMING
 from ..simulator import build_parts, morph_viewer, viewer_assets
@@ -263,16 +263,14 @@ class Job:
                          daemon=True).start()
 
     def _run(self, build: Build, req: str, plan: list, expect: dict):
-        root = str(Path(__file__).resolve().parents[2])
-        env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        cmd = [sys.executable, "-m", "pysolver.studio.rerun"]
+        cmd = python_argv("pysolver.studio.rerun")
         done_s = 0.0           # expected seconds of the finished stages
         stage, t_stage, frac = "start", time.time(), 0.0
         tail: list[str] = []
         t0 = time.time()
         try:
             proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.PIPE, text=True, env=env)
+                                    stderr=subprocess.PIPE, text=True)
             ticker = threading.Event()
 
             def tick():   # the bar moves between progress lines too (time / expected time)

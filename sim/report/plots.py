@@ -17,7 +17,6 @@ from __future__ import annotations
 import functools
 import os
 import subprocess
-import sys
 import textwrap
 import threading
 
@@ -29,6 +28,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection, PatchCollection  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
 
+from pysolver.child import python_argv  # noqa: E402
 from pysolver.params import LIMITS, UNIT_CELL  # noqa: E402
 
 TOP_COLOR = "#e8a33d"
@@ -78,7 +78,7 @@ def _pyvista_status() -> tuple[bool, str]:
     for k, v in _EGL_ENV.items():
         env.setdefault(k, v)
     try:
-        r = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
+        r = subprocess.run(python_argv(code=_PROBE), env=env, capture_output=True,
                            text=True, timeout=LIMITS.probe_timeout_s)
     except (OSError, subprocess.TimeoutExpired) as e:
         return False, f"pyvista probe failed ({type(e).__name__})"

@@ -1,0 +1,59 @@
+"""The command line of every child Python interpreter morphshell starts.
+
+A child started as ``python -m module`` or ``python -c code`` puts the working directory
+first on its module path, so a ``pyvista.py`` or a ``pysolver/__init__.py`` lying where
+morphshell was started would run as the user (``docs/threat-model.md``, "Child
+processes").  :func:`python_argv` is the one way to start one: the interpreter runs
+isolated (``-I``: no working directory, no script folder, no ``PYTHON*`` variables, no
+user site folder on its path), and a two-line bootstrap puts back exactly one folder, the
+one this package was imported from (so a child runs the same morphshell as its parent,
+also from a source checkout), before it runs the module or the code.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+PACKAGE_ROOT = str(Path(__file__).resolve().parents[1])
+"""The folder holding the ``pysolver`` and ``sim`` packages this process imported."""
+
+
+def python_argv(module: str | None = None, *, code: str | None = None) -> list[str]:
+    """The argv of a child Python that runs ``module`` (as ``python -m``) or ``code`` (as
+    ``python -c``) with only the interpreter's own paths and :data:`PACKAGE_ROOT` on its
+    module path.
+
+    Parameters
+    ----------
+    module : str, optional
+        Dotted name of a module of this project to run as ``__main__``.
+    code : str, optional
+        Python source to run instead (a probe).  Exactly one of the two is given.
+
+    Returns
+    -------
+    list of str
+        ``[sys.executable, "-I", "-c", bootstrap]``; pass it to :mod:`subprocess` as is
+        (no shell).
+
+    Raises
+    ------
+    ValueError
+        Neither or both of ``module`` and ``code``, or a module name that is not a dotted
+        identifier.
+    """
+    if (module is None) == (code is None):
+        raise ValueError("give exactly one of module and code")
+    if module is not None and not all(p.isidentifier() for p in module.split(".")):
+        raise ValueError(f"{module!r} is not a dotted module name")
+    boot = f"import sys; sys.path.insert(0, {PACKAGE_ROOT!r})\n"
+    if module is not None:
+        boot += f"import runpy; runpy.run_module({module!r}, run_name='__main__', " \
+                "alter_sys=True)\n"
+    else:
+        boot += code
+    return [sys.executable, "-I", "-c", boot]
+
+
+__all__ = ["PACKAGE_ROOT", "python_argv"]
