@@ -127,33 +127,150 @@ def _token() -> str:
     return secrets.token_hex(8)
 
 
-def read_stamp(folder) -> dict | None:
-    """The manifest of ``folder`` (module docstring), or None when it has no stamp.
+class DamagedFolder(InputError):
+    """A stamp or record that morphshell reads paths from is damaged, or names a path
+    outside its folder: the folder is refused as a whole and nothing in it is touched."""
 
-    A stamp of an older morphshell (a bare list of names, no hashes) is returned with
-    ``legacy`` set: its files cannot be told from the user's.
+
+_DAMAGED_FIX = ("morphshell changes nothing in this folder: check its files yourself, then "
+                "build into a new folder (e.g. --out build/NAME-2), or delete the stamp "
+                f"{STAMP_NAME} so that every file there counts as yours")
+_TMP_FILE = re.compile(r"^\..+\.tmp-[0-9a-f]{16}")
+"""Names of :func:`atomic_file`'s temporary files (the only names a ``pending`` entry
+may have)."""
+
+
+def contained_path(folder, rel, *, source) -> Path:
+    """``folder / rel`` for a relative path ``rel`` read from a file (a stamp, a manifest, a
+    staging record): the one check of every such path before it is used.
+
+    Parameters
+    ----------
+    folder : path-like
+        The folder the path must stay in.
+    rel : str
+        The path as read: relative, ``/``-separated, without ``.``, ``..`` or empty parts.
+    source : path-like
+        The file it was read from (named in the error).
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder / rel``; the folders on the way, links resolved, lie inside ``folder``.
+
+    Raises
+    ------
+    DamagedFolder
+        ``rel`` is not such a path, or reaches outside ``folder`` through a link.
     """
-    p = Path(folder) / STAMP_NAME
+    folder = Path(folder)
+    why = None
+    if not isinstance(rel, str) or not rel or "\0" in rel or "\\" in rel:
+        why = "is not a path"
+    elif rel.startswith("/"):
+        why = "is an absolute path"
+    elif any(part in ("", ".", "..") for part in rel.split("/")):
+        why = "has a '..', '.' or empty part"
+    else:
+        base = folder.resolve()
+        parent = (folder / rel).parent.resolve()
+        if parent != base and base not in parent.parents:
+            why = f"leads outside the folder (to {parent})"
+    if why is not None:
+        raise DamagedFolder(f"{source}: the path {str(rel)[:200]!r} it names {why}; the "
+                            f"folder {folder} is damaged or its record was not written by "
+                            "morphshell, so nothing in it is deleted or replaced.",
+                            fix=_DAMAGED_FIX)
+    return folder / rel
+
+
+def _damaged(p: Path, why: str) -> DamagedFolder:
+    return DamagedFolder(f"{p} is damaged ({why}): morphshell cannot tell its files from "
+                         "yours in that folder, so it deletes and replaces nothing there.",
+                         fix=_DAMAGED_FIX)
+
+
+def _load_stamp(p: Path):
+    """The JSON value of the stamp file ``p``; None when there is none.
+
+    Raises
+    ------
+    DamagedFolder
+        Something is there that is not a readable regular JSON file."""
     try:
         fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    except OSError:
+    except FileNotFoundError:
         return None
+    except OSError as e:
+        raise _damaged(p, "a symbolic link" if e.errno == errno.ELOOP
+                       else f"cannot be read: {e.strerror}") from None
     try:
         with os.fdopen(fd, "rb") as f:
             if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
-                return None
-            data = json.loads(f.read(64 << 20))
-    except (OSError, ValueError):
+                raise _damaged(p, "not a regular file")
+            return json.loads(f.read(64 << 20))
+    except OSError as e:
+        raise _damaged(p, f"cannot be read: {e.strerror}") from None
+    except ValueError as e:
+        raise _damaged(p, f"not JSON: {e}") from None
+
+
+def _check_manifest(folder: Path, data: dict, p: Path) -> dict:
+    """``data`` (a stamp of this version) with its keys' types and every path it names
+    checked (:func:`contained_path`)."""
+    for key, kind in (("files", dict), ("dirs", list), ("prev", dict), ("pending", dict)):
+        data.setdefault(key, kind())
+        if not isinstance(data[key], kind):
+            raise _damaged(p, f"'{key}' is not a {kind.__name__}")
+    for key in ("files", "prev"):
+        for rel, rec in data[key].items():
+            contained_path(folder, rel, source=p)
+            if not (isinstance(rec, list) and len(rec) == 2 and isinstance(rec[0], str)
+                    and isinstance(rec[1], int)):
+                raise _damaged(p, f"the record of {str(rel)[:200]!r} is not [sha256, size]")
+    for rel in data["dirs"]:
+        contained_path(folder, rel, source=p)
+    for rel in data["pending"]:
+        contained_path(folder, rel, source=p)
+        if not _TMP_FILE.match(rel.rsplit("/", 1)[-1]):
+            raise _damaged(p, f"the pending entry {rel[:200]!r} is not a temporary file's "
+                              "name")
+    return data
+
+
+def read_stamp(folder) -> dict | None:
+    """The manifest of ``folder`` (module docstring), or None when it has no stamp or a
+    stamp of another program.
+
+    A stamp of an older morphshell (a bare list of names, no hashes) is returned with
+    ``legacy`` set: its files cannot be told from the user's.
+
+    Raises
+    ------
+    DamagedFolder
+        The stamp is not a readable JSON object, its fields have the wrong types, or a path
+        it names is not a plain relative path inside ``folder`` (:func:`contained_path`).
+    """
+    p = Path(folder) / STAMP_NAME
+    data = _load_stamp(p)
+    if data is None:
         return None
-    if not isinstance(data, dict) or data.get("made_by") not in ("morphshell",
-                                                                 "morphshell studio"):
+    if not isinstance(data, dict):
+        raise _damaged(p, "not a JSON object")
+    if data.get("made_by") not in ("morphshell", "morphshell studio"):
         return None
     if data.get("version") != STAMP_VERSION or not isinstance(data.get("files"), dict):
         return {"legacy": True, "files": {}, "dirs": [], "prev": {}, "pending": {}}
-    for key, kind in (("dirs", list), ("prev", dict), ("pending", dict)):
-        if not isinstance(data.get(key), kind):
-            data[key] = kind()
-    return data
+    return _check_manifest(Path(folder), data, p)
+
+
+def _read_stamp_or_none(folder) -> dict | None:
+    """:func:`read_stamp`, with a damaged stamp read as none (a folder that is then not
+    recognised as one of morphshell's private folders, so it is left alone)."""
+    try:
+        return read_stamp(folder)
+    except DamagedFolder:
+        return None
 
 
 def _is_private(m: dict | None) -> bool:
@@ -293,7 +410,7 @@ def _temporary_of(p: Path) -> str | None:
         return None
     if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.geteuid():
         return None
-    m = read_stamp(p)
+    m = _read_stamp_or_none(p)
     if m is None or m.get("legacy"):
         return None
     name = p.name
@@ -456,6 +573,7 @@ def claim_output(dst, *, what: str = "output folder", inputs=()) -> Path:
         that changed since, or contains one of ``inputs``.
     """
     dst = Path(dst).absolute()
+    check_name_length(dst, what=what)
     fix = ("choose a new or empty folder (e.g. --out build/NAME), or move your files out "
            f"of {dst} first; morphshell never deletes files it did not make.")
     for src in inputs:
@@ -490,6 +608,37 @@ def claim_output(dst, *, what: str = "output folder", inputs=()) -> Path:
                 raise InputError(f"{what} {dst} is a folder morphshell did not make inside "
                                  f"{owner}; replacing it would delete it.", fix=fix)
     return dst
+
+
+SIBLING_EXTRA = len(f"..tmp-{'0' * 16}")
+"""Characters the longest name morphshell makes beside an output folder adds to its name
+(``.<name>.tmp-<token>``; ``.<name>.morphshell-staging`` and the lock file are shorter)."""
+
+
+def check_name_length(dst: Path, *, what: str = "output folder") -> None:
+    """Refuse an output folder whose name leaves no room for the temporary, staging and lock
+    names morphshell makes beside it (the file system's longest name, ``NAME_MAX``, is
+    usually 255 bytes).
+
+    Raises
+    ------
+    InputError
+        Naming the length, the longest name that works and the fix.
+    """
+    parent = next((d for d in Path(dst).parents if d.is_dir()), Path("/"))
+    try:
+        name_max = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    longest = name_max - SIBLING_EXTRA
+    n = len(os.fsencode(Path(dst).name))
+    if n > longest:
+        raise InputError(f"{what} {dst}: its name is {n} bytes long, and morphshell needs at "
+                         f"most {longest} (it makes .<name>.tmp-<token>, "
+                         f".<name>{STAGING_SUFFIX} and .<name>{LOCK_SUFFIX} beside it, and "
+                         f"this file system allows names of {name_max} bytes).",
+                         fix=f"give a shorter folder name (at most {longest} characters), "
+                             "e.g. --out build/NAME.")
 
 
 def check_design_folder(folder, *, what: str = "design folder") -> Path:
@@ -575,7 +724,7 @@ def _drop_dead_temporaries(owner: Path, m: dict) -> dict:
     dead = {k for k, pid in m["pending"].items()
             if pid != os.getpid() and not _pid_alive(pid)}
     for k in dead:
-        p = owner / k
+        p = contained_path(owner, k, source=owner / STAMP_NAME)
         with contextlib.suppress(OSError):
             if stat.S_ISREG(os.lstat(p).st_mode):
                 p.unlink()
@@ -871,7 +1020,8 @@ _LOCK_TEXT = re.compile(r"^(pid \d+)?$")
 
 
 def _is_lock_file(p: Path) -> bool:
-    """A lock file of :func:`build_lock`: named so, a regular file holding only ``pid N``."""
+    """A lock file of :func:`build_lock`: named so, a regular file of this user's holding only
+    ``pid N`` (another user's lock file is theirs, never removed)."""
     if not p.name.endswith(LOCK_SUFFIX):
         return False
     try:
@@ -880,7 +1030,7 @@ def _is_lock_file(p: Path) -> bool:
         return False
     with os.fdopen(fd, "rb") as f:
         st = os.fstat(f.fileno())
-        return (stat.S_ISREG(st.st_mode) and st.st_size <= 64
+        return (stat.S_ISREG(st.st_mode) and st.st_size <= 64 and st.st_uid == os.geteuid()
                 and _LOCK_TEXT.match(f.read(64).decode("ascii", "replace").strip()) is not None)
 
 

@@ -12,6 +12,15 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 """``../shared`` beside the checkout: test inputs that are not project data (present in CI)."""
 
 
+def run_cli(argv, capsys) -> tuple[int, str]:
+    """``morphshell --quiet ARGV`` in this process: (exit code, what it printed)."""
+    from pysolver.cli import main
+
+    rc = main(["--quiet", *map(str, argv)])
+    cap = capsys.readouterr()
+    return rc, cap.err + cap.out
+
+
 def shared_file(*parts: str) -> Path:
     """A file of ``../shared``; the test is skipped, saying so, where it is absent."""
     p = SHARED.joinpath(*parts)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _shared import run_cli
 
 from pysolver import atomic
 from pysolver.cli import main
@@ -25,10 +26,7 @@ from pysolver.errors import EXIT_BAD_INPUT, InputError
 SHAPE = "regular:rows=2,cols=2"
 
 
-def _cli(argv, capsys) -> tuple[int, str]:
-    rc = main(["--quiet", *map(str, argv)])
-    cap = capsys.readouterr()
-    return rc, cap.err + cap.out
+_cli = run_cli
 
 
 def _sha(p: Path) -> str:

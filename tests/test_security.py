@@ -7,11 +7,13 @@ lists them per boundary)."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
+from _shared import run_cli
 
 from pysolver.child import PACKAGE_ROOT, python_argv
 
@@ -85,3 +87,114 @@ def test_a_studio_run_runs_no_planted_module(hostile_cwd, tmp_path):
     state = job.snapshot()
     # the real rerun module answered: a named error about the folder, not an import failure
     assert state["state"] == "error" and f"{folder}/summary.json" in state["error"], state
+
+
+# ------------------------------------------------------------------------------ stamps
+
+SHAPE = "regular:rows=2,cols=2"
+
+
+_cli = run_cli
+
+
+def _tree(folder: Path) -> dict:
+    """Every file under ``folder`` with its bytes."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and not p.is_symlink()}
+
+
+@pytest.fixture
+def design(tmp_path, monkeypatch, capsys):
+    """A design folder made by ``morphshell design`` (``tmp_path/X``)."""
+    monkeypatch.chdir(tmp_path)
+    assert _cli(["design", SHAPE, "--out", "X"], capsys)[0] == 0
+    return tmp_path / "X"
+
+
+def _edit_stamp(folder: Path, **changes) -> None:
+    from pysolver.atomic import STAMP_NAME
+
+    p = folder / STAMP_NAME
+    p.write_text(json.dumps(dict(json.loads(p.read_text()), **changes)))
+
+
+DEAD_PID = 2 ** 30   # above any pid_max: a writer that is gone
+
+
+@pytest.mark.parametrize("how", ["absolute", "dotdot", "link"])
+def test_a_stamp_naming_a_path_outside_its_folder_deletes_nothing(design, tmp_path, capsys,
+                                                                   how):
+    """Hole 3: a ``pending`` entry (a killed writer's temporary file) that points outside the
+    folder, by an absolute path, by ``..`` or through a link, made ``morphshell program``
+    delete it.  Now the folder is refused as damaged (exit 2), and nothing is deleted."""
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    victim = elsewhere / ".victim.tmp-0123456789abcdef"
+    victim.write_text("the user's")
+    entry = {"absolute": str(victim), "dotdot": f"../elsewhere/{victim.name}",
+             "link": f"sub/{victim.name}"}[how]
+    if how == "link":
+        (design / "sub").symlink_to(elsewhere)
+    _edit_stamp(design, pending={entry: DEAD_PID})
+    before = _tree(design)
+    rc, msg = _cli(["program", design], capsys)
+    assert victim.read_text() == "the user's"
+    assert _tree(design) == before
+    assert rc == 2 and "damaged" in msg and "Traceback" not in msg, msg
+    assert entry in msg and "Fix:" in msg
+
+
+@pytest.mark.parametrize("key, value", [
+    ("files", {"../../etc/passwd": ["0" * 64, 1]}),
+    ("dirs", ["/tmp"]),
+    ("prev", {"a/./b": ["0" * 64, 1]}),
+    ("pending", {"cells.csv": DEAD_PID}),     # not a temporary file's name
+    ("files", {"cells.csv": "sha"}),
+])
+def test_every_path_a_stamp_names_is_checked(design, capsys, key, value):
+    from pysolver.atomic import DamagedFolder, read_stamp
+
+    _edit_stamp(design, **{key: value})
+    with pytest.raises(DamagedFolder):
+        read_stamp(design)
+    before = _tree(design)
+    rc, msg = _cli(["program", design], capsys)
+    assert rc == 2 and "damaged" in msg and _tree(design) == before, msg
+
+
+@pytest.mark.parametrize("text", ['{"made_by": "morphshell", "vers', "[1, 2]", ""])
+def test_a_damaged_stamp_is_reported_as_damaged(design, capsys, text):
+    """LOW: a truncated stamp was reported as "no stamp" or "not made by morphshell"."""
+    from pysolver.atomic import STAMP_NAME
+
+    (design / STAMP_NAME).write_text(text)
+    before = _tree(design)
+    for argv in (["program", design], ["design", SHAPE, "--out", design]):
+        rc, msg = _cli(argv, capsys)
+        assert rc == 2 and "is damaged" in msg, msg
+        assert "no .morphshell-build stamp" not in msg and "not a morphshell" not in msg
+    assert _tree(design) == before
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give a file to another user")
+def test_another_users_lock_file_is_never_deleted(design, tmp_path, capsys):
+    """LOW: root removed other users' ``*.morphshell-lock`` files beside ``--out`` (they hold
+    ``pid N`` and no live process locks them, which looked stale)."""
+    theirs = tmp_path / ".Y.morphshell-lock"
+    theirs.write_text("pid 1234")
+    os.chown(theirs, 65534, 65534)              # nobody's
+    mine = tmp_path / ".Z.morphshell-lock"
+    mine.write_text("pid 1234")
+    assert _cli(["design", SHAPE, "--out", "X2"], capsys)[0] == 0
+    assert theirs.read_text() == "pid 1234" and not mine.exists()
+
+
+def test_a_long_out_name_is_refused_with_the_right_fix(tmp_path, monkeypatch, capsys):
+    """LOW: a 240-character ``--out`` failed on the lock file's name ("remove the lock file
+    if it is a link or a folder"); the name itself is the problem, and nothing is made."""
+    monkeypatch.chdir(tmp_path)
+    rc, msg = _cli(["design", SHAPE, "--out", "a" * 240], capsys)
+    assert rc == 2 and "240 bytes long" in msg and "at most 233" in msg, msg
+    assert "give a shorter folder name" in msg and "lock" not in msg.split("Fix:")[1]
+    assert list(tmp_path.iterdir()) == []
+    assert _cli(["design", SHAPE, "--out", "a" * 233], capsys)[0] == 0
