@@ -27,6 +27,8 @@ import json
 import logging
 import os
 import re
+import shutil
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterable
@@ -258,8 +260,11 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
     """A ``distributed.Client``: of an existing cluster, or of a new ``LocalCluster``.
 
     The local cluster listens on the loopback interface only (:data:`LOOPBACK`), speaks TLS
-    with a certificate made for this run (:func:`local_security`), and serves no web pages
-    (no dashboard, no HTTP routes) unless ``dashboard`` is asked for.
+    with a certificate made for this run (:func:`local_security`), serves no web pages
+    (no dashboard, no HTTP routes) unless ``dashboard`` is asked for, and keeps its scratch
+    files in a private folder made for the run (mode 0700, a random name; removed after),
+    never in Dask's fixed ``dask-scratch-space`` of the shared temporary folder, which
+    another user could make first.
 
     Parameters
     ----------
@@ -295,12 +300,15 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
     else:
         n = workers or os.cpu_count() or 1
         security = local_security()
-        routes = {} if dashboard else {"distributed.scheduler.http.routes": [],
-                                       "distributed.worker.http.routes": []}
-        with dask.config.set(routes):
+        scratch = tempfile.mkdtemp(prefix="morphshell-dask-")   # 0700, a random name
+        config = {"temporary-directory": scratch}
+        if not dashboard:
+            config.update({"distributed.scheduler.http.routes": [],
+                           "distributed.worker.http.routes": []})
+        with dask.config.set(config):
             cluster = distributed.LocalCluster(
                 n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
-                protocol="tls", security=security,
+                protocol="tls", security=security, local_directory=scratch,
                 dashboard_address=f"{LOOPBACK}:0" if dashboard else None,
                 silence_logs=logging.ERROR)
         client = distributed.Client(cluster, security=security)
@@ -315,6 +323,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
         client.close()
         if cluster is not None:
             cluster.close()
+            shutil.rmtree(scratch, ignore_errors=True)
 
 
 def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,

@@ -42,8 +42,9 @@ TOP_PACKAGES = ("pysolver", "sim")
 
 # Layers, lowest first: a module may import its own group and any group of a lower rank.
 LAYERS = {
-    "core": 0,        # errors, params, atomic, child (argv of child Pythons), geometry, tables,
-                      # progress lines, JSON records, provenance: used by every stage
+    "core": 0,        # errors, params, atomic, child (argv of child Pythons), machine (memory
+                      # left), geometry, tables, progress lines, JSON records, provenance:
+                      # used by every stage
     "mechanics": 1,   # shell model, membrane energy and mesh, Newton solver, rim margin
     "material": 1,    # runtime bracket material model
     "design": 2,      # target surface -> stencil -> layout -> design tables, model.npz
@@ -58,8 +59,8 @@ LAYERS = {
 }
 
 CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.atomic", "pysolver.child",
-        "pysolver.geometry", "pysolver.tables", "pysolver.progress", "pysolver.records",
-        "pysolver.provenance"}
+        "pysolver.machine", "pysolver.geometry", "pysolver.tables", "pysolver.progress",
+        "pysolver.records", "pysolver.provenance"}
 FITTING = ("pysolver.fitting", "pysolver.fitting.material_fit",
            "pysolver.fitting.material_report", "pysolver.fitting.membrane_fit",
            "pysolver.fitting.cell_membrane")
