@@ -285,17 +285,28 @@ def _run_build(ctx: StageContext, out: Path, stages, digest: str, setup=None) ->
         if open_staging(staging, inputs_sha256=digest):
             say("build", ctx.name, f"resuming the interrupted build in {staging}",
                 opts.progress)
-        if setup is not None:
-            setup(staging)
-        steps = _StageRunner(ctx.build, ctx.name, out, staging, opts)
-        ctx.substage = steps.run
-        wanted = [s for s in stages if s.wanted(opts)]
-        for s in wanted:  # early checks run on the core the first stages leave idle
-            if s.prepare:
-                runner(s.prepare)(staging, opts)
-        for s in wanted:
-            steps.run(s.name, runner(s.run), ctx)
-        _finish(ctx.build, staging, out, t_build, opts)
+        try:
+            _run_stages(ctx, out, stages, setup, t_build)
+        except OSError:   # a full disk, a quota...: the partial files go, freeing the space
+            if not opts.keep_failed:
+                remove_staging(staging)
+            raise
+
+
+def _run_stages(ctx, out: Path, stages, setup, t_build: float) -> None:
+    """The body of :func:`_run_build`, in its staging folder ``ctx.folder``."""
+    opts, staging = ctx.options, ctx.folder
+    if setup is not None:
+        setup(staging)
+    steps = _StageRunner(ctx.build, ctx.name, out, staging, opts)
+    ctx.substage = steps.run
+    wanted = [s for s in stages if s.wanted(opts)]
+    for s in wanted:  # early checks run on the core the first stages leave idle
+        if s.prepare:
+            runner(s.prepare)(staging, opts)
+    for s in wanted:
+        steps.run(s.name, runner(s.run), ctx)
+    _finish(ctx.build, staging, out, t_build, opts)
 
 
 class _StageRunner:

@@ -137,6 +137,25 @@ def _environment_error(e: BaseException):
     return None
 
 
+def environment_message(e: BaseException, command: str) -> str | None:
+    """The message of ``e`` when it is the machine's failure (a full disk, a quota, no
+    memory, ...: :data:`_ENVIRONMENT_ERRNOS`), naming it and the fix; None for a bug.
+
+    Parameters
+    ----------
+    e : BaseException
+    command : str
+        The command that failed, as the message names it (``"build"``, ``"studio run"``).
+    """
+    env = _environment_error(e)
+    if env is None:
+        return None
+    what, filename, fix = env
+    where = f" ({filename})" if filename else ""
+    return (f"morphshell {command}: error: {what}{where}.\n  Fix: {fix}; previous complete "
+            "results are kept.")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``morphshell`` console script."""
     ap = _parser()
@@ -160,12 +179,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # a bug: say so, and how to get details
         if getattr(args, "debug", False):
             traceback.print_exc()
-        env = _environment_error(e)
+        env = environment_message(e, args.command)
         if env is not None:  # the machine, not the program: named, with the fix
-            what, filename, fix = env
-            where = f" ({filename})" if filename else ""
-            print(f"morphshell {args.command}: error: {what}{where}.\n  Fix: {fix}; previous "
-                  "complete results are kept.", file=sys.stderr)
+            print(env, file=sys.stderr)
             return EXIT_BAD_INPUT
         print(f"morphshell {args.command}: internal error ({type(e).__name__}: {e}). "
               "This is a bug; re-run with --debug for the traceback and report it.",

@@ -6,15 +6,21 @@ lists them per boundary)."""
 
 from __future__ import annotations
 
+import errno
+import hashlib
 import json
 import os
+import socket
+import struct
 import subprocess
+import threading
 import time
 from pathlib import Path
 
 import pytest
 from _shared import run_cli
 
+from pysolver.atomic import staging_dir
 from pysolver.child import PACKAGE_ROOT, python_argv
 
 # ------------------------------------------------------------------------------ child Pythons
@@ -198,3 +204,312 @@ def test_a_long_out_name_is_refused_with_the_right_fix(tmp_path, monkeypatch, ca
     assert "give a shorter folder name" in msg and "lock" not in msg.split("Fix:")[1]
     assert list(tmp_path.iterdir()) == []
     assert _cli(["design", SHAPE, "--out", "a" * 233], capsys)[0] == 0
+
+
+# ------------------------------------------------------------------------------ the studio
+
+
+def _studio_folder(tmp_path: Path, name: str = "b") -> Path:
+    """A folder :func:`pysolver.studio.server.resolve_folders` accepts (the guards tested
+    here answer before any table is read)."""
+    folder = tmp_path / name
+    folder.mkdir()
+    for n in ("stencil.obj", "cells.csv", "time_landscape.csv"):
+        (folder / n).write_text("")
+    return folder
+
+
+@pytest.fixture
+def studio(tmp_path):
+    from pysolver.studio.server import StudioServer
+
+    srv = StudioServer([_studio_folder(tmp_path)])
+    th = threading.Thread(target=srv.serve_forever, daemon=True)
+    th.start()
+    yield srv
+    srv.shutdown()
+    srv.server_close()
+
+
+def _head(srv, method="POST", path="/api/build/0/preview", token=None, **headers) -> bytes:
+    port = srv.server_address[1]
+    h = {"Host": f"127.0.0.1:{port}", "Content-Type": "application/json", **headers}
+    if token:
+        h["X-Morphshell-Token"] = token
+    return (f"{method} {path} HTTP/1.1\r\n" + "".join(f"{k}: {v}\r\n" for k, v in h.items())
+            + "\r\n").encode("utf-8")
+
+
+def _reply(sock: socket.socket) -> bytes:
+    """Everything the server sends until it closes the connection."""
+    out = b""
+    while chunk := sock.recv(65536):
+        out += chunk
+    return out
+
+
+def _connect(srv) -> socket.socket:
+    return socket.create_connection(("127.0.0.1", srv.server_address[1]), timeout=30)
+
+
+@pytest.mark.parametrize("headers", [{}, {"Host": "evil.example"},
+                                     {"Origin": "http://evil.example"}])
+def test_a_request_without_the_token_is_refused_before_its_body_is_read(studio, headers):
+    """Hole 4: the studio read up to 4 MiB of a body before it checked who sent it.  The
+    body is never sent here: an answer proves that the studio did not wait for it."""
+    s = _connect(studio)
+    token = studio.token if headers else None
+    s.sendall(_head(studio, token=token, **{"Content-Length": str(4 << 20), **headers}))
+    reply = _reply(s)        # (the old studio waited for 4 MiB: a socket timeout)
+    s.close()
+    assert reply.startswith(b"HTTP/1.1 403") and b"Connection: close" in reply, reply[:300]
+
+
+def _request_threads() -> int:
+    return sum("process_request_thread" in t.name for t in threading.enumerate())
+
+
+def test_many_tokenless_connections_hold_a_bounded_number_of_threads(studio):
+    """Hole 4: 300 tokenless connections made 304 threads.  Each connection here sends half
+    a request and stops; the studio serves at most ``studio_max_connections`` at once."""
+    from pysolver.params import LIMITS
+
+    base = _request_threads()
+    socks = [_connect(studio) for _ in range(4 * LIMITS.studio_max_connections)]
+    for s in socks:
+        s.sendall(b"POST /api/builds HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+    seen = 0
+    for _ in range(100):     # let the accept loop take what it will
+        seen = max(seen, _request_threads() - base)
+        if seen > LIMITS.studio_max_connections:
+            break
+        time.sleep(0.02)
+    for s in socks:
+        s.close()
+    assert 0 < seen <= LIMITS.studio_max_connections
+    # the slots are free again: the studio answers
+    s = _connect(studio)
+    s.sendall(_head(studio, "GET", "/api/builds", token=studio.token, Connection="close"))
+    assert _reply(s).startswith(b"HTTP/1.1 200")
+    s.close()
+
+
+@pytest.mark.parametrize("length", ["\u00b2", "1\u00b9", "5, 5", "-1", "0x10", "1e3",
+                                    "99999999999999999999"])
+def test_a_bad_content_length_is_a_400_not_a_traceback(studio, length):
+    """LOW: ``Content-Length: ²`` (byte 0xb2: headers are read as Latin-1) passed
+    ``str.isdigit`` and then failed ``int``, outside the guard: a traceback and no reply."""
+    s = _connect(studio)
+    head = _head(studio, token=studio.token).replace(
+        b"\r\n\r\n", f"\r\nContent-Length: {length}\r\n\r\n".encode("latin-1"))
+    s.sendall(head + b"{}")
+    reply = _reply(s)
+    s.close()
+    assert reply.split(b" ")[1] in (b"400", b"413"), reply[:300]
+    assert reply.count(b"HTTP/1.1 ") == 1 and b"internal error" not in reply
+
+
+def test_an_stl_from_a_folder_named_outside_latin1_downloads(tmp_path, monkeypatch, capsys):
+    """LOW: a folder named outside Latin-1 made the STL download send a 200 and then a 500
+    on the same connection (the header could not be encoded)."""
+    from urllib.parse import quote
+
+    from pysolver.studio.server import StudioServer, attachment
+    from pysolver.tables import tables_sha256
+
+    monkeypatch.chdir(tmp_path)
+    name = "花-petal"
+    assert _cli(["build", SHAPE, "--out", name, "--no-render", "--no-sim"], capsys)[0] == 0
+    folder = tmp_path / name
+    tri = [0.0] * 3 + [0, 0, 0, 10, 0, 0, 0, 10, 0]     # one triangle (normal, corners)
+    stl = b"\0" * 80 + (1).to_bytes(4, "little") + struct.pack("<12fH", *tri, 0)
+    (folder / "stl").mkdir()
+    (folder / "stl" / "top.stl").write_bytes(stl)
+    (folder / "stl" / "parts.json").write_text(json.dumps(
+        {"tables_sha256": tables_sha256(folder),
+         "files": {"top.stl": hashlib.sha256(stl).hexdigest()}}))
+    srv = StudioServer([folder])
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        s = _connect(srv)
+        s.sendall(_head(srv, "GET", f"/api/build/0/stl/top.stl?token={srv.token}",
+                        Connection="close"))
+        reply = _reply(s)
+        s.close()
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert reply.count(b"HTTP/1.1 ") == 1 and reply.startswith(b"HTTP/1.1 200"), reply[:300]
+    assert f"filename*=UTF-8''{quote(name + '-top.stl')}".encode() in reply
+    assert b'filename="_-petal-top.stl"' in reply and reply.endswith(stl)
+    assert attachment('a"b\r\nX: y.stl') == ("attachment; filename=\"a_b__X__y.stl\"; "
+                                             "filename*=UTF-8''a%22b%0D%0AX%3A%20y.stl")
+
+
+BROWSER_SCRIPT = """#!/bin/sh
+printf '%s\\n' "$@" > {rec}.args
+env > {rec}.env
+cat "${{1#file://}}" > {rec}.page
+stat -c '%a %u' "${{1#file://}}" "$(dirname "${{1#file://}}")" > {rec}.modes
+: > {rec}.done
+n=0
+while [ ! -e {release} ] && [ $n -lt 1200 ]; do sleep 0.1; n=$((n+1)); done
+"""
+"""A browser that records what it was given and then does not return (until released)."""
+
+
+def test_the_browser_never_sees_the_token_and_cannot_block_the_studio(tmp_path, monkeypatch):
+    """Hole 1 and a LOW: the studio opened ``http://...#token=...`` as the browser's
+    command line (``/proc/PID/cmdline`` is readable by every user), and waited for the
+    browser command to return before serving."""
+    import webbrowser
+
+    from pysolver.studio.server import serve
+
+    rec, release = tmp_path / "rec", tmp_path / "release"
+    script = tmp_path / "fake-browser"
+    script.write_text(BROWSER_SCRIPT.format(rec=rec, release=release))
+    script.chmod(0o755)
+    monkeypatch.setenv("BROWSER", str(script))
+    monkeypatch.setattr(webbrowser, "_tryorder", None)
+    monkeypatch.setattr(webbrowser, "_browsers", {})
+    got = []
+    th = threading.Thread(target=serve, args=([_studio_folder(tmp_path)],),
+                          kwargs={"ready": got.append}, daemon=True)
+    th.start()
+    try:
+        for _ in range(600):        # wait for the browser to have started (not timed)
+            if (tmp_path / "rec.done").exists():
+                break
+            time.sleep(0.05)
+        srv = got[0]
+        s = _connect(srv)           # served while the browser command has not returned
+        s.sendall(_head(srv, "GET", "/api/builds", token=srv.token, Connection="close"))
+        assert _reply(s).startswith(b"HTTP/1.1 200")
+        s.close()
+    finally:
+        release.touch()
+        if got:
+            got[0].shutdown()
+        th.join(30)
+    args = (tmp_path / "rec.args").read_text()
+    assert srv.token not in args and srv.token not in (tmp_path / "rec.env").read_text()
+    # the page it was given is private to this user and hands the token to the studio
+    page_mode, folder_mode = (tmp_path / "rec.modes").read_text().split("\n")[:2]
+    assert page_mode == f"600 {os.geteuid()}" and folder_mode == f"700 {os.geteuid()}"
+    assert f"location.replace(\"{srv.url}\")" in (tmp_path / "rec.page").read_text()
+    assert not Path(args.split()[0].removeprefix("file://")).parent.exists()  # removed
+
+
+def test_the_studio_page_drops_the_token_from_its_address():
+    """Hole 1 (history): the page keeps the token in memory and its tab's sessionStorage,
+    and replaces its address without it at once."""
+    from pysolver.studio.server import STATIC_DIR
+
+    js = (STATIC_DIR / "studio.js").read_text()
+    start = js.index("function tokenFromUrl()")
+    body = js[start:js.index("\n  }\n", start)]
+    assert 'history.replaceState(null, "", location.pathname + location.search)' in body
+
+
+# ------------------------------------------------------------------------------ full disk
+
+
+def _enospc(*_a, **_k):
+    raise OSError(errno.ENOSPC, "No space left on device", "/full/disk/cells.csv")
+
+
+def test_a_studio_run_on_a_full_disk_names_it(monkeypatch, capsys):
+    """LOW: a full disk during a studio Run showed a raw traceback."""
+    import io
+
+    from pysolver.studio import rerun
+
+    monkeypatch.setattr(rerun, "rebuild", _enospc)
+    monkeypatch.setattr("sys.stdin", io.StringIO(json.dumps(
+        {"folder": "x", "landscape": [1.0], "source": {}})))
+    assert rerun.main() == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "internal error" not in err
+    assert "error: no space left on the device (the disk is full) (/full/disk/cells.csv)" in err
+    assert "Fix: free some space" in err
+
+
+def test_a_build_failing_on_a_full_disk_removes_its_staging_folder(tmp_path):
+    """LOW: the studio Run's staging folder stayed behind after a full disk."""
+    from pysolver.build import BuildOptions, _run_build
+    from pysolver.stages import StageContext
+
+    out = tmp_path / "X"
+    ctx = StageContext(staging_dir(out), BuildOptions(progress=False), name="X", build={})
+    with pytest.raises(OSError):
+        _run_build(ctx, out, [], "digest", setup=_enospc)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------ Dask
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give a folder to another user")
+def test_dasks_scratch_folder_is_private_to_the_run(tmp_path, monkeypatch):
+    """LOW: Dask's scratch folder was ``<tmp>/dask-scratch-space``, a fixed name in the
+    shared temporary folder that another user could make first (and own)."""
+    import tempfile
+
+    from pysolver.distributed import dask_client
+
+    shared = tmp_path / "shared-tmp"
+    planted = shared / "dask-scratch-space"
+    planted.mkdir(parents=True, mode=0o777)
+    os.chown(planted, 65534, 65534)              # another user's, made first
+    monkeypatch.setenv("TMPDIR", str(shared))
+    monkeypatch.setattr(tempfile, "tempdir", str(shared))
+    with dask_client(workers=1, progress=False) as client:
+        dirs = list(client.run(lambda dask_worker: dask_worker.local_directory).values())
+    assert dirs and all(planted not in Path(d).parents for d in dirs), dirs
+    assert list(planted.iterdir()) == []
+    private = [p for p in shared.iterdir() if p != planted]
+    assert private == []                         # the run's own folder is removed after
+
+
+# ------------------------------------------------------------------------------ memory
+
+
+def _fake_machine(tmp_path: Path, cgroup: str, files: dict) -> tuple[Path, Path]:
+    proc, cg = tmp_path / "proc", tmp_path / "cgroup"
+    (proc / "self").mkdir(parents=True)
+    (proc / "meminfo").write_text("MemTotal: 67108864 kB\nMemAvailable: 33554432 kB\n")
+    (proc / "self" / "cgroup").write_text(cgroup)
+    for rel, text in files.items():
+        (cg / rel).parent.mkdir(parents=True, exist_ok=True)
+        (cg / rel).write_text(text)
+    return proc, cg
+
+
+@pytest.mark.parametrize("cgroup, files, room", [
+    ("0::/user.slice/run\n", {"user.slice/memory.max": f"{1 << 30}\n",
+                              "user.slice/memory.current": f"{1 << 28}\n",
+                              "user.slice/run/memory.max": "max\n"}, 3 << 28),
+    ("4:memory:/job\n", {"memory/job/memory.limit_in_bytes": f"{1 << 31}\n",
+                         "memory/job/memory.usage_in_bytes": f"{1 << 30}\n"}, 1 << 30),
+    ("0::/\n", {"memory.max": "max\n"}, 32 << 30),
+])
+def test_the_memory_estimate_respects_cgroup_limits(tmp_path, cgroup, files, room):
+    """LOW: the pair search's memory budget read only ``MemAvailable`` (32 GiB here), and
+    ignored the cgroup's ``memory.max`` (v2) or ``memory.limit_in_bytes`` (v1)."""
+    from pysolver.machine import available_memory
+
+    proc, cg = _fake_machine(tmp_path, cgroup, files)
+    assert available_memory(proc=proc, cgroup_root=cg) == room
+
+
+def test_the_memory_estimate_respects_ulimit_v():
+    """LOW: ``ulimit -v`` (``RLIMIT_AS``) was ignored: measured in a child with 256 MiB of
+    address space more than it maps."""
+    code = ("import resource\nfrom pysolver.machine import available_memory\n"
+            "size = int([l for l in open('/proc/self/status') if l.startswith('VmSize')][0]"
+            ".split()[1]) * 1024\n"
+            "resource.setrlimit(resource.RLIMIT_AS, (size + (256 << 20), resource.RLIM_INFINITY))\n"
+            "print(available_memory())\n")
+    r = subprocess.run(python_argv(code=code), capture_output=True, text=True, check=True)
+    assert 0 < int(r.stdout) <= 256 << 20

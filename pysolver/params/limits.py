@@ -78,6 +78,10 @@ class Limits:
         Largest request body the studio reads (a landscape of 5000 vertices is ~60 kB).
     studio_job_timeout_s : float, s
         Longest a studio run (a rebuild) may take before it is stopped.
+    studio_max_connections : int
+        Connections the studio serves at once, one thread each; more wait in the listen
+        queue.  With the body limit, it bounds the threads and the memory requests hold
+        (a browser keeps about 6 connections open).
     """
 
     max_vertices: int = 5000
@@ -105,6 +109,7 @@ class Limits:
     studio_max_edits: int = 10000
     studio_max_body_bytes: int = 4 << 20
     studio_job_timeout_s: float = 6 * 3600.0
+    studio_max_connections: int = 16
 
 
 LIMITS = Limits()

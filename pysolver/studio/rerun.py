@@ -16,7 +16,8 @@ import sys
 import traceback
 
 from ..build import rebuild
-from ..errors import EXIT_INTERNAL, MorphshellError
+from ..cli import environment_message
+from ..errors import EXIT_BAD_INPUT, EXIT_INTERNAL, MorphshellError
 
 
 def main() -> int:
@@ -27,6 +28,10 @@ def main() -> int:
         print(f"morphshell studio run: error: {e}", file=sys.stderr, flush=True)
         return e.exit_code
     except Exception as e:  # a bug: the traceback goes to the studio's log
+        env = environment_message(e, "studio run")
+        if env is not None:   # a full disk...: named, with the fix
+            print(env, file=sys.stderr, flush=True)
+            return EXIT_BAD_INPUT
         traceback.print_exc()
         print(f"morphshell studio run: internal error ({type(e).__name__}: {e})",
               file=sys.stderr, flush=True)

@@ -46,17 +46,20 @@ from __future__ import annotations
 import errno
 import hmac
 import json
+import os
 import re
 import secrets
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import webbrowser
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs, quote, urlsplit
 
 import numpy as np
 
@@ -303,7 +306,7 @@ class Job:
             ticker.set()
             build.forget()
             if rc not in (0, 3):   # 3 = the report's FAIL verdict: the build is complete
-                msg = [t for t in tail if "error:" in t] or tail[-3:]
+                msg = [t for t in tail if "error:" in t or t.startswith("  Fix:")] or tail[-3:]
                 raise MorphshellError(" / ".join(msg).replace("morphshell studio run: ", "")
                                       + "\nNothing of this edit was saved: the build is as "
                                         "it was, and the edit is still in the editor.")
@@ -345,6 +348,7 @@ class StudioServer(ThreadingHTTPServer):
     request_queue_size = 128   # a burst of requests waits to be served, never a reset
 
     def __init__(self, folders, port: int = 0, token: str | None = None):
+        self.slots = threading.BoundedSemaphore(LIMITS.studio_max_connections)
         self.builds = [Build(Path(f).resolve()) for f in folders]
         self.job = Job()
         self.files = _static_files()
@@ -360,6 +364,23 @@ class StudioServer(ThreadingHTTPServer):
                 raise InputError(f"port {port}: permission denied (ports below 1024 need "
                                  "root)", fix="use a port from 1024 to 65535, or 0") from None
             raise
+
+    def process_request(self, request, client_address):
+        """Serve ``request`` in a thread once one of ``LIMITS.studio_max_connections`` slots
+        is free (until then the next connections wait in the listen queue, holding no
+        thread and no memory of the studio's)."""
+        self.slots.acquire()
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self.slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address):
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.slots.release()
 
     def handle_error(self, request, client_address):
         # a browser closing its connection is not worth a traceback on the terminal
@@ -430,26 +451,31 @@ class Handler(BaseHTTPRequestHandler):
         return sent is not None and hmac.compare_digest(sent.encode(),
                                                          self.server.token.encode())
 
-    def _read_body(self):
-        """The whole request body, or None after an error reply (413/411/400; the
-        connection is then closed, so no unread byte is parsed as another request)."""
+    def _length(self):
+        """The request's ``Content-Length`` (ASCII digits only), or None after an error reply
+        (411 without one or with a chunked body, 400 when it is not one whole number, 413
+        above ``LIMITS.studio_max_body_bytes``)."""
         if self.headers.get("Transfer-Encoding"):
-            self._error(HTTPStatus.LENGTH_REQUIRED, "chunked request bodies are not accepted",
-                        "send a Content-Length")
-            return None
-        raw = self.headers.get("Content-Length")
-        if raw is None:
-            self._error(HTTPStatus.LENGTH_REQUIRED, "no Content-Length",
-                        "send the JSON body with its Content-Length")
-            return None
-        if not raw.strip().isdigit():
-            self._error(HTTPStatus.BAD_REQUEST, f"Content-Length {raw[:40]!r} is not a "
-                                                "whole number of bytes")
-            return None
-        n = int(raw)
+            return self._error(HTTPStatus.LENGTH_REQUIRED, "chunked request bodies are not "
+                                                           "accepted", "send a Content-Length")
+        raw = self.headers.get_all("Content-Length") or []
+        if not raw:
+            return self._error(HTTPStatus.LENGTH_REQUIRED, "no Content-Length",
+                               "send the JSON body with its Content-Length")
+        if len(raw) > 1 or not re.fullmatch(r"[0-9]{1,18}", raw[0].strip(" \t")):
+            return self._error(HTTPStatus.BAD_REQUEST, f"Content-Length {', '.join(raw)[:40]!r} "
+                                                       "is not a whole number of bytes")
+        n = int(raw[0])
         if n > LIMITS.studio_max_body_bytes:
-            self._error(HTTPStatus.REQUEST_ENTITY_TOO_LARGE,
-                        f"the request body is {n} bytes, more than {LIMITS.studio_max_body_bytes}")
+            return self._error(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, f"the request body is {n} "
+                               f"bytes, more than {LIMITS.studio_max_body_bytes}")
+        return n
+
+    def _read_body(self):
+        """The whole request body, or None after an error reply; the connection is then
+        closed, so no unread byte is ever parsed as another request."""
+        n = self._length()
+        if n is None:
             return None
         body = self.rfile.read(n)
         if len(body) != n:
@@ -457,39 +483,54 @@ class Handler(BaseHTTPRequestHandler):
             return None
         return body
 
-    def _guard(self, fn, *, body: bool):
-        payload = None
-        if body:   # read (or refuse) the body first: nothing is left on the connection
-            data = self._read_body()
-            if data is None:
-                return None
-        elif self.headers.get("Transfer-Encoding") or self.headers.get(
-                "Content-Length", "0").strip() != "0":
-            # a body on a GET would stay on the connection: refused, and the connection closed
-            return self._error(HTTPStatus.BAD_REQUEST, f"a {self.command} request has no body")
+    def _refusal(self):
+        """Why the request is refused before anything of its body is read (host, origin,
+        token, a body on a GET), as ``(status, message, fix)``; None when it may go on."""
         if not self._host_ok():
-            return self._error(HTTPStatus.FORBIDDEN, "bad Host header (the studio answers "
-                                                     "only to 127.0.0.1 and localhost)")
+            return (HTTPStatus.FORBIDDEN, "bad Host header (the studio answers only to "
+                                          "127.0.0.1 and localhost)", None)
         if not self._origin_ok():
-            return self._error(HTTPStatus.FORBIDDEN, "requests from another origin are refused")
+            return HTTPStatus.FORBIDDEN, "requests from another origin are refused", None
         path = urlsplit(self.path).path
         if path.startswith("/api/"):
             download = self.command == "GET" and re.fullmatch(
                 r"/api/build/\d+/(stl/[^/]+|report)", path) is not None
             if not self._token_ok(query_ok=download):
-                return self._error(HTTPStatus.FORBIDDEN, "missing or wrong studio token",
-                                   "open the URL the studio printed when it started (it "
-                                   "ends in #token=...)")
-        if body:
-            if self.headers.get_content_type() != "application/json":
-                return self._error(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
-                                   "the request body must be application/json")
-            try:
-                payload = json.loads(data.decode("utf-8") or "{}",
-                                     parse_constant=_refuse_constant)
-            except (UnicodeDecodeError, ValueError, RecursionError) as e:
-                return self._error(HTTPStatus.BAD_REQUEST, f"the request body is not JSON "
-                                                           f"({e})", "send a JSON object")
+                return (HTTPStatus.FORBIDDEN, "missing or wrong studio token",
+                        "open the URL the studio printed when it started (it ends in "
+                        "#token=...)")
+        if self.command != "POST" and (self.headers.get("Transfer-Encoding") or self.headers.get(
+                "Content-Length", "0").strip() != "0"):
+            # a body on a GET would stay on the connection: refused, and the connection closed
+            return HTTPStatus.BAD_REQUEST, f"a {self.command} request has no body", None
+        return None
+
+    def _payload(self):
+        """The POST body parsed as JSON, or ``_NO_BODY`` after an error reply."""
+        data = self._read_body()
+        if data is None:
+            return _NO_BODY
+        if self.headers.get_content_type() != "application/json":
+            self._error(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+                        "the request body must be application/json")
+            return _NO_BODY
+        try:
+            return json.loads(data.decode("utf-8") or "{}", parse_constant=_refuse_constant)
+        except (UnicodeDecodeError, ValueError, RecursionError) as e:
+            self._error(HTTPStatus.BAD_REQUEST, f"the request body is not JSON ({e})",
+                        "send a JSON object")
+            return _NO_BODY
+
+    def _guard(self, fn, *, body: bool):
+        # who and where from first: nothing of a refused request's body is read (its
+        # connection is closed), so a caller without the token holds no memory here
+        refused = self._refusal()
+        if refused is not None:
+            return self._error(*refused)
+        path = urlsplit(self.path).path
+        payload = self._payload() if body else None
+        if payload is _NO_BODY:
+            return None
         try:
             return fn(path, payload) if body else fn(path)
         except InputError as e:
@@ -563,8 +604,7 @@ class Handler(BaseHTTPRequestHandler):
             if len(parts) == 5 and what == "stl":
                 p = b.stl(parts[4])
                 return self._send(HTTPStatus.OK, p.read_bytes(), "model/stl", extra=[
-                    ("Content-Disposition",
-                     f'attachment; filename="{b.folder.name}-{p.name}"')])
+                    ("Content-Disposition", attachment(f"{b.folder.name}-{p.name}"))])
         raise _NotFound("not found")
 
     def _post(self, path, payload):
@@ -587,6 +627,19 @@ class Handler(BaseHTTPRequestHandler):
 
 class _NotFound(Exception):
     pass
+
+
+_NO_BODY = object()
+"""What :meth:`Handler._payload` returns after an error reply."""
+
+
+def attachment(name: str) -> str:
+    """A ``Content-Disposition`` value that downloads as ``name``, whatever its characters:
+    an ASCII fallback (anything but letters, digits, ``.``, ``-`` and ``_`` replaced by
+    ``_``) and the name itself in UTF-8 (RFC 6266 and RFC 5987 ``filename*``)."""
+    fallback = re.sub(r"[^A-Za-z0-9._-]", "_", name)
+    utf8 = quote(name.encode("utf-8", "surrogateescape"), safe="")
+    return f"attachment; filename=\"{fallback}\"; filename*=UTF-8''{utf8}"
 
 
 def _refuse_constant(name):
@@ -641,12 +694,48 @@ def serve(dirs, *, port: int = 0, open_browser: bool = True, ready=None) -> None
           "its token, can drive the studio; Ctrl-C to stop)", file=sys.stderr, flush=True)
     if ready is not None:
         ready(srv)
-    if open_browser:
-        webbrowser.open(srv.url)
+    page = opener_page(srv.url) if open_browser else None
+    if page is not None:   # in a thread: a browser command that never returns blocks nothing
+        threading.Thread(target=webbrowser.open, args=(page.as_uri(),), daemon=True,
+                         name="studio-browser").start()
     try:
         srv.serve_forever()
     finally:
         srv.server_close()
+        if page is not None:
+            shutil.rmtree(page.parent, ignore_errors=True)
 
 
-__all__ = ["StudioServer", "serve", "resolve_folders", "Busy", "TOKEN_HEADER"]
+def opener_page(url: str) -> Path:
+    """A private page that sends the browser on to ``url`` (the studio's, with its token).
+
+    The browser is started on this file, never on ``url``: a command line can be read by
+    every local user (``/proc/PID/cmdline``), a file of mode 0600 in a folder of mode 0700
+    only by this one.  The page replaces itself by ``url`` in the browser's history, and the
+    studio's page then drops the token from its address (``history.replaceState``).
+
+    Parameters
+    ----------
+    url : str
+        ``http://127.0.0.1:<port>/#token=...`` (:attr:`StudioServer.url`).
+
+    Returns
+    -------
+    pathlib.Path
+        ``<private temporary folder>/open.html``; remove its folder when the studio stops.
+    """
+    if not re.fullmatch(r"http://127\.0\.0\.1:\d+/#token=[A-Za-z0-9_-]+", url):
+        raise ValueError(f"not a studio URL: {url[:80]!r}")
+    folder = Path(tempfile.mkdtemp(prefix="morphshell-studio-"))   # mode 0700, this user's
+    page = folder / "open.html"
+    html = ('<!doctype html><meta charset="utf-8"><meta name="referrer" content="no-referrer">'
+            f"<title>morphshell studio</title><script>location.replace({json.dumps(url)})"
+            "</script><p>Opening the studio...</p>\n")
+    fd = os.open(page, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(html)
+    return page
+
+
+__all__ = ["StudioServer", "serve", "resolve_folders", "opener_page", "attachment", "Busy",
+           "TOKEN_HEADER"]

@@ -1,6 +1,6 @@
 /* morphshell studio: paint the time landscape on the target, build it again, and compare.
  * Talks only to the local server that served this page (same origin, JSON, with the token
- * from the URL's #token=...). */
+ * from the URL's #token=..., which is dropped from the address bar at once). */
 (function () {
   "use strict";
 
@@ -10,9 +10,18 @@
   window.studio = studio;
 
   function $(id) { return document.getElementById(id); }
+  // The token arrives after # (never sent to a server); it is kept in this tab's
+  // sessionStorage (a reload keeps working) and dropped from the address bar and the
+  // history entry at once, so it is not left in the browser's history.
   function tokenFromUrl() {
     var m = /(?:^|[#&])token=([A-Za-z0-9_\-]+)/.exec(location.hash || "");
-    return m ? m[1] : null;
+    var token = m ? m[1] : null;
+    try {
+      if (token) sessionStorage.setItem("morphshell-token", token);
+      else token = sessionStorage.getItem("morphshell-token");
+    } catch (e) { /* storage disabled: the token lives in this page only */ }
+    if (m) history.replaceState(null, "", location.pathname + location.search);
+    return token;
   }
   function headers(json) {
     var h = {"X-Morphshell-Token": studio.token || ""};
