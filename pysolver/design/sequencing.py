@@ -24,8 +24,6 @@ Every part closes at one time, as the paper's own cover landscape does.
 
 from __future__ import annotations
 
-import os
-
 import igl
 import numpy as np
 import scipy.sparse as sp
@@ -33,6 +31,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from ..errors import InputError
+from ..machine import available_memory
 from ..params import SEQUENCING, Sequencing
 
 __all__ = ["edge_graph", "facing_pairs", "surface_parts", "stacking_order",
@@ -66,19 +65,6 @@ def edge_graph(V, F) -> sp.csr_matrix:
     n = len(V)
     return sp.coo_matrix((np.r_[w, w], (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
                          shape=(n, n)).tocsr()
-
-
-def available_memory() -> int:
-    """Bytes of memory the machine can still give (``MemAvailable`` of /proc/meminfo, else
-    the free physical pages)."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
 
 
 def check_pair_memory(tree, n_faces: int, reach: float,
