@@ -204,6 +204,67 @@ def face_adjacency(F: np.ndarray) -> np.ndarray:
     return ff
 
 
+_GENERIC_DIRECTION = np.array([1.0, np.sqrt(2.0), np.sqrt(3.0)]) / np.sqrt(6.0)
+
+
+def canonical_order(V, F, values=None):
+    """The mesh with its vertices and faces in an order given by its geometry alone.
+
+    A mesh's labelling (the order of its vertices, of its faces, and where each face's
+    corners start) is not part of the surface it describes.  Every stage that chooses
+    (a seed, a start on the rim, a tie between equal candidates) reads its input in this
+    order, so that the same surface, labelled otherwise, gives the same design to the last
+    bit.  Vertices are sorted by their coordinates (x, then y, then z); vertices at the very
+    same point (an unwelded seam) by the sorted coordinates of their faces' centroids.
+    Each face starts at its lowest new index, keeping its orientation, and faces are sorted
+    by their corners.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    values : (n, ...) array, optional
+        Per-vertex data carried along (a time landscape, in s).
+
+    Returns
+    -------
+    V : (n, 3) float, mm -- ``V[order]``
+    F : (m, 3) int
+    values : (n, ...) array or None -- ``values[order]``
+    order : (n,) int -- old index of each new vertex
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V = np.array([[1., 0, 0], [0, 0, 0], [0, 1, 0]])
+    >>> Vc, Fc, _, order = canonical_order(V, np.array([[0, 2, 1]]))
+    >>> order.tolist(), Fc.tolist()
+    ([1, 0, 2], [[0, 1, 2]])
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, dtype=np.int64)
+    # first along a direction of irrational slopes: coordinates on a grid do not tie on it,
+    # so that a jitter of the last bits reorders few vertices (x, y, z break exact ties)
+    keys = [V[:, 2], V[:, 1], V[:, 0], V @ _GENERIC_DIRECTION]
+    dup = len(np.unique(V, axis=0)) < len(V)
+    if dup:  # (the lexicographically first centroid of each vertex's faces breaks the tie)
+        C = np.repeat(V[F].mean(axis=1), 3, axis=0)
+        v = F.ravel()
+        first = np.lexsort((C[:, 2], C[:, 1], C[:, 0], v))
+        first = first[np.r_[True, v[first][1:] != v[first][:-1]]]
+        K = np.full((len(V), 3), np.inf)
+        K[v[first]] = C[first]
+        keys = [K[:, 2], K[:, 1], K[:, 0]] + keys
+    order = np.lexsort(keys)
+    new = np.empty_like(order)
+    new[order] = np.arange(len(order))
+    G = new[F]
+    shift = np.argmin(G, axis=1)
+    G = np.take_along_axis(G, (shift[:, None] + np.arange(3)) % 3, axis=1)
+    G = G[np.lexsort((G[:, 2], G[:, 1], G[:, 0]))]
+    return V[order], G, (None if values is None else np.asarray(values)[order]), order
+
+
 @dataclass
 class Cells:
     """Unit cells (interior edges) in the reference's face-major order.

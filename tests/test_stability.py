@@ -1,10 +1,13 @@
-"""Design results do not hang on last bits (issue #28).
+"""Design results are a function of the geometry (issues #28 and #42).
 
-The same target must give the same shell on any x86-64 machine: the same vertex count (within
-3 %), 3D scaling (1 %), longest flat cell (0.1 mm) and verdict, whatever the input's last bits
-(coordinates jittered by 1e-9 of the size), the CPU's code path (numpy without AVX2/FMA3,
-OpenBLAS's Sandybridge kernels) or the number of BLAS threads.  Small shapes here; every
-built-in, reference and peer shape in ``bench/bench_stability.py`` (``make bench``).
+The same target must give the same shell on any x86-64 machine, however its mesh is labelled
+or placed: the same vertex count (within 3 %), 3D scaling (1 %), longest flat cell (0.15 mm)
+and verdict, whatever the order of its vertices and faces (exactly: the same stencil to the
+last bit), a rigid motion (those two in ``tests/test_labelling.py``), the input's last bits
+(coordinates jittered by 1e-7 of the size),
+the CPU's code path (numpy without AVX2/FMA3, OpenBLAS's Sandybridge kernels) or the number
+of BLAS threads.  Small shapes here; every built-in, reference and peer shape in
+``bench/bench_stability.py`` (``make bench``).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from pysolver.errors import InputError
 
 REPO = Path(__file__).resolve().parent.parent
 SHAPE = "dome:size=0.7"
-VERTEX_RTOL, SCALE_RTOL, CELL_ATOL_MM = 0.03, 0.01, 0.1
+VERTEX_RTOL, SCALE_RTOL, CELL_ATOL_MM = 0.03, 0.01, 0.15
 """The issue's tolerances: bases, 3D scaling (relative), longest flat cell (mm)."""
 
 
@@ -59,7 +62,7 @@ def test_reference_design_is_printable_at_size(reference):
     assert 0.98 <= reference["scale3d"] <= 1.02
 
 
-@settings(max_examples=3, deadline=None, derandomize=True)
+@settings(max_examples=2, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_design_is_stable_under_input_jitter(reference, tmp_path_factory, seed):
     """Verdict, bases, 3D scaling and longest flat cell within the issue's tolerances.
@@ -68,7 +71,7 @@ def test_design_is_stable_under_input_jitter(reference, tmp_path_factory, seed):
     with it on six jitters: 7.453-7.464 mm.)"""
     s = surfaces.builtin(SHAPE)
     rng = np.random.default_rng(seed)
-    s.V = s.V + 1e-9 * np.ptp(s.V, axis=0).max() * rng.standard_normal(s.V.shape)
+    s.V = s.V + 1e-7 * np.ptp(s.V, axis=0).max() * rng.standard_normal(s.V.shape)
     assert_same(reference, figures(s, tmp_path_factory.mktemp("jitter")))
 
 

@@ -387,25 +387,22 @@ def test_paper_cover_designs_printable_from_its_target(tmp_path):
         "max_cell_length_mm"]
 
 
-def test_peer_beetle_prints_with_the_rim_scale_free(tmp_path):
+def test_peer_beetle_at_its_size_is_refused_with_measured_alternatives(tmp_path):
     """The peer beetle at its README's 150 mm and 0.1 mm bumpers: no stencil prints with the
-    rim's lengths kept (the bound is 9.64 mm; the search reaches 9.72 mm), so the search
-    frees the rim's scale and, with no margin at scale 1 (9.50-9.53 mm), holds the scaling
-    at the size's floor (0.969): measured 323 bases, 9.38 mm.  The layout written is the
-    one the search measured (its boundary log-scale reaches the final flattening)."""
+    rim's lengths kept (the bound is 9.64 mm), and with the rim's scale free none prints at
+    full size either (9.69 mm at scale 1 against the 9.5 mm limit).  Before issue #42 the
+    polish then held the shell at 0.969 of the size asked for (9.38 mm) and printed it
+    unasked; now the design stage refuses it, naming the bound and the alternatives it
+    measured, and writes nothing."""
     src = shared_file("peer-shapes", "beetle.obj")
     m = load_input(src, size=150.0)
-    s = run_design(surfaces.Surface("beetle", m.V - m.V.mean(axis=0), m.F), tmp_path / "d",
+    with pytest.raises(InputError) as e:
+        run_design(surfaces.Surface("beetle", m.V - m.V.mean(axis=0), m.F), tmp_path / "d",
                    params=replace(UNIT_CELL, min_bumper=0.1), progress=False, plots=False)
-    assert s["checks"]["ok"]
-    assert s["cell_length_mm"]["max"] <= 9.5
-    r = s["remesh"]
-    assert r["rim_scale"]["scale"] == "free"
-    assert r["rim_scale"]["kept"]["max_cell_length_mm"] > 9.5
-    floor = r["polish"]["floor"]
-    assert floor["kept"] and floor["scale3d"] == pytest.approx(floor["scale3d_held"], abs=0.005)
-    assert 0.95 <= s["scale"]["scale3d"] <= 1.0
-    assert s["cell_length_mm"]["max"] == pytest.approx(r["max_cell_length_mm"], abs=1e-3)
+    text = str(e.value)
+    assert "longer than 9.5 mm" in text and "measured bound" in text
+    assert "the rim's scale free" in text and "--size" in text and "--vertices" in text
+    assert not (tmp_path / "d").exists()
 
 
 def test_unprintable_target_names_the_region_and_a_measured_fix(tmp_path, monkeypatch):
@@ -539,12 +536,11 @@ def test_constant_landscape_through_the_search_is_no_landscape():
     assert np.array_equal(F0, F1) and np.array_equal(V0, V1)
 
 
-@pytest.mark.parametrize(("n", "held"), [(50, 1.0), (70, 1.0), (70, 0.969)])
+@pytest.mark.parametrize(("n", "held"), [(50, 1.0), (70, 1.0)])
 def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome_domain, n,
                                                                            held):
-    """The count search's last pass: the 3D scaling held at 1 (from 0.80 and 0.97 here, to
-    0.5 %), or at the size's floor (``CountSearch.floor``), the longest flat cell per unit
-    of scaling shorter than before."""
+    """The count search's last pass: the 3D scaling held at 1 (to 0.5 %), the longest flat
+    cell per unit of scaling shorter than before."""
     P, F = dome_domain.stencil(n, seed=0)
     before = count_search.stencil_figures(dome_domain.lift(P), F)
     Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
@@ -580,7 +576,8 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
     ``timing_slowest``, fitted by ``bench/fit_timing_estimate.py``: sigma 0.22 in log t)
     against the times temporal programming computes from the material and membrane models,
     on a built-in design: the median residual within the fit's spread between designs
-    (0.16 in log t for the fastest; the slowest's uncensored cells, those under 119.5 s,
+    (0.16 in log t for the fastest, and -0.17 on the petal the search of issue #42 chose,
+    which was not among the fit's designs; the slowest's uncensored cells, those under 119.5 s,
     are the faster ones, so they sit below it: -0.01 to -0.22), and a robust spread (MAD)
     under 0.3.  (The former coefficients, fitted on ``../shared``'s cover and stand before the
     printed bumpers' clearance was programmed, fail the slowest's bound on these designs:
@@ -599,7 +596,7 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
     cells = tables.read_table(folder, "cells")
     np.testing.assert_allclose(lay.central_length, cells["central_length_mm"], atol=1e-6)
     lo, hi = stencil_opt.log_time_range(*stencil_opt.layout_timing_terms(lay))
-    for est, t, bias in ((lo, cells["t_min_s"], (-0.16, 0.16)),
+    for est, t, bias in ((lo, cells["t_min_s"], (-0.2, 0.16)),
                          (hi, cells["t_max_s"], (-0.3, 0.05))):
         ok = (t > 0.5) & (t < 119.5)  # (at the ends of the bracket model's range: bounds)
         r = np.log(t[ok]) - est[ok]
@@ -719,15 +716,16 @@ def test_time_graded_stencil_is_finer_where_the_landscape_is_late():
     dom = remesh.FlatDomain(V, F, S, time=t)
     P, F2 = dom.stencil(120, seed=0)
     E = _interior_edges(F2)  # (rim edges follow the boundary points and the merged flaps)
-    mid = 0.5 * (P[E[:, 0]] + P[E[:, 1]])
-    L = np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)
+    mid = dom.lift(0.5 * (P[E[:, 0]] + P[E[:, 1]]))  # (on the plate: the plane's frame is
+    L = np.linalg.norm(P[E[:, 0]] - P[E[:, 1]], axis=1)  # the shape's, flat_frame)
     early, late = L[mid[:, 0] < 30].mean(), L[mid[:, 0] > 50].mean()
     want = (80 / 30) ** -0.3                         # 0.745
     assert late / early == pytest.approx(want, rel=0.12)
     # without a landscape the same plate is uniform
-    P0, F0 = remesh.FlatDomain(V, F, S).stencil(120, seed=0)
+    dom0 = remesh.FlatDomain(V, F, S)
+    P0, F0 = dom0.stencil(120, seed=0)
     E0 = _interior_edges(F0)
-    m0 = 0.5 * (P0[E0[:, 0]] + P0[E0[:, 1]])
+    m0 = dom0.lift(0.5 * (P0[E0[:, 0]] + P0[E0[:, 1]]))
     L0 = np.linalg.norm(P0[E0[:, 0]] - P0[E0[:, 1]], axis=1)
     assert L0[m0[:, 0] > 50].mean() / L0[m0[:, 0] < 30].mean() == pytest.approx(1.0, abs=0.08)
 

@@ -17,17 +17,18 @@ from pysolver.errors import InputError
 
 # golden figures of the default built-in designs: (bases, max cell length mm); the remeshed
 # shapes come from the automatic vertex-count search (nothing tuned per shape).  Compared
-# within issue #28's tolerances for the same design on another machine: bases 3 %, longest
-# flat cell 0.1 mm (``tests/test_stability.py``).
+# within issue #42's tolerances for the same surface on another machine: bases 3 %, longest
+# flat cell 0.15 mm, which every built-in shape keeps under five relabellings, a rigid motion
+# and a 1e-7 jitter here (``bench/bench_stability.py``, ``docs/results.md``).
 GOLDEN = {
     "regular": (60, 7.0),
-    "dome": (110, 7.58),
-    "saddle": (109, 7.46),
-    "petal": (183, 9.16),
-    "spiral": (201, 8.28),
+    "dome": (110, 7.39),
+    "saddle": (113, 7.11),
+    "petal": (175, 9.22),
+    "spiral": (214, 7.83),
     "weave": (255, 5.85),
 }
-BASES_RTOL, CELL_ATOL_MM = 0.03, 0.1
+BASES_RTOL, CELL_ATOL_MM = 0.03, 0.15
 
 
 @pytest.mark.parametrize("name", list(surfaces.BUILTIN))

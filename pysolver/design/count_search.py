@@ -3,26 +3,41 @@
 A stencil's 3D size is not chosen directly: the layout's 3D rule scales it until its
 tightest cell just keeps its bumpers (``pipeline.md`` §2.5), so the vertex count N fixes the
 shell's size.  :func:`remesh_surface` searches N so that the shell keeps the size asked for
-(3D scaling about 1) with every flat cell printable (``UnitCell.max_cell_length``):
+(3D scaling about 1) with every flat cell printable (``UnitCell.max_cell_length``).
 
-1. **Secant steps** on the 3D scaling (about ``sqrt(N)``) toward 1, from the paper's estimate
-   ``0.38 A / 7^2`` times ``StencilSearch.count_start``, every count on one fixed geometric
-   ladder (``StencilSearch.count_ladder``, :meth:`CountSearch.rung`); then another seed
-   when the first leaves no margin, then the next rim inset when nothing is printable
-   (:meth:`CountSearch.secant`).
-2. **The pick** (:func:`_pick`): among candidates that keep the size
-   (:func:`at_size`: 3D scaling within ``[min_scale3d, 1 / min_scale3d]``), the one whose
-   scaling is closest to 1 with its longest flat cell ``margin`` below the limit, else within
-   it.  A stencil that prints only far under the size asked for is never taken silently:
-   the design stage refuses it and names measured alternatives.
+**A function of the geometry.**  The same surface must give the same shell however its mesh
+is labelled, placed or rounded, and on any machine (issue #42).  The search reads the target
+in a canonical order (:func:`pysolver.geometry.canonical_order`: relabelled inputs give the
+same stencil to the last bit), the stencils are seeded by position in a frame the target's
+shape sets (:mod:`pysolver.design.remesh`: a rigid motion or a last-bit jitter moves them by
+as little), and the search does not steer on one noisy start: each count is tried with
+``StencilSearch.seeds`` CVT seeds, whose 3D scalings scatter by a few per cent (the tightest
+cell decides it), as much as two rungs of the count's ladder.  We chose *several starts per
+count* over one start with a converged objective because the scatter is not the optimiser's
+(each start's rounds converge) but the starts' own: different triangulations of the same
+surface are different local optima, and the count that a single start's scaling points to
+moved with them (petal, relabelled: 172 to 233 bases).
+
+1. **Secant steps** on the mean log 3D scaling over the seeds (about ``sqrt(N)``) toward 1,
+   from the paper's estimate ``0.38 A / 7^2`` times ``StencilSearch.count_start``, every
+   count on one fixed geometric ladder (``StencilSearch.count_ladder``,
+   :meth:`CountSearch.rung`); then the next rim inset when nothing is printable.  The count
+   taken is the one tried whose mean scaling is nearest 1, not where the steps stopped.
+2. **The pick** (:func:`_pick`): among the seeds at that count that keep the size
+   (:func:`at_size`: 3D scaling within ``[min_scale3d, 1 / min_scale3d]``) and would print
+   held at scale 1, the shortest longest cell per unit of scaling: the best of several
+   starts.  Else the former rule: scaling closest to 1 with the longest flat cell ``margin``
+   below the limit, else within it.
 3. **The rim** (:func:`_rim_fallback`): a narrow target whose inset stencil covers too little
    also gets the stencil reaching the rim, taken if it prints as well.
 4. **The polish** (:meth:`CountSearch.converge`, :meth:`CountSearch.polish`): the pick
-   optimised on until its rounds converge (so that the last bits of the input or the
-   machine do not move it), then with its 3D scaling held at 1; it is said whether the
-   scaling held.
+   optimised on until its rounds converge, then with its 3D scaling held at 1.  The size
+   asked for is the size delivered: a stencil that prints at scale 1 is taken there, and
+   when the pick's does not, the count's other seeds are polished in turn
+   (:meth:`CountSearch.alternates`).  A stencil that prints only off the size
+   (:func:`full_size`) is refused by the design stage, naming a measured ``--size``.
 5. **The trade** (:func:`_trade`), with a landscape the user gave: fewer, larger cells when
-   they clamp markedly fewer cells, at a kept size.
+   they clamp markedly fewer cells, polished at full size too.
 6. **The rim's scale** (``StencilSearch.rim_scale``, :func:`_free_rim`): when no stencil
    prints at size with the rim's lengths kept, the search runs again in the flattening
    whose boundary log-scale lowers the measured bound
@@ -31,7 +46,8 @@ shell's size.  :func:`remesh_surface` searches N so that the shell keeps the siz
 
 Every candidate's optimisation rounds (kept or not, and why) are recorded
 (``info["optimisation"]``), and a stencil whose optimisation keeps no round is warned about.
-Nothing is tuned per shape.
+Nothing is tuned per shape.  Measured stability: ``docs/results.md`` ("One surface, one
+shell"), ``bench/bench_stability.py``.
 """
 
 from __future__ import annotations
@@ -42,6 +58,7 @@ import igl
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import canonical_order
 from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ..params import tol as TOL
 from .feasibility import conformal_bound, rim_log_scale
@@ -125,9 +142,22 @@ def at_size(c: dict, settings: StencilSearch = STENCIL) -> bool:
             <= 1.0 / settings.min_scale3d)
 
 
+def full_size(c: dict, settings: StencilSearch = STENCIL) -> bool:
+    """Whether a laid-out stencil is delivered at the size asked for: its 3D scaling within
+    ``polish_tolerance`` of 1 (the polish holds it there).  :func:`at_size`'s wider band is
+    where the count search looks; only a stencil at full size is printed without the user
+    asking for another size (``--size``)."""
+    return _laid_out(c) and abs(np.log(c["scale3d"])) <= settings.polish_tolerance
+
+
 def _pick(tried: dict, params: UnitCell, margin: float,
-          settings: StencilSearch | None = None):
-    """Best candidate: 3D scaling closest to 1 among those whose longest flat cell keeps
+          settings: StencilSearch | None = None, centres: dict | None = None):
+    """Best candidate.  Given ``centres`` (rim inset mm -> the count the secant found), the
+    candidates of that count (one per seed) that keep the size asked for and would print
+    held at scale 1 (:func:`_per_scale` within the limit) come first, the shortest longest
+    cell per unit of 3D scaling taken: the best of several starts, which is what the polish
+    delivers, and no longer a choice among the seeds' scatter in scaling.  Otherwise: 3D
+    scaling closest to 1 among those whose longest flat cell keeps
     ``margin`` below the limit; else below the limit; else the shortest longest cell per
     unit of 3D scaling (what the polish, holding the scaling, keeps: the longest cell alone
     favours the candidates that happen to be small, and its ties between candidates far
@@ -138,6 +168,12 @@ def _pick(tried: dict, params: UnitCell, margin: float,
     tried = {k: c for k, c in tried.items() if _laid_out(c)}
     if not tried:
         return None
+    if centres:
+        here = [k for k, c in tried.items() if centres.get(k[2]) == k[0]
+                and at_size(c, settings or STENCIL)
+                and _per_scale(c) <= params.max_cell_length]
+        if here:
+            return min(here, key=lambda k: (_per_scale(tried[k]), k))
     pools = [tried]
     if settings is not None:
         pools.insert(0, {k: c for k, c in tried.items() if at_size(c, settings)})
@@ -173,7 +209,7 @@ def _tier(c: dict, params: UnitCell, margin: float) -> int:
 
 
 def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell,
-                  settings: StencilSearch, search_rim):
+                  settings: StencilSearch, search_rim, centres=None):
     """The stencil without a rim inset as a measured alternative to an inset stencil.
 
     When the chosen inset stencil ``best`` covers less than ``settings.min_area_covered`` of
@@ -194,6 +230,8 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
     settings : StencilSearch
     search_rim : callable
         Searches the vertex count with inset 0 (adds its candidates to ``tried``).
+    centres : dict, optional
+        Rim inset (mm) -> the count the secant found there (:func:`_pick`).
 
     Returns
     -------
@@ -215,7 +253,8 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
         search_rim()
     except RimInsetError:  # (inset 0 never splits the target; kept for symmetry)
         pass
-    alt = _pick({k: c for k, c in tried.items() if k[2] == 0.0}, params, settings.margin)
+    alt = _pick({k: c for k, c in tried.items() if k[2] == 0.0}, params, settings.margin,
+                centres=centres)
     if alt is None:
         rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target; no stencil "
                       "without the inset could be laid out")
@@ -316,6 +355,7 @@ class CountSearch:
         self.meshes: dict = {}
         self.flat: dict = {}  # key -> optimised flat points, time at them
         self.optimisation: dict = {}  # key -> optimise_stencil's info
+        self.centres: dict = {}  # rim inset (mm) -> the count the secant found
         self.dom = None
         if method == "cvt":
             h = rim_log_scale(V, F, params, settings) if settings.rim_scale == "free" else None
@@ -411,45 +451,64 @@ class CountSearch:
         return n
 
     # -- the count -------------------------------------------------------------------
-    def secant(self, inset: float, start: int, sd0: int) -> int:
+    def log_scale(self, n: int, seeds, inset: float):
+        """The mean log 3D scaling of the candidates of count ``n`` over ``seeds`` (None when
+        none was laid out): what the secant steers on.  One seed's scaling scatters by a few
+        per cent around the trend in N (the tightest cell decides it), as much as two rungs
+        of the ladder; the mean over the seeds is a smoother function of N."""
+        s3 = [self.tried[(n, int(sd), float(inset))]["scale3d"] for sd in seeds]
+        s3 = [x for x in s3 if x is not None]
+        return float(np.mean(np.log(s3))) if s3 else None
+
+    def secant(self, inset: float, start: int, seeds) -> int:
         """Secant steps of N toward a 3D scaling of 1 (``scale3d ~ N^k``, k = 1/2 for a
-        uniform mesh, else the slope of the last two); returns the last N tried."""
+        uniform mesh, else the slope of the last two), on the mean over ``seeds``
+        (:meth:`log_scale`), until a step stays on its rung; returns the last N tried
+        (every seed tried there).  There is no stop at a tolerance on the scaling: a mean
+        1e-4 either side of it sent the search on or not (the dome at 0.7 under one BLAS
+        thread against two), and the count taken is the nearest 1 of those tried anyway."""
         st = self.settings
-        pts = []  # (log N, log scale3d)
-        n = self.trial(start, sd0, inset)
+        pts = []  # (log N, mean log scale3d)
+        n = self.rung(start)
+        for sd in seeds:
+            self.trial(n, sd, inset)
         for _ in range(st.count_steps):
-            s3 = self.tried[(n, sd0, float(inset))]["scale3d"]
-            if s3 is None or abs(np.log(s3)) < st.count_tolerance:
+            ls = self.log_scale(n, seeds, inset)
+            if ls is None:
                 break
-            pts.append((np.log(n), np.log(s3)))
+            pts.append((np.log(n), ls))
             k = 0.5
             if len(pts) >= 2 and abs(pts[-1][0] - pts[-2][0]) > st.count_secant_min:
                 k = float(np.clip((pts[-1][1] - pts[-2][1]) / (pts[-1][0] - pts[-2][0]),
                                   0.25, 1.0))
-            n_next = self.trial(n * s3 ** (-1.0 / k), sd0, inset)
+            n_next = self.rung(n * np.exp(-ls / k))
             if n_next == n:
                 break  # (the step is within half a rung)
+            for sd in seeds:
+                self.trial(n_next, sd, inset)
             n = n_next
         return n
 
     def search_inset(self, inset: float, vertices, seeds, start: list) -> None:
         """All candidates of one rim inset: the given count with every seed, or the secant
-        steps, ``candidates`` around their result and the other seeds when the first
-        leaves no margin (``start`` holds the count to start from, updated)."""
-        st, limit = self.settings, self.params.max_cell_length
+        steps with every seed and ``candidates`` around their result (``start`` holds the
+        count to start from, updated; the count found is ``self.centres[inset]``)."""
+        st = self.settings
         if vertices is not None:
             for sd in seeds:
                 self.trial(int(vertices), sd, inset, given=True)
+            self.centres[float(inset)] = max(int(vertices), 8)
             return
-        n = start[0] = self.secant(inset, start[0], seeds[0])
+        n = start[0] = self.secant(inset, start[0], seeds)
+        visited = sorted({k[0] for k in self.tried if k[2] == float(inset)
+                          and self.log_scale(k[0], seeds, inset) is not None
+                          and all((k[0], int(sd), float(inset)) in self.tried for sd in seeds)})
+        if visited:  # (the count whose mean scaling is nearest 1, not where the steps ended)
+            n = min(visited, key=lambda m: (abs(self.log_scale(m, seeds, inset)), m))
+        self.centres[float(inset)] = n
         for f in st.candidates:
-            self.trial(round(n * f), seeds[0], inset)
-        here = {k: c for k, c in self.tried.items() if k[2] == float(inset)}
-        best = _pick(here, self.params, st.margin, st)
-        if best is None or here[best]["max_cell_length_mm"] > limit - st.margin \
-                or not at_size(here[best], st):
-            for sd in seeds[1:]:  # another seed only when the first leaves no margin
-                self.trial(best[0] if best else n, sd, inset)
+            for sd in seeds:
+                self.trial(round(n * f), sd, inset)
 
     def search(self, vertices, seeds, start: int):
         """Every inset in turn until one gives a candidate printable with the margin at
@@ -465,7 +524,7 @@ class CountSearch:
             if any(at_size(c, st) and c["max_cell_length_mm"] <= limit - st.margin
                    for c in self.tried.values()):
                 break
-        best = _pick(self.tried, self.params, st.margin, st)
+        best = _pick(self.tried, self.params, st.margin, st, self.centres)
         if best is None:
             why = "; ".join(sorted({c["error"] for c in self.tried.values() if "error" in c}))
             why = why or "every rim inset splits the target"
@@ -478,7 +537,7 @@ class CountSearch:
                 if not any(k[2] == 0.0 for k in self.tried):
                     self.search_inset(0.0, vertices, seeds, start)
             best, rim = _rim_fallback(best, self.tried, self.meshes, self.area, self.params,
-                                      st, rim_search)
+                                      st, rim_search, self.centres)
             self.say(f"rim: {rim['why']}")
         return best, rim
 
@@ -516,14 +575,13 @@ class CountSearch:
 
     def polish(self, best):
         """The chosen stencil optimised again with its 3D scaling held at 1 (the longest flat
-        cell per unit of scaling); kept when it is nearer the target's size at no longer cell
-        (or still printable, with no longer cell per unit of scaling).  When the stencil
-        kept leaves less than ``margin`` below the limit, it is also held at the smallest
-        scaling the size allows with the polish's tolerance to spare, ``min_scale3d
-        exp(polish_tolerance)`` (:meth:`floor`), and that is kept if it prints with a
-        shorter longest cell.  (Holding the floor only when nothing prints at scale 1 made
-        the size hang on where the budgeted polish ended: the peer beetle's 9.54 mm as
-        installed, 9.48 mm under Sandybridge, either side of the 9.5 mm limit.)
+        cell per unit of scaling).  The size asked for is the size delivered: the stencil
+        held at 1 is kept whenever it prints (its longest flat cell within the limit), even
+        when the pick, at another scaling, had a shorter cell.  When it does not print, it
+        is still kept if it is nearer the size at no longer cell; otherwise the pick stays,
+        and the design stage refuses it with measured alternatives (a smaller ``--size``)
+        unless it is at full size (:func:`full_size`).  (Holding a smaller scaling instead,
+        0.969, made the petal and the peer top print 3 % under the size asked for.)
 
         Returns
         -------
@@ -531,20 +589,18 @@ class CountSearch:
         chosen : dict -- its figures
         record : dict -- ``scale3d``, ``max_cell_length_mm`` of the polished stencil,
             ``kept`` (it is the stencil returned), ``held`` (the stencil returned is within
-            ``polish_tolerance`` of scale 1), ``rounds``, and ``floor`` (:meth:`floor`) when
-            it was tried
+            ``polish_tolerance`` of scale 1), ``rounds``
         """
         st, limit = self.settings, self.params.max_cell_length
         V2, F2, _ = self.meshes[best]
         chosen = self.tried[best]
         Vp, fig, opt = self._pinned(best, 1.0)
         L0 = chosen["max_cell_length_mm"]
-        if _laid_out(fig) and abs(np.log(fig["scale3d"])) <= abs(np.log(chosen["scale3d"])) \
-                and (fig["max_cell_length_mm"] <= max(L0, limit - st.margin)
-                     or (fig["max_cell_length_mm"] <= limit and fig["max_cell_length_mm"]
-                         / fig["scale3d"] <= L0 / chosen["scale3d"])):
+        if _laid_out(fig) and (fig["max_cell_length_mm"] <= limit or (
+                abs(np.log(fig["scale3d"])) <= abs(np.log(chosen["scale3d"]))
+                and fig["max_cell_length_mm"] <= L0)):
             V2, chosen = Vp, fig
-        held = abs(np.log(chosen["scale3d"])) <= st.polish_tolerance
+        held = full_size(chosen, st)
         record = {"scale3d": fig["scale3d"], "max_cell_length_mm": fig["max_cell_length_mm"],
                   "kept": chosen is fig, "held": bool(held), "rounds": opt["history"]}
         what = (f"scale3d {fig['scale3d']:.3f}, longest flat cell "
@@ -553,12 +609,6 @@ class CountSearch:
                  + ("(kept)" if chosen is fig else "(dropped)")
                  + ("" if held else f"; could not hold the scaling at 1 (the stencil kept "
                                     f"is at {chosen['scale3d']:.3f})"))
-        floor = st.min_scale3d * float(np.exp(st.polish_tolerance))
-        if chosen["scale3d"] > floor and limit - st.margin < chosen["max_cell_length_mm"] \
-                <= limit * chosen["scale3d"] / floor:  # (hopeless beyond: see floor)
-            V2, chosen, record["floor"] = self.floor(best, V2, chosen, floor)
-            if record["floor"]["kept"]:  # (the stencil returned is the floor's)
-                record.update(kept=False, held=False)
         return V2, chosen, record
 
     def _pinned(self, best, scale3d: float):
@@ -571,29 +621,13 @@ class CountSearch:
         Vp = self.dom.lift(P)
         return Vp, self.figures(Vp, self.meshes[best][1]), opt
 
-    def floor(self, best, V2, chosen, s: float):
-        """The pick held at the smallest 3D scaling the size allows, ``s = min_scale3d
-        exp(polish_tolerance)``, kept when it prints at that size with a shorter longest cell
-        than ``chosen``, the stencil at scale 1 (:meth:`polish`).  A shell's longest flat
-        cell shrinks at most about in proportion to its scaling (the beetle's: 9.53 mm at
-        1.000, 9.38 mm at 0.969), so :meth:`polish` does not try it when even that would
-        leave the cell over the limit.
-
-        Returns
-        -------
-        V2, chosen : the stencil kept and its figures
-        record : dict -- ``scale3d_held``, ``scale3d``, ``max_cell_length_mm``, ``kept``
-        """
-        st = self.settings
-        Vp, fig, _ = self._pinned(best, s)
-        kept = _prints(fig, self.params, st) \
-            and fig["max_cell_length_mm"] < chosen["max_cell_length_mm"]
-        self.say(f"N={best[0]} seed={best[1]} held at scale {s:.3f}: " + (
-            f"scale3d {fig['scale3d']:.3f}, longest flat cell {fig['max_cell_length_mm']:.2f} mm"
-            if _laid_out(fig) else "no layout") + (" (kept)" if kept else " (dropped)"))
-        record = {"scale3d_held": round(s, 4), "scale3d": fig["scale3d"],
-                  "max_cell_length_mm": fig["max_cell_length_mm"], "kept": bool(kept)}
-        return (Vp, fig, record) if kept else (V2, chosen, record)
+    def alternates(self, best) -> list:
+        """The other starts (seeds) of the count and rim inset of ``best`` that keep the size
+        asked for, shortest longest cell per unit of scaling first: polished in turn when
+        the polish of ``best`` does not print at full size."""
+        at = [k for k, c in self.tried.items() if k != best and k[0] == best[0]
+              and k[2] == best[2] and k in self.flat and at_size(c, self.settings)]
+        return sorted(at, key=lambda k: (_per_scale(self.tried[k]), k))
 
     def records(self) -> list:
         """Every candidate's optimisation rounds, for ``design.json``."""
@@ -652,8 +686,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         ``candidates``, ``optimisation`` (:meth:`CountSearch.records`), ``polish``, ``rim``
         (:func:`_rim_fallback`), ``timing_grading``, ``trade`` (:func:`_trade`), ``warnings``.
     """
-    V = np.asarray(V, float)
-    F = np.asarray(F, dtype=np.int64)
+    V, F, time, _ = canonical_order(V, F, time)  # (a function of the geometry, not the labels)
     if settings.rim_scale not in ("auto", "kept", "free"):
         raise InputError(f"StencilSearch.rim_scale={settings.rim_scale!r}",
                          fix='use "auto", "kept" or "free"')
@@ -693,7 +726,7 @@ def _rim_scale(call: dict, settings: StencilSearch, result, search: CountSearch)
     V2, F2, info = result
     why = f"rim_scale={settings.rim_scale!r}"
     if settings.rim_scale == "auto" and search.dom is not None and call["vertices"] is None \
-            and not _prints(info["after_optimisation"], call["params"], settings):
+            and not _delivered(info, call["params"]):
         bound = conformal_bound(search.V, search.F, call["params"])["bound_mm"]
         if bound <= call["params"].max_cell_length:
             return _free_rim(call, settings, result, search)
@@ -706,9 +739,10 @@ def _rim_scale(call: dict, settings: StencilSearch, result, search: CountSearch)
     return V2, F2, info
 
 
-def _prints(c: dict, params: UnitCell, settings: StencilSearch) -> bool:
-    """Whether a stencil's figures ``c`` print at the size asked for."""
-    return at_size(c, settings) and c["max_cell_length_mm"] <= params.max_cell_length
+def _delivered(info: dict, params: UnitCell) -> bool:
+    """Whether the stencil a search returns (its ``info``, :func:`remesh_surface`) prints at
+    the size asked for."""
+    return bool(info["at_size"]) and info["max_cell_length_mm"] <= params.max_cell_length
 
 
 def _free_rim(call: dict, settings: StencilSearch, kept, search: CountSearch):
@@ -733,11 +767,10 @@ def _free_rim(call: dict, settings: StencilSearch, kept, search: CountSearch):
         info["rim_scale"] = {"scale": "kept", "why": f"the search with the rim's scale free "
                              f"failed: {e.problem}"}
         return V2, F2, info
-    a, b = info["after_optimisation"], free["after_optimisation"]
-
-    def rank(c):  # at size first, then the longest cell per unit of scaling (as _pick)
-        return (at_size(c, settings), -_per_scale(c))
-    take = _laid_out(b) and (_prints(b, call["params"], settings) or rank(b) > rank(a))
+    def rank(r):  # at size first, then the longest cell per unit of scaling (as _pick)
+        return (r["at_size"], -_per_scale(r["after_optimisation"]))
+    take = _laid_out(free["after_optimisation"]) and (
+        _delivered(free, call["params"]) or rank(free) > rank(info))
     figures = {k: info[k] for k in ("vertices", "scale3d", "max_cell_length_mm", "at_size")}
     if not take:
         info["rim_scale"] = {"scale": "kept", "why": "the rim's scale free printed no better",
@@ -762,16 +795,36 @@ def _polish_and_trade(search: CountSearch, best, info: dict, seeds, trade: bool)
     before : (V, F) of the pick before its optimisation
     chosen : dict -- the figures of the stencil returned
     """
-    if best in search.flat:
-        search.converge(best)
+    tries = [best] + search.alternates(best)
+    polished = {}
+    for key in tries:
+        if key in search.flat:
+            search.converge(key)
+        if not (key in search.flat and search.settings.opt_pin_weight > 0):
+            break
+        polished[key] = search.polish(key)
+        if _delivered({"at_size": full_size(polished[key][1], search.settings),
+                       **polished[key][1]}, search.params):
+            best = key
+            break  # (else the next start of the count, polished too)
     V2, F2, before = search.meshes[best]
     chosen = search.tried[best]
-    if best in search.flat and search.settings.opt_pin_weight > 0:
-        V2, chosen, info["polish"] = search.polish(best)
+    if best in polished:
+        V2, chosen, info["polish"] = polished[best]
     if trade and _laid_out(chosen):
+        kept = best, V2, F2, before, chosen, info.get("polish")
         best, V2, F2, chosen = _trade(best, V2, F2, chosen, search.trial, search.tried,
                                       search.meshes, search.params, search.settings, info,
                                       search.progress, seeds=seeds)
+        if best != kept[0] and "polish" in info:  # (the fewer cells, at full size too)
+            search.converge(best)
+            V2, chosen, info["polish"] = search.polish(best)
+            before = search.meshes[best][2]
+            if not (full_size(chosen, search.settings)
+                    and chosen["max_cell_length_mm"] <= search.params.max_cell_length):
+                info["trade"].update(taken=False, why="the fewer cells do not print at "
+                                     "full size")
+                best, V2, F2, before, chosen, info["polish"] = kept
     return best, V2, F2, before, chosen
 
 
@@ -834,7 +887,8 @@ def _record(info: dict, search: CountSearch, best, stencil, chosen: dict, rim, o
     info.update(vertices=int(len(V2)), requested=int(best[0]), seed=int(best[1]),
                 rim_inset_mm=float(best[2]), rim=rim, scale3d=chosen["scale3d"],
                 max_cell_length_mm=chosen["max_cell_length_mm"],
-                at_size=bool(at_size(chosen, search.settings)),
+                at_size=bool(full_size(chosen, search.settings) if "polish" in info
+                             else at_size(chosen, search.settings)),
                 before_optimisation=(stencil_figures(*before, search.params,
                                                      u_boundary=search.rim_scale_at(before[0]))
                                      if optimize else None),

@@ -4,9 +4,16 @@ Method ``"cvt"`` (default), in the conformal plane of the dense target (CETM, bo
 log-scale 0, or the one that lowers the measured bound with ``StencilSearch.rim_scale``
 free, :func:`pysolver.design.flatten.cetm`):
 
+0. **Frame**: the conformal layout is unique up to a rigid motion, which the solver fixes by
+   labels; :func:`flat_frame` sets it from the layout's shape (centroid, most pronounced
+   area moment), so that everything seeded in the plane is a function of the geometry.
 1. **Boundary**: points along the target's boundary, or along a curve inset from it by a
-   fraction of a cell spacing (``StencilSearch.rim_insets``), equally spaced in 3D arc length.
-2. **CVT**: weighted Lloyd iterations of the interior points.  A 2D CVT of density ``rho``
+   fraction of a cell spacing (``StencilSearch.rim_insets``), equally spaced in 3D arc length
+   from where the frame's x axis crosses it.
+2. **CVT**: weighted Lloyd iterations of the interior points, from points drawn by position
+   with the CVT's density (:func:`_seed_points`), each quadrature point shared softly among
+   its nearest generators (:func:`_soft_owners`, ``StencilSearch.lloyd_softness``) so that
+   the iterations are continuous in the input.  A 2D CVT of density ``rho``
    spaces its points as ``rho^(-1/4)``; the density ``exp(-4 (1 - g) u)`` (u = conformal
    log-scale, flat = exp(u) 3D) spaces them as ``exp(u)^(1 - g)`` in the plane, i.e.
    ``exp(u)^(-g)`` on the target.  ``g = StencilSearch.grading``: 0 = uniform on the target,
@@ -257,7 +264,8 @@ class FlatDomain:
         self.F = np.asarray(F, dtype=np.int64)
         self.settings = settings
         self.rim_u = None if rim_log_scale is None else np.asarray(rim_log_scale, float)
-        self.UV, self.u, _ = cetm(self.V, self.F, u_boundary=self.rim_u)
+        UV, self.u, _ = cetm(self.V, self.F, u_boundary=self.rim_u)
+        self.UV = flat_frame(UV, self.F)
         # log of the relative 3D spacing the time landscape asks for (0 without one)
         self.w = (np.zeros(len(self.V)) if time is None
                   else time_spacing_log(time, settings.timing_grading))
@@ -323,6 +331,11 @@ class FlatDomain:
         fi, B = self._barycentric(P)
         return np.einsum("ij,ij->i", B, self.u[self.F[fi]])
 
+    def log_spacing_at_vertices(self) -> np.ndarray:
+        """(n,) float: :meth:`log_spacing` at the dense vertices (its extremes: it is linear
+        in each dense triangle)."""
+        return (1 - self.settings.grading) * self.u + self.w
+
     def log_spacing(self, P) -> np.ndarray:
         """(k,) float: log of the desired flat spacing at flat points, up to a constant:
         ``(1 - grading) u + w`` (``w``: :func:`time_spacing_log`, 0 without a landscape)."""
@@ -348,7 +361,7 @@ class FlatDomain:
         """(r, 2) float: the flat boundary, or the curve ``inset_mm`` inside it (the boundary
         log-scale is 0, or of mean 0 with a free rim scale, so flat and 3D distances agree
         there, on average), closed (last = first)."""
-        C = self.UV[np.r_[self.loop, self.loop[:1]]]
+        C = _start_on_axis(self.UV[self.loop])
         if inset_mm <= 0:
             return C
         poly = Polygon(C).buffer(-float(inset_mm), join_style="round", quad_segs=8)
@@ -358,6 +371,7 @@ class FlatDomain:
         R = np.asarray(poly.exterior.coords)
         if LinearRing(R).is_ccw != LinearRing(C).is_ccw:
             R = R[::-1]
+        R = _start_on_axis(R[:-1])
         # densify so that the arc length of the lift is accurate
         seg = np.linalg.norm(np.diff(R, axis=0), axis=1)
         s = np.r_[0.0, np.cumsum(seg)]
@@ -390,15 +404,17 @@ class FlatDomain:
         if len(quad) < ni:
             raise InputError(f"the target is too small for {n} stencil vertices",
                              fix="use fewer vertices (--vertices) or a larger target")
-        rng = np.random.default_rng(seed)
-        Y = quad[rng.choice(len(quad), size=ni, replace=False, p=w / w.sum())].copy()
+        Y = _seed_points(B, self, ni, seed)
         for _ in range(st.lloyd_iterations):
-            _, owner = cKDTree(np.vstack([B, Y])).query(quad)
+            owner, share = _soft_owners(np.vstack([B, Y]), quad, st.lloyd_softness)
             owner = owner - nb
             ok = owner >= 0
-            W = np.bincount(owner[ok], weights=w[ok], minlength=ni)
-            Sx = np.bincount(owner[ok], weights=w[ok] * quad[ok, 0], minlength=ni)
-            Sy = np.bincount(owner[ok], weights=w[ok] * quad[ok, 1], minlength=ni)
+            wk = (share * w[:, None])[ok]
+            W = np.bincount(owner[ok], weights=wk, minlength=ni)
+            Sx = np.bincount(owner[ok], weights=wk * np.broadcast_to(quad[:, :1], owner.shape)[ok],
+                             minlength=ni)
+            Sy = np.bincount(owner[ok], weights=wk * np.broadcast_to(quad[:, 1:], owner.shape)[ok],
+                             minlength=ni)
             has = W > 0
             Y[has] = np.c_[Sx[has] / W[has], Sy[has] / W[has]]
         return np.vstack([B, Y]), nb
@@ -452,6 +468,129 @@ class FlatDomain:
         return P, F
 
 
+def flat_frame(UV, F, orders=range(2, 7)) -> np.ndarray:
+    """A flat layout moved into a frame given by its shape alone.
+
+    A conformal flattening is unique up to a rigid motion of the plane, which the solver
+    fixes by whichever triangle it lays out first: a matter of labelling.  The stencil is
+    seeded in the plane, so the plane's frame is set here from the layout's area: its
+    centroid at the origin, and its x axis along the angle ``arg(m_k) / k`` of the complex
+    area moment ``m_k = integral z^k dA`` of the order k in ``orders`` that is the most
+    pronounced (``|m_k| / integral |z|^k dA``, 2 for an elongated shape, 3 for a trefoil),
+    of the k directions so given the one toward which the area reaches furthest (the
+    largest third moment of x).  A shape with no such moment (a disk) keeps the solver's
+    angle, which is then a symmetry.
+
+    Parameters
+    ----------
+    UV : (n, 2) float, mm
+    F : (m, 3) int
+    orders : iterable of int
+
+    Returns
+    -------
+    UV : (n, 2) float, mm -- rotated and translated (lengths and angles kept)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> UV = np.array([[0., 0], [4, 0], [4, 1], [0, 1]]) @ [[0, 1], [-1, 0]] + 5
+    >>> P = flat_frame(UV, np.array([[0, 1, 2], [0, 2, 3]]))
+    >>> bool(np.ptp(P[:, 0]) > 3.9 > 1.2 > np.ptp(P[:, 1]))  # its long side along x
+    True
+    >>> bool(np.abs(P.mean(axis=0)).max() < 1e-12)  # its centroid at the origin
+    True
+    """
+    UV = np.asarray(UV, float)
+    F = np.asarray(F, dtype=np.int64)
+    T = UV[F]
+    m = (T + np.roll(T, -1, axis=1)) / 2  # (4 points per triangle, as the quadrature)
+    Q = np.concatenate([(T[:, k] + m[:, k] + m[:, (k + 2) % 3]) / 3 for k in range(3)]
+                       + [m.mean(axis=1)])
+    A = np.tile(np.abs(signed_areas_2d(UV, F)), 4)
+    c = A @ Q / A.sum()
+    z = (Q - c) @ np.array([1.0, 1.0j])
+    best, angle = 0.0, 0.0
+    for k in orders:
+        mk = A @ z**k
+        rel = abs(mk) / max(float(A @ np.abs(z) ** k), 1e-300)
+        if rel > best:
+            best, angle = rel, float(np.angle(mk)) / k
+            ks = [angle + 2 * np.pi * j / k for j in range(k)]
+            angle = max(ks, key=lambda a: float(A @ np.real(z * np.exp(-1j * a)) ** 3))
+    R = np.array([[np.cos(angle), np.sin(angle)], [-np.sin(angle), np.cos(angle)]])
+    return (UV - c) @ R.T
+
+
+def _start_on_axis(C) -> np.ndarray:
+    """The closed polygon of the points ``C`` (r, 2), not closed, started where it crosses
+    the frame's positive x axis furthest out (:func:`flat_frame`), not at its first label
+    (at its point furthest along x when it does not cross); closed (last = first).  A
+    crossing moves with the polygon; a vertex chosen among vertices of equal x would not."""
+    C = np.asarray(C, float)
+    D = np.roll(C, -1, axis=0)
+    cross = (C[:, 1] <= 0) != (D[:, 1] <= 0)
+    if not cross.any():
+        C = np.roll(C, -int(np.argmax(C[:, 0])), axis=0)
+        return np.vstack([C, C[:1]])
+    t = C[:, 1] / np.where(cross, C[:, 1] - D[:, 1], 1.0)
+    x = np.where(cross, C[:, 0] + t * (D[:, 0] - C[:, 0]), -np.inf)
+    i = int(np.argmax(x))
+    start = np.array([x[i], 0.0])
+    C = np.vstack([start, np.roll(C, -(i + 1), axis=0)])
+    return np.vstack([C, C[:1]])
+
+
+def _soft_owners(G, Q, softness: float, k: int = 4):
+    """Each point of ``Q`` (q, 2) shared among its ``k`` nearest generators ``G`` (g, 2):
+    shares ``exp(-(d^2 - d_1^2) / (softness d_k^2))``, normalised (d_1 the nearest distance,
+    d_k the k-th).  A Lloyd step on hard Voronoi owners of quadrature points jumps when a
+    point changes owner, and forty steps of such jumps sent a surface moved by 1e-7 of its
+    size to another stencil; with soft shares the step is continuous in the generators (a
+    point entering the k nearest comes in with a share of ``exp(-1 / softness)`` at most
+    its nearest's).
+
+    Returns
+    -------
+    owner : (q, k) int -- generator indices
+    share : (q, k) float -- rows sum to 1
+    """
+    d, owner = cKDTree(G).query(Q, k=k)
+    d2 = d**2
+    share = np.exp(-(d2 - d2[:, :1]) / (softness * d2[:, -1:] + 1e-300))
+    return owner, share / share.sum(axis=1, keepdims=True)
+
+
+def _seed_points(B, dom, n: int, seed: int) -> np.ndarray:
+    """``n`` starting points of the CVT inside the polygon ``B`` (r, 2), drawn by position,
+    not by label: uniform draws in the bounding box of the domain ``dom``
+    (:class:`FlatDomain`, in its :func:`flat_frame`), each kept with probability the CVT's
+    density there, ``exp(-4 log_spacing)`` (:meth:`FlatDomain.log_spacing`, linear in each
+    dense triangle, so continuous), over its largest value.  The same surface so gives the
+    same points whatever the order of its triangles, and a surface moved by its last bits
+    gives the same draws, kept or not as before but where a draw is within the last bits of
+    its threshold.
+
+    Returns
+    -------
+    Y : (n, 2) float, mm
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = dom.UV.min(axis=0), dom.UV.max(axis=0)
+    inside = PolygonPath(B)
+    top = float(np.exp(-4 * dom.log_spacing_at_vertices().min()))
+    out, got = [], 0
+    while got < n:
+        X = lo + (hi - lo) * rng.random((max(4 * n, 256), 2))
+        u = rng.random(len(X))
+        keep = inside.contains_points(X)
+        X, u = X[keep], u[keep]
+        X = X[u * top < np.exp(-4 * dom.log_spacing(X))]
+        out.append(X[: n - got])
+        got += len(out[-1])
+    return np.vstack(out)
+
+
 def time_spacing_log(time, grading: float) -> np.ndarray:
     """Log of the relative 3D stencil spacing a time landscape asks for, per vertex.
 
@@ -485,4 +624,4 @@ def edge_for_count(area: float, perimeter: float, n: int) -> float:
 __all__ = ["surface_area", "time_spacing_log", "estimate_vertices", "remove_ears",
            "remove_flaps", "isotropic_remesh", "needs_dense", "resample_dense",
            "triangulate_flat",
-           "FlatDomain", "edge_for_count"]
+           "FlatDomain", "edge_for_count", "flat_frame"]

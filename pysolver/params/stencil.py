@@ -26,6 +26,13 @@ class StencilSearch:
         Fewest points on the stencil's rim.
     lloyd_iterations : int
         Weighted Lloyd iterations of the CVT in the conformal plane.
+    lloyd_softness : float
+        Softness of the Lloyd iterations' Voronoi owners (:func:`pysolver.design.remesh.
+        _soft_owners`): each quadrature point is shared among its four nearest generators
+        with weights ``exp(-(d^2 - d_1^2) / (softness d_4^2))``.  Hard owners made each
+        step jump with the last bits of the input (the petal's N=117 stencil moved 0.43 mm
+        under a 1e-7 jitter); soft ones keep the step continuous.  0.05 keeps a share
+        under exp(-20 (1 - d_1^2 / d_4^2)) for all but the nearest few.
     relax_iterations : int
         Spring relaxation iterations (Persson and Strang's scheme) after the CVT.
     relax_retriangulate : int
@@ -210,8 +217,12 @@ class StencilSearch:
         timing term can trade the count search's footing away (measured on cover: 3D
         scaling 0.82 at 418 bases).
     seeds : int
-        Seeds tried at the chosen vertex count when none is given and the first seed
-        leaves less than ``margin`` below the limit.
+        CVT seeds tried at every vertex count the search visits, when none is given: the
+        secant steers on their mean log 3D scaling and the pick takes the best of them
+        (:mod:`pysolver.design.count_search`).  One seed's scaling scatters by a few per
+        cent at a given count (petal: 0.97 to 1.11 at 120 vertices); with two, the petal,
+        dome, saddle and spiral gave the same shell under relabelling, rigid motions and
+        1e-7 jitters (``docs/results.md``), and a third changed none of them.
     count_start : float
         First vertex count of the search over the paper's estimate ``0.38 A / 7^2``
         (measured: the counts found are 1.4-1.7 x the estimate on cover, stand, petal,
@@ -227,9 +238,6 @@ class StencilSearch:
         ladder a perturbation changes the count only when a step lands at the middle
         between two rungs, and then by one rung: 3 %, the bound issue #28 sets on the
         vertex count.
-    count_tolerance : float
-        |log scale3d| under which the secant search stops (2 %: the pick's polish moves the
-        scaling by a few per cent at most, and a stop at 5 % left petal's at 0.957).
     count_secant_min : float
         Smallest difference of log vertex counts of the last two trials over which the
         secant slope is taken (else the uniform-mesh slope 1/2).
@@ -264,12 +272,11 @@ class StencilSearch:
         become the pick; its figures still steer the secant steps.  Cuts the search's cost on
         targets whose first counts land far off.
     polish_tolerance : float
-        The polish "held" the scaling at 1 when the stencil kept is within this (log) of it;
-        otherwise the search says that it could not.  When the stencil at scale 1 leaves
-        less than ``margin`` below the limit, the polish also holds ``min_scale3d
-        exp(polish_tolerance)`` (0.969: the smallest scaling at size, with the polish's
-        tolerance to spare) and keeps that if it prints with a shorter longest cell
-        (:meth:`pysolver.design.count_search.CountSearch.floor`).
+        The polish "held" the scaling at 1 when the stencil kept is within this (log) of it:
+        the stencil is then at full size (:func:`pysolver.design.count_search.full_size`).
+        A stencil that prints only further off is refused with a measured ``--size``: the
+        shell is made smaller only when the user asks.  (Holding 0.969 when the stencil at
+        1 left less than ``margin`` made the petal and the peer top print 3 % small.)
     refusal_size_factor : float
         A target none of whose stencils prints at any size is searched once more at this
         fraction of its size, so that its refusal names a measured smaller ``--size``.
@@ -341,8 +348,8 @@ class StencilSearch:
         the rim free does not exclude the target (``remesh.rim_scale``).  Measured on the
         peer beetle (``--size 150 --min-bumper 0.1``): kept, the bound is 9.64 mm (over the
         9.5 mm limit) and the search's best is 9.72 mm; free, the bound is 8.94 mm (9.04 mm
-        with the smoothed choice), the polish at scale 1 reaches 9.50-9.53 mm and at the
-        floor (``polish_tolerance``) 9.38 mm.
+        with the smoothed choice), and the polish at scale 1 reached 9.50-9.53 mm (0.969 of
+        the size asked for gave 9.38 mm; the stencil is no longer made smaller unasked).
     rim_scale_sharpness : float, 1 / log
         Sharpness of the log-sum-exp that smooths the bound's two extremes when
         :func:`~pysolver.design.feasibility.rim_log_scale` chooses the rim's log-scale:
@@ -358,6 +365,7 @@ class StencilSearch:
     dense_faces: int = 6000
     min_boundary_points: int = 6
     lloyd_iterations: int = 40
+    lloyd_softness: float = 0.05
     relax_iterations: int = 100
     relax_retriangulate: int = 5
     relax_fscale: float = 1.2
@@ -400,7 +408,6 @@ class StencilSearch:
     count_start: float = 1.5
     count_steps: int = 4
     count_ladder: float = 1.03
-    count_tolerance: float = 0.02
     count_secant_min: float = 1e-9
     dense_min_angle_deg: float = 15.0
     dense_min_faces: int = 2000
