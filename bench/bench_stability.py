@@ -85,6 +85,8 @@ def perturb(V, F, condition: str, k: int):
     V, F : the perturbed surface
     moved : callable or None -- maps points of the perturbed frame back to the original
         (for a landscape given as a function of the target's coordinates)
+    order : (n,) int -- the original index of each perturbed vertex (for per-vertex data,
+        a stencil's flat layout)
     """
     V, F = np.asarray(V, float), np.asarray(F)
     rng = np.random.default_rng(20261207 + k)
@@ -93,14 +95,15 @@ def perturb(V, F, condition: str, k: int):
         inv = np.empty_like(p)
         inv[p] = np.arange(len(p))
         F = np.roll(inv[F][rng.permutation(len(F))], int(rng.integers(F.shape[1])), axis=1)
-        return V[p], F, None
+        return V[p], F, None, p
     if condition == "rotate":
         R = Rotation.random(random_state=rng).as_matrix()
         c = rng.normal(size=3) * np.ptp(V, axis=0).max()
-        return V @ R.T + c, F, (lambda X: (np.asarray(X) - c) @ R)
+        return V @ R.T + c, F, (lambda X: (np.asarray(X) - c) @ R), np.arange(len(V))
     if condition == "jitter":
-        return V + JITTER * np.ptp(V, axis=0).max() * rng.standard_normal(V.shape), F, None
-    return V, F, None
+        return (V + JITTER * np.ptp(V, axis=0).max() * rng.standard_normal(V.shape), F, None,
+                np.arange(len(V)))
+    return V, F, None, np.arange(len(V))
 
 
 def perturbed_obj(src: Path, dst: Path, condition: str, k: int) -> Path:
@@ -118,7 +121,7 @@ def perturbed_obj(src: Path, dst: Path, condition: str, k: int) -> Path:
     F = [[i - 1 if i > 0 else n + i for i in f] for f in F]
     if len({len(f) for f in F}) != 1:
         raise SystemExit(f"{src}: faces of mixed sizes; give a triangle mesh")
-    V, F, _ = perturb(np.array(V), np.array(F), condition, k)
+    V, F, _, _ = perturb(np.array(V), np.array(F), condition, k)
     rows = ["v {:.17g} {:.17g} {:.17g}".format(*v) for v in V]
     rows += ["f " + " ".join(str(int(i) + 1) for i in f) for f in F]
     dst.write_text("\n".join(rows) + "\n")
@@ -130,10 +133,11 @@ def probe(source: str, size, min_bumper, condition: str, k: int, out: Path) -> d
     params = unit_cell_options(min_bumper=min_bumper)
     if surfaces.is_builtin(source) and not Path(source).exists():
         src = surfaces.builtin(source)
-        V, F, back = perturb(src.V, src.F, condition, k)
+        V, F, back, order = perturb(src.V, src.F, condition, k)
         time_fn = src.time if back is None or src.time is None else (
             lambda X, t=src.time: t(back(X)))
-        src = replace(src, V=V, F=F, time=time_fn)
+        src = replace(src, V=V, F=F, time=time_fn,
+                      UV=None if src.UV is None else src.UV[order])
     else:
         src = Path(source)
         if condition in ("relabel", "rotate", "jitter"):

@@ -162,8 +162,9 @@ def size_refusal(remesh_info: dict, params: UnitCell, search, extent_mm: float,
     what = "under" if s3 < 1 else "over"
     return InputError(
         f"no printable stencil keeps the size asked for: the best one tried is at 3D scaling "
-        f"{s3:.3f} (the shell {100 * abs(1 - s3):.0f} % {what} it; at least "
-        f"{settings.min_scale3d:g} is needed), {_describe(remesh_info)}",
+        f"{s3:.3f} (the shell {100 * abs(1 - s3):.0f} % {what} it; within "
+        f"{100 * settings.polish_tolerance:.0f} % of 1 is needed: a shell is made smaller only "
+        f"when --size asks), {_describe(remesh_info)}",
         fix="; ".join(lines))
 
 

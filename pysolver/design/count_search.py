@@ -817,10 +817,11 @@ def _polish_and_trade(search: CountSearch, best, info: dict, seeds, trade: bool)
                                       search.meshes, search.params, search.settings, info,
                                       search.progress, seeds=seeds)
         if best != kept[0] and "polish" in info:  # (the fewer cells, at full size too)
-            search.converge(best)
-            V2, chosen, info["polish"] = search.polish(best)
-            before = search.meshes[best][2]
-            if not (full_size(chosen, search.settings)
+            if best in search.flat:
+                search.converge(best)
+                V2, chosen, info["polish"] = search.polish(best)
+                before = search.meshes[best][2]
+            if not (best in search.flat and full_size(chosen, search.settings)
                     and chosen["max_cell_length_mm"] <= search.params.max_cell_length):
                 info["trade"].update(taken=False, why="the fewer cells do not print at "
                                      "full size")

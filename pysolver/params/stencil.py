@@ -250,8 +250,8 @@ class StencilSearch:
         Largest distance of the isotropic remeshing's surface from the input, relative to
         the target edge length.
     candidates : tuple of float
-        Relative vertex counts tried around the secant result (the other seeds are tried at
-        the best count).
+        Relative vertex counts tried around the secant result, each with every seed (none by
+        default).
     margin : float, mm
         Preferred distance of the longest flat cell below the limit.
     opt_pin_weight : float
