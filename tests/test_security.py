@@ -13,6 +13,7 @@ import os
 import socket
 import struct
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -513,3 +514,38 @@ def test_the_memory_estimate_respects_ulimit_v():
             "print(available_memory())\n")
     r = subprocess.run(python_argv(code=code), capture_output=True, text=True, check=True)
     assert 0 < int(r.stdout) <= 256 << 20
+
+
+# ------------------------------------------------------------------------------ review of #43
+
+PLANTED_MULTIPROCESSING = """import sys
+open({marker!r}, "a").write("multiprocessing\\n")
+sys.path[:] = [p for p in sys.path if p not in ("", {cwd!r})]
+del sys.modules["multiprocessing"]
+import multiprocessing  # the real one: the worker still starts
+"""
+"""A ``multiprocessing`` package that writes a marker, then hands over to the real one."""
+
+CLUSTER_PARENT = """import sys
+sys.path[:] = [p for p in sys.path if p != ""]   # the parent itself imports nothing from cwd
+sys.path.append({root!r})
+from pysolver.distributed import dask_client
+with dask_client(workers=1, progress=False) as client:
+    print(client.submit(sum, [1, 2]).result())
+"""
+"""A parent as a ``morphshell`` script is: its own path free of the working directory."""
+
+
+def test_a_dask_worker_runs_no_planted_module(tmp_path):
+    """HIGH: Dask starts its workers by multiprocessing's "spawn" (``python -B -c 'from
+    multiprocessing.spawn import ...'``), which puts the working directory first on the
+    worker's path: a ``multiprocessing/`` planted where morphshell ran, ran in every worker."""
+    cwd, marker = tmp_path / "cwd", tmp_path / "imported-from-cwd.txt"
+    (cwd / "multiprocessing").mkdir(parents=True)
+    (cwd / "multiprocessing" / "__init__.py").write_text(
+        PLANTED_MULTIPROCESSING.format(marker=str(marker), cwd=str(cwd)))
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONSAFEPATH", "PYTHONPATH")}
+    r = subprocess.run([sys.executable, "-c", CLUSTER_PARENT.format(root=PACKAGE_ROOT)], cwd=cwd,
+                       env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.split() == ["3"], r.stderr[-2000:]
+    assert _planted(marker) == []
