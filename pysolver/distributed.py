@@ -319,7 +319,8 @@ def _remote_client(distributed, scheduler: str):
 @contextlib.contextmanager
 def _local_cluster(distributed, dask, n: int, dashboard: bool):
     """A running ``LocalCluster`` of ``n`` worker processes, and its ``Security``, for the
-    block (see :func:`dask_client`); closed after it, and its scratch folder removed.
+    block (see :func:`dask_client`); closed after it, and its scratch folder removed (also
+    when the cluster fails to start).
 
     Its workers are Python processes that multiprocessing starts ("spawn"), not through
     :func:`pysolver.child.python_argv`: the cluster lives inside
@@ -336,18 +337,20 @@ def _local_cluster(distributed, dask, n: int, dashboard: bool):
     if not dashboard:
         config.update({"distributed.scheduler.http.routes": [],
                        "distributed.worker.http.routes": []})
-    with safe_path_environ():
-        with dask.config.set(config):
-            cluster = distributed.LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
-                protocol="tls", security=security, local_directory=scratch,
-                dashboard_address=f"{LOOPBACK}:0" if dashboard else None,
-                silence_logs=logging.ERROR)
-        try:
-            yield cluster, security
-        finally:
-            cluster.close()
-            shutil.rmtree(scratch, ignore_errors=True)
+    try:   # the scratch folder goes also when the cluster fails to start
+        with safe_path_environ():
+            with dask.config.set(config):
+                cluster = distributed.LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
+                    protocol="tls", security=security, local_directory=scratch,
+                    dashboard_address=f"{LOOPBACK}:0" if dashboard else None,
+                    silence_logs=logging.ERROR)
+            try:
+                yield cluster, security
+            finally:
+                cluster.close()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,

@@ -549,3 +549,22 @@ def test_a_dask_worker_runs_no_planted_module(tmp_path):
                        env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and r.stdout.split() == ["3"], r.stderr[-2000:]
     assert _planted(marker) == []
+
+
+def test_a_failed_cluster_start_leaves_no_scratch_folder(tmp_path, monkeypatch):
+    """LOW: the run's private scratch folder (``mkdtemp``) was left behind when
+    ``LocalCluster`` failed to start (a busy port, no memory, a worker that died)."""
+    import distributed
+    import tempfile
+
+    from pysolver.distributed import dask_client
+
+    def fail(*_a, **_k):
+        raise RuntimeError("no cluster today")
+
+    monkeypatch.setattr(distributed, "LocalCluster", fail)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with pytest.raises(RuntimeError, match="no cluster today"):
+        with dask_client(workers=1, progress=False):
+            pass
+    assert list(tmp_path.iterdir()) == []
