@@ -7,10 +7,10 @@ processes").  The rule, for every child Python, with no exception:
 
 * **Started by morphshell**: through :func:`python_argv`, the one way to build its command
   line.  The interpreter runs isolated (``-I``: no working directory, no script folder, no
-  ``PYTHON*`` variables, no user site folder on its path), and a two-line bootstrap puts
-  back exactly one folder, the one this package was imported from (so a child runs the
-  same morphshell as its parent, also from a source checkout), before it runs the module
-  or the code.
+  ``PYTHON*`` variables, no user site folder on its path), and a two-line bootstrap appends
+  exactly one folder, the one this package was imported from, when it is not on the path
+  already (so a child runs the same morphshell as its parent, also from a source checkout,
+  and nothing in it shadows the standard library), before it runs the module or the code.
 * **Started by a library** (Dask's worker processes, which multiprocessing starts by
   "spawn" as ``python -B -c 'from multiprocessing.spawn import ...'``, a command line
   morphshell does not write): inside :func:`safe_path_environ`, which sets
@@ -33,8 +33,8 @@ PACKAGE_ROOT = str(Path(__file__).resolve().parents[1])
 
 def python_argv(module: str | None = None, *, code: str | None = None) -> list[str]:
     """The argv of a child Python that runs ``module`` (as ``python -m``) or ``code`` (as
-    ``python -c``) with only the interpreter's own paths and :data:`PACKAGE_ROOT` on its
-    module path.
+    ``python -c``) with only the interpreter's own paths and :data:`PACKAGE_ROOT` (after
+    them) on its module path.
 
     Parameters
     ----------
@@ -59,7 +59,8 @@ def python_argv(module: str | None = None, *, code: str | None = None) -> list[s
         raise ValueError("give exactly one of module and code")
     if module is not None and not all(p.isidentifier() for p in module.split(".")):
         raise ValueError(f"{module!r} is not a dotted module name")
-    boot = f"import sys; sys.path.insert(0, {PACKAGE_ROOT!r})\n"
+    boot = (f"import sys\nif {PACKAGE_ROOT!r} not in sys.path: "
+            f"sys.path.append({PACKAGE_ROOT!r})\n")
     if module is not None:
         boot += f"import runpy; runpy.run_module({module!r}, run_name='__main__', " \
                 "alter_sys=True)\n"

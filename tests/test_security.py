@@ -57,6 +57,13 @@ def test_a_child_python_imports_nothing_from_the_working_directory(hostile_cwd):
     first, path = r.stdout.splitlines()
     assert first == str(Path(PACKAGE_ROOT) / "pysolver" / "__init__.py")
     assert str(Path.cwd()) not in path and "''" not in path
+    # the package root comes after the standard library, once: nothing shadows the stdlib
+    order = subprocess.run(python_argv(code="import json, os, sys; print(json.dumps("
+                                            "[os.path.dirname(os.__file__), *sys.path]))"),
+                           capture_output=True, text=True, check=True).stdout
+    stdlib, *paths = json.loads(order)
+    assert paths.count(PACKAGE_ROOT) == 1
+    assert paths.index(stdlib) < paths.index(PACKAGE_ROOT), paths
     with pytest.raises(ValueError):
         python_argv("pysolver.x; import os")
     with pytest.raises(ValueError):
