@@ -575,3 +575,16 @@ def test_a_failed_cluster_start_leaves_no_scratch_folder(tmp_path, monkeypatch):
         with dask_client(workers=1, progress=False):
             pass
     assert list(tmp_path.iterdir()) == []
+
+
+def test_no_child_python_is_started_outside_python_argv():
+    """LOW: ``bench/bench_build.py`` and ``bench/bench_printed.py`` started ``sys.executable
+    -m pysolver.cli`` (the working directory first on the child's path), not through
+    :func:`pysolver.child.python_argv`."""
+    import re
+
+    root = Path(PACKAGE_ROOT)
+    files = [*root.glob("pysolver/**/*.py"), *root.glob("sim/**/*.py"), *root.glob("bench/*.py")]
+    module_or_code = re.compile(r"sys\.executable\s*,\s*[\"'](-m|-c)[\"']")
+    bad = [str(f.relative_to(root)) for f in files if module_or_code.search(f.read_text())]
+    assert len(files) > 50 and bad == [], bad
