@@ -588,3 +588,19 @@ def test_no_child_python_is_started_outside_python_argv():
     module_or_code = re.compile(r"sys\.executable\s*,\s*[\"'](-m|-c)[\"']")
     bad = [str(f.relative_to(root)) for f in files if module_or_code.search(f.read_text())]
     assert len(files) > 50 and bad == [], bad
+
+
+@pytest.mark.parametrize("path, token", [("/", False), ("/x", False), ("/api", False),
+                                         ("/api/builds", False), ("/x", True),
+                                         ("/api/build/0/nothing", True)])
+def test_a_post_anywhere_is_refused_before_its_body_is_read(studio, path, token):
+    """MED: only ``/api/`` paths needed the token before the body: a tokenless POST to ``/``
+    or ``/x`` with a 4 MiB ``Content-Length`` made the studio wait for the body.  The body is
+    never sent: an answer proves that the studio did not wait for it."""
+    s = _connect(studio)
+    s.sendall(_head(studio, path=path, token=studio.token if token else None,
+                    **{"Content-Length": str(4 << 20)}))
+    reply = _reply(s)        # (the old studio waited for 4 MiB: a socket timeout)
+    s.close()
+    assert reply.split(b" ")[1] == (b"404" if token else b"403"), reply[:300]
+    assert b"Connection: close" in reply

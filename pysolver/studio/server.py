@@ -485,20 +485,23 @@ class Handler(BaseHTTPRequestHandler):
 
     def _refusal(self):
         """Why the request is refused before anything of its body is read (host, origin,
-        token, a body on a GET), as ``(status, message, fix)``; None when it may go on."""
+        token on ``/api/`` and on every POST, a POST to a path that takes none, a body on a
+        GET), as ``(status, message, fix)``; None when it may go on."""
         if not self._host_ok():
             return (HTTPStatus.FORBIDDEN, "bad Host header (the studio answers only to "
                                           "127.0.0.1 and localhost)", None)
         if not self._origin_ok():
             return HTTPStatus.FORBIDDEN, "requests from another origin are refused", None
         path = urlsplit(self.path).path
-        if path.startswith("/api/"):
+        if path.startswith("/api/") or self.command == "POST":   # every POST, on any path
             download = self.command == "GET" and re.fullmatch(
                 r"/api/build/\d+/(stl/[^/]+|report)", path) is not None
             if not self._token_ok(query_ok=download):
                 return (HTTPStatus.FORBIDDEN, "missing or wrong studio token",
                         "open the URL the studio printed when it started (it ends in "
                         "#token=...)")
+        if self.command == "POST" and _POST_ROUTE.fullmatch(path) is None:
+            return HTTPStatus.NOT_FOUND, f"no POST route {path[:80]!r}", None
         if self.command != "POST" and (self.headers.get("Transfer-Encoding") or self.headers.get(
                 "Content-Length", "0").strip() != "0"):
             # a body on a GET would stay on the connection: refused, and the connection closed
@@ -628,6 +631,10 @@ class Handler(BaseHTTPRequestHandler):
 class _NotFound(Exception):
     pass
 
+
+_POST_ROUTE = re.compile(r"/api/build/[0-9]+/(preview|keyframes|run)")
+"""The only paths a POST may go to (:meth:`Handler._post`); any other is refused before its
+body is read."""
 
 _NO_BODY = object()
 """What :meth:`Handler._payload` returns after an error reply."""
