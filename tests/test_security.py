@@ -604,3 +604,24 @@ def test_a_post_anywhere_is_refused_before_its_body_is_read(studio, path, token)
     s.close()
     assert reply.split(b" ")[1] == (b"404" if token else b"403"), reply[:300]
     assert b"Connection: close" in reply
+
+
+def test_idle_and_slow_tokenless_connections_do_not_lock_the_studio_out(studio):
+    """MED: a slot was taken at accept and the 60 s timeout was per read, so
+    ``studio_max_connections`` tokenless connections that send nothing, or half a request,
+    held every slot (a slow sender forever).  Now the request line and headers must arrive
+    within ``studio_header_timeout_s``: a request with the token is still answered."""
+    from pysolver.params import LIMITS
+
+    socks = [_connect(studio) for _ in range(LIMITS.studio_max_connections)]
+    for s in socks[::2]:                         # half a request, then nothing more
+        s.sendall(b"POST /api/builds HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+    try:
+        s = _connect(studio)                     # (30 s: the old studio held its slots 60 s)
+        s.sendall(_head(studio, "GET", "/api/builds", token=studio.token, Connection="close"))
+        reply = _reply(s)
+        s.close()
+    finally:
+        for t in socks:
+            t.close()
+    assert reply.startswith(b"HTTP/1.1 200"), reply[:300]

@@ -50,6 +50,7 @@ import os
 import re
 import secrets
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -406,6 +407,42 @@ class Handler(BaseHTTPRequestHandler):
 
     def log_message(self, fmt, *args):  # quiet: the terminal shows the URL and errors only
         pass
+
+    # ------------------------------------------------------------------ deadline
+    def handle_one_request(self):
+        """Serve one request, its line and headers read within
+        ``LIMITS.studio_header_timeout_s`` of the moment the studio starts waiting for them
+        (a kept-alive connection's idle time included): a client that sends slowly, or
+        nothing, has its connection closed then, and frees its slot."""
+        self._cut = self._headers_in = False
+        self._deadline_lock = threading.Lock()
+        timer = threading.Timer(LIMITS.studio_header_timeout_s, self._cut_off)
+        timer.daemon = True
+        timer.start()
+        try:
+            super().handle_one_request()
+        finally:
+            timer.cancel()
+
+    def _cut_off(self):
+        with self._deadline_lock:
+            if self._headers_in:
+                return
+            self._cut = True
+        self.close_connection = True
+        try:   # wakes the read waiting for the request line or a header: it sees the end
+            self.connection.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+
+    def parse_request(self):
+        ok = super().parse_request()
+        with self._deadline_lock:
+            self._headers_in = not self._cut
+        if not self._headers_in:   # headers cut short by the deadline: not a request
+            self.close_connection = True
+            return False
+        return ok
 
     # ------------------------------------------------------------------ replies
     def _send(self, code, body: bytes, ctype="application/json; charset=utf-8", extra=()):
