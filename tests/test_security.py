@@ -625,3 +625,26 @@ def test_idle_and_slow_tokenless_connections_do_not_lock_the_studio_out(studio):
         for t in socks:
             t.close()
     assert reply.startswith(b"HTTP/1.1 200"), reply[:300]
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give a file to another user")
+@pytest.mark.parametrize("stamp", ["{damaged", "well-formed"])
+def test_another_users_stamp_above_the_output_is_not_ours(tmp_path, monkeypatch, capsys, stamp):
+    """MED: the owner search walked up to ``/``: a damaged ``.morphshell-build`` that another
+    user left in a shared sticky folder made every build beneath it exit 2 "damaged" (and
+    told to delete their file); a well-formed one was honoured (and written to)."""
+    from pysolver.atomic import STAMP_NAME, STAMP_VERSION
+
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)                         # like /tmp: root's, sticky, open to all
+    if stamp == "well-formed":
+        stamp = json.dumps({"made_by": "morphshell", "version": STAMP_VERSION,
+                            "files": {}, "dirs": [], "prev": {}, "pending": {}})
+    theirs = shared / STAMP_NAME
+    theirs.write_text(stamp)
+    os.chown(theirs, 65534, 65534)               # nobody's
+    monkeypatch.chdir(tmp_path)
+    rc, msg = _cli(["design", SHAPE, "--out", "shared/work/X"], capsys)
+    assert rc == 0, msg
+    assert theirs.read_text() == stamp and (shared / "work" / "X" / STAMP_NAME).exists()
