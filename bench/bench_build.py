@@ -31,15 +31,19 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))   # this checkout's pysolver, also in the child (PACKAGE_ROOT)
+
+from pysolver.child import python_argv  # noqa: E402
 
 
 def _build(shape: str, solver: str, log) -> dict:
     """Build ``shape`` in a fresh folder through the CLI; wall time and the stage split."""
     with tempfile.TemporaryDirectory(prefix="morphshell-bench-") as tmp:
-        env = dict(os.environ, PYTHONPATH=str(ROOT), XDG_CACHE_HOME=str(Path(tmp) / "cache"))
+        env = dict(os.environ, XDG_CACHE_HOME=str(Path(tmp) / "cache"))
         ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        r = subprocess.run([sys.executable, "-m", "pysolver.cli", "--quiet", "build", shape,
+        # an isolated child (child.python_argv): nothing from its working directory runs
+        r = subprocess.run([*python_argv("pysolver.cli"), "--quiet", "build", shape,
                             "--solver", solver], cwd=tmp, env=env, capture_output=True,
                            text=True)
         wall = time.perf_counter() - t0

@@ -52,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 
 from pysolver import cli  # noqa: E402
 from pysolver.atomic import atomic_write_text  # noqa: E402
+from pysolver.child import python_argv  # noqa: E402
 from pysolver.distributed import ResultStore, Task, run_tasks  # noqa: E402
 from pysolver.params import PHYSICS_DEFAULT  # noqa: E402
 from pysolver.tables import read_table  # noqa: E402
@@ -88,7 +89,7 @@ def _key(spec: str) -> str:
 
 
 def _morphshell(*argv) -> None:
-    cmd = [sys.executable, "-m", "pysolver.cli", *map(str, argv)]
+    cmd = [*python_argv("pysolver.cli"), *map(str, argv)]   # isolated (child.python_argv)
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stderr[-2000:]}")

@@ -190,13 +190,27 @@ def _damaged(p: Path, why: str) -> DamagedFolder:
                          fix=_DAMAGED_FIX)
 
 
+def _another_users(p: Path) -> bool:
+    """Whether the stamp ``p`` (a file, a link or anything else) or its folder belongs to
+    another user than this process's effective one: their record, not this user's, which
+    morphshell reads as no stamp (never honoured, never called damaged, never written)."""
+    uid = os.geteuid()
+    try:
+        return os.lstat(p).st_uid != uid or os.stat(p.parent).st_uid != uid
+    except OSError:   # none there, or unreadable: the open that follows tells which
+        return False
+
+
 def _load_stamp(p: Path):
-    """The JSON value of the stamp file ``p``; None when there is none.
+    """The JSON value of the stamp file ``p``; None when there is none, or when it or its
+    folder belongs to another user (:func:`_another_users`).
 
     Raises
     ------
     DamagedFolder
-        Something is there that is not a readable regular JSON file."""
+        Something of this user's is there that is not a readable regular JSON file."""
+    if _another_users(p):
+        return None
     try:
         fd = os.open(p, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
     except FileNotFoundError:
@@ -206,7 +220,10 @@ def _load_stamp(p: Path):
                        else f"cannot be read: {e.strerror}") from None
     try:
         with os.fdopen(fd, "rb") as f:
-            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+            st = os.fstat(f.fileno())
+            if st.st_uid != os.geteuid():   # (given to another user since the check above)
+                return None
+            if not stat.S_ISREG(st.st_mode):
                 raise _damaged(p, "not a regular file")
             return json.loads(f.read(64 << 20))
     except OSError as e:
@@ -239,8 +256,9 @@ def _check_manifest(folder: Path, data: dict, p: Path) -> dict:
 
 
 def read_stamp(folder) -> dict | None:
-    """The manifest of ``folder`` (module docstring), or None when it has no stamp or a
-    stamp of another program.
+    """The manifest of ``folder`` (module docstring), or None when it has no stamp, a
+    stamp of another program, or a stamp that another user owns (or in a folder another
+    user owns: :func:`_another_users`).
 
     A stamp of an older morphshell (a bare list of names, no hashes) is returned with
     ``legacy`` set: its files cannot be told from the user's.

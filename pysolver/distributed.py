@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .atomic import atomic_write_text
+from .child import safe_path_environ
 from .errors import InputError, read_input
 from .params import TOLERANCE_RUN
 from .progress import duration, say
@@ -288,42 +289,68 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
 
     scheduler = check_scheduler(scheduler)
     workers = check_workers(workers)
-    cluster = None
-    if scheduler is not None:
-        _warn_plain(scheduler)
-        try:
-            client = distributed.Client(scheduler, timeout="20s")
-        except OSError as e:
-            raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({e})",
-                             fix="start it with 'dask scheduler' and check the address, the "
-                                 "firewall and the TLS settings (docs/tolerance.md)") from None
-    else:
-        n = workers or os.cpu_count() or 1
-        security = local_security()
-        scratch = tempfile.mkdtemp(prefix="morphshell-dask-")   # 0700, a random name
-        config = {"temporary-directory": scratch}
-        if not dashboard:
-            config.update({"distributed.scheduler.http.routes": [],
-                           "distributed.worker.http.routes": []})
-        with dask.config.set(config):
-            cluster = distributed.LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
-                protocol="tls", security=security, local_directory=scratch,
-                dashboard_address=f"{LOOPBACK}:0" if dashboard else None,
-                silence_logs=logging.ERROR)
-        client = distributed.Client(cluster, security=security)
-    try:
+    with contextlib.ExitStack() as stack:
+        if scheduler is not None:
+            client = _remote_client(distributed, scheduler)
+        else:
+            cluster, security = stack.enter_context(_local_cluster(
+                distributed, dask, workers or os.cpu_count() or 1, dashboard))
+            client = distributed.Client(cluster, security=security)
+        stack.callback(client.close)    # (before the cluster's close: last in, first out)
         if progress:
             nw = len(client.scheduler_info().get("workers", {}))
             where = scheduler or f"local cluster on {LOOPBACK} (TLS)"
             dash = f", dashboard {client.dashboard_link}" if (dashboard or scheduler) else ""
             say("dask", "", f"{where}, {nw} worker(s){dash}")
         yield client
+
+
+def _remote_client(distributed, scheduler: str):
+    """A ``distributed.Client`` of the running scheduler at ``scheduler``."""
+    _warn_plain(scheduler)
+    try:
+        return distributed.Client(scheduler, timeout="20s")
+    except OSError as e:
+        raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({e})",
+                         fix="start it with 'dask scheduler' and check the address, the "
+                             "firewall and the TLS settings (docs/tolerance.md)") from None
+
+
+@contextlib.contextmanager
+def _local_cluster(distributed, dask, n: int, dashboard: bool):
+    """A running ``LocalCluster`` of ``n`` worker processes, and its ``Security``, for the
+    block (see :func:`dask_client`); closed after it, and its scratch folder removed (also
+    when the cluster fails to start).
+
+    Its workers are Python processes that multiprocessing starts ("spawn"), not through
+    :func:`pysolver.child.python_argv`: the cluster lives inside
+    :func:`pysolver.child.safe_path_environ`, so no worker (a restarted one included) puts
+    the working directory on its module path.
+
+    Yields
+    ------
+    (distributed.LocalCluster, distributed.Security)
+    """
+    security = local_security()
+    scratch = tempfile.mkdtemp(prefix="morphshell-dask-")   # 0700, a random name
+    config = {"temporary-directory": scratch}
+    if not dashboard:
+        config.update({"distributed.scheduler.http.routes": [],
+                       "distributed.worker.http.routes": []})
+    try:   # the scratch folder goes also when the cluster fails to start
+        with safe_path_environ():
+            with dask.config.set(config):
+                cluster = distributed.LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
+                    protocol="tls", security=security, local_directory=scratch,
+                    dashboard_address=f"{LOOPBACK}:0" if dashboard else None,
+                    silence_logs=logging.ERROR)
+            try:
+                yield cluster, security
+            finally:
+                cluster.close()
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-            shutil.rmtree(scratch, ignore_errors=True)
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,

@@ -13,6 +13,7 @@ import os
 import socket
 import struct
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -56,6 +57,13 @@ def test_a_child_python_imports_nothing_from_the_working_directory(hostile_cwd):
     first, path = r.stdout.splitlines()
     assert first == str(Path(PACKAGE_ROOT) / "pysolver" / "__init__.py")
     assert str(Path.cwd()) not in path and "''" not in path
+    # the package root comes after the standard library, once: nothing shadows the stdlib
+    order = subprocess.run(python_argv(code="import json, os, sys; print(json.dumps("
+                                            "[os.path.dirname(os.__file__), *sys.path]))"),
+                           capture_output=True, text=True, check=True).stdout
+    stdlib, *paths = json.loads(order)
+    assert paths.count(PACKAGE_ROOT) == 1
+    assert paths.index(stdlib) < paths.index(PACKAGE_ROOT), paths
     with pytest.raises(ValueError):
         python_argv("pysolver.x; import os")
     with pytest.raises(ValueError):
@@ -513,3 +521,130 @@ def test_the_memory_estimate_respects_ulimit_v():
             "print(available_memory())\n")
     r = subprocess.run(python_argv(code=code), capture_output=True, text=True, check=True)
     assert 0 < int(r.stdout) <= 256 << 20
+
+
+# ------------------------------------------------------------------------------ review of #43
+
+PLANTED_MULTIPROCESSING = """import sys
+open({marker!r}, "a").write("multiprocessing\\n")
+sys.path[:] = [p for p in sys.path if p not in ("", {cwd!r})]
+del sys.modules["multiprocessing"]
+import multiprocessing  # the real one: the worker still starts
+"""
+"""A ``multiprocessing`` package that writes a marker, then hands over to the real one."""
+
+CLUSTER_PARENT = """import sys
+sys.path[:] = [p for p in sys.path if p != ""]   # the parent itself imports nothing from cwd
+sys.path.append({root!r})
+from pysolver.distributed import dask_client
+with dask_client(workers=1, progress=False) as client:
+    print(client.submit(sum, [1, 2]).result())
+"""
+"""A parent as a ``morphshell`` script is: its own path free of the working directory."""
+
+
+def test_a_dask_worker_runs_no_planted_module(tmp_path):
+    """HIGH: Dask starts its workers by multiprocessing's "spawn" (``python -B -c 'from
+    multiprocessing.spawn import ...'``), which puts the working directory first on the
+    worker's path: a ``multiprocessing/`` planted where morphshell ran, ran in every worker."""
+    cwd, marker = tmp_path / "cwd", tmp_path / "imported-from-cwd.txt"
+    (cwd / "multiprocessing").mkdir(parents=True)
+    (cwd / "multiprocessing" / "__init__.py").write_text(
+        PLANTED_MULTIPROCESSING.format(marker=str(marker), cwd=str(cwd)))
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONSAFEPATH", "PYTHONPATH")}
+    r = subprocess.run([sys.executable, "-c", CLUSTER_PARENT.format(root=PACKAGE_ROOT)], cwd=cwd,
+                       env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.split() == ["3"], r.stderr[-2000:]
+    assert _planted(marker) == []
+
+
+def test_a_failed_cluster_start_leaves_no_scratch_folder(tmp_path, monkeypatch):
+    """LOW: the run's private scratch folder (``mkdtemp``) was left behind when
+    ``LocalCluster`` failed to start (a busy port, no memory, a worker that died)."""
+    import distributed
+    import tempfile
+
+    from pysolver.distributed import dask_client
+
+    def fail(*_a, **_k):
+        raise RuntimeError("no cluster today")
+
+    monkeypatch.setattr(distributed, "LocalCluster", fail)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with pytest.raises(RuntimeError, match="no cluster today"):
+        with dask_client(workers=1, progress=False):
+            pass
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_no_child_python_is_started_outside_python_argv():
+    """LOW: ``bench/bench_build.py`` and ``bench/bench_printed.py`` started ``sys.executable
+    -m pysolver.cli`` (the working directory first on the child's path), not through
+    :func:`pysolver.child.python_argv`."""
+    import re
+
+    root = Path(PACKAGE_ROOT)
+    files = [*root.glob("pysolver/**/*.py"), *root.glob("sim/**/*.py"), *root.glob("bench/*.py")]
+    module_or_code = re.compile(r"sys\.executable\s*,\s*[\"'](-m|-c)[\"']")
+    bad = [str(f.relative_to(root)) for f in files if module_or_code.search(f.read_text())]
+    assert len(files) > 50 and bad == [], bad
+
+
+@pytest.mark.parametrize("path, token", [("/", False), ("/x", False), ("/api", False),
+                                         ("/api/builds", False), ("/x", True),
+                                         ("/api/build/0/nothing", True)])
+def test_a_post_anywhere_is_refused_before_its_body_is_read(studio, path, token):
+    """MED: only ``/api/`` paths needed the token before the body: a tokenless POST to ``/``
+    or ``/x`` with a 4 MiB ``Content-Length`` made the studio wait for the body.  The body is
+    never sent: an answer proves that the studio did not wait for it."""
+    s = _connect(studio)
+    s.sendall(_head(studio, path=path, token=studio.token if token else None,
+                    **{"Content-Length": str(4 << 20)}))
+    reply = _reply(s)        # (the old studio waited for 4 MiB: a socket timeout)
+    s.close()
+    assert reply.split(b" ")[1] == (b"404" if token else b"403"), reply[:300]
+    assert b"Connection: close" in reply
+
+
+def test_idle_and_slow_tokenless_connections_do_not_lock_the_studio_out(studio):
+    """MED: a slot was taken at accept and the 60 s timeout was per read, so
+    ``studio_max_connections`` tokenless connections that send nothing, or half a request,
+    held every slot (a slow sender forever).  Now the request line and headers must arrive
+    within ``studio_header_timeout_s``: a request with the token is still answered."""
+    from pysolver.params import LIMITS
+
+    socks = [_connect(studio) for _ in range(LIMITS.studio_max_connections)]
+    for s in socks[::2]:                         # half a request, then nothing more
+        s.sendall(b"POST /api/builds HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+    try:
+        s = _connect(studio)                     # (30 s: the old studio held its slots 60 s)
+        s.sendall(_head(studio, "GET", "/api/builds", token=studio.token, Connection="close"))
+        reply = _reply(s)
+        s.close()
+    finally:
+        for t in socks:
+            t.close()
+    assert reply.startswith(b"HTTP/1.1 200"), reply[:300]
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give a file to another user")
+@pytest.mark.parametrize("stamp", ["{damaged", "well-formed"])
+def test_another_users_stamp_above_the_output_is_not_ours(tmp_path, monkeypatch, capsys, stamp):
+    """MED: the owner search walked up to ``/``: a damaged ``.morphshell-build`` that another
+    user left in a shared sticky folder made every build beneath it exit 2 "damaged" (and
+    told to delete their file); a well-formed one was honoured (and written to)."""
+    from pysolver.atomic import STAMP_NAME, STAMP_VERSION
+
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)                         # like /tmp: root's, sticky, open to all
+    if stamp == "well-formed":
+        stamp = json.dumps({"made_by": "morphshell", "version": STAMP_VERSION,
+                            "files": {}, "dirs": [], "prev": {}, "pending": {}})
+    theirs = shared / STAMP_NAME
+    theirs.write_text(stamp)
+    os.chown(theirs, 65534, 65534)               # nobody's
+    monkeypatch.chdir(tmp_path)
+    rc, msg = _cli(["design", SHAPE, "--out", "shared/work/X"], capsys)
+    assert rc == 0, msg
+    assert theirs.read_text() == stamp and (shared / "work" / "X" / STAMP_NAME).exists()

@@ -82,6 +82,11 @@ class Limits:
         Connections the studio serves at once, one thread each; more wait in the listen
         queue.  With the body limit, it bounds the threads and the memory requests hold
         (a browser keeps about 6 connections open).
+    studio_header_timeout_s : float, s
+        Longest the studio waits for a request's line and headers, from the moment it
+        starts waiting (on a kept-alive connection: its idle time included); then the
+        connection is closed and its slot freed, so slow or idle connections cannot hold
+        all ``studio_max_connections`` slots.
     """
 
     max_vertices: int = 5000
@@ -110,6 +115,7 @@ class Limits:
     studio_max_body_bytes: int = 4 << 20
     studio_job_timeout_s: float = 6 * 3600.0
     studio_max_connections: int = 16
+    studio_header_timeout_s: float = 5.0
 
 
 LIMITS = Limits()

@@ -50,6 +50,7 @@ import os
 import re
 import secrets
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -407,6 +408,42 @@ class Handler(BaseHTTPRequestHandler):
     def log_message(self, fmt, *args):  # quiet: the terminal shows the URL and errors only
         pass
 
+    # ------------------------------------------------------------------ deadline
+    def handle_one_request(self):
+        """Serve one request, its line and headers read within
+        ``LIMITS.studio_header_timeout_s`` of the moment the studio starts waiting for them
+        (a kept-alive connection's idle time included): a client that sends slowly, or
+        nothing, has its connection closed then, and frees its slot."""
+        self._cut = self._headers_in = False
+        self._deadline_lock = threading.Lock()
+        timer = threading.Timer(LIMITS.studio_header_timeout_s, self._cut_off)
+        timer.daemon = True
+        timer.start()
+        try:
+            super().handle_one_request()
+        finally:
+            timer.cancel()
+
+    def _cut_off(self):
+        with self._deadline_lock:
+            if self._headers_in:
+                return
+            self._cut = True
+        self.close_connection = True
+        try:   # wakes the read waiting for the request line or a header: it sees the end
+            self.connection.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+
+    def parse_request(self):
+        ok = super().parse_request()
+        with self._deadline_lock:
+            self._headers_in = not self._cut
+        if not self._headers_in:   # headers cut short by the deadline: not a request
+            self.close_connection = True
+            return False
+        return ok
+
     # ------------------------------------------------------------------ replies
     def _send(self, code, body: bytes, ctype="application/json; charset=utf-8", extra=()):
         self.send_response(code)
@@ -485,20 +522,23 @@ class Handler(BaseHTTPRequestHandler):
 
     def _refusal(self):
         """Why the request is refused before anything of its body is read (host, origin,
-        token, a body on a GET), as ``(status, message, fix)``; None when it may go on."""
+        token on ``/api/`` and on every POST, a POST to a path that takes none, a body on a
+        GET), as ``(status, message, fix)``; None when it may go on."""
         if not self._host_ok():
             return (HTTPStatus.FORBIDDEN, "bad Host header (the studio answers only to "
                                           "127.0.0.1 and localhost)", None)
         if not self._origin_ok():
             return HTTPStatus.FORBIDDEN, "requests from another origin are refused", None
         path = urlsplit(self.path).path
-        if path.startswith("/api/"):
+        if path.startswith("/api/") or self.command == "POST":   # every POST, on any path
             download = self.command == "GET" and re.fullmatch(
                 r"/api/build/\d+/(stl/[^/]+|report)", path) is not None
             if not self._token_ok(query_ok=download):
                 return (HTTPStatus.FORBIDDEN, "missing or wrong studio token",
                         "open the URL the studio printed when it started (it ends in "
                         "#token=...)")
+        if self.command == "POST" and _POST_ROUTE.fullmatch(path) is None:
+            return HTTPStatus.NOT_FOUND, f"no POST route {path[:80]!r}", None
         if self.command != "POST" and (self.headers.get("Transfer-Encoding") or self.headers.get(
                 "Content-Length", "0").strip() != "0"):
             # a body on a GET would stay on the connection: refused, and the connection closed
@@ -628,6 +668,10 @@ class Handler(BaseHTTPRequestHandler):
 class _NotFound(Exception):
     pass
 
+
+_POST_ROUTE = re.compile(r"/api/build/[0-9]+/(preview|keyframes|run)")
+"""The only paths a POST may go to (:meth:`Handler._post`); any other is refused before its
+body is read."""
 
 _NO_BODY = object()
 """What :meth:`Handler._payload` returns after an error reply."""
