@@ -340,7 +340,7 @@ def test_an_stl_from_a_folder_named_outside_latin1_downloads(tmp_path, monkeypat
     threading.Thread(target=srv.serve_forever, daemon=True).start()
     try:
         s = _connect(srv)
-        s.sendall(_head(srv, "GET", f"/api/build/0/stl/top.stl?token={srv.token}",
+        s.sendall(_head(srv, "GET", "/api/build/0/stl/top.stl", token=srv.token,
                         Connection="close"))
         reply = _reply(s)
         s.close()
@@ -405,8 +405,71 @@ def test_the_browser_never_sees_the_token_and_cannot_block_the_studio(tmp_path, 
     # the page it was given is private to this user and hands the token to the studio
     page_mode, folder_mode = (tmp_path / "rec.modes").read_text().split("\n")[:2]
     assert page_mode == f"600 {os.geteuid()}" and folder_mode == f"700 {os.geteuid()}"
-    assert f"location.replace(\"{srv.url}\")" in (tmp_path / "rec.page").read_text()
+    assert f'name="token" value="{srv.token}"' in (tmp_path / "rec.page").read_text()
     assert not Path(args.split()[0].removeprefix("file://")).parent.exists()  # removed
+
+
+def _session(srv, body: str, origin="null", ctype="application/x-www-form-urlencoded"):
+    s = _connect(srv)
+    s.sendall(_head(srv, "POST", "/session", **{"Content-Type": ctype, "Origin": origin,
+                                               "Content-Length": str(len(body)),
+                                               "Connection": "close"}) + body.encode())
+    reply = _reply(s)
+    s.close()
+    return reply
+
+
+def test_the_private_page_hands_the_token_over_in_no_url(studio):
+    """Issue #43, LOW (history): the private page did ``location.replace(".../#token=...")``,
+    and that URL, token included, stayed in the browser's history.  Now it POSTs a form
+    with the token in its body; the studio answers 303 to ``/`` with an HttpOnly,
+    SameSite=Strict session cookie; a wrong token gets 403 and no cookie."""
+    import html
+    import re
+    from html.parser import HTMLParser
+
+    from pysolver.studio.server import COOKIE, opener_page
+
+    page = opener_page(studio.url)
+    try:
+        text = page.read_text()
+    finally:
+        page.unlink()
+        page.parent.rmdir()
+    urls = re.findall(r"[a-z]+://[^\s\"'<>]*", html.unescape(text))
+    assert urls and not [u for u in urls if studio.token in u], urls
+    forms, inputs = [], []
+
+    class Page(HTMLParser):
+        def handle_starttag(self, tag, attrs):
+            (forms if tag == "form" else inputs if tag == "input" else []).append(dict(attrs))
+
+    Page().feed(text)
+    assert forms == [{"method": "post", "action": f"{studio.origin}/session",
+                      "enctype": "application/x-www-form-urlencoded"}]
+    assert inputs == [{"type": "hidden", "name": "token", "value": studio.token}]
+    reply = _session(studio, f"token={studio.token}")
+    head = reply.split(b"\r\n\r\n")[0].decode()
+    assert head.startswith("HTTP/1.1 303"), reply[:300]
+    assert "\r\nLocation: /\r\n" in head and studio.token not in head.split("Set-Cookie")[0]
+    cookie = re.search(r"\r\nSet-Cookie: (.*)", head)[1].split("; ")
+    assert cookie[0] == f"{COOKIE}={studio.token}"
+    assert sorted(cookie[1:]) == ["HttpOnly", "Path=/", "SameSite=Strict"]  # no Max-Age
+    for body in ("token=wrong", f"token={studio.token[:-1]}", "",
+                 f"token={studio.token}&token={studio.token}"):
+        reply = _session(studio, body)
+        assert reply.startswith(b"HTTP/1.1 403") and b"Set-Cookie" not in reply, body
+    # host and origin, type and size are checked before the body is read
+    assert _session(studio, f"token={studio.token}", origin="http://evil.example"
+                    ).startswith(b"HTTP/1.1 403")
+    assert _session(studio, f"token={studio.token}", ctype="application/json"
+                    ).startswith(b"HTTP/1.1 415")
+    s = _connect(studio)
+    s.sendall(_head(studio, "POST", "/session", **{
+        "Content-Type": "application/x-www-form-urlencoded", "Origin": "null",
+        "Content-Length": str(4 << 20)}))
+    assert _reply(s).startswith(b"HTTP/1.1 413")      # answered with the body unsent
+    s.close()
 
 
 def test_the_studio_page_drops_the_token_from_its_address():

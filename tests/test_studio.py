@@ -201,10 +201,33 @@ def test_every_api_call_needs_the_token(server):
         assert st == 403 and b"token" in body
         assert _request(server, "POST", "/api/build/0/preview", body={"landscape": []},
                         token=token)[0] == 403
-    # a token in the query string opens read-only downloads only
+    # a token in a URL opens nothing: it would stay in the browser's history
     q = f"?token={server.token}"
     assert _request(server, "GET", "/api/builds" + q, token=False)[0] == 403
-    assert _request(server, "GET", "/api/build/0/report" + q, token=False)[0] == 200
+    assert _request(server, "GET", "/api/build/0/report" + q, token=False)[0] == 403
+
+
+def test_the_session_cookie_opens_the_api_from_the_studios_origin_only(server):
+    """Issue #43 (history): the session cookie ``POST /session`` sets is a token like the
+    header; without it, or with a wrong one, 403; a state-changing request with it still
+    needs the studio's own origin (CSRF: the cookie alone is not enough)."""
+    from pysolver.studio.server import COOKIE
+
+    port = server.server_address[1]
+    good = {"Cookie": f"other=1; {COOKIE}={server.token}"}
+    assert _request(server, "GET", "/api/builds", token=False, headers=good)[0] == 200
+    assert _request(server, "GET", "/api/build/0/report", token=False, headers=good)[0] == 200
+    assert _request(server, "GET", "/api/builds", token=False)[0] == 403
+    for bad in (f"{COOKIE}=wrong", f"{COOKIE}={server.token[:-1]}", f"x{COOKIE}={server.token}",
+                f"{COOKIE}"):
+        assert _request(server, "GET", "/api/builds", token=False,
+                        headers={"Cookie": bad})[0] == 403, bad
+    body = {"landscape": []}
+    for origin in (f"http://127.0.0.1:{port + 1}", "null", "http://evil.example"):
+        assert _request(server, "POST", "/api/build/0/preview", body=body, token=False,
+                        headers={**good, "Origin": origin})[0] == 403, origin
+    assert _request(server, "POST", "/api/build/0/preview", body=body, token=False,
+                    headers={**good, "Origin": f"http://127.0.0.1:{port}"})[0] == 400
 
 
 def test_another_origin_is_refused(server):
@@ -472,6 +495,32 @@ def _centre(folder) -> tuple[np.ndarray, int]:
 
 
 @browser
+def test_the_private_page_opens_the_studio_with_no_token_in_any_url(server):
+    """Issue #43 (history): the browser, started on the private page, ends on the studio
+    with its builds listed, the token in a session cookie and in no address."""
+    from pysolver.studio.server import COOKIE, opener_page
+
+    page = opener_page(server.url)
+    try:
+        with chrome() as d:
+            d.get(page.as_uri())
+            _wait(d, lambda d: d.current_url.startswith(server.origin) and d.find_element(
+                "tag name", "body").get_attribute("data-ready"), "the studio to load")
+            assert d.find_element("tag name", "body").get_attribute("data-ready") == "1", \
+                d.find_element("id", "error").text
+            assert len(d.find_elements("css selector", "#edit-build option")) == 2
+            href = d.execute_script("return location.href")
+            assert href == server.origin + "/" and "token" not in href
+            assert d.execute_script("return studio.token") is None   # the cookie carries it
+            [cookie] = [c for c in d.get_cookies() if c["name"] == COOKIE]
+            assert cookie["httpOnly"] and cookie["sameSite"] == "Strict" \
+                and "expiry" not in cookie
+    finally:
+        page.unlink()
+        page.parent.rmdir()
+
+
+@browser
 def test_a_stroke_changes_only_the_painted_region(server, small_build):
     V, c = _centre(small_build)
     with chrome() as d:
@@ -645,8 +694,11 @@ def test_the_parts_are_listed_with_a_3d_preview_and_a_download(small_build, tmp_
                   == "2", "the STL's 3D preview")
             href = d.find_element("css selector", "#parts-table .part-download").get_attribute(
                 "href")
+            assert "token" not in href      # the session cookie, not the URL, carries it
+            cookie = {c["name"]: c["value"] for c in d.get_cookies()}
             st, data = _request(srv, "GET", href.split(str(srv.server_address[1]), 1)[1],
-                                token=False)
+                                token=False, headers={"Cookie": "; ".join(
+                                    f"{k}={v}" for k, v in cookie.items())})
             assert st == 200 and data == (f / "stl" / "top.stl").read_bytes()
     finally:
         _stop(srv)

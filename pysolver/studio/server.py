@@ -7,11 +7,12 @@ the build folders named on the command line; nothing else of the file system is 
 
 Only its user can drive it (``docs/threat-model.md``, "The studio"):
 
-* a random token per start, in the URL it prints and opens (after ``#``, so it is never sent
-  in a request line or a Referer); every ``/api/`` call carries it in the
-  ``X-Morphshell-Token`` header (a custom header: a page on another origin cannot send it
-  without a CORS preflight, which the studio refuses).  Read-only downloads (a report, an
-  STL) may give it as ``?token=`` instead;
+* a random token per start, in the URL it prints (after ``#``, so it is never sent in a
+  request line or a Referer).  The browser is started on a private page that POSTs the token
+  to ``/session`` in a form body (never in a URL, so never in the browser's history); the
+  answer sets it as an ``HttpOnly; SameSite=Strict`` session cookie.  Every ``/api/`` call
+  carries it in that cookie or in the ``X-Morphshell-Token`` header (scripts; the page opened
+  on the printed URL), compared in constant time;
 * the ``Host`` must be ``127.0.0.1:<port>`` or ``localhost:<port>`` (DNS rebinding) and an
   ``Origin``, when sent, that same origin;
 * POST bodies are ``application/json`` with a ``Content-Length`` of at most
@@ -35,6 +36,7 @@ Endpoints (``<i>`` = index of a build folder)::
     POST /api/build/<i>/keyframes       {"keyframes"} -> harmonic landscape + feasibility
     POST /api/build/<i>/run             {"landscape", "edits"} -> build it again (a job)
     GET  /api/job                       progress of the running job
+    POST /session                       token=<token> (a form) -> 303 to /, the session cookie
 
 The studio writes nothing itself: *Run* is :func:`pysolver.build.rebuild` in a subprocess
 (``python -m pysolver.studio.rerun``), the same stages as ``morphshell build`` after the
@@ -80,6 +82,10 @@ from .landscape import (
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 TOKEN_HEADER = "X-Morphshell-Token"
+COOKIE = "morphshell-studio"
+SESSION_MAX_BODY = 256
+"""Bytes a ``POST /session`` body may have (``token=`` and 43 characters): a longer one is
+refused before it is read."""
 STL_NAME = re.compile(r"[a-z][a-z0-9_]{0,63}\.stl")
 """STL names the studio serves (and only those listed in ``stl/``)."""
 
@@ -481,14 +487,21 @@ class Handler(BaseHTTPRequestHandler):
         port = self.server.server_address[1]
         return origin in (f"http://127.0.0.1:{port}", f"http://localhost:{port}")
 
-    def _token_ok(self, query_ok: bool) -> bool:
-        sent = self.headers.get(TOKEN_HEADER)
-        if sent is None and query_ok:
-            sent = (parse_qs(urlsplit(self.path).query).get("token") or [None])[0]
-        return sent is not None and hmac.compare_digest(sent.encode(),
-                                                         self.server.token.encode())
+    def _is_token(self, sent: str) -> bool:
+        return hmac.compare_digest(sent.encode("utf-8", "surrogateescape"),
+                                   self.server.token.encode())
 
-    def _length(self):
+    def _token_ok(self) -> bool:
+        """The token in the ``X-Morphshell-Token`` header, else in the session cookie."""
+        sent = self.headers.get(TOKEN_HEADER)
+        if sent is not None:
+            return self._is_token(sent)
+        cookies = [part.strip().partition("=") for line in self.headers.get_all("Cookie") or []
+                   for part in line.split(";")]
+        return any(name == COOKIE and eq and self._is_token(value)
+                   for name, eq, value in cookies)
+
+    def _length(self, limit: int = LIMITS.studio_max_body_bytes):
         """The request's ``Content-Length`` (ASCII digits only), or None after an error reply
         (411 without one or with a chunked body, 400 when it is not one whole number, 413
         above ``LIMITS.studio_max_body_bytes``)."""
@@ -503,15 +516,15 @@ class Handler(BaseHTTPRequestHandler):
             return self._error(HTTPStatus.BAD_REQUEST, f"Content-Length {', '.join(raw)[:40]!r} "
                                                        "is not a whole number of bytes")
         n = int(raw[0])
-        if n > LIMITS.studio_max_body_bytes:
+        if n > limit:
             return self._error(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, f"the request body is {n} "
-                               f"bytes, more than {LIMITS.studio_max_body_bytes}")
+                               f"bytes, more than {limit}")
         return n
 
-    def _read_body(self):
+    def _read_body(self, limit: int = LIMITS.studio_max_body_bytes):
         """The whole request body, or None after an error reply; the connection is then
         closed, so no unread byte is ever parsed as another request."""
-        n = self._length()
+        n = self._length(limit)
         if n is None:
             return None
         body = self.rfile.read(n)
@@ -527,13 +540,14 @@ class Handler(BaseHTTPRequestHandler):
         if not self._host_ok():
             return (HTTPStatus.FORBIDDEN, "bad Host header (the studio answers only to "
                                           "127.0.0.1 and localhost)", None)
-        if not self._origin_ok():
-            return HTTPStatus.FORBIDDEN, "requests from another origin are refused", None
         path = urlsplit(self.path).path
+        # the app's page itself (public code, no data, never framed) may be reached from
+        # another site: the redirect of POST /session that a page opened from a file sent
+        app_page = self.command in ("GET", "HEAD") and path == "/" and "Origin" not in self.headers
+        if not self._origin_ok() and not app_page:
+            return HTTPStatus.FORBIDDEN, "requests from another origin are refused", None
         if path.startswith("/api/") or self.command == "POST":   # every POST, on any path
-            download = self.command == "GET" and re.fullmatch(
-                r"/api/build/\d+/(stl/[^/]+|report)", path) is not None
-            if not self._token_ok(query_ok=download):
+            if not self._token_ok():
                 return (HTTPStatus.FORBIDDEN, "missing or wrong studio token",
                         "open the URL the studio printed when it started (it ends in "
                         "#token=...)")
@@ -561,9 +575,35 @@ class Handler(BaseHTTPRequestHandler):
                         "send a JSON object")
             return _NO_BODY
 
+    def _session(self):
+        """``POST /session``: the token in a form body (the private page's) -> ``303 See
+        Other`` to ``/`` with the session cookie; a wrong token gets 403 and no cookie.
+
+        The one request whose ``Origin`` may be ``null`` (a page opened from a file has that
+        origin): the token in its body is what lets it in.  Host, origin, type and a body of
+        at most ``SESSION_MAX_BODY`` bytes are checked before the body is read."""
+        origin = self.headers.get("Origin")
+        if not self._host_ok() or origin not in (None, "null") and not self._origin_ok():
+            return self._error(HTTPStatus.FORBIDDEN, "bad Host or Origin for a session")
+        if self.headers.get_content_type() != "application/x-www-form-urlencoded":
+            return self._error(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+                               "a session is opened by a form (token=...)")
+        body = self._read_body(SESSION_MAX_BODY)
+        if body is None:
+            return None
+        sent = parse_qs(body.decode("ascii", "replace")).get("token") or [""]
+        if len(sent) != 1 or not self._is_token(sent[0]):
+            return self._error(HTTPStatus.FORBIDDEN, "wrong studio token",
+                               "open the URL the studio printed when it started")
+        return self._send(HTTPStatus.SEE_OTHER, b"", "text/plain; charset=utf-8", extra=[
+            ("Location", "/"),
+            ("Set-Cookie", f"{COOKIE}={self.server.token}; HttpOnly; SameSite=Strict; Path=/")])
+
     def _guard(self, fn, *, body: bool):
         # who and where from first: nothing of a refused request's body is read (its
         # connection is closed), so a caller without the token holds no memory here
+        if self.command == "POST" and urlsplit(self.path).path == "/session":
+            return self._session()
         refused = self._refusal()
         if refused is not None:
             return self._error(*refused)
@@ -751,12 +791,13 @@ def serve(dirs, *, port: int = 0, open_browser: bool = True, ready=None) -> None
 
 
 def opener_page(url: str) -> Path:
-    """A private page that sends the browser on to ``url`` (the studio's, with its token).
+    """A private page that hands the token of ``url`` (the studio's) to the studio.
 
     The browser is started on this file, never on ``url``: a command line can be read by
     every local user (``/proc/PID/cmdline``), a file of mode 0600 in a folder of mode 0700
-    only by this one.  The page replaces itself by ``url`` in the browser's history, and the
-    studio's page then drops the token from its address (``history.replaceState``).
+    only by this one.  The page submits a form, ``POST /session`` with ``token=...`` in its
+    body, and the studio answers with its session cookie and a redirect to ``/``: the token is
+    in no URL, so in no history entry.
 
     Parameters
     ----------
@@ -768,13 +809,17 @@ def opener_page(url: str) -> Path:
     pathlib.Path
         ``<private temporary folder>/open.html``; remove its folder when the studio stops.
     """
-    if not re.fullmatch(r"http://127\.0\.0\.1:\d+/#token=[A-Za-z0-9_-]+", url):
+    m = re.fullmatch(r"(http://127\.0\.0\.1:\d+)/#token=([A-Za-z0-9_-]+)", url)
+    if m is None:
         raise ValueError(f"not a studio URL: {url[:80]!r}")
     folder = Path(tempfile.mkdtemp(prefix="morphshell-studio-"))   # mode 0700, this user's
     page = folder / "open.html"
     html = ('<!doctype html><meta charset="utf-8"><meta name="referrer" content="no-referrer">'
-            f"<title>morphshell studio</title><script>location.replace({json.dumps(url)})"
-            "</script><p>Opening the studio...</p>\n")
+            f'<title>morphshell studio</title><form method="post" action="{m[1]}/session" '
+            'enctype="application/x-www-form-urlencoded">'
+            f'<input type="hidden" name="token" value="{m[2]}">'
+            "<p>Opening the studio... <button>Open</button></p></form>"
+            "<script>document.forms[0].submit()</script>\n")
     fd = os.open(page, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
     with os.fdopen(fd, "w") as f:
         f.write(html)
@@ -782,4 +827,4 @@ def opener_page(url: str) -> Path:
 
 
 __all__ = ["StudioServer", "serve", "resolve_folders", "opener_page", "attachment", "Busy",
-           "TOKEN_HEADER"]
+           "TOKEN_HEADER", "COOKIE"]

@@ -1,6 +1,8 @@
 /* morphshell studio: paint the time landscape on the target, build it again, and compare.
- * Talks only to the local server that served this page (same origin, JSON, with the token
- * from the URL's #token=..., which is dropped from the address bar at once). */
+ * Talks only to the local server that served this page (same origin, JSON).  Its token is in
+ * the session cookie the private page the studio opened obtained (POST /session, no URL);
+ * on the printed URL's #token=..., it is dropped from the address bar at once, exchanged
+ * for that cookie too, and sent in a header. */
 (function () {
   "use strict";
 
@@ -10,7 +12,7 @@
   window.studio = studio;
 
   function $(id) { return document.getElementById(id); }
-  // The token arrives after # (never sent to a server); it is kept in this tab's
+  // On the printed URL the token arrives after # (never sent to a server); it is kept in this tab's
   // sessionStorage (a reload keeps working) and dropped from the address bar and the
   // history entry at once, so it is not left in the browser's history.
   function tokenFromUrl() {
@@ -24,7 +26,7 @@
     return token;
   }
   function headers(json) {
-    var h = {"X-Morphshell-Token": studio.token || ""};
+    var h = studio.token ? {"X-Morphshell-Token": studio.token} : {};
     if (json) h["Content-Type"] = "application/json";
     return h;
   }
@@ -42,7 +44,12 @@
       });
     });
   }
-  function withToken(path) { return path + "?token=" + encodeURIComponent(studio.token || ""); }
+  // the token as the session cookie (downloads need no token in their URL)
+  function session(token) {
+    if (!token) return Promise.resolve();
+    return fetch("/session", {method: "POST", body: "token=" + encodeURIComponent(token),
+      headers: {"Content-Type": "application/x-www-form-urlencoded"}}).then(function () {});
+  }
   function status(text, state) {
     var s = $("status");
     s.textContent = text;
@@ -682,7 +689,7 @@
       box.innerHTML = "";
       var link = $("report-link");
       link.hidden = !r.report;
-      link.href = withToken("/api/build/" + b.id + "/report");
+      link.href = "/api/build/" + b.id + "/report";
       if (!r.now) { box.textContent = "no report in this build yet (press Run)"; box.setAttribute("data-state", "none"); return; }
       var v = el("div", {"class": "verdict " + r.now.verdict, text: r.now.verdict, id: "verdict"}, box);
       v.setAttribute("data-verdict", r.now.verdict);
@@ -737,7 +744,7 @@
         var td = el("td", {}, tr);
         var show = el("button", {type: "button", text: "3D", "class": "part-3d"}, td);
         show.addEventListener("click", function () { previewPart(b, name); });
-        var a = el("a", {href: withToken("/api/build/" + b.id + "/stl/" + name), download: b.name + "-" + name,
+        var a = el("a", {href: "/api/build/" + b.id + "/stl/" + name, download: b.name + "-" + name,
           text: "download", "class": "part-download"}, td);
         a.setAttribute("data-name", name);
       });
@@ -821,11 +828,6 @@
   // ---------------------------------------------------------------- start
   function init() {
     studio.token = tokenFromUrl();
-    if (!studio.token) {
-      $("token-missing").hidden = false;
-      document.body.setAttribute("data-ready", "error");
-      return;
-    }
     var ed;
     studio.fields = {
       value: numberField("brush-value", "brush-error", {name: "value", changed: function () { ed && ed.brush(); },
@@ -854,7 +856,7 @@
       $("brush-value-label").textContent = m === "set" ? "time" : m === "smooth" ? "(no value)" : "seconds";
       ed && ed.brush();
     });
-    api("/api/builds").then(function (builds) {
+    session(studio.token).then(function () { return api("/api/builds"); }).then(function (builds) {
       studio.builds = builds;
       $("builds-note").textContent = builds.map(function (b) { return b.path; }).join(" | ");
       var sel = $("edit-build");
@@ -900,6 +902,7 @@
     }).then(function () {
       document.body.setAttribute("data-ready", "1");
     }).catch(function (e) {
+      if (e.status === 403) $("token-missing").hidden = false;   // neither cookie nor token
       setError("load", e.message);
       document.body.setAttribute("data-ready", "error");
     });
