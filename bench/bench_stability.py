@@ -195,6 +195,8 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2, help="designs at a time (default 2)")
     ap.add_argument("--resume", action="store_true",
                     help="reuse the runs a former call of the same code left in --out")
+    ap.add_argument("--cached", action="store_true",
+                    help="with --resume: tabulate the runs already made, run none")
     ap.add_argument("--probe", nargs=6, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.probe:
@@ -215,6 +217,11 @@ def main() -> int:
     work.mkdir(parents=True, exist_ok=True)
     todo = [(n, c, k) for n in names for c, k in runs(conds)
             if surfaces.is_builtin(all_cases[n][0]) or Path(all_cases[n][0]).exists()]
+    # the relabellings last: they give the base's design to the last bit by construction
+    # (pysolver.geometry.canonical_order), the other conditions are the informative ones
+    todo.sort(key=lambda j: j[1] == "relabel")
+    if a.cached:
+        todo = [j for j in todo if (work / f"{j[0]}-{j[1]}{j[2]}.json").exists()]
     t_all, rows = time.perf_counter(), {}
 
     def one(job):
@@ -236,9 +243,13 @@ def main() -> int:
     for name in names:
         if not any(j[0] == name for j in rows):
             results[name] = {"missing": all_cases[name][0]}
-            print(f"{name}: {all_cases[name][0]} missing (../shared beside the clone)")
+            print(f"{name}: no run ({all_cases[name][0]}; ../shared beside the clone?)")
             continue
-        mine = {f"{c}{k or ''}": rows[(name, c, k)] for c, k in runs(conds)}
+        mine = {f"{c}{k or ''}": rows[(name, c, k)] for c, k in runs(conds)
+                if (name, c, k) in rows}
+        if "base" not in mine:
+            results[name] = {"missing": "no base run"}
+            continue
         base = mine["base"]
         dev = {key: compare(base, r) for key, r in mine.items() if key != "base"}
         results[name] = {"conditions": mine, "deviations": dev,
@@ -269,7 +280,11 @@ def table(results: dict, conds) -> str:
         row = [name, b["verdict"], str(b.get("bases", "–")), str(b.get("scale3d", "–")),
                str(b.get("max_cell_mm", "–"))]
         for c in conds[1:]:
-            ds = [r["deviations"][f"{c}{k or ''}"] for c2, k in runs([c]) if c2 == c]
+            ds = [r["deviations"][f"{c}{k or ''}"] for c2, k in runs([c])
+                  if f"{c}{k or ''}" in r["deviations"]]
+            if not ds:
+                row.append("not run")
+                continue
             if any("why" in d for d in ds):
                 row.append(next(d["why"] for d in ds if "why" in d))
             elif all("bases_rel" not in d for d in ds):

@@ -624,8 +624,9 @@ def test_a_dask_worker_runs_no_planted_module(tmp_path):
 def test_a_failed_cluster_start_leaves_no_scratch_folder(tmp_path, monkeypatch):
     """LOW: the run's private scratch folder (``mkdtemp``) was left behind when
     ``LocalCluster`` failed to start (a busy port, no memory, a worker that died)."""
-    import distributed
     import tempfile
+
+    import distributed
 
     from pysolver.distributed import dask_client
 
