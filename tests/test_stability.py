@@ -62,7 +62,7 @@ def test_reference_design_is_printable_at_size(reference):
     assert 0.98 <= reference["scale3d"] <= 1.02
 
 
-@settings(max_examples=2, deadline=None, derandomize=True)
+@settings(max_examples=1, deadline=None, derandomize=True)  # (more: bench_stability)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_design_is_stable_under_input_jitter(reference, tmp_path_factory, seed):
     """Verdict, bases, 3D scaling and longest flat cell within the issue's tolerances.
