@@ -47,6 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pysolver.design import run_design, surfaces, unit_cell_options  # noqa: E402
+from pysolver.design.mesh_input import size_factor  # noqa: E402
 from pysolver.errors import InputError  # noqa: E402
 
 VERTEX_RTOL, SCALE_RTOL, CELL_ATOL_MM = 0.03, 0.01, 0.15
@@ -106,10 +107,12 @@ def perturb(V, F, condition: str, k: int):
     return V, F, None, np.arange(len(V))
 
 
-def perturbed_obj(src: Path, dst: Path, condition: str, k: int) -> Path:
+def perturbed_obj(src: Path, dst: Path, condition: str, k: int, size=None) -> Path:
     """A copy of an OBJ's surface (its ``v`` and ``f`` rows; texture and normal indices
     dropped, since the design stage reads only the positions of a target) under
-    :func:`perturb`."""
+    :func:`perturb`, first scaled to ``size`` (mm, largest bounding-box extent) when given:
+    ``--size`` measures an axis-aligned box, which a rigid motion changes, so the rotated
+    copy is written at the base's scale and designed without ``--size``."""
     V, F = [], []
     for ln in src.read_text(errors="replace").splitlines():
         w = ln.split()
@@ -121,7 +124,10 @@ def perturbed_obj(src: Path, dst: Path, condition: str, k: int) -> Path:
     F = [[i - 1 if i > 0 else n + i for i in f] for f in F]
     if len({len(f) for f in F}) != 1:
         raise SystemExit(f"{src}: faces of mixed sizes; give a triangle mesh")
-    V, F, _, _ = perturb(np.array(V), np.array(F), condition, k)
+    V = np.array(V)
+    if size is not None:
+        V = V * size_factor(V, size, src.name)
+    V, F, _, _ = perturb(V, np.array(F), condition, k)
     rows = ["v {:.17g} {:.17g} {:.17g}".format(*v) for v in V]
     rows += ["f " + " ".join(str(int(i) + 1) for i in f) for f in F]
     dst.write_text("\n".join(rows) + "\n")
@@ -140,7 +146,10 @@ def probe(source: str, size, min_bumper, condition: str, k: int, out: Path) -> d
                       UV=None if src.UV is None else src.UV[order])
     else:
         src = Path(source)
-        if condition in ("relabel", "rotate", "jitter"):
+        if condition == "rotate" and size is not None:
+            src, size = perturbed_obj(src, out.parent / f"{out.name}.obj", condition, k,
+                                      size), None
+        elif condition in ("relabel", "rotate", "jitter"):
             src = perturbed_obj(src, out.parent / f"{out.name}.obj", condition, k)
     t0 = time.perf_counter()
     try:
