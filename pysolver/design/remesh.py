@@ -278,11 +278,7 @@ class FlatDomain:
         self.loop = np.asarray(loop, dtype=np.int64)
         self.perimeter = float(np.linalg.norm(self.V[np.roll(loop, -1)] - self.V[loop],
                                               axis=1).sum())
-        # quadrature: 4 points per dense face (midpoint-subdivision centroids)
-        T = self.UV[self.F]
-        m = (T + np.roll(T, -1, axis=1)) / 2
-        q = [(T[:, k] + m[:, k] + m[:, (k + 2) % 3]) / 3 for k in range(3)]
-        self.quad = np.concatenate(q + [m.mean(axis=1)])
+        self.quad = quadrature_points(self.UV, self.F)
         self.quad_face = np.tile(np.arange(len(self.F)), 4)
 
     # -- maps ------------------------------------------------------------------------
@@ -468,6 +464,16 @@ class FlatDomain:
         return P, F
 
 
+def quadrature_points(UV, F) -> np.ndarray:
+    """(4 m, 2) float, mm: four points per triangle of ``UV`` (n, 2), ``F`` (m, 3), the
+    centroids of its midpoint subdivision (corner triangles 0, 1, 2, then the middle one),
+    each standing for a quarter of its triangle's area."""
+    T = np.asarray(UV, float)[np.asarray(F, dtype=np.int64)]
+    m = (T + np.roll(T, -1, axis=1)) / 2
+    q = [(T[:, k] + m[:, k] + m[:, (k + 2) % 3]) / 3 for k in range(3)]
+    return np.concatenate(q + [m.mean(axis=1)])
+
+
 def flat_frame(UV, F, orders=range(2, 7)) -> np.ndarray:
     """A flat layout moved into a frame given by its shape alone.
 
@@ -503,10 +509,7 @@ def flat_frame(UV, F, orders=range(2, 7)) -> np.ndarray:
     """
     UV = np.asarray(UV, float)
     F = np.asarray(F, dtype=np.int64)
-    T = UV[F]
-    m = (T + np.roll(T, -1, axis=1)) / 2  # (4 points per triangle, as the quadrature)
-    Q = np.concatenate([(T[:, k] + m[:, k] + m[:, (k + 2) % 3]) / 3 for k in range(3)]
-                       + [m.mean(axis=1)])
+    Q = quadrature_points(UV, F)
     A = np.tile(np.abs(signed_areas_2d(UV, F)), 4)
     c = A @ Q / A.sum()
     z = (Q - c) @ np.array([1.0, 1.0j])
