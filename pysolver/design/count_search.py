@@ -150,6 +150,12 @@ def full_size(c: dict, settings: StencilSearch = STENCIL) -> bool:
     return _laid_out(c) and abs(np.log(c["scale3d"])) <= settings.polish_tolerance
 
 
+def prints_at_full_size(c: dict, params: UnitCell, settings: StencilSearch = STENCIL) -> bool:
+    """Whether a polished stencil's figures ``c`` print at the size asked for: at full size
+    (:func:`full_size`) with its longest flat cell within the limit."""
+    return full_size(c, settings) and c["max_cell_length_mm"] <= params.max_cell_length
+
+
 def _pick(tried: dict, params: UnitCell, margin: float,
           settings: StencilSearch | None = None, centres: dict | None = None):
     """Best candidate.  Given ``centres`` (rim inset mm -> the count the secant found), the
@@ -803,8 +809,7 @@ def _polish_and_trade(search: CountSearch, best, info: dict, seeds, trade: bool)
         if not (key in search.flat and search.settings.opt_pin_weight > 0):
             break
         polished[key] = search.polish(key)
-        if _delivered({"at_size": full_size(polished[key][1], search.settings),
-                       **polished[key][1]}, search.params):
+        if prints_at_full_size(polished[key][1], search.params, search.settings):
             best = key
             break  # (else the next start of the count, polished too)
     V2, F2, before = search.meshes[best]
@@ -821,8 +826,8 @@ def _polish_and_trade(search: CountSearch, best, info: dict, seeds, trade: bool)
                 search.converge(best)
                 V2, chosen, info["polish"] = search.polish(best)
                 before = search.meshes[best][2]
-            if not (best in search.flat and full_size(chosen, search.settings)
-                    and chosen["max_cell_length_mm"] <= search.params.max_cell_length):
+            if not (best in search.flat
+                    and prints_at_full_size(chosen, search.params, search.settings)):
                 info["trade"].update(taken=False, why="the fewer cells do not print at "
                                      "full size")
                 best, V2, F2, before, chosen, info["polish"] = kept
@@ -903,4 +908,5 @@ def _record(info: dict, search: CountSearch, best, stencil, chosen: dict, rim, o
                           == best and r["rounds_kept"] == 0 and r["rounds"]])
 
 
-__all__ = ["stencil_figures", "at_size", "CountSearch", "remesh_surface"]
+__all__ = ["stencil_figures", "at_size", "full_size", "prints_at_full_size", "CountSearch",
+           "remesh_surface"]
