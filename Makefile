@@ -5,6 +5,7 @@
 #   make bench              benchmarks -> build/bench/*.json
 #   make tolerance shape=petal [SAMPLES=64]   Monte Carlo tolerance analysis (Dask)
 #   make sweep SPEC=file.toml                 build and tabulate design variants (Dask)
+#   make mechtest shape=mechtest              SI Note 6's virtual mechanical tests
 #   make scad-params        regenerate scad/params.scad from pysolver/params/
 #   make lock               re-resolve uv.lock (every package to its newest allowed release)
 #
@@ -69,7 +70,8 @@ DASK_OPTS  := $${MS_SCHEDULER:+--scheduler "$$MS_SCHEDULER"} \
               $${MS_WORKERS:+--workers "$$MS_WORKERS"}
 
 .PHONY: all build design sim report test bench clean material membrane-model specimens \
-        system-deps venv lint shapes studio studio-shots tolerance sweep scad-params lock
+        system-deps venv lint shapes studio studio-shots tolerance sweep scad-params lock \
+        mechtest
 
 all: build
 
@@ -112,6 +114,15 @@ studio-shots: $(STAMP)
 	@$(RUN) test -f "build/$$MS_NAME/report/index.html" || \
 	  $(PY) -m pysolver.cli build "$$MS_SOURCE" $(BUILD_OPTS) || test $$? = 3; \
 	$(PY) -m pysolver.studio.shots "build/$$MS_NAME" docs/img
+
+# SI Note 6's virtual mechanical tests on build/<shape> (built first when missing, programmed
+# like any build: docs/mechtest.md says why not with uniform 0.5 mm brackets); ARGS go to
+# 'mechtest'
+# (e.g. ARGS="--test stretch --test bend").
+mechtest: $(STAMP)
+	@$(RUN) test -f "build/$$MS_NAME/sim/frames.npz" || \
+	  $(PY) -m pysolver.cli build "$$MS_SOURCE" --no-render $(BUILD_OPTS) || test $$? = 3 || exit $$?; \
+	$(PY) -m pysolver.cli mechtest "build/$$MS_NAME" $$MS_ARGS
 
 material: $(STAMP)
 	@$(RUN) $(PY) -m pysolver.cli fit-material $${MS_DATA:+--data "$$MS_DATA"} \

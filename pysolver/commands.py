@@ -105,6 +105,19 @@ def compare_scan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def mechtest(args: argparse.Namespace) -> int:
+    """``morphshell mechtest DIR --test ...``: into ``DIR/mechtest`` (SI Note 6)."""
+    from .simulator import mechtest as run  # lazy: the stage loads when its subcommand runs
+
+    folder = Path(args.dir).absolute()
+    check_design_folder(folder)
+    tests = list(dict.fromkeys(args.test)) if args.test else None
+    with build_lock(folder):
+        run(folder, **({"tests": tests} if tests else {}), axis_deg=args.axis_deg,
+            material=args.material, progress=_progress(args))
+    return EXIT_OK
+
+
 def tolerance(args: argparse.Namespace) -> int:
     """``morphshell tolerance DIR``: reads the design folder, writes its own result folder."""
     from .build import check_build_options  # lazy: the stage loads when its subcommand runs
@@ -200,5 +213,6 @@ def shapes(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-__all__ = ["build_options", "build", "design", "stage", "compare_scan", "tolerance",
+__all__ = ["build_options", "build", "design", "stage", "compare_scan", "mechtest",
+           "tolerance",
            "fit_material", "fit_membrane", "specimens", "studio", "sweep", "shapes"]

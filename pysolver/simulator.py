@@ -11,9 +11,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from sim.model.collisions import completion_times, never_due, open_layers, read_completion_frames
+from sim.model.mechtest import dried_shell, run_test
 from sim.model.physics import parse_physics
 from sim.model.simulate import SimSettings, simulate_design, simulate_model
 from sim.report import base_base_collisions, check_morph, load_sim, make_report, print_verdict
+from sim.report.mechtest import write_mechtest
 from sim.report.fabrication import parts_made_from, stl_inventory
 from sim.report.plots import start_pyvista_probe
 from sim.report.scan import compare_scan
@@ -21,6 +23,7 @@ from sim.viewer import ASSETS as VIEWER_ASSETS
 from sim.viewer import STATIC_DIR as VIEWER_DIR
 from sim.viewer import viewer_data
 
+from .params import MECHTEST, TESTS
 from .progress import say
 
 
@@ -146,7 +149,42 @@ def build_parts(folder) -> dict:
     return {"made_from": made, "stls": stl_inventory(folder, made)}
 
 
-__all__ = ["check_sim_span", "simulate_and_check", "contact_if_needed", "viewer_assets",
+def mechtest(folder, tests=TESTS, *, axis_deg: float = 90.0, material=None,
+             progress: bool = True, consts=MECHTEST) -> dict:
+    """``morphshell mechtest``: SI Note 6's tests on the morphed, dried shell of a simulated
+    design folder (:mod:`sim.model.mechtest`), written to ``folder/mechtest/``
+    (:mod:`sim.report.mechtest`) once every test has run.
+
+    Parameters
+    ----------
+    folder : path-like -- a simulated design folder
+    tests : sequence of str -- of :data:`~pysolver.params.TESTS`
+    axis_deg : float, deg -- the load's in-plane direction from the flat x axis
+    material : path-like, optional -- bracket model file (default: the committed one)
+
+    Returns
+    -------
+    dict -- the summary written (``tests``, ``shell``)
+    """
+    folder = Path(folder)
+    label = folder.name
+    shell = dried_shell(folder, material, consts)
+    say("mechtest", label, f"dried shell: {shell.model.n_bases} bases, "
+        f"{int(shell.closed.sum())}/{len(shell.closed)} bracket springs at their bumpers",
+        progress)
+    curves = {t: run_test(shell, t, axis_deg=axis_deg, consts=consts, progress=progress,
+                          label=label) for t in tests}
+    record = write_mechtest(folder, curves, shell.info, consts)
+    for t in tests:
+        r = record["tests"][t]
+        say("mechtest", label, f"{t}: initial slope {r['initial_slope']:.4g} "
+            f"{r['initial_slope_unit']}, peak {r['peak_stress_MPa']:.4g} MPa at "
+            f"{r['peak_at']:.3g} {r['peak_at_unit']} ({r['limit']})", progress)
+    say("mechtest", label, f"-> {folder / 'mechtest'}", progress)
+    return record
+
+
+__all__ = ["check_sim_span", "mechtest", "simulate_and_check", "contact_if_needed", "viewer_assets",
            "morph_viewer", "build_parts", "simulate_design", "make_report", "print_verdict",
            "never_due", "open_layers", "completion_times", "read_completion_frames",
            "parse_physics", "start_pyvista_probe", "compare_scan"]

@@ -22,6 +22,7 @@ from pysolver.errors import InputError
 # and a 1e-7 jitter here (``bench/bench_stability.py``, ``docs/results.md``).
 GOLDEN = {
     "regular": (60, 7.0),
+    "mechtest": (120, 7.0),
     "dome": (110, 7.39),
     "saddle": (113, 7.11),
     "petal": (175, 9.22),

@@ -1,6 +1,6 @@
 """Built-in procedural target shapes (generated in code) and their default time landscapes.
 
-Names: ``regular``, ``petal``, ``saddle``, ``dome``, ``weave``, ``spiral``; an option
+Names: ``regular``, ``mechtest`` (SI Note 6's test specimen), ``petal``, ``saddle``, ``dome``, ``weave``, ``spiral``; an option
 may follow a colon: ``"weave:large"`` (551 bases, the benchmark size), or
 ``"dome:size=1.5"`` (linear size factor, more bases).  See :func:`builtin`.
 
@@ -18,6 +18,7 @@ import numpy as np
 import triangle as tr
 
 from ..errors import InputError
+from ..params import UNIT_CELL
 from ..params import tol as TOL
 from .time_landscape import interpolate_to_stencil
 
@@ -194,8 +195,69 @@ def regular(rows: int = 6, cols: int = 5, central_length: float = 7.0) -> Surfac
                    options=dict(rows=rows, cols=cols))
 
 
-__all__ = ["regular_grid", "Surface", "regular", "petal", "saddle", "dome", "weave", "spiral",
-           "BUILTIN",
+def mechtest(width: float = 60.0, length: float = 55.0, angle: float = 0.0,
+             central_length: float = 7.0) -> Surface:
+    """SI Note 6's mechanical-test specimen: a flat rectangle of identical unit cells.
+
+    The tester loads the specimen along its ``length`` (the flat y axis); ``angle`` turns
+    the hexagonal pattern in the plane.  At ``angle = 0`` (the default, as the SI: "one of
+    the three axes parallel to the edges of the hexagonal pattern") one of the three
+    unit-cell directions is the y axis (the stencil's triangles have an edge along x); at
+    ``angle = 30`` the load runs across the cells, along the triangles' edges.  The flat
+    layout is the triangle lattice of ``central_length`` (7 mm) cells, scaled so that the
+    *morphed* shell (every cell closed at its 0.3 mm bumpers, central length ``2 base_r +
+    2 min_bumper``) is about ``width`` x ``length`` mm; a base is kept when its morphed
+    disc lies inside that rectangle.  Build it with uniform 0.5 mm brackets
+    (``--no-program``, SI Note 6).
+
+    Parameters
+    ----------
+    width, length : float, mm
+        Morphed size across and along the load (SI Note 6: 60 x 55 mm).
+    angle : float, deg
+        Turn of the hexagonal pattern from the SI's orientation.
+    central_length : float, mm
+        Flat central length of every unit cell.
+    """
+    if not (width > 0 and length > 0 and central_length > 0):
+        raise InputError(f"mechtest: width, length and central_length must be positive "
+                         f"(got {width}, {length}, {central_length})",
+                         fix="e.g. 'mechtest:width=60,length=55'")
+    U = UNIT_CELL
+    shrink = (2 * U.base_r + 2 * U.min_bumper) / central_length  # morphed / flat lengths
+    a = central_length * np.sqrt(3)  # flat triangle edge: centroids of neighbours are l apart
+    W, L = width / shrink, length / shrink  # flat rectangle, mm
+    n = int(np.ceil(1.5 * max(W, L) / a)) + 2
+    j, i = np.mgrid[-n:n + 1, -n:n + 1]
+    P = np.c_[(a * (i + 0.5 * j)).ravel(), (a * np.sqrt(3) / 2 * j).ravel()]
+    th = np.deg2rad(angle)
+    P = P @ np.array([[np.cos(th), np.sin(th)], [-np.sin(th), np.cos(th)]])
+    k = 2 * n + 1
+    vid = lambda ii, jj: jj * k + ii  # noqa: E731
+    tri = []
+    for jj in range(k - 1):
+        for ii in range(k - 1):
+            tri += [(vid(ii, jj), vid(ii + 1, jj), vid(ii, jj + 1)),
+                    (vid(ii + 1, jj), vid(ii + 1, jj + 1), vid(ii, jj + 1))]
+    F = np.array(tri, dtype=np.int64)
+    C = P[F].mean(axis=1)
+    r = U.base_r / shrink  # the morphed disc's radius, in flat lengths
+    keep = (np.abs(C[:, 0]) <= W / 2 - r) & (np.abs(C[:, 1]) <= L / 2 - r)
+    F = F[keep]
+    used = np.unique(F)
+    remap = -np.ones(len(P), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    P, F = P[used] - P[used].mean(axis=0), remap[F]
+    V = np.c_[P, np.zeros(len(P))]
+    return Surface("mechtest", V, F, UV=P.copy(), time=lambda X: np.full(len(X), 60.0),
+                   central_length=central_length,
+                   description=f"SI Note 6 test specimen: {width:g} x {length:g} mm of "
+                               f"{central_length:g} mm cells, pattern turned {angle:g} deg",
+                   options=dict(width=width, length=length, angle=angle))
+
+
+__all__ = ["regular_grid", "Surface", "regular", "mechtest", "petal", "saddle", "dome", "weave",
+           "spiral", "BUILTIN",
            "BUILTIN_SHAPES", "builtin", "check_spec", "is_builtin"]
 
 
@@ -484,7 +546,8 @@ def spiral(size: float = 1.0, length: float = 280.0, width: float = 32.0,
 # --------------------------------------------------------------------------------------
 # registry
 
-BUILTIN = {"regular": regular, "petal": petal, "saddle": saddle, "dome": dome,
+BUILTIN = {"regular": regular, "mechtest": mechtest, "petal": petal, "saddle": saddle,
+           "dome": dome,
            "weave": weave, "spiral": spiral}
 
 

@@ -45,6 +45,7 @@ from .material import (
     ModelFileRules,
     ModelFits,
 )
+from .mechtest import MECHTEST, TESTS, MechTest
 from .programming import DEFAULT_REFINE, PROGRAMMING, Programming
 from .report import PICTURES, REPORT, SCAN_AGREEMENT, Pictures, ReportThresholds, ScanAgreement
 from .simulation import (
@@ -82,7 +83,7 @@ __all__ = [
     "ModelFileRules", "MODEL_FILES", "ModelFits", "MODEL_FITS", "PAPER_BRACKET_HEIGHT_MM",
     "DATA_DIR", "BRACKET_MODEL_FILE", "MEMBRANE_MODEL_FILE",
     "ReportThresholds", "REPORT", "Pictures", "PICTURES", "ScanAgreement", "SCAN_AGREEMENT",
-    "Fabrication", "FABRICATION",
+    "Fabrication", "FABRICATION", "MechTest", "MECHTEST", "TESTS",
     "Uncertainty", "UNCERTAINTY", "ToleranceRun", "TOLERANCE_RUN",
     "Limits", "LIMITS",
     "Tolerances", "tol",

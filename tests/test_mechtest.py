@@ -1,0 +1,201 @@
+"""Virtual mechanical tests (SI Note 6, issue #44): the specimen shape, the fixtures' energy,
+a closed-form stiffness, the output contract and bad input.
+
+Fast: one tiny specimen (a strip of a few bases) simulated for a few seconds of morph.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from pysolver.child import python_argv
+from pysolver.design.surfaces import builtin
+from pysolver.mechanics.energies import State
+from pysolver.params import MECHTEST, UNIT_CELL
+from sim.model.mechtest import Holds, initial_slope, readings
+
+# ------------------------------------------------------------------------------------------------
+# the specimen
+
+
+def test_mechtest_shape_is_the_si_specimen_size():
+    """Morphed (flat lengths x the bumper-contact shrink) ~ 60 x 55 mm, every base kept
+    inside, every triangle equilateral with 7 mm between neighbouring centroids."""
+    s = builtin("mechtest")
+    shrink = (2 * UNIT_CELL.base_r + 2 * UNIT_CELL.min_bumper) / 7.0
+    C = s.UV[s.F].mean(axis=1) * shrink
+    r = UNIT_CELL.base_r
+    ext = np.ptp(C, axis=0) + 2 * r
+    assert ext[0] <= 60.0 + 1e-9 and ext[1] <= 55.0 + 1e-9
+    assert ext[0] > 60.0 - 7.0 and ext[1] > 55.0 - 7.0  # within a cell of the rectangle
+    e = np.linalg.norm(s.UV[s.F[:, 1]] - s.UV[s.F[:, 0]], axis=1)
+    np.testing.assert_allclose(e, 7.0 * np.sqrt(3), rtol=1e-9)
+
+
+def test_mechtest_angle_turns_the_pattern():
+    """angle=0: a unit cell (normal of a triangle edge) along y; angle=30: along x."""
+    for angle, axis in ((0.0, 1), (30.0, 0)):
+        s = builtin(f"mechtest:angle={angle}")
+        d = s.UV[s.F[:, 1]] - s.UV[s.F[:, 0]]
+        normals = np.c_[-d[:, 1], d[:, 0]] / np.linalg.norm(d, axis=1)[:, None]
+        assert np.isclose(np.abs(normals[:, axis]).max(), 1.0, atol=1e-9)
+
+
+def test_mechtest_bad_size_is_refused():
+    from pysolver.errors import InputError
+
+    with pytest.raises(InputError, match="positive"):
+        builtin("mechtest:width=-1")
+
+
+# ------------------------------------------------------------------------------------------------
+# the fixture's energy
+
+
+def _random_state(m, rng):
+    from pysolver.mechanics.energies import rodrigues
+
+    return State(rng.normal(size=(m, 3)), rodrigues(0.3 * rng.normal(size=(m, 3))),
+                 np.zeros((0, 3)))
+
+
+def test_holds_gradient_matches_finite_differences():
+    """Two-sided and one-sided holds: the reduced gradient is the derivative of the energy
+    (translations; rotations as small turns R <- exp([w]x) R), to 1e-5 relative."""
+    from pysolver.mechanics.energies import rodrigues
+
+    rng = np.random.default_rng(4)
+    m = 3
+    s = _random_state(m, rng)
+    body = np.array([0, 0, 1, 2, 2])
+    local = rng.normal(size=(5, 3))
+    target = rng.normal(size=(5, 3))
+    K = np.stack([np.eye(3) * 7.0] * 3 + [np.outer([0, 0, 1], [0, 0, 1]) * 5.0] * 2)
+    normal = np.zeros((5, 3))
+    normal[3:] = [0, 0, 1]
+    target[3:, 2] = 10.0  # both one-sided holds pressed: active
+    h = Holds(body, local, target, K, normal)
+    E, g, H = h.evaluate(s, None, None, True)
+    eps = 1e-6
+    for b in range(m):
+        for d in range(6):
+            sp, sm = s.copy(), s.copy()
+            if d < 3:
+                sp.c[b, d] += eps
+                sm.c[b, d] -= eps
+            else:
+                w = np.zeros(3)
+                w[d - 3] = eps
+                sp.R[b] = rodrigues(w[None])[0] @ s.R[b]
+                sm.R[b] = rodrigues(-w[None])[0] @ s.R[b]
+            fd = (h.energy(sp, None) - h.energy(sm, None)) / (2 * eps)
+            assert fd == pytest.approx(g[b, d], rel=1e-5, abs=1e-6)
+    assert H.shape == (m, 6, 6)
+    np.testing.assert_allclose(H, np.transpose(H, (0, 2, 1)), atol=1e-9)
+
+
+def test_one_sided_hold_lets_go():
+    """A support pushes only: pulled away from it, the point feels nothing."""
+    s = State(np.zeros((1, 3)), np.eye(3)[None], np.zeros((0, 3)))
+    h = Holds([0], [[0, 0, 0]], [[0, 0, -1.0]], [np.diag([0, 0, 100.0])], [[0, 0, 1.0]])
+    assert h.evaluate(s, None, None, True)[0] == 0.0
+    h.target[:] = [0, 0, 1.0]
+    E, g, _ = h.evaluate(s, None, None, True)
+    assert E == pytest.approx(50.0) and g[0, 2] == pytest.approx(-100.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# readings
+
+
+def _curve(x, y, test="stretch", brackets=None, energy=None):
+    n = len(x)
+    return {"x": np.asarray(x, float), "y": np.asarray(y, float), "test": test,
+            "max_bracket_N": np.zeros(n) if brackets is None else np.asarray(brackets),
+            "energy": energy or [{"bumper contact": 0.0, "brackets": 0.0,
+                                  "membrane": float(i)} for i in range(n)]}
+
+
+def test_initial_slope_of_a_line_and_of_a_knee():
+    x = np.linspace(0, 10, 51)
+    assert initial_slope(x, 0.03 * x, "stretch") == pytest.approx(0.03, rel=1e-12)
+    y = np.where(x < 3, 0.05 * x, 0.15)  # flat after 3 %: the 2 % window sees the line only
+    assert initial_slope(x, y, "stretch") == pytest.approx(0.05, rel=1e-12)
+
+
+def test_peak_stops_at_the_first_bracket_past_its_tested_load():
+    x = np.arange(6.0)
+    y = np.array([0, 1, 2, 3, 4, 5.0])
+    br = np.array([0.1, 1, 2, 2.6, 3, 4])  # passes 2.5 N at step 3
+    r = readings(_curve(x, y, brackets=br))
+    assert r["limit"] == "bracket yield" and r["peak_at"] == 3.0 and r["yield_step"] == 3
+    r = readings(_curve(x, y))
+    assert r["limit"] == "membrane" and r["peak_at"] == 5.0 and r["yield_step"] is None
+
+
+# ------------------------------------------------------------------------------------------------
+# a tiny specimen, end to end (closed form and contract)
+
+
+@pytest.fixture(scope="module")
+def strip(tmp_path_factory):
+    """A strip of bases, two rows: designed and simulated briefly (a few seconds)."""
+    out = tmp_path_factory.mktemp("mt") / "strip"
+    r = subprocess.run(python_argv("pysolver.cli") + ["build", "regular:rows=2,cols=2",
+                                   "--out", str(out), "--no-render", "--refine", "0",
+                                   "--t-end", "5", "--quiet"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode in (0, 3), r.stderr
+    return out
+
+
+def test_small_strain_stretch_matches_springs_in_series_and_parallel(strip):
+    """Before any bumper moves, the stretch stiffness is the fixture's penalty springs in
+    series with the shell; with the cells open (this morph is 5 s short), a small pull of
+    the clamps is carried by the shell's brackets and membrane: the force is linear in the
+    displacement (two small steps agree to 2 %) and positive."""
+    from sim.model.mechtest import dried_shell, run_test
+
+    consts = MECHTEST.__class__(**{**MECHTEST.__dict__, "stretch_length": 4.0,
+                                   "stretch_max": 0.002, "steps": 2})
+    sh = dried_shell(strip, consts=consts)
+    c = run_test(sh, "stretch", consts=consts, progress=False)
+    F, d = np.asarray(c["force_N"]), np.asarray(c["displacement_mm"])
+    assert abs(F[0]) < 1e-6
+    k1, k2 = F[1] / d[1], (F[2] - F[1]) / (d[2] - d[1])
+    assert k1 > 0 and k2 == pytest.approx(k1, rel=0.02)
+    assert all(c["converged"])
+
+
+def test_cli_contract(strip):
+    """``morphshell mechtest DIR --test stretch --test shear`` writes the named CSVs, the
+    PNG and the summary with the four readings; a bad test name exits 2."""
+    r = subprocess.run(python_argv("pysolver.cli") + ["mechtest", str(strip), "--test",
+                                   "shear", "--quiet", "--axis-deg", "0"],
+                       capture_output=True, text=True, timeout=300)
+    if r.returncode != 0 and "too short" in r.stderr:
+        assert r.returncode == 2  # a clear refusal is fine for a tiny strip
+        return
+    assert r.returncode == 0, r.stderr
+    with open(strip / "mechtest" / "shear.csv") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["displacement_mm", "shear_stress_MPa"]
+    assert len(rows) == MECHTEST.steps + 2
+    s = json.loads((strip / "mechtest" / "summary.json").read_text())["tests"]["shear"]
+    assert {"initial_slope", "peak_stress_MPa", "peak_at", "limit"} <= set(s)
+    assert (strip / "mechtest" / "mechtest.png").stat().st_size > 1000
+
+
+def test_cli_refuses_bad_input(tmp_path):
+    r = subprocess.run(python_argv("pysolver.cli") + ["mechtest", str(tmp_path), "--test",
+                                   "twist"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "invalid choice" in r.stderr
+    r = subprocess.run(python_argv("pysolver.cli") + ["mechtest", str(tmp_path)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "error" in r.stderr
+    assert not (tmp_path / "mechtest").exists()
