@@ -488,5 +488,90 @@ def initial_slope(x, y, test: str, consts: MechTest = MECHTEST) -> float:
     return float(np.polyfit(x[sel], y[sel], 1)[0])
 
 
+# ------------------------------------------------------------------------------------------------
+# what the shell bears (the report's section)
+
+
+def _up(shell: DryShell) -> np.ndarray:
+    """The shell's up: the mean of its bases' top normals (+z of a flat shell)."""
+    n = shell.state.R[:, :, 2].mean(axis=0)
+    norm = np.linalg.norm(n)
+    return n / norm if norm > 1e-6 else np.array([0.0, 0.0, 1.0])
+
+
+def _stand(shell: DryShell, up: np.ndarray):
+    """The shell standing on its rim: the rim's lowest bases (bases with fewer than three
+    cells, within a base radius of the lowest of them), the base under a point load (the
+    highest; of several, the nearest the centre), and for each the local offset of its face
+    towards the table or the load."""
+    md = shell.model
+    c, R = shell.state.c, shell.state.R
+    r, h = md.unit.base_r, md.unit.layer_h
+    height = c @ up
+    rim = np.flatnonzero(np.bincount(md.cell_bases.ravel(), minlength=md.n_bases) < 3)
+    low = rim[height[rim] <= height[rim].min() + r]
+    inner = np.setdiff1d(np.arange(md.n_bases), low)
+    top = inner[height[inner] >= height[inner].max() - r]
+    flat = c - np.outer(height, up)
+    apex = int(top[np.argmin(np.linalg.norm(flat[top] - flat.mean(axis=0), axis=1))])
+    side = np.sign(np.einsum("mi,i->m", R[:, :, 2], up))
+    side[side == 0] = 1.0
+    return low, apex, np.c_[np.zeros((len(c), 2)), h * side]
+
+
+def bearing(shell: DryShell, consts: MechTest = MECHTEST, steps: int = 4,
+            weight_N: float = 0.0) -> dict:
+    """What the dried shell bears, standing on its lowest bases: a point load on its apex
+    (or centre) pushed down in ``steps`` steps of ``travel``; its stiffness (N/mm, the
+    first step's), the load at which a closed cell first opens and at which a bracket first
+    passes ``consts.bracket_yield_N`` (None when not within the travel); and, given the
+    shell's weight, the apex's sag under it as if it were at the apex (``weight_N`` over the
+    stiffness: an upper bound of the sag under the weight spread over the shell).
+
+    Returns
+    -------
+    dict -- ``stiffness_N_per_mm``, ``cell_opens_N``, ``bracket_limit_N``, ``travel_mm``,
+    ``max_force_N``, ``apex_base``, ``support_bases``, ``weight_N``, ``weight_sag_mm``
+    """
+    up = _up(shell)
+    low, apex, face = _stand(shell, up)
+    k = consts.clamp_stiffness
+    uu = np.outer(up, up)
+    c, R = shell.state.c, shell.state.R
+    body = np.r_[low, apex, apex]
+    loc = np.r_[-face[low], face[[apex]], np.zeros((1, 3))]
+    P = c[body] + np.einsum("hij,hj->hi", R[body], loc)
+    K = np.r_[np.broadcast_to(k * uu, (len(low) + 1, 3, 3)),
+              (consts.stabiliser_N_mm * (np.eye(3) - uu))[None]]
+    normal = np.r_[np.tile(up, (len(low), 1)), -up[None], np.zeros((1, 3))]
+    holds = Holds(body, loc, P, K, normal)
+    moving = np.r_[np.zeros(len(low), bool), True, False]
+    size = float(np.linalg.norm(np.ptp(c, axis=0)))
+    travel = max(0.02 * size, 0.1)
+    closed0, state = shell.closed.copy(), shell.state.copy()
+    target0, force, opens, limit = holds.target.copy(), [0.0], None, None
+    shell.sim.energy.external = holds
+    try:
+        for i in range(1, steps + 1):
+            holds.target = target0 - np.where(moving[:, None], travel * i / steps * up, 0.0)
+            state, _ = solve(shell, state, consts)
+            f = float((holds.gradients(state)[moving] @ up).sum())
+            force.append(f)
+            if opens is None and np.any(closed0 & ~shell.closed):
+                opens = f
+            brk = np.abs(shell.bracket_forces(shell.lengths(state))).max()
+            if limit is None and brk > max(consts.bracket_yield_N, 0.0):
+                limit = f
+    finally:
+        shell.sim.energy.external = None
+        shell.closed = closed0
+        shell.set_springs(closed0)
+    stiff = force[1] / (travel / steps)
+    return {"stiffness_N_per_mm": stiff, "cell_opens_N": opens, "bracket_limit_N": limit,
+            "travel_mm": travel, "max_force_N": max(force), "apex_base": apex,
+            "support_bases": low.tolist(), "weight_N": weight_N,
+            "weight_sag_mm": weight_N / stiff if stiff > 0 else None}
+
+
 __all__ = ["Holds", "DryShell", "dried_shell", "solve", "Setup", "setup", "specimen",
-           "run_test", "readings", "initial_slope"]
+           "run_test", "readings", "initial_slope", "bearing"]
