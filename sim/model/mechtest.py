@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from pysolver.errors import InputError
 from pysolver.material.bumper import dry_bumper_modulus
@@ -36,7 +38,7 @@ from pysolver.mechanics.solver import StaticProblem, newton
 from pysolver.params import MECHTEST, TESTS, MechTest, PhysicsOptions
 from pysolver.progress import Steps
 
-from .physics import bending_stiffness, bumper_stiffness
+from .physics import ExternalTerms, bending_stiffness, bumper_stiffness
 from .simulate import (
     FRAMES_NAME,
     SimSettings,
@@ -46,6 +48,12 @@ from .simulate import (
     membrane_scale,
     spring_forces,
 )
+
+
+def spring_stiffness(coef, x) -> np.ndarray:
+    """dF/dx of force coefficients ``coef (n, 4)`` at compressions ``x`` (n,), N/mm."""
+    c = np.asarray(coef, float)
+    return c[:, 0] + x * (2 * c[:, 1] + x * (3 * c[:, 2] + x * 4 * c[:, 3]))
 
 CONTACT_SLACK_MM = 1e-3
 """Hysteresis of the bumpers' active set, mm: a spring opens once its bumpers would pull by
@@ -202,7 +210,8 @@ def _frames(folder: Path) -> dict:
         return {k: np.array(z[k]) for k in keys}
 
 
-def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST) -> DryShell:
+def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST, *,
+                settle: bool = True) -> DryShell:
     """The morphed shell of a design folder, dried and at rest (no fixture, no weight).
 
     Parameters
@@ -210,6 +219,10 @@ def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST) -> DrySh
     design_dir : path-like -- a simulated design folder (``sim/frames.npz``)
     material : BracketModel or path-like, optional -- default: the committed model
     consts : MechTest
+    settle : bool
+        Solve the dry equilibrium (the last frame is one already but for the membrane's
+        temperature and relaxation, when those physics are on); False: the last frame as
+        it is (cheap, for the report).
 
     Returns
     -------
@@ -241,7 +254,8 @@ def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST) -> DrySh
                      2 * model.unit.layer_h + model.consts.membrane_h / model.consts.tau**2,
                      {"t_end_s": t_end, "physics": ph.switched_on(),
                       "bracket_force_end_N": [float(f_end.min()), float(f_end.max())]})
-    shell.state = solve(shell, shell.state, consts)[0]
+    if settle:
+        shell.state = solve(shell, shell.state, consts)[0]
     return shell
 
 
@@ -519,59 +533,83 @@ def _stand(shell: DryShell, up: np.ndarray):
     return low, apex, np.c_[np.zeros((len(c), 2)), h * side]
 
 
-def bearing(shell: DryShell, consts: MechTest = MECHTEST, steps: int = 4,
-            weight_N: float = 0.0) -> dict:
-    """What the dried shell bears, standing on its lowest bases: a point load on its apex
-    (or centre) pushed down in ``steps`` steps of ``travel``; its stiffness (N/mm, the
-    first step's), the load at which a closed cell first opens and at which a bracket first
-    passes ``consts.bracket_yield_N`` (None when not within the travel); and, given the
-    shell's weight, the apex's sag under it as if it were at the apex (``weight_N`` over the
-    stiffness: an upper bound of the sag under the weight spread over the shell).
+def bearing(shell: DryShell, consts: MechTest = MECHTEST) -> dict:
+    """What the dried shell bears, standing on the lowest bases of its rim, to first order
+    (one factorisation: cheap enough for every report).
+
+    A point load on the apex (the highest inner base; of several, the nearest the centre)
+    and the shell's own weight (``sim.model.physics.ExternalTerms``, dry) are applied to the
+    dry shell's stiffness at its resting state, the supports holding the rim along the
+    vertical.  From the displacement per newton: the stiffness (N/mm) and the load at which
+    the first closed cell's bumpers come apart, or the first bracket passes
+    ``consts.bracket_yield_N`` (linear extrapolations).
 
     Returns
     -------
-    dict -- ``stiffness_N_per_mm``, ``cell_opens_N``, ``bracket_limit_N``, ``travel_mm``,
-    ``max_force_N``, ``apex_base``, ``support_bases``, ``weight_N``, ``weight_sag_mm``
+    dict -- ``point_stiffness_N_per_mm``, ``cell_opens_N``, ``bracket_limit_N``,
+    ``weight_N``, ``weight_sag_mm`` (the largest sag under the weight),
+    ``weight_stiffness_N_per_mm`` (weight over that sag), ``apex_base``, ``n_supports``
     """
+    md, en, state = shell.model, shell.sim.energy, shell.state
     up = _up(shell)
     low, apex, face = _stand(shell, up)
-    k = consts.clamp_stiffness
-    uu = np.outer(up, up)
-    c, R = shell.state.c, shell.state.R
-    body = np.r_[low, apex, apex]
-    loc = np.r_[-face[low], face[[apex]], np.zeros((1, 3))]
-    P = c[body] + np.einsum("hij,hj->hi", R[body], loc)
-    K = np.r_[np.broadcast_to(k * uu, (len(low) + 1, 3, 3)),
-              (consts.stabiliser_N_mm * (np.eye(3) - uu))[None]]
-    normal = np.r_[np.tile(up, (len(low), 1)), -up[None], np.zeros((1, 3))]
-    holds = Holds(body, loc, P, K, normal)
-    moving = np.r_[np.zeros(len(low), bool), True, False]
-    size = float(np.linalg.norm(np.ptp(c, axis=0)))
-    travel = max(0.02 * size, 0.1)
-    closed0, state = shell.closed.copy(), shell.state.copy()
-    target0, force, opens, limit = holds.target.copy(), [0.0], None, None
-    shell.sim.energy.external = holds
+    uu, soft = np.outer(up, up), consts.stabiliser_N_mm
+    body = np.r_[low, low]
+    loc = np.r_[-face[low], np.zeros((len(low), 3))]
+    P = state.c[body] + np.einsum("hij,hj->hi", state.R[body], loc)
+    K = np.r_[np.broadcast_to(consts.clamp_stiffness * uu, (len(low), 3, 3)),
+              np.broadcast_to(soft * (np.eye(3) - uu), (len(low), 3, 3))]
+    shell.set_springs(shell.closed)
+    en.external = Holds(body, loc, P, K)
     try:
-        for i in range(1, steps + 1):
-            holds.target = target0 - np.where(moving[:, None], travel * i / steps * up, 0.0)
-            state, _ = solve(shell, state, consts)
-            f = float((holds.gradients(state)[moving] @ up).sum())
-            force.append(f)
-            if opens is None and np.any(closed0 & ~shell.closed):
-                opens = f
-            brk = np.abs(shell.bracket_forces(shell.lengths(state))).max()
-            if limit is None and brk > max(consts.bracket_yield_N, 0.0):
-                limit = f
+        _, g0, H = en.evaluate(state, hessian=True)
     finally:
-        shell.sim.energy.external = None
-        shell.closed = closed0
-        shell.set_springs(closed0)
-    stiff = force[1] / (travel / steps)
-    return {"stiffness_N_per_mm": stiff, "cell_opens_N": opens, "bracket_limit_N": limit,
-            "travel_mm": travel, "max_force_N": max(force), "apex_base": apex,
-            "support_bases": low.tolist(), "weight_N": weight_N,
-            "weight_sag_mm": weight_N / stiff if stiff > 0 else None}
+        en.external = None
+    A = (H + H.T - sp.diags(H.diagonal())).tocsc()
+    f = np.zeros((2, md.n_dof))
+    v = state.R[apex] @ face[apex]
+    f[0, 6 * apex: 6 * apex + 3] = -up
+    f[0, 6 * apex + 3: 6 * apex + 6] = np.cross(v, -up)
+    weight = ExternalTerms(md, PhysicsOptions(), wet=False, plane=False)
+    gw = np.zeros(md.n_dof)
+    X, _ = en.positions(state)
+    Gp = np.zeros((md.n_points, 3))
+    gw[: 6 * md.n_bases] = weight.evaluate(state, X, Gp, False)[1].ravel()
+    gw[6 * md.n_bases:] = Gp[md.free_points].ravel()
+    f[1] = -gw
+    u = spla.splu(A).solve(f.T).T  # mm (and rad) per N, per the weight
+    sag_point = -float(u[0, 6 * apex: 6 * apex + 3] @ up)
+    sag_w = state.moved(u[1])
+    drop = (state.c - sag_w.c) @ up
+    W = weight.weight_total()
+    opens, limit = _first_events(shell, state, u[0], consts)
+    return {"point_stiffness_N_per_mm": 1.0 / sag_point if sag_point > 0 else None,
+            "cell_opens_N": opens, "bracket_limit_N": limit, "weight_N": W,
+            "weight_sag_mm": float(drop.max()),
+            "weight_stiffness_N_per_mm": W / float(drop.max()) if drop.max() > 0 else None,
+            "apex_base": apex, "n_supports": len(low)}
 
+
+def _first_events(shell: DryShell, state: State, du: np.ndarray, consts: MechTest):
+    """Loads (N) at which, extrapolating the displacement ``du`` per newton, a closed
+    spring's bumpers first come apart and an open bracket first passes its tested load."""
+    eps = 1e-3
+    L0 = shell.lengths(state)
+    dL = (shell.lengths(state.moved(du, eps)) - L0) / eps  # mm per N
+    Lc, kc = shell.model.spring_collision, shell.contact_k
+    fb = shell.bracket_forces(L0)
+    kb = spring_stiffness(shell.coef_open, shell.rest_open - L0)
+    bump = kc * (Lc - L0) - fb  # the bumpers' own force, N (compression +)
+    dbump = (-kc + kb) * dL
+    c = shell.closed & (dbump < 0)
+    opens = float((bump[c] / -dbump[c]).min()) if c.any() else None
+    dfb = -kb * dL
+    o = ~shell.closed & (np.abs(dfb) > 0)
+    room = consts.bracket_yield_N - np.abs(fb[o])
+    grow = np.abs(fb[o] + dfb[o]) - np.abs(fb[o])  # growth of |F| per N
+    ok = grow > 0
+    limit = float((np.maximum(room[ok], 0.0) / grow[ok]).min()) if ok.any() else None
+    return (None if opens is None else max(opens, 0.0)), limit
 
 __all__ = ["Holds", "DryShell", "dried_shell", "solve", "Setup", "setup", "specimen",
            "run_test", "readings", "initial_slope", "bearing"]

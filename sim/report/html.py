@@ -20,14 +20,14 @@ from string import Template
 
 import numpy as np
 
-from pysolver.params import UNIT_CELL
+from pysolver.params import MECHTEST, UNIT_CELL
 
 from ..viewer import asset_text, viewer_json
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 """The template files of the page."""
 
-SECTIONS = ("verdict", "viewer", "shape", "timing", "collisions", "solver", "renders",
+SECTIONS = ("verdict", "viewer", "shape", "timing", "collisions", "solver", "bears", "renders",
             "layout", "landscape", "fabrication", "stls", "provenance")
 """Section ids of ``index.html``, in order."""
 
@@ -116,7 +116,7 @@ def page(r: dict, folder, name: str, viewer=None) -> str:
                 _shape(m, r["thresholds"], r["files"], folder),
                 _timing(m, r["thresholds"], r["files"], folder),
                 _collisions(m, r["thresholds"], r["files"], folder),
-                _solver(m, r["thresholds"], r["files"], folder),
+                _solver(m, r["thresholds"], r["files"], folder), _bears(r.get("bears")),
                 _renders(r, folder), _flat_pictures(r["files"], folder),
                 _fabrication(r, folder), _stls(r), _provenance(r)]
     links = join((fill("section_link", id=s) for s in SECTIONS), ", ")
@@ -238,6 +238,37 @@ def _solver(m: dict, th: dict, fl: dict, folder) -> Markup:
     pics = figures(figure(folder, fl["solver"], "Newton iterations, residual and wall time per "
                                                 "step"))
     return fill("section_solver", body=join([table(rows), pics]))
+
+
+def _bears(b) -> Markup:
+    """The "What it bears" section (:func:`sim.model.mechtest.bearing`, with the uncertainty
+    of :data:`pysolver.params.MECHTEST`'s comparison with the printed shell)."""
+    if not b or "error" in b:
+        why = (b or {}).get("error", "not computed")
+        return fill("section_bears", supports="-", apex="-", table=table([("not computed",
+                                                                             why)]),
+                    note=Markup(""))
+
+    def force(x):
+        return "not within the model's range" if x is None else f"{x:.3g} N"
+
+    rows = [("point load: stiffness", f"{_f(b['point_stiffness_N_per_mm'])} N/mm"),
+            ("point load at which a cell opens", force(b["cell_opens_N"])),
+            ("point load at which a bracket leaves its tested load "
+             f"({MECHTEST.bracket_yield_N:g} N)", force(b["bracket_limit_N"])),
+            ("own weight", f"{_f(b['weight_N'])} N: largest sag {_f(b['weight_sag_mm'])} mm "
+                           f"({_f(b['weight_stiffness_N_per_mm'])} N/mm)")]
+    lo, hi = MECHTEST.slope_error
+    plo, phi = MECHTEST.peak_error
+    note = fill("note", text=f"Uncertainty: on SI Note 6's printed specimen the same model "
+                             f"predicted the initial stiffness {100 * lo:+.0f} % to "
+                             f"{100 * hi:+.0f} % off the measured, and the peak stresses "
+                             f"{100 * plo:+.0f} % to {100 * phi:+.0f} % (stretching and "
+                             "bending, docs/results.md): read the stiffnesses as good to a "
+                             "factor of about two, the loads to about 20 %; first-order "
+                             "figures (small loads), on one flat specimen's evidence.")
+    return fill("section_bears", supports=b["n_supports"], apex=b["apex_base"],
+                table=table(rows), note=note)
 
 
 def _renders(r: dict, folder) -> Markup:

@@ -31,12 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from pysolver.atomic import atomic_dir
-from pysolver.errors import InputError
+from pysolver.errors import InputError, MorphshellError
 from pysolver.params import PHYSICS_DEFAULT, PICTURES, SCAN_AGREEMENT, ReportThresholds
 from pysolver.progress import Steps
 from pysolver.records import finite, json_text
 from pysolver.tables import read_table, tables_sha256
 
+from ..model.mechtest import bearing, dried_shell
 from ..viewer import frame_alignments, viewer_data
 from . import fabrication as fab
 from . import plots as rp
@@ -97,6 +98,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
                         where=str(folder / "sim/frames.npz"))
     timings["check"] = round(steps.step("checks and verdict"), 3)
     notes = _notes(check.metrics, sd.frames)
+    bears = what_it_bears(folder)
     with atomic_dir(out_dir) as tmp:
         files = _plots(tmp, sd, check, th)
         timings["plots"] = round(steps.step("plots"), 3)
@@ -116,7 +118,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
             "files": files, "timings_s": timings,
             "render_frames": {"frames": files.get("render_frames", []),
                               "times_s": [float(t[f]) for f in files.get("render_frames", [])]},
-            "provenance": extra["provenance"], "stls": extra["stls"],
+            "provenance": extra["provenance"], "stls": extra["stls"], "bears": bears,
             "fabrication": extra["fabrication"]})
         (tmp / "report.json").write_text(json_text(result))
         (tmp / "index.html").write_text(page(result, tmp, folder.resolve().name,
@@ -125,6 +127,16 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     timings["total"] = round(time.perf_counter() - t_start, 3)
     result["timings_s"] = timings
     return result
+
+
+def what_it_bears(folder) -> dict:
+    """The report's "What it bears" figures (:func:`sim.model.mechtest.bearing` on the last
+    frame, dried; the committed bracket model), or ``{"error": why}`` when the shell cannot
+    be loaded that way (the section then says so; the report goes on)."""
+    try:
+        return bearing(dried_shell(folder, settle=False))
+    except (MorphshellError, ValueError, RuntimeError, np.linalg.LinAlgError) as e:
+        return {"error": f"{type(e).__name__}: {e}"}
 
 
 def _checked_options(renderer, image_px, gif_frames) -> int:
