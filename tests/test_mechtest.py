@@ -199,3 +199,31 @@ def test_cli_refuses_bad_input(tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "error" in r.stderr
     assert not (tmp_path / "mechtest").exists()
+
+
+def test_bearing_stiffness_matches_a_small_push(strip):
+    """The report's first-order point-load stiffness equals a Newton solve of the dried
+    shell pushed 1 micron down at the apex, standing on the same supports (within 5 %)."""
+    from sim.model.mechtest import _stand, _up, bearing, dried_shell, solve
+
+    sh = dried_shell(strip)
+    b = bearing(sh)
+    up = _up(sh)
+    low, apex, face = _stand(sh, up)
+    k, uu, s = MECHTEST.clamp_stiffness, np.outer(up, up), sh.state
+    body = np.r_[low, low, apex]
+    loc = np.r_[-face[low], np.zeros((len(low), 3)), face[[apex]]]
+    K = np.r_[np.broadcast_to(k * uu, (len(low), 3, 3)),
+              np.broadcast_to(MECHTEST.stabiliser_N_mm * (np.eye(3) - uu), (len(low), 3, 3)),
+              (k * uu)[None]]
+    P = s.c[body] + np.einsum("hij,hj->hi", s.R[body], loc)
+    h = Holds(body, loc, P, K)
+    sh.sim.energy.external = h
+    push = 1e-3
+    h.target[-1] -= push * up
+    state, ok = solve(sh, s)
+    force = float(h.gradients(state)[-1] @ up)
+    sh.sim.energy.external = None
+    deflection = push - force / k  # the nose's own penalty spring in series
+    assert ok and b["point_stiffness_N_per_mm"] == pytest.approx(force / deflection, rel=0.05)
+    assert b["weight_N"] > 0 and b["weight_sag_mm"] > 0
