@@ -1,6 +1,7 @@
 """Predicted vs measured: SI Note 6's stretching and bending of a printed shell (issue #44).
 
     .venv/bin/python bench/bench_mechtest.py [--shell-tests ../shared/shell-tests]
+    .venv/bin/python bench/bench_mechtest.py --physics none default bumper-compliance ...
 
 Builds the ``mechtest`` specimen (``build/bench-mechtest-a<angle>``, programmed like any
 build, the default physics) for the pattern turned 0 deg (the load along a unit-cell
@@ -9,7 +10,9 @@ across the cells), runs ``morphshell mechtest`` (stretch, bend) on each, and com
 initial slope and the peak stress with the measured curves, read from the shared folder
 (never committed).  No constant is fitted to the measured curves: every constant's source is
 listed in ``docs/mechtest.md``.  Writes ``docs/img/mechtest_vs_measured.png`` and prints the
-table of ``docs/results.md``.
+table of ``docs/results.md``.  With ``--physics``, the 0 deg specimen's design is simulated
+again with each set of physics options (a copy per set, ``build/bench-mechtest-physics/``)
+and tested: the table of ``docs/physics.md`` (issue #44 item 4).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -55,12 +59,51 @@ def predicted(angle: float) -> Path:
     return out / "mechtest"
 
 
+def with_physics(spec: str) -> Path:
+    """The 0 deg specimen simulated with ``--physics spec`` and tested; its mechtest folder."""
+    src = predicted(ANGLES[0]).parent
+    out = ROOT / "build" / "bench-mechtest-physics" / spec.replace(",", "+")
+    if not (out / "mechtest" / "summary.json").is_file():
+        if out.exists():
+            shutil.rmtree(out)
+        shutil.copytree(src, out, ignore=shutil.ignore_patterns("mechtest", "report"))
+        run = python_argv("pysolver.cli")
+        subprocess.run(run + ["simulate", str(out), "--physics", spec, "--quiet"], cwd=ROOT,
+                       check=True)
+        subprocess.run(run + ["mechtest", str(out), "--quiet"]
+                       + [a for t in TESTS for a in ("--test", t)], cwd=ROOT, check=True)
+    return out / "mechtest"
+
+
+def physics_table(specs, meas_dir: Path) -> None:
+    """Print each physics set's errors against the measured slopes and peaks."""
+    meas = {}
+    for test in TESTS:
+        xm, ym = read_curve(meas_dir / f"shell_{test}.csv")
+        meas[test] = (initial_slope(xm, ym, test), float(ym.max()))
+    print("| `--physics` | stretch slope | stretch peak | bend slope | bend peak | worst |")
+    print("|---|---|---|---|---|---|")
+    for spec in specs:
+        got = json.loads((with_physics(spec) / "summary.json").read_text())["tests"]
+        errs = []
+        for test in TESTS:
+            errs += [got[test]["initial_slope"] / meas[test][0] - 1,
+                     got[test]["peak_stress_MPa"] / meas[test][1] - 1]
+        cells = " | ".join(f"{100 * e:+.0f} %" for e in errs)
+        print(f"| {spec} | {cells} | {100 * max(abs(e) for e in errs):.0f} % |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--shell-tests", default=str(ROOT.parent / "shared" / "shell-tests"))
     ap.add_argument("--plot", default=str(ROOT / "docs" / "img" / "mechtest_vs_measured.png"))
+    ap.add_argument("--physics", nargs="+", default=None, metavar="SPEC",
+                    help="also: the 0 deg specimen simulated with each --physics SPEC")
     a = ap.parse_args(argv)
     meas_dir = Path(a.shell_tests)
+    if a.physics:
+        physics_table(a.physics, meas_dir)
+        return 0
     import matplotlib  # noqa: PLC0415 (plotting only here)
 
     matplotlib.use("Agg")

@@ -37,6 +37,7 @@ from pysolver.mechanics.model import load_model
 from pysolver.mechanics.solver import StaticProblem, newton
 from pysolver.params import MECHTEST, TESTS, MechTest, PhysicsOptions
 from pysolver.progress import Steps
+from pysolver.tables import tables_sha256
 
 from .physics import ExternalTerms, bending_stiffness, bumper_stiffness
 from .simulate import (
@@ -207,7 +208,12 @@ def _frames(folder: Path) -> dict:
         if missing or len(z["t"]) < 2:
             raise InputError(f"{path} has no morph to load (missing {missing or 'frames'})",
                              fix=f"re-run morphshell simulate {folder}")
-        return {k: np.array(z[k]) for k in keys}
+        made = str(z["tables_sha256"]) if "tables_sha256" in z.files else None
+        out = {k: np.array(z[k]) for k in keys}
+    if made is not None and made != tables_sha256(folder):
+        raise InputError(f"{path} was simulated from other tables than the folder's now",
+                         fix=f"re-run morphshell simulate {folder}")
+    return out
 
 
 def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST, *,
