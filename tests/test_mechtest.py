@@ -227,3 +227,14 @@ def test_bearing_stiffness_matches_a_small_push(strip):
     deflection = push - force / k  # the nose's own penalty spring in series
     assert ok and b["point_stiffness_N_per_mm"] == pytest.approx(force / deflection, rel=0.05)
     assert b["weight_N"] > 0 and b["weight_sag_mm"] > 0
+
+
+def test_a_failed_solve_stops_the_test():
+    """Non-finite, twice unconverged, or a wild jump: the step is not kept."""
+    from sim.model.mechtest import _lost
+
+    rows = {"force_N": [0.0, 1.0, 2.0], "converged": [True, True, True]}
+    assert not _lost(3.0, True, rows) and not _lost(3.0, False, rows)
+    assert _lost(float("nan"), True, rows) and _lost(-50.0, False, rows)
+    rows["converged"][-1] = False
+    assert _lost(3.0, False, rows)

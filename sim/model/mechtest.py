@@ -445,7 +445,7 @@ def run_test(shell: DryShell, test: str, *, axis_deg: float = 90.0,
     shell.sim.energy.external = st.holds
     target0 = st.holds.target.copy()
     state = shell.state.copy()
-    n = consts.steps
+    n, stopped = consts.steps, None
     rows = {"displacement_mm": [], "force_N": [], "converged": [], "open_cells": [],
             "max_bracket_N": [], "energy": []}
     steps = Steps("mechtest", f"{label} {test}".strip(), n + 1, enabled=progress, every_s=2.0)
@@ -453,9 +453,14 @@ def run_test(shell: DryShell, test: str, *, axis_deg: float = 90.0,
         for i in range(n + 1):
             d = st.travel * i / n
             st.holds.target = target0 + np.where(st.moving[:, None], d * st.direction, 0.0)
-            state, ok = solve(shell, state, consts)
-            g = st.holds.gradients(state)[st.moving]
+            trial, ok = solve(shell, state, consts)
+            g = st.holds.gradients(trial)[st.moving]
             force = float(-(g @ st.direction).sum())
+            if _lost(force, ok, rows):
+                stopped = f"the solve failed at {st.columns[0]} {st.x_of(d):.3g}"
+                steps.step(f"stopped: {stopped}", k=n + 1)
+                break
+            state = trial
             L = shell.lengths(state)
             cells_open = (~shell.closed & closed0).reshape(-1, 4)
             for key, val in (("displacement_mm", d), ("force_N", force), ("converged", ok),
@@ -472,8 +477,20 @@ def run_test(shell: DryShell, test: str, *, axis_deg: float = 90.0,
     force = np.array(rows["force_N"])
     return {**rows, "test": test, "columns": st.columns, "x": st.x_of(disp),
             "y": st.y_of(force), "displacement_mm": disp, "force_N": force,
-            "bases": st.bases, "a0": shell.a0,
+            "bases": st.bases, "a0": shell.a0, "stopped": stopped,
             "b0": specimen(shell, axis_deg)["b0"], "axis_deg": axis_deg}
+
+
+def _lost(force: float, ok: bool, rows: dict) -> bool:
+    """A step the test cannot keep: a non-finite force, or one that did not converge and
+    follows another that did not, or jumps past ten times the largest force so far."""
+    if not np.isfinite(force):
+        return True
+    if ok:
+        return False
+    scale = max((abs(f) for f in rows["force_N"]), default=0.0)
+    return (bool(rows["converged"]) and not rows["converged"][-1]) or (
+        scale > 0 and abs(force) > 10 * scale)
 
 
 def readings(curve: dict, consts: MechTest = MECHTEST) -> dict:

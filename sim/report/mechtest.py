@@ -50,6 +50,7 @@ def test_summary(curve: dict, consts: MechTest = MECHTEST) -> dict:
             "peak_force_N": float(np.max(curve["force_N"])),
             "steps": len(curve["x"]) - 1,
             "converged_steps": int(np.sum(curve["converged"])),
+            "stopped": curve.get("stopped"),
             "a0_mm": curve["a0"], "b0_mm": curve["b0"], "axis_deg": curve["axis_deg"],
             "fixture_bases": curve["bases"]}
 
