@@ -307,7 +307,8 @@ class Setup:
     direction : (3,) float -- its unit direction of motion
     travel : float, mm -- its largest displacement
     x_of, y_of : callable -- displacement (mm) -> curve x; force (N) -> curve y
-    columns : tuple of str
+    columns : tuple of str -- the CSV's header
+    bases : dict -- the fixture's bases by role (for ``summary.json``)
     """
 
     holds: Holds
