@@ -12,7 +12,11 @@ TESTS = ("stretch", "bend", "shear", "compress")
 class MechTest:
     """The tester's set-ups (SI Note 6, issue #44) and morphshell's numerical choices.
 
-    Units mm, N; strains are fractions here and percent in the outputs.
+    Source: the tester's parameter sheet and SI Note 6 as issue #44 gives them (lengths,
+    span), the dry unit-cell tests (``bracket_yield_N``), the comparison of
+    ``bench/bench_mechtest.py`` (``slope_error``, ``peak_error``); the rest are morphshell's
+    numerical choices, as each field says.  Units mm, N; strains are fractions here and
+    percent in the outputs.
 
     Attributes
     ----------
