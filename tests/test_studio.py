@@ -320,8 +320,8 @@ def test_concurrent_runs_queue_or_get_409_never_500(small_build):
         codes = [None] * 30
 
         def go(k):
-            codes[k] = _request(srv, "POST", "/api/build/0/run",
-                                body={"landscape": [land[0] + k] + land[1:], "edits": []})[0]
+            codes[k] = _request(srv, "POST", "/api/build/0/run", body=_run_body(
+                small_build, landscape=[land[0] + k] + land[1:]))[0]
 
         threads = [threading.Thread(target=go, args=(k,)) for k in range(30)]
         for t in threads:
@@ -334,6 +334,145 @@ def test_concurrent_runs_queue_or_get_409_never_500(small_build):
     finally:
         release.set()
         _stop(srv)
+
+
+# ------------------------------------------------------------------------------ one landscape, one build
+
+
+def _other(small_build, tmp_path, name="other", add_s=3.0):
+    """A copy of the small build under another name with another landscape (+``add_s``)."""
+    from pysolver.design.time_landscape import write_landscape
+
+    f = _copy(small_build, tmp_path, name)
+    write_landscape(f, read_table(f, "time_landscape")["time_s"] + add_s)
+    return f
+
+
+def _held_runs(srv, release):
+    """Replace the server's rebuild by one that records each request, waits for ``release``
+    and then writes the sent landscape into the build (what a rebuild does to it)."""
+    from pysolver.design.time_landscape import write_landscape
+
+    sent = []
+
+    def fake_run(build, req, plan, expect):
+        r = json.loads(req)
+        sent.append(r)
+        release.wait(WAIT_S)
+        write_landscape(r.get("out") or r["folder"], np.asarray(r["landscape"], float))
+        build.forget()
+        srv.job._set(state="done", progress=1.0, eta_s=0.0, seconds=0.0)
+
+    srv.job._run = fake_run
+    return sent
+
+
+def _run_body(folder, **kw):
+    from pysolver.studio.landscape import landscape_sha256
+
+    land = read_table(folder, "time_landscape")["time_s"]
+    body = {"build": folder.name, "base_sha256": landscape_sha256(land),
+            "landscape": land.tolist(), "edits": []}
+    body.update(kw)
+    return body
+
+
+def test_a_run_is_refused_unless_it_names_its_build_and_the_landscape_it_was_edited_from(
+        small_build, tmp_path):
+    """Issue #47: a Run with another build's name or landscape hash is refused (409), with a
+    message naming the problem, and nothing starts; the right one starts."""
+    a, b = _copy(small_build, tmp_path), _other(small_build, tmp_path)
+    srv = _serve([a, b])
+    release = threading.Event()
+    sent = _held_runs(srv, release)
+    try:
+        for body, code, words in (
+                (_run_body(a), 409, "names build 'regular' but was sent to build 'other'"),
+                (_run_body(b, base_sha256=_run_body(a)["base_sha256"]), 409,
+                 "not made on the current landscape of build 'other'"),
+                ({k: v for k, v in _run_body(b).items() if k != "base_sha256"}, 400,
+                 "base_sha256"),
+                (_run_body(b, variant="../x"), 400, "not a plain folder name"),
+                (_run_body(b, variant="regular"), 400, "exists already")):
+            st, out = _request(srv, "POST", "/api/build/1/run", body=body)
+            assert st == code and words in json.loads(out)["error"], out
+        assert sent == [] and srv.job.snapshot()["state"] == "idle"
+        st, out = _request(srv, "POST", "/api/build/1/run", body=_run_body(b))
+        assert st == 200
+        _wait_for(lambda: sent)
+        assert sent[0]["folder"] == str(b) and "out" not in sent[0]
+        assert sent[0]["landscape"] == _run_body(b)["landscape"]
+    finally:
+        release.set()
+        _stop(srv)
+
+
+def _wait_for(cond, what="the condition"):
+    import time
+
+    t_end = time.monotonic() + WAIT_S
+    while not cond():
+        assert time.monotonic() < t_end, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def test_eta_is_the_rest_of_the_plan_at_this_run_s_pace():
+    from pysolver.studio.server import eta_seconds
+
+    plan, expect = ["start", "program", "simulate", "render", "report"], {
+        "start": 4.0, "program": 10.0, "simulate": 100.0, "render": 80.0, "report": 10.0}
+    # before a stage has finished: the build's own times (a slow start changes nothing)
+    assert eta_seconds(plan, expect, {"start": 30.0}, "program", 4.0, 0.0) == 6.0 + 190.0
+    # stages that took twice their time: the rest at twice its time
+    assert eta_seconds(plan, expect, {"start": 4.0, "program": 20.0}, "simulate", 50.0,
+                       0.0) == 150.0 + 180.0
+    # a stage's own count: its rest by its rate so far
+    assert eta_seconds(plan, expect, {"program": 10.0}, "simulate", 30.0, 0.5) == 30.0 + 90.0
+    # late in the last stage: never below 0
+    assert eta_seconds(plan, expect, {"program": 10.0}, "report", 50.0, 0.0) == 0.0
+
+
+@pytest.mark.parametrize("text, words", [
+    ("time_s,vertex_id\n0,1\n1,2\n", "not the header"),
+    ("vertex_id,time_s\n0,1\n", "1 rows for a target of 2 vertices"),
+    ("vertex_id,time_s\n0,1\n0,2\n", "vertex 0 is given twice"),
+    ("vertex_id,time_s\n0,1\n2,2\n", "vertex 2 is not one of 0-1"),
+    ("vertex_id,time_s\n0,1\n1,nan\n", "line 3: time 'nan'"),
+    ("vertex_id,time_s\n0,1\n1,1e9\n", "line 3: time '1e9'"),
+    ("vertex_id,time_s\n0,1\n1,=1+1\n", "line 3: time '=1+1'"),
+    ("vertex_id,time_s\n0,1,2\n1,2\n", "line 2 '0,1,2' is not"),
+    ("vertex_id,time_s\n-1,1\n1,2\n", "line 2 '-1,1' is not"),
+    (7, "as text"),
+])
+def test_a_landscape_csv_is_validated_line_by_line(text, words):
+    from pysolver.studio.landscape import parse_landscape_csv
+
+    with pytest.raises(InputError, match=None) as e:
+        parse_landscape_csv(text, 2)
+    assert words in str(e.value)
+
+
+def test_a_landscape_csv_round_trips_and_imports_through_the_server(server, small_build):
+    from pysolver.studio.landscape import parse_landscape_csv
+
+    land = read_table(small_build, "time_landscape")["time_s"] + 0.1
+    text = "vertex_id,time_s\r\n" + "".join(f"{i},{float(t)!r}\r\n" for i, t in
+                                              reversed(list(enumerate(land))))
+    assert parse_landscape_csv(text, len(land)).tobytes() == land.tobytes()
+    st, out = _request(server, "POST", "/api/build/0/import", body={"csv": text})
+    assert st == 200 and json.loads(out)["landscape"] == land.tolist()
+    st, out = _request(server, "POST", "/api/build/0/import", body={"csv": text, "x": 1})
+    assert st == 400
+
+
+def test_the_viewer_data_is_sent_gzip_compressed_when_the_browser_takes_it(server):
+    import gzip
+
+    st, plain = _request(server, "GET", "/api/build/0/viewer")
+    st2, packed = _request(server, "GET", "/api/build/0/viewer",
+                           headers={"Accept-Encoding": "gzip, deflate"})
+    assert st == st2 == 200 and gzip.decompress(packed) == plain
+    assert len(packed) < 0.9 * len(plain)   # base64 of float32: ~0.72 measured
 
 
 # ------------------------------------------------------------------------------ rebuild
@@ -544,6 +683,18 @@ def test_a_stroke_changes_only_the_painted_region(server, small_build):
         assert inner.sum() >= 1 and np.allclose((after - before)[inner], 10.0, atol=1e-9)
         assert (after - before).min() >= 0 and (after - before).max() <= 10.0 + 1e-9
         _wait(d, _latest_preview, "the painted landscape's feasibility")
+        # issue #47: a tooltip shown during the stroke has the new numbers, not stale ones
+        tip = d.find_element("id", "hover")
+        k = int(tip.get_attribute("data-cell"))
+        t_star = d.execute_script("return studio.editor.feas.t_star[arguments[0]]", k)
+        assert tip.is_displayed() and f"requested t* {t_star:.1f} s" in tip.text
+        # and one feasibility request per release (a click paints one dab, no drag)
+        n0 = d.execute_script("return studio.editor.previewRequests")
+        _stroke(d, c, dx=0, dy=0)
+        _wait(d, lambda d: d.execute_script("return studio.editor._soon === null") and
+              d.find_element("id", "editor-view").get_attribute("data-strokes") == "2" and
+              _latest_preview(d), "the click's feasibility")
+        assert d.execute_script("return studio.editor.previewRequests") == n0 + 1
 
 
 @browser
@@ -702,6 +853,104 @@ def test_the_parts_are_listed_with_a_3d_preview_and_a_download(small_build, tmp_
             assert st == 200 and data == (f / "stl" / "top.stl").read_bytes()
     finally:
         _stop(srv)
+
+
+@pytest.fixture
+def held(small_build, tmp_path):
+    """Two builds (``regular``, and ``other`` with another landscape) in a studio whose
+    Runs wait for ``release`` and then only write the sent landscape (no rebuild)."""
+    a, b = _copy(small_build, tmp_path), _other(small_build, tmp_path)
+    srv = _serve([a, b])
+    release = threading.Event()
+    sent = _held_runs(srv, release)
+    yield srv, a, b, release, sent
+    release.set()
+    _stop(srv)
+
+
+def _paint(d, vertex, radius, n, dx=40):
+    """Add 10 s with a brush of ``radius`` mm dragged from ``vertex``: the editor's
+    landscape once it is the ``n``-th stroke of the page."""
+    _brush(d, "add", "10", radius)
+    _stroke(d, vertex, dx=dx)
+    _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes")
+          == str(n), f"stroke {n}")
+    return _land(d)
+
+
+def _select(d, i):
+    d.execute_script("var s = document.getElementById('edit-build'); s.value = arguments[0];"
+                     "s.dispatchEvent(new Event('change'));", str(i))
+    _wait(d, lambda d: d.execute_script("return studio.editor.build.id") == i and
+          d.find_element("tag name", "body").get_attribute("data-loading") == "0" and
+          _latest_preview(d), f"build {i} to load")
+
+
+def _run_done(d):
+    return d.find_element("id", "progress-text").get_attribute("data-state") in ("done", "error")
+
+
+@browser
+def test_a_run_right_after_switching_builds_builds_only_what_is_on_screen(held):
+    """Issue #47, race 1: switching builds and pressing Run before the second has loaded used
+    to rebuild the second with the first one's painted landscape."""
+    srv, a, b, release, sent = held
+    V, c = _centre(a)
+    with chrome() as d:
+        _open(d, srv)
+        painted = _paint(d, c, "10", 1)
+        # select the other build and press Run in the same breath (before it has loaded)
+        seen = d.execute_script(
+            "var s = document.getElementById('edit-build'); s.value = '1';"
+            "s.dispatchEvent(new Event('change'));"
+            "var r = document.getElementById('run'), was = r.disabled; r.click();"
+            "return [was, document.body.getAttribute('data-loading')];")
+        assert seen == [True, "1"]                    # Run is disabled while a build loads
+        _wait(d, lambda d: d.find_element("tag name", "body").get_attribute("data-loading")
+              == "0" and _latest_preview(d), "the other build to load")
+        assert sent == [] and srv.job.snapshot()["state"] == "idle"
+        other = read_table(b, "time_landscape")["time_s"]
+        assert _land(d).tobytes() == other.tobytes()
+        d.find_element("id", "run").click()           # now: build 1 with its own landscape
+        _wait(d, lambda d: sent, "the run request")
+        assert sent[0]["folder"] == str(b) and sent[0]["landscape"] == other.tolist()
+        release.set()
+        _wait(d, _run_done, "the run")
+        # build 0 kept its painted landscape and its undo history
+        _select(d, 0)
+        assert _land(d).tobytes() == painted.tobytes()
+        assert d.find_element("id", "editor-view").get_attribute("data-undo") == "1"
+
+
+@browser
+def test_an_edit_during_a_run_is_kept_as_a_pending_draft(held):
+    """Issue #47, race 2: a stroke made during a Run used to be lost when the run ended."""
+    srv, a, _, release, sent = held
+    V, c = _centre(a)
+    far = int(np.argmax(np.linalg.norm(V - V[c], axis=1)))
+    with chrome() as d:
+        _open(d, srv)
+        painted = _paint(d, c, "8", 1)
+        d.find_element("id", "run").click()
+        _wait(d, lambda d: sent and d.find_element("id", "progress-text").get_attribute(
+            "data-state") == "running", "the run to start")
+        for box in ("run", "reset", "import", "edit-build"):   # controls that write
+            assert d.find_element("id", box).get_attribute("disabled") == "true", box
+        during = _paint(d, far, "8", 2, dx=-30)                # paint during the run
+        draft = d.find_element("id", "draft")
+        n = int(draft.get_attribute("data-vertices"))
+        assert draft.is_displayed() and n == int((during != painted).sum()) > 0
+        assert "Pending draft" in draft.text
+        release.set()
+        _wait(d, _run_done, "the run")
+        assert d.find_element("id", "progress-text").get_attribute("data-state") == "done"
+        _wait(d, _latest_preview, "the draft's feasibility")
+        built = read_table(a, "time_landscape")["time_s"]
+        assert np.allclose(built, painted, rtol=1e-8)          # what was sent was built
+        assert _land(d).tobytes() == during.tobytes()          # and the draft is kept
+        assert f"the draft ({n} vertices) is kept" in d.find_element("id", "status").text
+        d.find_element("id", "undo").click()                   # one step back: the build
+        assert _land(d).tobytes() == built.tobytes()
 
 
 @browser

@@ -3,7 +3,7 @@
     python -m pysolver.studio.rerun < request.json
 
 The request (stdin, JSON) is ``{"folder": path, "landscape": [s per stencil vertex],
-"source": {...}}``; :func:`pysolver.build.rebuild` runs the stages after the design stage
+"source": {...}, "out": path (optional: a new build beside the original)}``; :func:`pysolver.build.rebuild` runs the stages after the design stage
 with the build's own options and replaces the folder only when all have finished.  Its
 progress lines go to stderr (the studio's progress bar reads them).  Exit codes as the
 command line: 0 done, 3 done with a FAIL verdict, 2 bad input (nothing saved), 1 a bug.
@@ -23,7 +23,8 @@ from ..errors import EXIT_BAD_INPUT, EXIT_INTERNAL, MorphshellError
 def main() -> int:
     try:
         req = json.loads(sys.stdin.read())
-        summary = rebuild(req["folder"], req["landscape"], source=req.get("source"))
+        summary = rebuild(req["folder"], req["landscape"], source=req.get("source"),
+                          out=req.get("out"))
     except MorphshellError as e:
         print(f"morphshell studio run: error: {e}", file=sys.stderr, flush=True)
         return e.exit_code

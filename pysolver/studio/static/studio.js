@@ -152,7 +152,7 @@
     this.canvas.addEventListener("pointerdown", function (e) { self.pointerDown(e); });
     this.canvas.addEventListener("pointermove", function (e) { self.pointerMove(e); });
     this.canvas.addEventListener("pointerup", function (e) { self.pointerUp(e); });
-    this.canvas.addEventListener("pointerleave", function () { $("hover").style.display = "none"; });
+    this.canvas.addEventListener("pointerleave", function () { $("hover").style.display = "none"; self.hovered = null; });
     MorphViewer.onClick(this.canvas, function (x, y) {
       if (self.tool() === "keyframe") self.clickAt(x, y);
     });
@@ -162,10 +162,18 @@
     return document.querySelector("input[name=tool]:checked").value;
   };
 
-  Editor.prototype.load = function (build, keepCamera) {
-    var self = this;
-    this.build = build;
+  // Load a build into the editor.  Until its target arrives every control that writes is
+  // disabled (studio.loading), and a late answer for a build no longer selected is dropped:
+  // the landscape on screen, the state edited and the build a Run goes to are always one.
+  // opts.keepCamera keeps the view; opts.state replaces the build's editing state.
+  Editor.prototype.load = function (build, opts) {
+    var self = this, seq = (this.loadSeq = (this.loadSeq || 0) + 1);
+    opts = opts || {};
+    studio.loading = build.id;
+    this.updateButtons();
     return api("/api/build/" + build.id + "/target").then(function (d) {
+      if (seq !== self.loadSeq) return;      // another build was selected meanwhile
+      self.build = build;
       self.target = d;
       MAX_TIME = d.limits.max_time_s; MAX_RADIUS = d.limits.max_radius_mm;
       var V = new Float32Array(d.V), F = new Uint32Array(d.F);
@@ -208,7 +216,7 @@
         self.scene.add(self.strokeMark);
       }
       g.computeBoundingSphere();
-      if (!keepCamera || self.fittedFor !== build.id) {
+      if (!opts.keepCamera || self.fittedFor !== build.id) {
         var bs = g.boundingSphere;
         self.orbit.target.copy(bs.center);
         self.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.05;
@@ -217,13 +225,16 @@
       }
       self.orbit.update(false);
       self.buildLand = Float64Array.from(d.landscape);
-      var st = keepCamera ? null : self.states[build.id];
-      if (!st) {
-        st = self.states[build.id] = {land: Float64Array.from(d.landscape), undo: [], redo: [],
-          edits: [], keyframes: []};
+      var st = opts.state || self.states[build.id];
+      // a state edited from another landscape of this build (built again since) is not kept
+      if (!st || st.base !== d.landscape_sha256) {
+        st = {land: Float64Array.from(d.landscape), undo: [], redo: [], edits: [], keyframes: []};
       }
-      self.st = st;
+      st.id = build.id; st.name = d.build; st.base = d.landscape_sha256;
+      self.states[build.id] = self.st = st;
+      if (studio.loading === build.id) studio.loading = null;
       self.scale = null;
+      self.version = (self.version || 0) + 1;
       self.feas = d.feasibility;
       self.listKeyframes();
       self.paint();
@@ -267,6 +278,7 @@
     this.changed("back to the build's landscape");
   };
   Editor.prototype.changed = function (what) {
+    this.version++;
     this.listKeyframes();
     this.paint();
     this.updateButtons();
@@ -274,13 +286,34 @@
     return this.preview();
   };
   Editor.prototype.dirty = function () { return this.st && this.st.undo.length > 0; };
+  // controls that write are disabled while a build loads or runs; the brush, undo and redo
+  // stay live during a run: what they change is a pending draft (drawDraft)
   Editor.prototype.updateButtons = function () {
-    var busy = studio.job && studio.job.state === "running";
-    $("undo").disabled = !this.st.undo.length || busy;
-    $("redo").disabled = !this.st.redo.length || busy;
-    $("run").disabled = !!busy;
-    $("reset").disabled = !!busy;
-    this.container.setAttribute("data-undo", String(this.st.undo.length));
+    var running = !!(studio.job && studio.job.state === "running");
+    var loading = studio.loading !== null && studio.loading !== undefined;
+    var st = this.st || {undo: [], redo: []};
+    $("undo").disabled = !st.undo.length || loading;
+    $("redo").disabled = !st.redo.length || loading;
+    ["run", "reset", "import", "edit-build", "variant", "variant-name"].forEach(function (id) {
+      $(id).disabled = running || loading;
+    });
+    $("variant-name").disabled = $("variant-name").disabled || !$("variant").checked;
+    document.body.setAttribute("data-loading", loading ? "1" : "0");
+    this.container.setAttribute("data-undo", String(st.undo.length));
+    this.drawDraft();
+  };
+  // the edit made during a run (on the build being run): shown, and kept after the run
+  Editor.prototype.draft = function () {
+    var sent = studio.sent, st = this.st;
+    if (!sent || !st || sent.id !== st.id || sent.variant) return 0;
+    return this.draftOf(st, sent);
+  };
+  Editor.prototype.drawDraft = function () {
+    var box = $("draft"), n = this.draft();
+    box.hidden = !n;
+    box.setAttribute("data-vertices", String(n));
+    box.textContent = n ? "Pending draft: " + n + " vertices changed since the Run started. " +
+      "They are not in this run and are kept after it (Run again to build them)." : "";
   };
 
   // ------------------------------------------------ picking
@@ -325,6 +358,7 @@
     });
     $("brush-error").textContent = errs.join("; ");
     out.ok = !errs.length;
+    if (out.ok) setError("brush", null);     // its cause is fixed: the message goes
     return out;
   };
   // weight of a vertex at distance d from a dab: 1 inside (1 - falloff) r, then a smooth
@@ -338,6 +372,7 @@
   }
   Editor.prototype.pointerDown = function (e) {
     if (this.tool() !== "brush" || e.button !== 0 || e.shiftKey) return;
+    if (studio.loading !== null && studio.loading !== undefined) return;   // no state yet
     var hit = this.hitPoint(e.clientX, e.clientY);
     if (!hit) return;   // off the target: the orbit turns the view
     var b = this.brush();
@@ -398,7 +433,7 @@
     this.container.setAttribute("data-strokes", String((this.strokes = (this.strokes || 0) + 1)));
     status(sk.b.mode + ": " + n + " vertices changed" + (this.held ? "; " + this.held : ""), "idle");
     this.updateButtons();
-    this.preview();
+    this.preview();     // the release's one request (a pending one is cancelled, a repeat skipped)
   };
   Editor.prototype.dab = function (p) {
     var sk = this.stroke, b = sk.b, V = this.V, pts = [[p.x, p.y, p.z]];
@@ -413,7 +448,7 @@
       }
       pts.push([p.x, p.y, p.z]);
     }
-    var W = sk.W, L0 = sk.L0, land = this.st.land, held = 0, i;
+    var W = sk.W, L0 = sk.L0, land = this.st.land, held = 0, moved = false, i;
     pts.forEach(function (q) {
       sk.points.push(q);
       for (var v = 0; v < W.length; v++) {
@@ -430,12 +465,14 @@
         b.mode === "subtract" ? L0[i] - b.value : sk.S[i];
       var t = L0[i] + W[i] * (goal - L0[i]);
       if (t < 0) { t = 0; held++; } else if (t > MAX_TIME) { t = MAX_TIME; held++; }
-      land[i] = t;
+      if (land[i] !== t) { land[i] = t; moved = true; }
     }
     this.held = held ? held + " vertices held at the limit (0-" + MAX_TIME + " s)" : "";
     this.strokeMark.position.set(p.x, p.y, p.z);
     this.strokeMark.scale.setScalar(b.radius);
     this.strokeMark.visible = true;
+    if (!moved) { this.render(); return; }   // the same landscape: nothing new to ask about
+    this.version++;
     this.paint();
     this.previewSoon();
   };
@@ -538,17 +575,23 @@
     this._soon = setTimeout(function () { self._soon = null; self.preview(); }, 150);
   };
   Editor.prototype.preview = function () {
+    if (this._soon) { clearTimeout(this._soon); this._soon = null; }
+    // the landscape asked about already (a timer fired before the release): no second request
+    if (this.previewed === this.version && this.previewedFor === this.st) return this.lastPreview;
+    this.previewed = this.version; this.previewedFor = this.st;
+    this.previewRequests = (this.previewRequests || 0) + 1;
     var self = this, seq = (this.seq = (this.seq || 0) + 1), t0 = performance.now();
-    return api("/api/build/" + this.build.id + "/preview", {landscape: Array.from(this.st.land)})
+    return (this.lastPreview = api("/api/build/" + this.build.id + "/preview", {landscape: Array.from(this.st.land)})
       .then(function (r) {
         if (seq !== self.seq) return;   // a newer edit is on its way
         setError("preview", null);
         self.feas = r.feasibility;
         self.paint();
+        self.refreshHover();
         var f = $("feas");
         f.setAttribute("data-seq", String(seq));
         f.setAttribute("data-ms", String(Math.round(performance.now() - t0)));
-      }).catch(function (e) { if (seq === self.seq) setError("preview", e.message); });
+      }).catch(function (e) { if (seq === self.seq) setError("preview", e.message); }));
   };
 
   // ------------------------------------------------ drawing
@@ -659,6 +702,13 @@
     tip.style.left = (x - r.left + 14) + "px"; tip.style.top = (y - r.top + 10) + "px";
     tip.style.display = "block";
     tip.setAttribute("data-cell", String(c));
+    tip.setAttribute("data-version", String(this.version));
+    this.hovered = {c: c, x: x, y: y};
+  };
+  // a tooltip still shown is drawn again with the new numbers (never stale after a stroke)
+  Editor.prototype.refreshHover = function () {
+    var h = this.hovered;
+    if (h && $("hover").style.display === "block" && h.c < this.feas.side.length) this.showCell(h.c, h.x, h.y);
   };
 
   Editor.prototype.render = function () {
@@ -675,7 +725,8 @@
   // ---------------------------------------------------------------- results and parts
   var FIGURES = [
     ["verdict", "verdict", null, 0],
-    ["timing_rms_s", "timing RMS error (s)", -1, 2],
+    ["timing_rms_s", "timing RMS error, programmable cells (s)", -1, 2],
+    ["timing_rms_all_s", "timing RMS error, all cells (s)", -1, 2],
     ["spearman", "Spearman (completion order)", 1, 3],
     ["n_clamped", "clamped cells", -1, 0],
     ["n_never_complete", "cells that never complete", -1, 0],
@@ -770,13 +821,26 @@
   }
 
   // ---------------------------------------------------------------- run (a build again)
+  // a Run names its build and the hash of the landscape the editor loaded for it (the server
+  // refuses any other), and is sent from that build's own editing state
   function run() {
-    var ed = studio.editor;
+    var ed = studio.editor, st = ed.st;
+    if (!st || (studio.loading !== null && studio.loading !== undefined)) return Promise.resolve();
+    var variant = $("variant").checked ? $("variant-name").value.trim() : null;
+    if (variant !== null && !/^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$/.test(variant)) {
+      setError("run", "variant name \"" + variant + "\": use 1-64 letters, digits, - or _ (e.g. " +
+        st.name + "-2)");
+      return Promise.resolve();
+    }
     setError("run", null);
     $("run").disabled = true;
-    return api("/api/build/" + ed.build.id + "/run",
-      {landscape: Array.from(ed.st.land), edits: ed.st.edits}).then(function (j) {
+    var sent = {id: st.id, name: st.name, land: Float64Array.from(st.land), edits: st.edits.length,
+      variant: variant};
+    return api("/api/build/" + st.id + "/run",
+      {build: st.name, base_sha256: st.base, landscape: Array.from(st.land), edits: st.edits,
+        variant: variant}).then(function (j) {
       studio.job = j;
+      studio.sent = sent;
       ed.updateButtons();
       return poll();
     }).catch(function (e) {
@@ -787,8 +851,10 @@
 
   function eta(s) {
     if (s === null || s === undefined) return "";
-    return s < 60 ? "about " + Math.max(1, Math.round(s)) + " s left" :
-      "about " + Math.round(s / 60) + " min left";
+    if (s < 60) return "about " + Math.max(1, Math.round(s)) + " s left";
+    var m = Math.floor(s / 60), r = Math.round((s - 60 * m) / 10) * 10;
+    if (r === 60) { m++; r = 0; }
+    return "about " + m + " min " + (r ? r + " s " : "") + "left";
   }
   function poll() {
     return api("/api/job").then(function (j) {
@@ -812,17 +878,75 @@
       }
       if (j.state !== "done") return;
       text.textContent = "done in " + fmt(j.seconds, 0) + " s; reloading";
-      var ed = studio.editor;
-      return api("/api/builds").then(function (b) {
-        studio.builds = b;
-        ed.states[ed.build.id] = null;     // the build's landscape is now the edited one
-        return Promise.all([ed.load(b[ed.build.id], true), loadViewers(), loadResults(), loadParts()]);
-      }).then(function () {
+      return afterRun(j).then(function (where) {
         text.textContent = "done in " + fmt(j.seconds, 0) + " s";
         text.setAttribute("data-state", "done");
-        status("built again: see the results", "done");
+        Object.keys(errors).forEach(function (k) { errors[k] = null; });   // a run that worked
+        showErrors();
+        status(where, "done");
       });
     }).catch(function (e) { setError("run", e.message); });
+  }
+
+  // After a run: the builds again (a variant is listed after the others); an in-place run
+  // reloads its build, keeping a pending draft as one undoable step on the new landscape;
+  // a variant run leaves the original's state (and its undo history) as it was and opens
+  // the variant.
+  function afterRun(j) {
+    var ed = studio.editor, sent = studio.sent || {id: j.build, variant: j.variant, edits: 0};
+    return api("/api/builds").then(function (b) {
+      studio.builds = b;
+      fillSelector();
+      var target = sent.variant ? b.filter(function (x) { return x.name === sent.variant; })[0] : b[sent.id];
+      var old = ed.states[sent.id], state = null, kept = 0;
+      if (!sent.variant) {
+        kept = old && sent.land && old.id === sent.id ? ed.draftOf(old, sent) : 0;
+        state = {land: kept ? Float64Array.from(old.land) : null, undo: [], redo: [],
+          edits: kept ? old.edits.slice(sent.edits) : [], keyframes: []};
+        ed.states[sent.id] = null;
+      }
+      studio.sent = null;
+      $("edit-build").value = String(target.id);
+      return ed.load(target, {keepCamera: !sent.variant}).then(function () {
+        return Promise.all([loadViewers(), loadResults(), loadParts()]);
+      }).then(function () {
+        if (kept) {   // the draft on the new landscape, one undo step back to the built one
+          ed.st.undo = [{land: Float64Array.from(ed.buildLand), edits: [], keyframes: []}];
+          ed.st.land = state.land; ed.st.edits = state.edits;
+          ed.changed(null);
+        }
+        return sent.variant ? "built into the new build " + sent.variant + " (" + sent.name +
+          " is unchanged)" : "built again: see the results" +
+          (kept ? "; the draft (" + kept + " vertices) is kept on the new landscape" : "");
+      });
+    });
+  }
+  Editor.prototype.draftOf = function (st, sent) {
+    var n = 0;
+    for (var i = 0; i < st.land.length; i++) if (st.land[i] !== sent.land[i]) n++;
+    return n;
+  };
+  function fillSelector() {
+    var sel = $("edit-build"), keep = sel.value;
+    sel.innerHTML = "";
+    studio.builds.forEach(function (b) { el("option", {value: String(b.id), text: b.name}, sel); });
+    if (keep) sel.value = keep;
+    $("builds-note").textContent = studio.builds.map(function (b) { return b.path; }).join(" | ");
+  }
+
+  // a CSV file (vertex_id,time_s) as the landscape: checked by the server, one undoable step
+  function importCsv(file) {
+    var ed = studio.editor, st = ed.st;
+    return file.text().then(function (text) {
+      return api("/api/build/" + st.id + "/import", {csv: text});
+    }).then(function (r) {
+      if (ed.st !== st) return;
+      setError("import", null);
+      ed.remember();
+      st.land = Float64Array.from(r.landscape);
+      st.edits.push({tool: "import", mode: "csv"});
+      ed.changed("landscape imported from " + file.name);
+    }).catch(function (e) { setError("import", "import refused: " + e.message); });
   }
 
   // ---------------------------------------------------------------- start
@@ -858,15 +982,26 @@
     });
     session(studio.token).then(function () { return api("/api/builds"); }).then(function (builds) {
       studio.builds = builds;
-      $("builds-note").textContent = builds.map(function (b) { return b.path; }).join(" | ");
       var sel = $("edit-build");
-      builds.forEach(function (b) {
-        el("option", {value: String(b.id), text: b.name}, sel);
-      });
+      fillSelector();
       ed = studio.editor = new Editor($("editor-view"));
       sel.addEventListener("change", function () {
-        var b = builds[parseInt(sel.value, 10)];
-        Promise.all([ed.load(b), loadResults(), loadParts()]);
+        var b = studio.builds[parseInt(sel.value, 10)];
+        ed.load(b).then(function () { return Promise.all([loadResults(), loadParts()]); });
+      });
+      $("variant").addEventListener("change", function () {
+        if ($("variant").checked && !$("variant-name").value) {
+          var names = studio.builds.map(function (b) { return b.name; }), k = 2;
+          while (names.indexOf(ed.st.name + "-" + k) >= 0) k++;
+          $("variant-name").value = ed.st.name + "-" + k;
+        }
+        ed.updateButtons();
+      });
+      $("import").addEventListener("click", function () { $("import-file").click(); });
+      $("import-file").addEventListener("change", function () {
+        var f = $("import-file").files[0];
+        if (f) importCsv(f);
+        $("import-file").value = "";
       });
       $("undo").addEventListener("click", function () { ed.undo(); });
       $("redo").addEventListener("click", function () { ed.redo(); });
@@ -893,11 +1028,17 @@
         if (ed.dirty() && !(studio.job && studio.job.state === "running")) { e.preventDefault(); e.returnValue = ""; }
       });
       $("run").addEventListener("click", run);
-      return Promise.all([loadViewers(), ed.load(builds[0])]).then(function () {
+      // the editor and the results first (small): the page is usable while the morph
+      // viewer's data (megabytes, gzip-compressed) still loads
+      return ed.load(builds[0]).then(function () {
         return Promise.all([loadResults(), loadParts(), api("/api/job").then(function (j) {
           studio.job = j;
           if (j.state === "running") poll();   // a run started before a reload: follow it
         })]);
+      }).then(function () {
+        document.body.setAttribute("data-usable", String(Math.round(performance.now())));
+        $("viewers").textContent = "loading the morph viewer ...";
+        return loadViewers();
       });
     }).then(function () {
       document.body.setAttribute("data-ready", "1");
