@@ -954,20 +954,27 @@ def test_an_edit_during_a_run_is_kept_as_a_pending_draft(held):
 
 
 @browser
-def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, small_build):
-    """Last in the file: it builds the shared build again."""
+def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, small_build):
+    """Last in the file: it builds a variant (``regular-2``) beside the shared build, which
+    must stay as it was, with its editing state and undo history."""
     V, c = _centre(small_build)
+    before = _files(small_build)
     old = json.loads((small_build / "report" / "report.json").read_text())
     with chrome() as d:
         _open(d, server)
         d.execute_script("var v = studio.viewers[0]; v.orbit.theta += 0.9; v.orbit.update(true);"
                          "v.setFrame(7); v.selectBase(4);")
         view = d.execute_script("return studio.viewers[0].getView()")
-        _brush(d, "add", "5", "8")
-        _stroke(d, c)
-        _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes"),
-              "the stroke")
-        painted = _land(d)
+        # a landscape imported from CSV (checked by the server), then a stroke on it
+        d.execute_script("var t = studio.editor.csv().replace(/\\n0,([^\\n]*)/, '\\n0,77');"
+                         "studio.importCsv(new File([t], 'mine.csv'));")
+        _wait(d, lambda d: _land(d)[0] == 77.0 and _latest_preview(d), "the imported CSV")
+        painted = _paint(d, c, "8", 1)
+        assert d.find_element("id", "editor-view").get_attribute("data-undo") == "2"
+        d.execute_script("studio.editor.clickAt(-5000, -5000)")   # an error to be cleared
+        assert d.find_element("id", "error").text
+        d.find_element("id", "variant").click()
+        assert d.find_element("id", "variant-name").get_attribute("value") == "regular-2"
         d.find_element("id", "run").click()
         _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute("data-state")
               == "running", "the run to start")
@@ -976,8 +983,7 @@ def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, 
 
         def finished(d):
             seen.append(float(d.find_element("id", "progress").get_attribute("value")))
-            return d.find_element("id", "progress-text").get_attribute("data-state") in (
-                "done", "error")
+            return _run_done(d)
 
         _wait(d, finished, "the run")
         assert d.find_element("id", "progress-text").get_attribute("data-state") == "done", \
@@ -985,13 +991,23 @@ def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, 
         assert float(d.find_element("id", "progress").get_attribute("value")) == 1.0
         assert seen == sorted(seen) and len({x for x in seen if 0 < x < 1}) >= 3  # it moved
         assert d.find_element("id", "run").get_attribute("disabled") is None
+        assert d.find_element("id", "error").text == ""       # a run that worked clears it
         _wait(d, lambda d: d.find_element("id", "results").get_attribute("data-state")
               == "shown", "the results")
-        new = json.loads((small_build / "report" / "report.json").read_text())
+        # the variant is listed, selected, and holds the edited landscape and its log
+        var = small_build.parent / "regular-2"
+        names = [o.text for o in d.find_elements("css selector", "#edit-build option")]
+        assert names == ["regular", "regular", "regular-2"]
+        assert d.execute_script("return studio.editor.build.name") == "regular-2"
+        assert _files(small_build) == before                  # the original is untouched
+        assert np.allclose(read_table(var, "time_landscape")["time_s"], painted, rtol=1e-8)
+        assert _land(d).tobytes() == read_table(var, "time_landscape")["time_s"].tobytes()
+        rec = json.loads((var / "studio_landscape.json").read_text())
+        assert [(e["tool"], e["mode"]) for e in rec["edits"]] == [("import", "csv"),
+                                                                  ("brush", "add")]
+        assert rec["variant_of"] == "regular"
+        new = json.loads((var / "report" / "report.json").read_text())
         assert d.find_element("id", "verdict").get_attribute("data-verdict") == new["verdict"]
-        reasons = [li.text for li in d.find_elements("css selector", "#reasons li")]
-        assert [r for r in reasons if new["reasons"] and new["reasons"][0]["message"] in r] \
-            or not new["reasons"]
         rows = {r.get_attribute("data-key"): [td.text for td in
                                               r.find_elements("tag name", "td")]
                 for r in d.find_elements("css selector", "#figures tr[data-key]")}
@@ -999,19 +1015,13 @@ def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, 
         assert rows["shape_rms_mm"][2] == f"{old['metrics']['shape']['rms_mm']:.2f}"  # before
         assert rows["n_clamped"][1] == str(new["metrics"]["timing"]["n_clamped"])
         assert d.find_element("id", "report-link").get_attribute("hidden") is None
-        # the build is the painted landscape now, and the viewer kept its camera and frame
-        assert np.allclose(read_table(small_build, "time_landscape")["time_s"], painted,
-                           rtol=1e-8)
-        assert _land(d).tobytes() == read_table(small_build, "time_landscape")[
-            "time_s"].tobytes()
-        # the landscape, its provenance and the summary come from the same run
-        edits = json.loads((small_build / "studio_landscape.json").read_text())["edits"]
-        assert [(e["tool"], e["mode"], e["value"]) for e in edits] == [("brush", "add", 5)]
-        edited = json.loads((small_build / "summary.json").read_text())["edited"]
-        assert edited["landscape_sha256"] == hashlib.sha256(
-            read_table(small_build, "time_landscape")["time_s"].astype("<f8").tobytes()
-        ).hexdigest()
+        # the viewers: one more, and the first kept its camera and frame
+        assert d.execute_script("return studio.viewers.length") == 3
         got = d.execute_script("return studio.viewers[0].getView()")
         assert got["theta"] == pytest.approx(view["theta"])
         assert d.execute_script("return [studio.viewers[0].frame, studio.viewers[0].picked]") \
             == [7, 4]
+        # back on the original: its edited landscape and its undo history are still there
+        _select(d, 0)
+        assert _land(d).tobytes() == painted.tobytes()
+        assert d.find_element("id", "editor-view").get_attribute("data-undo") == "2"

@@ -948,6 +948,7 @@
       ed.changed("landscape imported from " + file.name);
     }).catch(function (e) { setError("import", "import refused: " + e.message); });
   }
+  studio.importCsv = importCsv;   // (tests: a File made in the page)
 
   // ---------------------------------------------------------------- start
   function init() {
