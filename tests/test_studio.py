@@ -465,6 +465,26 @@ def test_a_landscape_csv_round_trips_and_imports_through_the_server(server, smal
     assert st == 400
 
 
+def test_compare_takes_the_cells_whose_request_changed_and_their_figures():
+    from pysolver.studio.compare import compare_cells
+
+    a = {"t_star": [10.0, 20.0, 30.0, 40.0], "t_done": [11.0, 26.0, None, 41.0],
+         "clamped": [0, 0, 1, 0]}
+    b = {"t_star": [10.0, 25.0, 35.0, 40.0], "t_done": [11.0, 24.0, 36.0, 40.0],
+         "clamped": [0, 0, 0, 0]}
+    r = compare_cells(a, b)
+    assert r["region"] == [1, 2]                        # the cells whose t* moved
+    assert r["a"] == {"requested_mean_s": 25.0, "simulated_mean_s": 26.0, "timing_rms_s": 6.0,
+                      "n_never_complete": 1, "n_out_of_reach": 1}
+    assert r["b"]["timing_rms_s"] == pytest.approx(np.sqrt((1 + 1) / 2))
+    assert r["diff_done_s"] == [0.0, 2.0, None, 1.0]
+    assert compare_cells(a, b, [3])["a"]["timing_rms_s"] == 1.0
+    with pytest.raises(InputError, match="4 and 3 unit cells"):
+        compare_cells(a, {k: v[:3] for k, v in b.items()})
+    with pytest.raises(InputError, match="region cell 9"):
+        compare_cells(a, b, [9])
+
+
 def test_the_viewer_data_is_sent_gzip_compressed_when_the_browser_takes_it(server):
     import gzip
 
@@ -683,6 +703,12 @@ def test_a_stroke_changes_only_the_painted_region(server, small_build):
         assert inner.sum() >= 1 and np.allclose((after - before)[inner], 10.0, atol=1e-9)
         assert (after - before).min() >= 0 and (after - before).max() <= 10.0 + 1e-9
         _wait(d, _latest_preview, "the painted landscape's feasibility")
+        # issue #47: the time scale stays the build's range; times beyond it are counted
+        scale = d.execute_script("return [studio.editor.scale.lo, studio.editor.scale.hi]")
+        lo, hi = before.min(), before.max()
+        assert scale == ([lo, hi] if hi - lo >= 1e-6 else [lo - 1, lo + 1])   # (flat: +-1 s)
+        assert d.find_element("id", "editor-view").get_attribute("data-beyond") == str(
+            int((after > scale[1]).sum()))
         # issue #47: a tooltip shown during the stroke has the new numbers, not stale ones
         tip = d.find_element("id", "hover")
         k = int(tip.get_attribute("data-cell"))
@@ -819,6 +845,32 @@ def test_the_ghost_toggles_and_builds_side_by_side_share_scale_and_time(server):
         modes = d.execute_script("return studio.viewers.map(function (v) { return v.mode; })")
         ranges = d.execute_script("return studio.viewers.map(function (v) { return v.range; })")
         assert modes == ["thickness", "thickness"] and ranges[0] == ranges[1]
+        # issue #47: robust ranges (2nd-98th percentiles) with the values beyond marked,
+        # per-frame ranges, shared by the linked viewers; view presets for both
+        d.execute_script("var s = document.querySelector('#viewer-0 .mv-scale');"
+                         "s.value = 'robust'; s.dispatchEvent(new Event('change'));")
+        vals = np.array([np.nan if v is None else v for v in d.execute_script(
+            "return studio.viewers[0].data.base_fields.thickness")], float)
+        lo, hi = np.percentile(vals[np.isfinite(vals)], [2, 98])
+        beyond = int(((vals < lo - 1e-6) | (vals > hi + 1e-6)).sum())
+        for k in (0, 1):
+            v = d.find_element("id", f"viewer-{k}")
+            assert np.allclose([float(x) for x in v.get_attribute("data-range").split()],
+                               [lo, hi], atol=1e-4)
+            assert int(v.get_attribute("data-outliers")) == beyond
+        if beyond:
+            assert f"orange: {beyond} beyond" in v.find_element("class name", "mv-legend").text
+        d.execute_script("var s = document.querySelector('#viewer-1 .mv-mode');"
+                         "s.value = 'distance'; s.dispatchEvent(new Event('change'));"
+                         "s = document.querySelector('#viewer-1 .mv-scale');"
+                         "s.value = 'frame'; s.dispatchEvent(new Event('change'));")
+        dist = d.execute_script("var v = studio.viewers[0]; return v.fieldValues();")
+        assert np.allclose([float(x) for x in v0.get_attribute("data-range").split()],
+                           [min(dist), max(dist)], atol=1e-4)
+        assert v0.get_attribute("data-outliers") == "0"
+        d.find_element("css selector", "#viewer-1 .mv-view-top").click()
+        assert d.execute_script("return studio.viewers.map(function (v) { return v.orbit.phi; })"
+                                ) == [pytest.approx(0.02)] * 2
         # hover on a base: its cells' t*, completion, thicknesses
         d.execute_script("var v = studio.viewers[0], b = new THREE.Vector3();"
                          "var m = new THREE.Matrix4(); v.bases.getMatrixAt(3, m);"
@@ -1021,6 +1073,23 @@ def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, s
         assert got["theta"] == pytest.approx(view["theta"])
         assert d.execute_script("return [studio.viewers[0].frame, studio.viewers[0].picked]") \
             == [7, 4]
+        # did the edit work? the variant (A) against the original (B), opened by the run
+        _wait(d, lambda d: d.find_element("id", "compare").get_attribute("data-state")
+              == "shown", "the comparison")
+        ta = read_table(var, "cells")["t_star_s"]
+        tb = read_table(small_build, "cells")["t_star_s"]
+        region = np.abs(ta - tb) > 1e-6
+        assert int(d.find_element("id", "compare").get_attribute("data-region")) == \
+            region.sum() > 0
+        cl = np.asarray(read_table(var, "cells")["clamped"], bool)
+        row = [td.text for td in d.find_elements("css selector",
+                                                 "#cmp-region tr[data-key=n_out_of_reach] td")]
+        assert row[1] == str(int(cl[region].sum()))
+        row = [td.text for td in d.find_elements("css selector",
+                                                 "#cmp-figures tr[data-key=shape_rms_mm] td")]
+        assert row[1:3] == [f"{new['metrics']['shape']['rms_mm']:.2f}",
+                            f"{old['metrics']['shape']['rms_mm']:.2f}"]
+        assert d.find_element("id", "editor-view").get_attribute("data-colour") == "diff"
         # back on the original: its edited landscape and its undo history are still there
         _select(d, 0)
         assert _land(d).tobytes() == painted.tobytes()

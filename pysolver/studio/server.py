@@ -35,6 +35,8 @@ Endpoints (``<i>`` = index of a build folder)::
     POST /api/build/<i>/preview         {"landscape"} -> feasibility per cell
     POST /api/build/<i>/keyframes       {"keyframes"} -> harmonic landscape + feasibility
     POST /api/build/<i>/import          {"csv"} -> the landscape of a CSV + feasibility
+    POST /api/build/<i>/compare         {"other": j, "cells"} -> builds i and j cell by cell
+                                         (the painted region, A - B) and their figures
     POST /api/build/<i>/run             {"build", "base_sha256", "landscape", "edits",
                                          "variant"} -> build it again, or into a new
                                          build beside it (a job)
@@ -76,6 +78,7 @@ from ..errors import InputError, MorphshellError
 from ..params import LIMITS, PROGRAMMING
 from ..simulator import build_parts, morph_viewer, viewer_assets
 from ..tables import LANDSCAPE_SOURCE, read_record, read_stencil, read_table
+from .compare import compare_cells
 from .landscape import (
     Feasibility,
     harmonic_landscape,
@@ -835,10 +838,35 @@ class Handler(BaseHTTPRequestHandler):
                 return self._json(HTTPStatus.OK, b.keyframes(payload))
             if parts[3] == "import":
                 return self._json(HTTPStatus.OK, b.import_csv(payload))
+            if parts[3] == "compare":
+                return self._json(HTTPStatus.OK, self._compare(b, payload))
             if parts[3] == "run":
                 return self._run(i, b, payload)
         return self._error(HTTPStatus.NOT_FOUND, "not found")
 
+
+    def _compare(self, b: Build, payload) -> dict:
+        """``{"other": j, "cells": [...] (optional)}`` -> :func:`compare_cells` of this build
+        (A) and build j (B), with both builds' report figures."""
+        if not isinstance(payload, dict) or not set(payload) <= {"other", "cells"} or \
+                "other" not in payload:
+            raise InputError("the compare request must be {'other': build number, 'cells': "
+                             "[cell ids] (optional)}")
+        j = payload["other"]
+        if isinstance(j, bool) or not isinstance(j, int):
+            raise InputError(f"'other' {str(j)[:20]!r} is not a build number")
+        try:
+            _, o = self._build(["api", "build", str(j)])
+        except _NotFound as e:
+            raise InputError(f"compare: {e}", fix="pick one of the builds listed") from None
+        cells = payload.get("cells")
+        if cells is not None and (not isinstance(cells, list) or len(cells) > 10 ** 6 or any(
+                isinstance(c, bool) or not isinstance(c, int) for c in cells)):
+            raise InputError("'cells' must be a list of cell ids (whole numbers)")
+        out = compare_cells(b.viewer()["cells"], o.viewer()["cells"], cells)
+        out["figures"] = {"a": report_figures(b.folder), "b": report_figures(o.folder)}
+        out["names"] = {"a": b.folder.name, "b": o.folder.name}
+        return out
 
     def _run(self, i: int, b: Build, payload):
         req = parse_run(payload, b.n_vertices())
@@ -853,7 +881,7 @@ class _NotFound(Exception):
     pass
 
 
-_POST_ROUTE = re.compile(r"/api/build/[0-9]+/(preview|keyframes|import|run)")
+_POST_ROUTE = re.compile(r"/api/build/[0-9]+/(preview|keyframes|import|compare|run)")
 """The only paths a POST may go to (:meth:`Handler._post`); any other is refused before its
 body is read."""
 

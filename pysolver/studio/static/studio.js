@@ -98,7 +98,7 @@
     var keep = {};   // camera, time, picked base, colour mode and ghost survive a reload
     studio.viewers.forEach(function (v) {
       keep[v.buildId] = {view: v.getView(), t: v.data.t[v.frame], picked: v.picked,
-        mode: v.mode, ghost: v.ghost ? v.ghost.visible : true};
+        mode: v.mode, ghost: v.ghost ? v.ghost.visible : true, scale: v.scale};
     });
     var withFrames = studio.builds.filter(function (b) { return b.has_frames; });
     var width = withFrames.length > 1 ? 520 : 760;
@@ -126,6 +126,7 @@
         if (!k) return;
         v.setView(k.view);
         v.setTime(k.t);
+        if (k.scale.kind !== "morph") v.setScale(k.scale.kind, k.scale.fixed);
         if (k.picked !== null && k.picked < v.data.n_bases) v.selectBase(k.picked);
       });
       if (!list.length) box.textContent = "no simulated build (press Run)";
@@ -142,7 +143,7 @@
     this.orbit = new MorphViewer.Orbit(this.camera, this.canvas, function () { self.render(); });
     this.orbit.modeOf = function (e) {
       var tool = self.tool();
-      if (e.shiftKey) return "pan";
+      if (e.shiftKey || e.button === 1) return "pan";   // the viewer's buttons (Orbit)
       if (e.button === 2) return "turn";
       if (e.button !== 0) return null;
       if (tool === "look") return "turn";
@@ -217,10 +218,7 @@
       }
       g.computeBoundingSphere();
       if (!opts.keepCamera || self.fittedFor !== build.id) {
-        var bs = g.boundingSphere;
-        self.orbit.target.copy(bs.center);
-        self.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.05;
-        self.orbit.theta = -Math.PI / 2 + 0.5; self.orbit.phi = 0.8;
+        self.fit();
         self.fittedFor = build.id;
       }
       self.orbit.update(false);
@@ -233,7 +231,7 @@
       st.id = build.id; st.name = d.build; st.base = d.landscape_sha256;
       self.states[build.id] = self.st = st;
       if (studio.loading === build.id) studio.loading = null;
-      self.scale = null;
+      self.fixScale(null);     // the build's own range, fixed while painting
       self.version = (self.version || 0) + 1;
       self.feas = d.feasibility;
       self.listKeyframes();
@@ -241,6 +239,13 @@
       self.updateButtons();
       return self.preview();
     });
+  };
+
+  Editor.prototype.fit = function () {
+    var bs = this.mesh.geometry.boundingSphere;
+    this.orbit.target.copy(bs.center);
+    this.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.05;
+    this.orbit.theta = -Math.PI / 2 + 0.5; this.orbit.phi = 0.8;
   };
 
   // ------------------------------------------------ history: undo restores byte for byte
@@ -595,26 +600,38 @@
   };
 
   // ------------------------------------------------ drawing
+  var OUTLIER = [1.0, 0.5, 0.0];
   var BAND = {early: [0.85, 0.12, 0.1], late: [0.12, 0.3, 0.95], both: [0.6, 0.1, 0.7],
     ok: [0.2, 0.68, 0.32]};
+  // the time scale: fixed (colours never shift under the brush) to the build's range, or
+  // to the user's; a time beyond it is drawn orange and counted in the legend
+  Editor.prototype.fixScale = function (range) {
+    var land = range ? null : (this.buildLand || []), lo = Infinity, hi = -Infinity;
+    if (range) { lo = range[0]; hi = range[1]; }
+    else for (var i = 0; i < land.length; i++) { lo = Math.min(lo, land[i]); hi = Math.max(hi, land[i]); }
+    if (!(hi - lo >= 1e-6)) { lo = (isFinite(lo) ? lo : 0) - 1; hi = lo + 2; }
+    this.scale = {lo: lo, hi: hi, user: !!range};
+    $("scale-lo").value = String(+lo.toPrecision(6)); $("scale-hi").value = String(+hi.toPrecision(6));
+    $("scale-lo").classList.remove("bad"); $("scale-hi").classList.remove("bad");
+    if (this.st) this.paint();
+  };
   Editor.prototype.paint = function () {
     if (!this.mesh || !this.st) return;
-    var land = this.st.land, feas = this.feas, i, lo = Infinity, hi = -Infinity;
-    for (i = 0; i < land.length; i++) { lo = Math.min(lo, land[i]); hi = Math.max(hi, land[i]); }
-    // a scale that only grows while painting (colours do not shift under the brush)
-    if (!this.scale || this.scale.build !== this.build.id) this.scale = {lo: lo, hi: hi, build: this.build.id};
-    this.scale.lo = Math.min(this.scale.lo, lo); this.scale.hi = Math.max(this.scale.hi, hi);
+    var land = this.st.land, feas = this.feas, i, beyond = 0;
     var slo = this.scale.lo, shi = this.scale.hi;
-    if (shi - slo < 1e-6) { slo -= 1; shi += 1; }
     var mode = $("colour-mode").value, col = this.mesh.geometry.getAttribute("color");
     for (i = 0; i < land.length; i++) {
       var c;
-      if (mode === "band" && feas) {
+      if (mode === "diff") {
+        c = this.diffColour(i);
+      } else if (mode === "band" && feas) {
         var early = false, late = false;
         this.cellsOf[i].forEach(function (k) {
           if (feas.side[k] < 0) early = true; else if (feas.side[k] > 0) late = true;
         });
         c = early && late ? BAND.both : early ? BAND.early : late ? BAND.late : BAND.ok;
+      } else if (land[i] < slo || land[i] > shi) {
+        c = OUTLIER; beyond++;
       } else {
         c = MorphViewer.cmap("viridis", (land[i] - slo) / (shi - slo));
       }
@@ -623,8 +640,27 @@
     col.needsUpdate = true;
     this.container.setAttribute("data-colour", mode);
     if (feas) this.drawMarks(feas);
+    this.beyond = mode === "band" ? 0 : beyond;
+    this.container.setAttribute("data-beyond", String(this.beyond));
     this.drawLegend(mode, slo, shi);
     this.render();
+  };
+  // completion A - B of the compared builds at a vertex: the mean over its cells, on a
+  // blue-white-red scale symmetric about 0 up to the 98th percentile of |A - B| (beyond it:
+  // orange); grey where no cell has both times, or when nothing is compared
+  Editor.prototype.diffColour = function (v) {
+    var cmp = studio.compare, d = cmp && cmp.r.diff_done_s;
+    if (!d || d.length !== this.target.vertex_a.length) return [0.55, 0.55, 0.55];
+    if (!cmp.span) {
+      var abs = d.filter(function (x) { return x !== null; }).map(Math.abs).sort(function (p, q) { return p - q; });
+      cmp.span = abs.length ? Math.max(abs[Math.floor(0.98 * (abs.length - 1))], 1e-3) : 1;
+    }
+    var s = 0, n = 0;
+    this.cellsOf[v].forEach(function (k) { if (d[k] !== null) { s += d[k]; n++; } });
+    if (!n) return [0.55, 0.55, 0.55];
+    var x = s / n;
+    if (Math.abs(x) > cmp.span * (1 + 1e-9)) return OUTLIER;
+    return MorphViewer.cmap("diverging", 0.5 + 0.5 * x / cmp.span);
   };
   Editor.prototype.drawMarks = function (feas) {
     var mid = this.target.mid, pts = [], cols = [], early = 0, late = 0, i;
@@ -655,6 +691,13 @@
   Editor.prototype.drawLegend = function (mode, lo, hi) {
     var leg = $("legend-editor");
     leg.innerHTML = "";
+    if (mode === "diff") {
+      var cmp = studio.compare;
+      leg.textContent = cmp ? "completion A - B (s): blue -" + fmt(cmp.span, 1) + ", white 0, red +" +
+        fmt(cmp.span, 1) + " (98th percentile of |A - B|; orange beyond; grey: never completes)" :
+        "completion A - B: compare two builds first (Results, Compare)";
+      return;
+    }
     if (mode === "band") {
       [["too early", BAND.early], ["too late", BAND.late], ["both", BAND.both], ["within reach", BAND.ok]]
         .forEach(function (p) {
@@ -672,7 +715,8 @@
     leg.appendChild(document.createTextNode("requested time " + lo.toFixed(1) + " s "));
     var ramp = el("span", {"class": "mv-ramp"}, leg);
     ramp.style.background = "linear-gradient(90deg," + stops.join(",") + ")";
-    leg.appendChild(document.createTextNode(" " + hi.toFixed(1) + " s"));
+    leg.appendChild(document.createTextNode(" " + hi.toFixed(1) + " s" + (this.beyond ?
+      " (orange: " + this.beyond + " vertices beyond the scale)" : "")));
   };
 
   // per-cell details of the cell nearest the pointer
@@ -910,6 +954,10 @@
       return ed.load(target, {keepCamera: !sent.variant}).then(function () {
         return Promise.all([loadViewers(), loadResults(), loadParts()]);
       }).then(function () {
+        if (sent.variant) {   // did the edit work? the variant (A) against its original (B)
+          $("cmp-a").value = String(target.id); $("cmp-b").value = String(sent.id);
+          compare();
+        }
         if (kept) {   // the draft on the new landscape, one undo step back to the built one
           ed.st.undo = [{land: Float64Array.from(ed.buildLand), edits: [], keyframes: []}];
           ed.st.land = state.land; ed.st.edits = state.edits;
@@ -931,7 +979,54 @@
     sel.innerHTML = "";
     studio.builds.forEach(function (b) { el("option", {value: String(b.id), text: b.name}, sel); });
     if (keep) sel.value = keep;
+    fillCompare();
     $("builds-note").textContent = studio.builds.map(function (b) { return b.path; }).join(" | ");
+  }
+
+  // ---------------------------------------------------------------- compare: A - B
+  var REGION = [["requested_mean_s", "requested t*, mean (s)", 2], ["simulated_mean_s",
+    "simulated completion, mean (s)", 2], ["timing_rms_s", "timing RMS, programmable cells (s)", 2],
+    ["n_never_complete", "cells that never complete", 0], ["n_out_of_reach", "out of reach (clamped)", 0]];
+  function compare() {
+    var a = parseInt($("cmp-a").value, 10), b = parseInt($("cmp-b").value, 10), box = $("compare");
+    box.setAttribute("data-state", "loading");
+    return api("/api/build/" + a + "/compare", {other: b}).then(function (r) {
+      setError("compare", null);
+      studio.compare = {a: a, b: b, r: r};
+      box.innerHTML = "";
+      var na = "A: " + r.names.a, nb = "B: " + r.names.b;
+      el("h4", {text: "The painted region: " + r.region.length + " cells (those whose requested time differs)"}, box);
+      var t = el("table", {id: "cmp-region"}, box), h = el("tr", {}, t);
+      ["", na, nb, "A - B"].forEach(function (x) { el("th", {text: x}, h); });
+      REGION.forEach(function (f) {
+        var tr = el("tr", {"data-key": f[0]}, t), x = r.a[f[0]], y = r.b[f[0]];
+        el("td", {text: f[1]}, tr); el("td", {text: fmt(x, f[2])}, tr); el("td", {text: fmt(y, f[2])}, tr);
+        el("td", {text: (x === null || y === null) ? "n/a" : fmt(x - y, f[2])}, tr);
+      });
+      el("h4", {text: "Every figure of both builds"}, box);
+      var t2 = el("table", {id: "cmp-figures"}, box), h2 = el("tr", {}, t2);
+      ["", na, nb, "A - B"].forEach(function (x) { el("th", {text: x}, h2); });
+      FIGURES.forEach(function (f) {
+        var fa = r.figures.a || {}, fb = r.figures.b || {}, x = fa[f[0]], y = fb[f[0]];
+        var tr = el("tr", {"data-key": f[0]}, t2);
+        el("td", {text: f[1]}, tr);
+        el("td", {text: typeof x === "string" ? x : fmt(x, f[3])}, tr);
+        el("td", {text: typeof y === "string" ? y : fmt(y, f[3])}, tr);
+        el("td", {text: typeof x === "number" && typeof y === "number" ? fmt(x - y, f[3]) : (x === y ? "same" : "")}, tr);
+      });
+      box.setAttribute("data-state", "shown");
+      box.setAttribute("data-region", String(r.region.length));
+      $("colour-mode").value = "diff";
+      studio.editor.paint();
+    }).catch(function (e) { setError("compare", "compare: " + e.message); box.setAttribute("data-state", "error"); });
+  }
+  function fillCompare() {
+    ["cmp-a", "cmp-b"].forEach(function (id, k) {
+      var sel = $(id), keep = sel.value;
+      sel.innerHTML = "";
+      studio.builds.forEach(function (b) { el("option", {value: String(b.id), text: b.name}, sel); });
+      sel.value = keep || String(Math.min(k, studio.builds.length - 1));
+    });
   }
 
   // a CSV file (vertex_id,time_s) as the landscape: checked by the server, one undoable step
@@ -1008,6 +1103,19 @@
       $("redo").addEventListener("click", function () { ed.redo(); });
       $("reset").addEventListener("click", function () { ed.reset(); });
       $("colour-mode").addEventListener("change", function () { ed.paint(); });
+      ["scale-lo", "scale-hi"].forEach(function (id) {
+        $(id).addEventListener("change", function () {
+          var lo = parseFloat($("scale-lo").value), hi = parseFloat($("scale-hi").value);
+          var ok = isFinite(lo) && isFinite(hi) && hi > lo;
+          $("scale-lo").classList.toggle("bad", !ok); $("scale-hi").classList.toggle("bad", !ok);
+          if (ok) ed.fixScale([lo, hi]);     // a bad pair is marked, never replaced
+        });
+      });
+      $("scale-build").addEventListener("click", function () { ed.fixScale(null); });
+      $("cmp-go").addEventListener("click", compare);
+      ["top", "side", "reset"].forEach(function (n) {
+        $("view-" + n).addEventListener("click", function () { ed.orbit.preset(n, function () { ed.fit(); }); });
+      });
       $("download").addEventListener("click", function () {
         var a = el("a", {href: URL.createObjectURL(new Blob([ed.csv()], {type: "text/csv"})),
           download: ed.build.name + "-time_landscape.csv"});
@@ -1042,6 +1150,7 @@
         return loadViewers();
       });
     }).then(function () {
+      document.body.setAttribute("data-ready-ms", String(Math.round(performance.now())));
       document.body.setAttribute("data-ready", "1");
     }).catch(function (e) {
       if (e.status === 403) $("token-missing").hidden = false;   // neither cookie nor token
