@@ -416,6 +416,27 @@ def _wait_for(cond, what="the condition"):
         time.sleep(0.02)
 
 
+def test_a_run_whose_stage_hangs_silently_is_stopped_at_the_timeout(monkeypatch, tmp_path):
+    """Issue #46 item 4: the timeout was checked only when a progress line came."""
+    import dataclasses
+    import time
+
+    from pysolver.child import python_argv
+    from pysolver.studio import server as studio_server
+
+    monkeypatch.setattr(studio_server, "LIMITS", dataclasses.replace(
+        studio_server.LIMITS, studio_job_timeout_s=1.0))
+    monkeypatch.setattr(studio_server, "python_argv", lambda module: python_argv(
+        code="import time\ntime.sleep(120)"))   # a stage that never says a word
+    job = studio_server.Job()
+    job.state.update(state="running", started=time.time(), log=[])
+    job._run(studio_server.Build(tmp_path), "{}", ["start", "program", "report"],
+             dict(studio_server.Job.DEFAULT_S))
+    state = job.snapshot()
+    # (not stopped, the silent child would have ended after 120 s as "done")
+    assert state["state"] == "error" and "longer than 1 s" in state["error"], state
+
+
 def test_eta_is_the_rest_of_the_plan_at_this_run_s_pace():
     from pysolver.studio.server import eta_seconds
 

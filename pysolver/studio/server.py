@@ -357,10 +357,14 @@ class Job:
         try:
             proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
                                     stderr=subprocess.PIPE, text=True)
-            ticker = threading.Event()
+            ticker, timed_out = threading.Event(), threading.Event()
 
             def tick():   # the bar moves between progress lines too (time / expected time)
                 while not ticker.wait(0.5):
+                    if time.time() - t0 > LIMITS.studio_job_timeout_s:   # even when silent
+                        timed_out.set()
+                        proc.kill()
+                        return
                     self._progress(plan, expect, (done_s, actual), stage, t_stage, frac,
                                    None)
 
@@ -383,12 +387,12 @@ class Job:
                     if f and (stage != "refine" or line.startswith("[refine]")):
                         frac = max(frac, min(int(f.group(1)) / max(int(f.group(2)), 1), 1.0))
                 self._progress(plan, expect, (done_s, actual), stage, t_stage, frac, line)
-                if time.time() - t0 > LIMITS.studio_job_timeout_s:
-                    proc.kill()
-                    raise MorphshellError(f"the run took longer than "
-                                          f"{LIMITS.studio_job_timeout_s:g} s and was stopped")
             rc = proc.wait()
             ticker.set()
+            if timed_out.is_set():
+                raise MorphshellError(f"the run took longer than "
+                                      f"{LIMITS.studio_job_timeout_s:g} s (stage {stage}) and "
+                                      "was stopped; nothing of this edit was saved")
             build.forget()
             if rc in (0, 3) and self.on_done is not None:
                 self.on_done()
