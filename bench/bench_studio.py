@@ -37,8 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pysolver.build import rebuild  # noqa: E402
-from pysolver.build import report_figures  # noqa: E402
+from pysolver.build import rebuild, report_figures  # noqa: E402
 from pysolver.studio.compare import compare_cells  # noqa: E402
 from pysolver.studio.landscape import Feasibility  # noqa: E402
 from pysolver.studio.server import (  # noqa: E402

@@ -430,7 +430,7 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
     """
     folder = Path(folder).absolute()
     dest = folder if out is None else Path(out).absolute()
-    old, opts = _rebuild_options(folder, progress)
+    old, opts = rebuild_options(folder, progress)
     V, _, _ = tables.read_stencil(folder / "stencil.obj")
     land = tables.round_sig9(check_landscape(landscape, len(V)))   # as time_landscape.csv keeps it
     claim_output(dest, what="build folder" if out is None else "variant folder",
@@ -458,8 +458,9 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
     return _closing(summary, dest.name, dest, progress)
 
 
-def _rebuild_options(folder: Path, progress: bool):
-    """The summary of the build in ``folder`` and the options its stages ran with."""
+def rebuild_options(folder: Path, progress: bool = False):
+    """The summary of the build in ``folder`` and the options its stages ran with, which a
+    :func:`rebuild` of it runs with (the studio plans its progress bar by them)."""
     old = read_record(folder / "summary.json")
     if not isinstance(old, dict) or not isinstance(old.get("options"), dict):
         raise InputError(f"{folder / 'summary.json'} is missing or unreadable: only a folder "

@@ -336,7 +336,7 @@ def test_concurrent_runs_queue_or_get_409_never_500(small_build):
         _stop(srv)
 
 
-# ------------------------------------------------------------------------------ one landscape, one build
+# ------------------------------------------------------------------ one landscape, one build
 
 
 def _other(small_build, tmp_path, name="other", add_s=3.0):

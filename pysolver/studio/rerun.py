@@ -3,8 +3,9 @@
     python -m pysolver.studio.rerun < request.json
 
 The request (stdin, JSON) is ``{"folder": path, "landscape": [s per stencil vertex],
-"source": {...}, "out": path (optional: a new build beside the original)}``; :func:`pysolver.build.rebuild` runs the stages after the design stage
-with the build's own options and replaces the folder only when all have finished.  Its
+"source": {...}, "out": path (optional: a new build beside the original)}``;
+:func:`pysolver.build.rebuild` runs the stages after the design stage with the build's own
+options and replaces the folder (or writes ``out``) only when all have finished.  Its
 progress lines go to stderr (the studio's progress bar reads them).  Exit codes as the
 command line: 0 done, 3 done with a FAIL verdict, 2 bad input (nothing saved), 1 a bug.
 """

@@ -72,11 +72,12 @@ from urllib.parse import parse_qs, quote, urlsplit
 
 import numpy as np
 
-from ..build import report_figures
+from ..build import rebuild_options, report_figures
 from ..child import python_argv
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, PROGRAMMING
 from ..simulator import build_parts, morph_viewer, viewer_assets
+from ..stages import STAGES
 from ..tables import LANDSCAPE_SOURCE, read_record, read_stencil, read_table
 from .compare import compare_cells
 from .landscape import (
@@ -321,13 +322,10 @@ class Job:
         Busy
             A job is already running (this build's or another's).
         """
-        summ = read_record(build.folder / "summary.json") or {}
+        summ, opts = rebuild_options(build.folder)   # InputError: not a build, nothing run
         times = summ.get("timings_s") or {}
-        opts = summ.get("options") or {}
-        run = summ.get("run") or {}
-        plan = ["start", "program", "simulate"] + (["refine"] if opts.get("refine") else [])
-        plan += ["render"] if run.get("render", (build.folder / "stl").is_dir()) else []
-        plan += ["report"]
+        # the stages a rebuild runs, as it decides (pysolver.stages.STAGES after the design)
+        plan = ["start"] + [s.name for s in STAGES[1:] if s.wanted(opts)]
         expect = {s: float(times.get(s) or self.DEFAULT_S[s]) for s in self.DEFAULT_S}
         with self.lock:
             if self.state["state"] == "running":
