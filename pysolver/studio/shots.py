@@ -226,9 +226,11 @@ def _shoot_run(d, save, out: dict) -> None:
     ``studio-ghost.png``)."""
     d.find_element("id", "variant").click()       # into a new build beside the original
     d.find_element("id", "run").click()
+    # the bar with a stage, a percentage and an ETA (whichever stage is running then)
     _wait(d, lambda d: d.execute_script(
-        "return !!(studio.job && studio.job.stage === 'simulate'"
-        " && studio.job.progress > 0.2)"), "the run's simulation", timeout=600)
+        "var j = studio.job; return !!(j && (j.state === 'done' || j.state === 'error' ||"
+        " j.state === 'running' && j.stage && j.stage !== 'start' && j.progress > 0.1))"),
+        "the run's first stages", timeout=600)
     save(_element_png(d, ".tools"), "studio-progress.png")
     _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute(
         "data-state") in ("done", "error"), "the run", timeout=1800)

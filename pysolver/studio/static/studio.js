@@ -955,6 +955,8 @@
         return Promise.all([loadViewers(), loadResults(), loadParts()]);
       }).then(function () {
         if (sent.variant) {   // did the edit work? the variant (A) against its original (B)
+          $("variant").checked = false; $("variant-name").value = "";   // that name is taken now
+          ed.updateButtons();
           $("cmp-a").value = String(target.id); $("cmp-b").value = String(sent.id);
           compare();
         }
