@@ -15,7 +15,8 @@ does, and captures each step:
 * ``studio-compare.png``: did the edit work? the variant (A) against the original (B): the
   painted region's requested and simulated times, and every figure of both;
 * ``studio-diff.png``: the editor coloured by the completion difference A - B per cell;
-* ``studio-ghost.png``: the morph's last frame with the target's translucent ghost;
+* ``studio-ghost.png``: the morph's last frame with the target's translucent ghost, the
+  distance to the target on this frame's own colour range;
 * ``studio.png``: the whole page; ``report.png``: the top of the build's report.
 
     python -m pysolver.studio.shots build/petal docs/img
@@ -248,7 +249,7 @@ def _shoot_run(d, save, out: dict) -> None:
     save(_element_png(d, "#compare"), "studio-compare.png")
     save(_element_png(d, "#editor-section"), "studio-diff.png")
     d.execute_script("var v = studio.viewers[0]; v.setFrame(v.nf - 1); v.setGhost(true);"
-                     "v.setColorMode('distance');")
+                     "v.setColorMode('distance'); v.setScale('frame');")
     time.sleep(0.5)
     save(_element_png(d, "#viewer-section"), "studio-ghost.png")
 
