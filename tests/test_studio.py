@@ -1117,3 +1117,14 @@ def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, s
         _select(d, 0)
         assert _land(d).tobytes() == painted.tobytes()
         assert d.find_element("id", "editor-view").get_attribute("data-undo") == "2"
+        # the region painted in the editor there, compared in the same two builds
+        d.find_element("id", "cmp-painted").click()
+        d.find_element("id", "cmp-go").click()
+        built = read_table(small_build, "time_landscape")["time_s"]
+        cells = read_table(small_build, "cells")
+        moved = np.flatnonzero(painted != built)
+        mine = np.isin(cells["vertex_a"], moved) | np.isin(cells["vertex_b"], moved)
+        _wait(d, lambda d: d.find_element("id", "compare").get_attribute("data-state")
+              == "shown" and "painted in the editor" in d.find_element(
+                  "css selector", "#compare h4").text, "the painted region's comparison")
+        assert d.find_element("id", "compare").get_attribute("data-region") == str(mine.sum())

@@ -794,7 +794,7 @@
       });
       if (!(r.now.reasons || []).length) el("li", {text: "every check passed"}, ul);
       var tab = el("table", {id: "figures"}, box), head = el("tr", {}, tab);
-      (r.before ? ["", "this build", "the run before", "change"] : ["", "this build"])
+      (r.before ? ["", "this build", "before this run (the build it was made from)", "change"] : ["", "this build"])
         .forEach(function (h) { el("th", {text: h}, head); });
       FIGURES.forEach(function (f) {
         var tr = el("tr", {"data-key": f[0]}, tab), now = r.now[f[0]], then = r.before ? r.before[f[0]] : undefined;
@@ -971,6 +971,15 @@
       });
     });
   }
+  // the cells with a vertex whose time differs from the build's own landscape
+  Editor.prototype.paintedCells = function () {
+    var st = this.st, seen = {}, out = [], self = this;
+    for (var i = 0; i < st.land.length; i++) {
+      if (st.land[i] === this.buildLand[i]) continue;
+      this.cellsOf[i].forEach(function (c) { if (!seen[c]) { seen[c] = 1; out.push(c); } });
+    }
+    return out.sort(function (p, q) { return p - q; });
+  };
   Editor.prototype.draftOf = function (st, sent) {
     var n = 0;
     for (var i = 0; i < st.land.length; i++) if (st.land[i] !== sent.land[i]) n++;
@@ -991,13 +1000,23 @@
     ["n_never_complete", "cells that never complete", 0], ["n_out_of_reach", "out of reach (clamped)", 0]];
   function compare() {
     var a = parseInt($("cmp-a").value, 10), b = parseInt($("cmp-b").value, 10), box = $("compare");
+    var body = {other: b}, ed = studio.editor, painted = $("cmp-painted").checked;
+    if (painted) {   // the region painted in the editor now (on the build it shows)
+      body.cells = ed.paintedCells();
+      if (!body.cells.length) {
+        setError("compare", "compare: nothing is painted in the editor on " + ed.st.name +
+          " (its landscape is the build's): paint there, or untick 'cells painted in the editor'");
+        return Promise.resolve();
+      }
+    }
+    var where = painted ? "painted in the editor on " + ed.st.name : "those whose requested time differs";
     box.setAttribute("data-state", "loading");
-    return api("/api/build/" + a + "/compare", {other: b}).then(function (r) {
+    return api("/api/build/" + a + "/compare", body).then(function (r) {
       setError("compare", null);
       studio.compare = {a: a, b: b, r: r};
       box.innerHTML = "";
       var na = "A: " + r.names.a, nb = "B: " + r.names.b;
-      el("h4", {text: "The painted region: " + r.region.length + " cells (those whose requested time differs)"}, box);
+      el("h4", {text: "The painted region: " + r.region.length + " cells (" + where + ")"}, box);
       var t = el("table", {id: "cmp-region"}, box), h = el("tr", {}, t);
       ["", na, nb, "A - B"].forEach(function (x) { el("th", {text: x}, h); });
       REGION.forEach(function (f) {
