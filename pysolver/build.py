@@ -321,7 +321,7 @@ class _StageRunner:
         self.inner = 0.0  # seconds of the steps run inside the stage running now
 
     def run(self, key: str, fn, *a, **kw):
-        say("build", self.name, f"{key} ...", self.progress)
+        say("build", self.name, f"{key} ...", self.progress, starts=key)
         t0, outer = time.perf_counter(), self.inner
         self.inner = 0.0
         try:

@@ -289,11 +289,11 @@ class Build:
 
 
 class Job:
-    """The one job (a rebuild) running in a subprocess; its progress lines drive one progress
-    bar over every stage, weighted by the stage times of the build being run again."""
+    """The one job (a rebuild) running in a subprocess; its progress events (JSON lines on
+    its stdout, :func:`pysolver.progress.emit_events`) drive one progress bar over every
+    stage, weighted by the stage times of the build being run again; its stderr is kept
+    (the last lines) for the error message."""
 
-    STAGE = re.compile(r"^\[build\] .*?: (\w+) \.\.\.$")
-    FRACTION = re.compile(r"^\[\w+\] .*?: (\d+)/(\d+)\b")
     DEFAULT_S = {"start": 4.0, "program": 3.0, "simulate": 20.0, "simulate_contact": 20.0,
                  "refine": 25.0, "render": 40.0, "report": 10.0}
     """Expected seconds of a stage the build did not time (its own times come first);
@@ -355,8 +355,10 @@ class Job:
         tail: list[str] = []
         t0 = time.time()
         try:
-            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
+            drain = threading.Thread(target=_keep_tail, args=(proc.stderr, tail), daemon=True)
+            drain.start()
             ticker, timed_out = threading.Event(), threading.Event()
 
             def tick():   # the bar moves between progress lines too (time / expected time)
@@ -371,24 +373,25 @@ class Job:
             threading.Thread(target=tick, daemon=True).start()
             proc.stdin.write(req)
             proc.stdin.close()
-            for line in proc.stderr:
-                line = line.rstrip()
-                tail = (tail + [line])[-40:]
-                m = self.STAGE.match(line)
-                if m and m.group(1) in self.DEFAULT_S:
+            for raw in proc.stdout:
+                ev = progress_event(raw)
+                if ev is None:        # not an event (the verdict printed on stdout)
+                    continue
+                if ev.get("starts") in self.DEFAULT_S:
                     done_s += expect[stage]
                     actual[stage] = time.time() - t_stage
-                    stage, t_stage, frac = m.group(1), time.time(), 0.0
+                    stage, t_stage, frac = ev["starts"], time.time(), 0.0
                     if stage not in plan:     # contact switched on: one more simulation
                         plan.insert(plan.index("report") if "report" in plan else len(plan),
                                     stage)
-                elif stage != "start":
-                    f = self.FRACTION.search(line)
-                    if f and (stage != "refine" or line.startswith("[refine]")):
-                        frac = max(frac, min(int(f.group(1)) / max(int(f.group(2)), 1), 1.0))
-                self._progress(plan, expect, (done_s, actual), stage, t_stage, frac, line)
+                elif stage != "start" and "k" in ev and (stage != "refine"
+                                                         or ev["stage"] == "refine"):
+                    frac = max(frac, min(ev["k"] / max(ev["n"], 1), 1.0))
+                self._progress(plan, expect, (done_s, actual), stage, t_stage, frac,
+                               ev["text"])
             rc = proc.wait()
             ticker.set()
+            drain.join(10)
             if timed_out.is_set():
                 raise MorphshellError(f"the run took longer than "
                                       f"{LIMITS.studio_job_timeout_s:g} s (stage {stage}) and "
@@ -429,6 +432,34 @@ class Job:
     def _set(self, **kw):
         with self.lock:
             self.state.update(kw)
+
+
+def progress_event(raw: str) -> dict | None:
+    """One line of a Run's stdout as a progress event (:func:`pysolver.progress.say`), or
+    None when it is not one: ``event`` ("stage" or "line"), ``stage``, ``text`` (str),
+    ``starts`` (str, a stage event), ``k`` and ``n`` (whole numbers, ``n >= 1``) or neither.
+    """
+    try:
+        ev = json.loads(raw)
+    except ValueError:
+        return None
+    if not isinstance(ev, dict) or ev.get("event") not in ("stage", "line") or not all(
+            isinstance(ev.get(key), str) for key in ("stage", "text")):
+        return None
+    if ev["event"] == "stage" and not isinstance(ev.get("starts"), str):
+        return None
+    if ("k" in ev or "n" in ev) and not (
+            isinstance(ev.get("k"), int) and isinstance(ev.get("n"), int) and ev["n"] >= 1):
+        return None
+    ev["text"] = ev["text"][-200:]
+    return ev
+
+
+def _keep_tail(stream, tail: list, keep: int = 40) -> None:
+    """Read ``stream`` to its end, keeping its last ``keep`` lines in ``tail``."""
+    for line in stream:
+        tail.append(line.rstrip())
+        del tail[:-keep]
 
 
 def eta_seconds(plan, expect, actual, stage, spent, frac) -> float:
