@@ -3,9 +3,14 @@
 * preview: the reachable band of every cell for a painted landscape (``POST /preview`` over
   HTTP to a studio on the build, with its token), median and max of ``--previews`` requests;
   and the server's own part of it (``pysolver.studio.landscape.Feasibility.evaluate``);
-* run: *Run* on a copy of the build (beside it, so the render stage shares the part cache)
-  with ``--add`` seconds added within ``--radius`` mm of the vertex nearest the centre: the
-  wall time of ``pysolver.build.rebuild`` and its stages.
+* viewer: the morph viewer's data, its bytes plain and gzip-compressed (what the studio
+  sends a browser that takes gzip) and the seconds to make each;
+* run: *Run into a new build* (a variant beside the build, in a temporary folder beside it,
+  so the render stage shares the part cache) with ``--add`` seconds added within
+  ``--radius`` mm of the vertex nearest the centre: the wall time of
+  ``pysolver.build.rebuild(..., out=)`` and its stages, the figures of both builds
+  (``pysolver.build.report_figures``) and the painted region's cells before and after
+  (``pysolver.studio.compare.compare_cells``, the studio's *Compare*).
 
 Writes ``<out>/studio.json``.
 
@@ -32,9 +37,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pysolver.build import rebuild  # noqa: E402
+from pysolver.build import rebuild, report_figures  # noqa: E402
+from pysolver.studio.compare import compare_cells  # noqa: E402
 from pysolver.studio.landscape import Feasibility  # noqa: E402
-from pysolver.studio.server import TOKEN_HEADER, StudioServer, resolve_folders  # noqa: E402
+from pysolver.studio.server import (  # noqa: E402
+    TOKEN_HEADER,
+    Build,
+    StudioServer,
+    resolve_folders,
+)
 from pysolver.tables import read_stencil, read_table  # noqa: E402
 
 
@@ -80,21 +91,35 @@ def bench_preview(folder: Path, land: np.ndarray, n: int) -> dict:
             "n_cells": int(len(read_table(folder, "cells")["cell_id"]))}
 
 
+def bench_viewer(folder: Path) -> dict:
+    b = Build(folder.resolve())
+    t0 = time.perf_counter()
+    plain = b.viewer_body(False)
+    t1 = time.perf_counter()
+    packed = b.viewer_body(True)
+    t2 = time.perf_counter()
+    return {"plain_bytes": len(plain), "gzip_bytes": len(packed),
+            "make_s": round(t1 - t0, 3), "gzip_s": round(t2 - t1, 3)}
+
+
 def bench_run(folder: Path, land: np.ndarray) -> dict:
     work = Path(tempfile.mkdtemp(prefix=".bench-studio-", dir=folder.resolve().parent))
     try:
-        copy = work / folder.name
-        shutil.copytree(folder, copy, symlinks=True)
+        variant = work / f"{folder.name}-2"
         t0 = time.perf_counter()
-        s = rebuild(copy, land, source={"edits": [{"tool": "brush", "mode": "add"}]},
-                    progress=False)
+        s = rebuild(folder, land, source={"edits": [{"tool": "brush", "mode": "add"}]},
+                    progress=False, out=variant)
         wall = time.perf_counter() - t0
-        rep = json.loads((copy / "report" / "report.json").read_text())
+        a, b = Build(folder.resolve()), Build(variant)
+        cmp = compare_cells(b.viewer()["cells"], a.viewer()["cells"])
+        figures = {"original": report_figures(folder), "variant": report_figures(variant)}
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    return {"wall_s": round(wall, 2), "stages_s": s["timings_s"],
-            "verdict": rep["verdict"], "timing_rms_s": rep["metrics"]["timing"]["rms_s"],
-            "before": s["edited"]["before"]}
+    for f in figures.values():
+        f.pop("reasons", None)
+    return {"wall_s": round(wall, 2), "stages_s": s["timings_s"], "figures": figures,
+            "region": {"n_cells": len(cmp["region"]), "variant": cmp["a"],
+                       "original": cmp["b"]}}
 
 
 def main() -> int:
@@ -114,9 +139,11 @@ def main() -> int:
     out = {"build": str(folder), "add_s": a.add, "radius_mm": a.radius,
            "preview": bench_preview(folder, land, a.previews)}
     print(f"[bench] preview: {out['preview']}", file=sys.stderr, flush=True)
+    out["viewer"] = bench_viewer(folder)
+    print(f"[bench] viewer: {out['viewer']}", file=sys.stderr, flush=True)
     if not a.no_run:
         out["run"] = bench_run(folder, land)
-        print(f"[bench] run: {out['run']['wall_s']} s {out['run']['stages_s']}", file=sys.stderr)
+        print(f"[bench] run: {json.dumps(out['run'], indent=1)}", file=sys.stderr)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "studio.json").write_text(json.dumps(out, indent=1) + "\n")
     return 0

@@ -321,7 +321,7 @@ class _StageRunner:
         self.inner = 0.0  # seconds of the steps run inside the stage running now
 
     def run(self, key: str, fn, *a, **kw):
-        say("build", self.name, f"{key} ...", self.progress)
+        say("build", self.name, f"{key} ...", self.progress, starts=key)
         t0, outer = time.perf_counter(), self.inner
         self.inner = 0.0
         try:
@@ -388,7 +388,8 @@ them again); its subfolders (``sim/``, ``report/``, ``scad/``, ``stl/``, ``toler
 all made from the old tables and are not carried over either."""
 
 
-def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = True) -> dict:
+def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = True,
+            out=None) -> dict:
     """Build a design folder again from a new time landscape, through the same stages as
     :func:`build` after the design stage, with the options that build recorded
     (``summary.json``): program (the landscape is the user's: checked, never rescaled),
@@ -410,6 +411,10 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
         provenance); JSON-serialisable.
     progress : bool
         Progress lines on stderr (``[build] <name>: <stage> ...``, as a build).
+    out : path-like, optional
+        Build the edited landscape into this folder instead (a *variant* beside the
+        original, e.g. ``build/petal-2``): ``folder`` is only read, and stays as it was.
+        The folder must be new or one morphshell made (:func:`claim_output`).
 
     Returns
     -------
@@ -424,14 +429,17 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
         stage refusing the landscape (the folder is then unchanged).
     """
     folder = Path(folder).absolute()
-    old, opts = _rebuild_options(folder, progress)
+    dest = folder if out is None else Path(out).absolute()
+    old, opts = rebuild_options(folder, progress)
     V, _, _ = tables.read_stencil(folder / "stencil.obj")
     land = tables.round_sig9(check_landscape(landscape, len(V)))   # as time_landscape.csv keeps it
-    claim_output(folder, what="build folder")
+    claim_output(dest, what="build folder" if out is None else "variant folder",
+                 inputs=() if out is None else (folder / "stencil.obj",))
     validate_model_files(opts.material, unit=tables.read_unit_cell(folder))
     land_sha = hashlib.sha256(land.astype("<f8").tobytes()).hexdigest()
     edit = {"made_by": "morphshell studio", "edited_from_tables_sha256":
-            tables.tables_sha256(folder), **(source or {})}
+            tables.tables_sha256(folder),
+            **({} if out is None else {"variant_of": folder.name}), **(source or {})}
     digest = hashlib.sha256(f"{old.get('inputs_sha256')}\0{land_sha}".encode()).hexdigest()
     summary: dict = {"shape": old.get("shape", folder.name), "source": old.get("source"),
                      "options": old["options"], "inputs_sha256": digest,
@@ -444,14 +452,15 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
                      "edited": {"by": "morphshell studio", "landscape_sha256": land_sha,
                                 "from_inputs_sha256": old.get("inputs_sha256"),
                                 "before": report_figures(folder)}}
-    ctx = StageContext(staging_dir(folder), opts, name=folder.name, build=summary)
-    _run_build(ctx, folder, STAGES[1:], digest,
+    ctx = StageContext(staging_dir(dest), opts, name=dest.name, build=summary)
+    _run_build(ctx, dest, STAGES[1:], digest,
                setup=lambda staging: _copy_for_rebuild(folder, staging, land, edit))
-    return _closing(summary, folder.name, folder, progress)
+    return _closing(summary, dest.name, dest, progress)
 
 
-def _rebuild_options(folder: Path, progress: bool):
-    """The summary of the build in ``folder`` and the options its stages ran with."""
+def rebuild_options(folder: Path, progress: bool = False):
+    """The summary of the build in ``folder`` and the options its stages ran with, which a
+    :func:`rebuild` of it runs with (the studio plans its progress bar by them)."""
     old = read_record(folder / "summary.json")
     if not isinstance(old, dict) or not isinstance(old.get("options"), dict):
         raise InputError(f"{folder / 'summary.json'} is missing or unreadable: only a folder "
@@ -488,7 +497,8 @@ def report_figures(folder) -> dict | None:
     Returns
     -------
     dict or None
-        ``verdict``, ``reasons`` (list of ``{level, check, message}``), ``timing_rms_s``,
+        ``verdict``, ``reasons`` (list of ``{level, check, message}``), ``timing_rms_s``
+        (the programmable cells: not clamped), ``timing_rms_all_s`` (every cell),
         ``spearman``, ``n_clamped``, ``n_never_complete`` (due by the end and never
         complete), ``n_cells``, ``shape_rms_mm``, ``shape_rms_pct``, ``refine_rounds``,
         ``parts_fresh`` (the STLs match the tables; None without STLs) and ``tables_sha256``.
@@ -501,7 +511,8 @@ def report_figures(folder) -> dict | None:
     tb = m.get("tables") or {}
     parts = tb.get("parts") or {}
     return {"verdict": r.get("verdict"), "reasons": r.get("reasons") or [],
-            "timing_rms_s": tm.get("rms_s"), "spearman": tm.get("spearman"),
+            "timing_rms_s": tm.get("rms_s"), "timing_rms_all_s": tm.get("rms_all_s"),
+            "spearman": tm.get("spearman"),
             "n_clamped": tm.get("n_clamped"), "n_never_complete": tm.get("n_never_due"),
             "n_cells": tm.get("n_cells"), "shape_rms_mm": sh.get("rms_mm"),
             "shape_rms_pct": sh.get("rms_pct"),

@@ -11,13 +11,20 @@ work puts ``k/n`` first in the message and ends the line with ``ETA`` and the ti
     [render] petal: 40/118 parts (fast)  ETA 31 s
     [report] petal: 3/10 timing (+0.1 s)
 
-The studio's progress bar reads these lines (:mod:`pysolver.studio.server`: ``[build]``
-stage lines and the ``k/n`` counts).  Nothing here decides *whether* to print: every
-function takes ``enabled`` (the stages' ``progress`` option).
+Each line can also go out as a structured event, one JSON object per line, to a stream set
+by :func:`emit_events` (the studio's Run sends them on the child's stdout and its progress bar
+reads those, not the text)::
+
+    {"event": "stage", "stage": "build", "subject": "petal", "starts": "simulate", "text": ...}
+    {"event": "line", "stage": "simulate", "subject": "petal", "k": 12, "n": 241, "text": ...}
+
+Nothing here decides *whether* to print: every function takes ``enabled`` (the stages'
+``progress`` option).
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 
@@ -40,10 +47,35 @@ def line(stage: str, subject: str, message: str) -> str:
     return f"[{stage}] {subject}: {message}" if subject else f"[{stage}] {message}"
 
 
-def say(stage: str, subject: str, message: str, enabled: bool = True) -> None:
-    """Print one progress line (:func:`line`) on stderr when ``enabled``."""
-    if enabled:
-        print(line(stage, subject, message), file=sys.stderr, flush=True)
+_EVENTS = None
+"""The text stream structured events go to (:func:`emit_events`), or None."""
+
+
+def emit_events(stream) -> None:
+    """Also write every progress line as a JSON object (one per line) on ``stream``; None
+    stops.  For a child process whose parent reads its progress (the studio's Run)."""
+    global _EVENTS
+    _EVENTS = stream
+
+
+def say(stage: str, subject: str, message: str, enabled: bool = True, *,
+        k: int | None = None, n: int | None = None, starts: str | None = None) -> None:
+    """Print one progress line (:func:`line`) on stderr when ``enabled``, and its event
+    (:func:`emit_events`): with ``k`` of ``n`` steps done, or ``starts``, the name of the
+    stage a build starts."""
+    if not enabled:
+        return
+    text = line(stage, subject, message)
+    print(text, file=sys.stderr, flush=True)
+    if _EVENTS is not None:
+        ev = {"event": "stage" if starts else "line", "stage": stage, "subject": subject,
+              "text": text}
+        if starts:
+            ev["starts"] = starts
+        if k is not None and n is not None:
+            ev.update(k=int(k), n=int(n))
+        _EVENTS.write(json.dumps(ev) + "\n")
+        _EVENTS.flush()
 
 
 class Steps:
@@ -101,7 +133,7 @@ class Steps:
                 eta = self.eta_s()
                 tail = "" if eta is None else f"  ETA {duration(eta)}"
             text = f"{self.k}/{self.total}" + (f" {message}" if message else "") + tail
-            say(self.stage, self.subject, text)
+            say(self.stage, self.subject, text, k=self.k, n=self.total)
         return lap
 
 
@@ -129,4 +161,4 @@ class Clock:
             f"(total {now - self._start:6.1f} s)", self.progress)
 
 
-__all__ = ["duration", "line", "say", "Steps", "Clock", "ETA_WINDOW"]
+__all__ = ["duration", "line", "say", "emit_events", "Steps", "Clock", "ETA_WINDOW"]

@@ -206,7 +206,7 @@ class _Rounds:
         h = self.hist[-1]
         say("refine", self.folder.name, f"{k}/{max(k, asked)}: rms {h['rms_s']:.2f} s, "
             f"spearman {h['spearman']:.3f}, {h['n_never_due']} never complete "
-            f"({h['seconds']:.0f} s)", self.progress)
+            f"({h['seconds']:.0f} s)", self.progress, k=k, n=max(k, asked))
 
     def _write_thickness(self, th) -> None:
         tables.update_cells(self.folder, self.cells, thickness_top_mm=th[:, 0],

@@ -107,19 +107,36 @@ def test_duration_words(s, text):
     assert duration(s) == text
 
 
-def test_the_studio_reads_the_progress_lines(capsys):
-    """The studio's progress bar parses the one style: the build's stage lines and the
-    ``k/n`` counts of the stages (:class:`pysolver.studio.server.Job`)."""
-    from pysolver.progress import say
-    from pysolver.studio.server import Job
+def test_the_studio_reads_the_progress_events(capsys):
+    """The studio's progress bar reads structured events (issue #46 item 4): the JSON lines
+    :func:`pysolver.progress.emit_events` writes beside the text lines (the build's stage
+    starts and the ``k/n`` counts of the stages), never the text itself
+    (:func:`pysolver.studio.server.progress_event`); anything else on the stream is not an
+    event."""
+    import io
 
-    say("build", "regular:rows=2", "simulate ...")
-    Steps("simulate", "regular:rows=2", 240).step("t=   0.5 s  newton   2")
-    Steps("refine", "petal", 2).step("rms 1.20 s")
-    Steps("render", "fast parts", 118).step()
-    say("build", "petal", "simulate done in 3.0 s")
-    stage, sim, refine, render, done = capsys.readouterr().err.splitlines()
-    assert Job.STAGE.match(stage).group(1) == "simulate"
-    assert not Job.STAGE.match(done) and not Job.FRACTION.search(done)
-    assert [Job.FRACTION.search(x).groups() for x in (sim, refine, render)] == [
-        ("1", "240"), ("1", "2"), ("1", "118")]
+    from pysolver import progress
+    from pysolver.progress import say
+    from pysolver.studio.server import progress_event
+
+    out = io.StringIO()
+    progress.emit_events(out)
+    try:
+        say("build", "regular:rows=2", "simulate ...", starts="simulate")
+        Steps("simulate", "regular:rows=2", 240).step("t=   0.5 s  newton   2")
+        Steps("refine", "petal", 2).step("rms 1.20 s")
+        Steps("render", "fast parts", 118).step()
+        say("build", "petal", "simulate done in 3.0 s")
+        say("report", "petal", "quiet", enabled=False)
+    finally:
+        progress.emit_events(None)
+    evs = [progress_event(x) for x in out.getvalue().splitlines()]
+    assert [(e["event"], e["stage"], e.get("starts"), e.get("k"), e.get("n")) for e in evs] == [
+        ("stage", "build", "simulate", None, None), ("line", "simulate", None, 1, 240),
+        ("line", "refine", None, 1, 2), ("line", "render", None, 1, 118),
+        ("line", "build", None, None, None)]
+    # the text lines are as before, and each event carries its line
+    assert [e["text"] for e in evs] == capsys.readouterr().err.splitlines()
+    assert [progress_event(x) for x in ("simulation check: PASS", "[1, 2]",
+                                        '{"event": "line", "stage": "x", "text": "t", '
+                                        '"k": 1, "n": 0}')] == [None, None, None]

@@ -320,8 +320,8 @@ def test_concurrent_runs_queue_or_get_409_never_500(small_build):
         codes = [None] * 30
 
         def go(k):
-            codes[k] = _request(srv, "POST", "/api/build/0/run",
-                                body={"landscape": [land[0] + k] + land[1:], "edits": []})[0]
+            codes[k] = _request(srv, "POST", "/api/build/0/run", body=_run_body(
+                small_build, landscape=[land[0] + k] + land[1:]))[0]
 
         threads = [threading.Thread(target=go, args=(k,)) for k in range(30)]
         for t in threads:
@@ -334,6 +334,186 @@ def test_concurrent_runs_queue_or_get_409_never_500(small_build):
     finally:
         release.set()
         _stop(srv)
+
+
+# ------------------------------------------------------------------ one landscape, one build
+
+
+def _other(small_build, tmp_path, name="other", add_s=3.0):
+    """A copy of the small build under another name with another landscape (+``add_s``)."""
+    from pysolver.design.time_landscape import write_landscape
+
+    f = _copy(small_build, tmp_path, name)
+    write_landscape(f, read_table(f, "time_landscape")["time_s"] + add_s)
+    return f
+
+
+def _held_runs(srv, release):
+    """Replace the server's rebuild by one that records each request, waits for ``release``
+    and then writes the sent landscape into the build (what a rebuild does to it)."""
+    from pysolver.design.time_landscape import write_landscape
+
+    sent = []
+
+    def fake_run(build, req, plan, expect):
+        r = json.loads(req)
+        sent.append(r)
+        release.wait(WAIT_S)
+        write_landscape(r.get("out") or r["folder"], np.asarray(r["landscape"], float))
+        build.forget()
+        srv.job._set(state="done", progress=1.0, eta_s=0.0, seconds=0.0)
+
+    srv.job._run = fake_run
+    return sent
+
+
+def _run_body(folder, **kw):
+    from pysolver.studio.landscape import landscape_sha256
+
+    land = read_table(folder, "time_landscape")["time_s"]
+    body = {"build": folder.name, "base_sha256": landscape_sha256(land),
+            "landscape": land.tolist(), "edits": []}
+    body.update(kw)
+    return body
+
+
+def test_a_run_is_refused_unless_it_names_its_build_and_the_landscape_it_was_edited_from(
+        small_build, tmp_path):
+    """Issue #47: a Run with another build's name or landscape hash is refused (409), with a
+    message naming the problem, and nothing starts; the right one starts."""
+    a, b = _copy(small_build, tmp_path), _other(small_build, tmp_path)
+    srv = _serve([a, b])
+    release = threading.Event()
+    sent = _held_runs(srv, release)
+    try:
+        for body, code, words in (
+                (_run_body(a), 409, "names build 'regular' but was sent to build 'other'"),
+                (_run_body(b, base_sha256=_run_body(a)["base_sha256"]), 409,
+                 "not made on the current landscape of build 'other'"),
+                ({k: v for k, v in _run_body(b).items() if k != "base_sha256"}, 400,
+                 "base_sha256"),
+                (_run_body(b, variant="../x"), 400, "not a plain folder name"),
+                (_run_body(b, variant="regular"), 400, "exists already")):
+            st, out = _request(srv, "POST", "/api/build/1/run", body=body)
+            assert st == code and words in json.loads(out)["error"], out
+        assert sent == [] and srv.job.snapshot()["state"] == "idle"
+        st, out = _request(srv, "POST", "/api/build/1/run", body=_run_body(b))
+        assert st == 200
+        _wait_for(lambda: sent)
+        assert sent[0]["folder"] == str(b) and "out" not in sent[0]
+        assert sent[0]["landscape"] == _run_body(b)["landscape"]
+    finally:
+        release.set()
+        _stop(srv)
+
+
+def _wait_for(cond, what="the condition"):
+    import time
+
+    t_end = time.monotonic() + WAIT_S
+    while not cond():
+        assert time.monotonic() < t_end, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def test_a_run_whose_stage_hangs_silently_is_stopped_at_the_timeout(monkeypatch, tmp_path):
+    """Issue #46 item 4: the timeout was checked only when a progress line came."""
+    import dataclasses
+    import time
+
+    from pysolver.child import python_argv
+    from pysolver.studio import server as studio_server
+
+    monkeypatch.setattr(studio_server, "LIMITS", dataclasses.replace(
+        studio_server.LIMITS, studio_job_timeout_s=1.0))
+    monkeypatch.setattr(studio_server, "python_argv", lambda module: python_argv(
+        code="import time\ntime.sleep(120)"))   # a stage that never says a word
+    job = studio_server.Job()
+    job.state.update(state="running", started=time.time(), log=[])
+    job._run(studio_server.Build(tmp_path), "{}", ["start", "program", "report"],
+             dict(studio_server.Job.DEFAULT_S))
+    state = job.snapshot()
+    # (not stopped, the silent child would have ended after 120 s as "done")
+    assert state["state"] == "error" and "longer than 1 s" in state["error"], state
+
+
+def test_eta_is_the_rest_of_the_plan_at_this_run_s_pace():
+    from pysolver.studio.server import eta_seconds
+
+    plan, expect = ["start", "program", "simulate", "render", "report"], {
+        "start": 4.0, "program": 10.0, "simulate": 100.0, "render": 80.0, "report": 10.0}
+    # before a stage has finished: the build's own times (a slow start changes nothing)
+    assert eta_seconds(plan, expect, {"start": 30.0}, "program", 4.0, 0.0) == 6.0 + 190.0
+    # stages that took twice their time: the rest at twice its time
+    assert eta_seconds(plan, expect, {"start": 4.0, "program": 20.0}, "simulate", 50.0,
+                       0.0) == 150.0 + 180.0
+    # a stage's own count: its rest by its rate so far
+    assert eta_seconds(plan, expect, {"program": 10.0}, "simulate", 30.0, 0.5) == 30.0 + 90.0
+    # late in the last stage: never below 0
+    assert eta_seconds(plan, expect, {"program": 10.0}, "report", 50.0, 0.0) == 0.0
+
+
+@pytest.mark.parametrize("text, words", [
+    ("time_s,vertex_id\n0,1\n1,2\n", "not the header"),
+    ("vertex_id,time_s\n0,1\n", "1 rows for a target of 2 vertices"),
+    ("vertex_id,time_s\n0,1\n0,2\n", "vertex 0 is given twice"),
+    ("vertex_id,time_s\n0,1\n2,2\n", "vertex 2 is not one of 0-1"),
+    ("vertex_id,time_s\n0,1\n1,nan\n", "line 3: time 'nan'"),
+    ("vertex_id,time_s\n0,1\n1,1e9\n", "line 3: time '1e9'"),
+    ("vertex_id,time_s\n0,1\n1,=1+1\n", "line 3: time '=1+1'"),
+    ("vertex_id,time_s\n0,1,2\n1,2\n", "line 2 '0,1,2' is not"),
+    ("vertex_id,time_s\n-1,1\n1,2\n", "line 2 '-1,1' is not"),
+    (7, "as text"),
+])
+def test_a_landscape_csv_is_validated_line_by_line(text, words):
+    from pysolver.studio.landscape import parse_landscape_csv
+
+    with pytest.raises(InputError, match=None) as e:
+        parse_landscape_csv(text, 2)
+    assert words in str(e.value)
+
+
+def test_a_landscape_csv_round_trips_and_imports_through_the_server(server, small_build):
+    from pysolver.studio.landscape import parse_landscape_csv
+
+    land = read_table(small_build, "time_landscape")["time_s"] + 0.1
+    text = "vertex_id,time_s\r\n" + "".join(f"{i},{float(t)!r}\r\n" for i, t in
+                                              reversed(list(enumerate(land))))
+    assert parse_landscape_csv(text, len(land)).tobytes() == land.tobytes()
+    st, out = _request(server, "POST", "/api/build/0/import", body={"csv": text})
+    assert st == 200 and json.loads(out)["landscape"] == land.tolist()
+    st, out = _request(server, "POST", "/api/build/0/import", body={"csv": text, "x": 1})
+    assert st == 400
+
+
+def test_compare_takes_the_cells_whose_request_changed_and_their_figures():
+    from pysolver.studio.compare import compare_cells
+
+    a = {"t_star": [10.0, 20.0, 30.0, 40.0], "t_done": [11.0, 26.0, None, 41.0],
+         "clamped": [0, 0, 1, 0]}
+    b = {"t_star": [10.0, 25.0, 35.0, 40.0], "t_done": [11.0, 24.0, 36.0, 40.0],
+         "clamped": [0, 0, 0, 0]}
+    r = compare_cells(a, b)
+    assert r["region"] == [1, 2]                        # the cells whose t* moved
+    assert r["a"] == {"requested_mean_s": 25.0, "simulated_mean_s": 26.0, "timing_rms_s": 6.0,
+                      "n_never_complete": 1, "n_out_of_reach": 1}
+    assert r["b"]["timing_rms_s"] == pytest.approx(np.sqrt((1 + 1) / 2))
+    assert r["diff_done_s"] == [0.0, 2.0, None, 1.0]
+    assert compare_cells(a, b, [3])["a"]["timing_rms_s"] == 1.0
+    with pytest.raises(InputError, match="4 and 3 unit cells"):
+        compare_cells(a, {k: v[:3] for k, v in b.items()})
+    with pytest.raises(InputError, match="region cell 9"):
+        compare_cells(a, b, [9])
+
+
+def test_the_viewer_data_is_sent_gzip_compressed_when_the_browser_takes_it(server):
+    import gzip
+
+    st, plain = _request(server, "GET", "/api/build/0/viewer")
+    st2, packed = _request(server, "GET", "/api/build/0/viewer",
+                           headers={"Accept-Encoding": "gzip, deflate"})
+    assert st == st2 == 200 and gzip.decompress(packed) == plain
+    assert len(packed) < 0.9 * len(plain)   # base64 of uint16 positions: ~0.57 on petal
 
 
 # ------------------------------------------------------------------------------ rebuild
@@ -544,6 +724,24 @@ def test_a_stroke_changes_only_the_painted_region(server, small_build):
         assert inner.sum() >= 1 and np.allclose((after - before)[inner], 10.0, atol=1e-9)
         assert (after - before).min() >= 0 and (after - before).max() <= 10.0 + 1e-9
         _wait(d, _latest_preview, "the painted landscape's feasibility")
+        # issue #47: the time scale stays the build's range; times beyond it are counted
+        scale = d.execute_script("return [studio.editor.scale.lo, studio.editor.scale.hi]")
+        lo, hi = before.min(), before.max()
+        assert scale == ([lo, hi] if hi - lo >= 1e-6 else [lo - 1, lo + 1])   # (flat: +-1 s)
+        assert d.find_element("id", "editor-view").get_attribute("data-beyond") == str(
+            int((after > scale[1]).sum()))
+        # issue #47: a tooltip shown during the stroke has the new numbers, not stale ones
+        tip = d.find_element("id", "hover")
+        k = int(tip.get_attribute("data-cell"))
+        t_star = d.execute_script("return studio.editor.feas.t_star[arguments[0]]", k)
+        assert tip.is_displayed() and f"requested t* {t_star:.1f} s" in tip.text
+        # and one feasibility request per release (a click paints one dab, no drag)
+        n0 = d.execute_script("return studio.editor.previewRequests")
+        _stroke(d, c, dx=0, dy=0)
+        _wait(d, lambda d: d.execute_script("return studio.editor._soon === null") and
+              d.find_element("id", "editor-view").get_attribute("data-strokes") == "2" and
+              _latest_preview(d), "the click's feasibility")
+        assert d.execute_script("return studio.editor.previewRequests") == n0 + 1
 
 
 @browser
@@ -668,6 +866,32 @@ def test_the_ghost_toggles_and_builds_side_by_side_share_scale_and_time(server):
         modes = d.execute_script("return studio.viewers.map(function (v) { return v.mode; })")
         ranges = d.execute_script("return studio.viewers.map(function (v) { return v.range; })")
         assert modes == ["thickness", "thickness"] and ranges[0] == ranges[1]
+        # issue #47: robust ranges (2nd-98th percentiles) with the values beyond marked,
+        # per-frame ranges, shared by the linked viewers; view presets for both
+        d.execute_script("var s = document.querySelector('#viewer-0 .mv-scale');"
+                         "s.value = 'robust'; s.dispatchEvent(new Event('change'));")
+        vals = np.array([np.nan if v is None else v for v in d.execute_script(
+            "return studio.viewers[0].data.base_fields.thickness")], float)
+        lo, hi = np.percentile(vals[np.isfinite(vals)], [2, 98])
+        beyond = int(((vals < lo - 1e-6) | (vals > hi + 1e-6)).sum())
+        for k in (0, 1):
+            v = d.find_element("id", f"viewer-{k}")
+            assert np.allclose([float(x) for x in v.get_attribute("data-range").split()],
+                               [lo, hi], atol=1e-4)
+            assert int(v.get_attribute("data-outliers")) == beyond
+        if beyond:
+            assert f"orange: {beyond} beyond" in v.find_element("class name", "mv-legend").text
+        d.execute_script("var s = document.querySelector('#viewer-1 .mv-mode');"
+                         "s.value = 'distance'; s.dispatchEvent(new Event('change'));"
+                         "s = document.querySelector('#viewer-1 .mv-scale');"
+                         "s.value = 'frame'; s.dispatchEvent(new Event('change'));")
+        dist = d.execute_script("var v = studio.viewers[0]; return v.fieldValues();")
+        assert np.allclose([float(x) for x in v0.get_attribute("data-range").split()],
+                           [min(dist), max(dist)], atol=1e-4)
+        assert v0.get_attribute("data-outliers") == "0"
+        d.find_element("css selector", "#viewer-1 .mv-view-top").click()
+        assert d.execute_script("return studio.viewers.map(function (v) { return v.orbit.phi; })"
+                                ) == [pytest.approx(0.02)] * 2
         # hover on a base: its cells' t*, completion, thicknesses
         d.execute_script("var v = studio.viewers[0], b = new THREE.Vector3();"
                          "var m = new THREE.Matrix4(); v.bases.getMatrixAt(3, m);"
@@ -704,21 +928,126 @@ def test_the_parts_are_listed_with_a_3d_preview_and_a_download(small_build, tmp_
         _stop(srv)
 
 
+@pytest.fixture
+def held(small_build, tmp_path):
+    """Two builds (``regular``, and ``other`` with another landscape) in a studio whose
+    Runs wait for ``release`` and then only write the sent landscape (no rebuild)."""
+    a, b = _copy(small_build, tmp_path), _other(small_build, tmp_path)
+    srv = _serve([a, b])
+    release = threading.Event()
+    sent = _held_runs(srv, release)
+    yield srv, a, b, release, sent
+    release.set()
+    _stop(srv)
+
+
+def _paint(d, vertex, radius, n, dx=40):
+    """Add 10 s with a brush of ``radius`` mm dragged from ``vertex``: the editor's
+    landscape once it is the ``n``-th stroke of the page."""
+    _brush(d, "add", "10", radius)
+    _stroke(d, vertex, dx=dx)
+    _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes")
+          == str(n), f"stroke {n}")
+    return _land(d)
+
+
+def _select(d, i):
+    d.execute_script("var s = document.getElementById('edit-build'); s.value = arguments[0];"
+                     "s.dispatchEvent(new Event('change'));", str(i))
+    _wait(d, lambda d: d.execute_script("return studio.editor.build.id") == i and
+          d.find_element("tag name", "body").get_attribute("data-loading") == "0" and
+          _latest_preview(d), f"build {i} to load")
+
+
+def _run_done(d):
+    return d.find_element("id", "progress-text").get_attribute("data-state") in ("done", "error")
+
+
 @browser
-def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, small_build):
-    """Last in the file: it builds the shared build again."""
+def test_a_run_right_after_switching_builds_builds_only_what_is_on_screen(held):
+    """Issue #47, race 1: switching builds and pressing Run before the second has loaded used
+    to rebuild the second with the first one's painted landscape."""
+    srv, a, b, release, sent = held
+    V, c = _centre(a)
+    with chrome() as d:
+        _open(d, srv)
+        painted = _paint(d, c, "10", 1)
+        # select the other build and press Run in the same breath (before it has loaded)
+        seen = d.execute_script(
+            "var s = document.getElementById('edit-build'); s.value = '1';"
+            "s.dispatchEvent(new Event('change'));"
+            "var r = document.getElementById('run'), was = r.disabled; r.click();"
+            "return [was, document.body.getAttribute('data-loading')];")
+        assert seen == [True, "1"]                    # Run is disabled while a build loads
+        _wait(d, lambda d: d.find_element("tag name", "body").get_attribute("data-loading")
+              == "0" and _latest_preview(d), "the other build to load")
+        assert sent == [] and srv.job.snapshot()["state"] == "idle"
+        other = read_table(b, "time_landscape")["time_s"]
+        assert _land(d).tobytes() == other.tobytes()
+        d.find_element("id", "run").click()           # now: build 1 with its own landscape
+        _wait(d, lambda d: sent, "the run request")
+        assert sent[0]["folder"] == str(b) and sent[0]["landscape"] == other.tolist()
+        release.set()
+        _wait(d, _run_done, "the run")
+        # build 0 kept its painted landscape and its undo history
+        _select(d, 0)
+        assert _land(d).tobytes() == painted.tobytes()
+        assert d.find_element("id", "editor-view").get_attribute("data-undo") == "1"
+
+
+@browser
+def test_an_edit_during_a_run_is_kept_as_a_pending_draft(held):
+    """Issue #47, race 2: a stroke made during a Run used to be lost when the run ended."""
+    srv, a, _, release, sent = held
+    V, c = _centre(a)
+    far = int(np.argmax(np.linalg.norm(V - V[c], axis=1)))
+    with chrome() as d:
+        _open(d, srv)
+        painted = _paint(d, c, "8", 1)
+        d.find_element("id", "run").click()
+        _wait(d, lambda d: sent and d.find_element("id", "progress-text").get_attribute(
+            "data-state") == "running", "the run to start")
+        for box in ("run", "reset", "import", "edit-build"):   # controls that write
+            assert d.find_element("id", box).get_attribute("disabled") == "true", box
+        during = _paint(d, far, "8", 2, dx=-30)                # paint during the run
+        draft = d.find_element("id", "draft")
+        n = int(draft.get_attribute("data-vertices"))
+        assert draft.is_displayed() and n == int((during != painted).sum()) > 0
+        assert "Pending draft" in draft.text
+        release.set()
+        _wait(d, _run_done, "the run")
+        assert d.find_element("id", "progress-text").get_attribute("data-state") == "done"
+        _wait(d, _latest_preview, "the draft's feasibility")
+        built = read_table(a, "time_landscape")["time_s"]
+        assert np.allclose(built, painted, rtol=1e-8)          # what was sent was built
+        assert _land(d).tobytes() == during.tobytes()          # and the draft is kept
+        assert f"the draft ({n} vertices) is kept" in d.find_element("id", "status").text
+        d.find_element("id", "undo").click()                   # one step back: the build
+        assert _land(d).tobytes() == built.tobytes()
+
+
+@browser
+def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, small_build):
+    """Last in the file: it builds a variant (``regular-2``) beside the shared build, which
+    must stay as it was, with its editing state and undo history."""
     V, c = _centre(small_build)
+    before = _files(small_build)
     old = json.loads((small_build / "report" / "report.json").read_text())
     with chrome() as d:
         _open(d, server)
         d.execute_script("var v = studio.viewers[0]; v.orbit.theta += 0.9; v.orbit.update(true);"
                          "v.setFrame(7); v.selectBase(4);")
         view = d.execute_script("return studio.viewers[0].getView()")
-        _brush(d, "add", "5", "8")
-        _stroke(d, c)
-        _wait(d, lambda d: d.find_element("id", "editor-view").get_attribute("data-strokes"),
-              "the stroke")
-        painted = _land(d)
+        # a landscape imported from CSV (checked by the server), then a stroke on it
+        d.execute_script("var t = studio.editor.csv().replace(/\\n0,([^\\n]*)/, '\\n0,77');"
+                         "studio.importCsv(new File([t], 'mine.csv'));")
+        _wait(d, lambda d: _land(d)[0] == 77.0 and _latest_preview(d), "the imported CSV")
+        painted = _paint(d, c, "8", 1)
+        assert d.find_element("id", "editor-view").get_attribute("data-undo") == "2"
+        d.execute_script("studio.editor.clickAt(-5000, -5000)")   # an error to be cleared
+        assert d.find_element("id", "error").text
+        d.find_element("id", "variant").click()
+        assert d.find_element("id", "variant-name").get_attribute("value") == "regular-2"
         d.find_element("id", "run").click()
         _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute("data-state")
               == "running", "the run to start")
@@ -727,8 +1056,7 @@ def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, 
 
         def finished(d):
             seen.append(float(d.find_element("id", "progress").get_attribute("value")))
-            return d.find_element("id", "progress-text").get_attribute("data-state") in (
-                "done", "error")
+            return _run_done(d)
 
         _wait(d, finished, "the run")
         assert d.find_element("id", "progress-text").get_attribute("data-state") == "done", \
@@ -736,33 +1064,67 @@ def test_the_verdict_appears_after_a_run_and_the_progress_bar_reaches_1(server, 
         assert float(d.find_element("id", "progress").get_attribute("value")) == 1.0
         assert seen == sorted(seen) and len({x for x in seen if 0 < x < 1}) >= 3  # it moved
         assert d.find_element("id", "run").get_attribute("disabled") is None
+        assert d.find_element("id", "error").text == ""       # a run that worked clears it
         _wait(d, lambda d: d.find_element("id", "results").get_attribute("data-state")
               == "shown", "the results")
-        new = json.loads((small_build / "report" / "report.json").read_text())
+        # the variant is listed, selected, and holds the edited landscape and its log
+        var = small_build.parent / "regular-2"
+        names = [o.text for o in d.find_elements("css selector", "#edit-build option")]
+        assert names == ["regular", "regular", "regular-2"]
+        assert d.execute_script("return studio.editor.build.name") == "regular-2"
+        assert _files(small_build) == before                  # the original is untouched
+        assert np.allclose(read_table(var, "time_landscape")["time_s"], painted, rtol=1e-8)
+        assert _land(d).tobytes() == read_table(var, "time_landscape")["time_s"].tobytes()
+        rec = json.loads((var / "studio_landscape.json").read_text())
+        assert [(e["tool"], e["mode"]) for e in rec["edits"]] == [("import", "csv"),
+                                                                  ("brush", "add")]
+        assert rec["variant_of"] == "regular"
+        new = json.loads((var / "report" / "report.json").read_text())
         assert d.find_element("id", "verdict").get_attribute("data-verdict") == new["verdict"]
-        reasons = [li.text for li in d.find_elements("css selector", "#reasons li")]
-        assert [r for r in reasons if new["reasons"] and new["reasons"][0]["message"] in r] \
-            or not new["reasons"]
         rows = {r.get_attribute("data-key"): [td.text for td in
                                               r.find_elements("tag name", "td")]
                 for r in d.find_elements("css selector", "#figures tr[data-key]")}
         assert rows["shape_rms_mm"][1] == f"{new['metrics']['shape']['rms_mm']:.2f}"
         assert rows["shape_rms_mm"][2] == f"{old['metrics']['shape']['rms_mm']:.2f}"  # before
         assert rows["n_clamped"][1] == str(new["metrics"]["timing"]["n_clamped"])
+        assert rows["timing_rms_s"][0] == "timing RMS error, programmable cells (s)"
+        assert rows["timing_rms_all_s"][0] == "timing RMS error, all cells (s)"
         assert d.find_element("id", "report-link").get_attribute("hidden") is None
-        # the build is the painted landscape now, and the viewer kept its camera and frame
-        assert np.allclose(read_table(small_build, "time_landscape")["time_s"], painted,
-                           rtol=1e-8)
-        assert _land(d).tobytes() == read_table(small_build, "time_landscape")[
-            "time_s"].tobytes()
-        # the landscape, its provenance and the summary come from the same run
-        edits = json.loads((small_build / "studio_landscape.json").read_text())["edits"]
-        assert [(e["tool"], e["mode"], e["value"]) for e in edits] == [("brush", "add", 5)]
-        edited = json.loads((small_build / "summary.json").read_text())["edited"]
-        assert edited["landscape_sha256"] == hashlib.sha256(
-            read_table(small_build, "time_landscape")["time_s"].astype("<f8").tobytes()
-        ).hexdigest()
+        # the viewers: one more, and the first kept its camera and frame
+        assert d.execute_script("return studio.viewers.length") == 3
         got = d.execute_script("return studio.viewers[0].getView()")
         assert got["theta"] == pytest.approx(view["theta"])
         assert d.execute_script("return [studio.viewers[0].frame, studio.viewers[0].picked]") \
             == [7, 4]
+        # did the edit work? the variant (A) against the original (B), opened by the run
+        _wait(d, lambda d: d.find_element("id", "compare").get_attribute("data-state")
+              == "shown", "the comparison")
+        ta = read_table(var, "cells")["t_star_s"]
+        tb = read_table(small_build, "cells")["t_star_s"]
+        region = np.abs(ta - tb) > 1e-6
+        assert int(d.find_element("id", "compare").get_attribute("data-region")) == \
+            region.sum() > 0
+        cl = np.asarray(read_table(var, "cells")["clamped"], bool)
+        row = [td.text for td in d.find_elements("css selector",
+                                                 "#cmp-region tr[data-key=n_out_of_reach] td")]
+        assert row[1] == str(int(cl[region].sum()))
+        row = [td.text for td in d.find_elements("css selector",
+                                                 "#cmp-figures tr[data-key=shape_rms_mm] td")]
+        assert row[1:3] == [f"{new['metrics']['shape']['rms_mm']:.2f}",
+                            f"{old['metrics']['shape']['rms_mm']:.2f}"]
+        assert d.find_element("id", "editor-view").get_attribute("data-colour") == "diff"
+        # back on the original: its edited landscape and its undo history are still there
+        _select(d, 0)
+        assert _land(d).tobytes() == painted.tobytes()
+        assert d.find_element("id", "editor-view").get_attribute("data-undo") == "2"
+        # the region painted in the editor there, compared in the same two builds
+        d.find_element("id", "cmp-painted").click()
+        d.find_element("id", "cmp-go").click()
+        built = read_table(small_build, "time_landscape")["time_s"]
+        cells = read_table(small_build, "cells")
+        moved = np.flatnonzero(painted != built)
+        mine = np.isin(cells["vertex_a"], moved) | np.isin(cells["vertex_b"], moved)
+        _wait(d, lambda d: d.find_element("id", "compare").get_attribute("data-state")
+              == "shown" and "painted in the editor" in d.find_element(
+                  "css selector", "#compare h4").text, "the painted region's comparison")
+        assert d.find_element("id", "compare").get_attribute("data-region") == str(mine.sum())

@@ -11,8 +11,10 @@ replaces the landscape by the harmonic interpolation of its keyframes on the tar
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +28,7 @@ from ..temporal import program_cells
 from ..temporal.membrane_model import load_membrane_model
 
 EDIT_TOOLS = {"brush": ("set", "add", "subtract", "smooth"), "keyframes": ("harmonic",),
-              "reset": ("build",)}
+              "reset": ("build",), "import": ("csv",)}
 """The edit log's tools and their modes (``studio_landscape.json``)."""
 _EDIT_NUMBERS = {"value": (-LIMITS.max_landscape_s, LIMITS.max_landscape_s),
                  "radius": (1e-3, LIMITS.studio_max_radius_mm),
@@ -154,6 +156,124 @@ def parse_landscape(payload, n_vertices: int, *, edits: bool = False):
     return land, log
 
 
+VARIANT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+"""Names a variant build may have (a folder beside the original: no path, no dot)."""
+SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def landscape_sha256(landscape) -> str:
+    """The hash that names a landscape in the studio's requests: SHA-256 of its times as
+    little-endian float64 (``time_landscape.csv``'s values, as the build keeps them).
+
+    Parameters
+    ----------
+    landscape : (n_vertices,) float, s
+    """
+    return hashlib.sha256(np.asarray(landscape, float).astype("<f8").tobytes()).hexdigest()
+
+
+def parse_run(payload, n_vertices: int) -> dict:
+    """Validate a *Run* request (untrusted JSON).
+
+    Parameters
+    ----------
+    payload : dict
+        ``{"build": name, "base_sha256": hex, "landscape": [...], "edits": [...],
+        "variant": name or null}``: the build the edit was made on (its folder's name), the
+        hash of that build's landscape as the editor loaded it (:func:`landscape_sha256`),
+        the landscape and edit log (:func:`parse_landscape`), and the name of a new build to
+        run into (absent or null: the build itself).
+    n_vertices : int
+
+    Returns
+    -------
+    dict
+        ``build`` (str), ``base_sha256`` (str), ``landscape`` ((n_vertices,) float, s),
+        ``edits`` (list of dict), ``variant`` (str or None).
+
+    Raises
+    ------
+    InputError
+        No build name or hash, a hash that is not 64 hex digits, a variant name that is not
+        a plain folder name, or a bad landscape or edit log.
+    """
+    keys = ("build", "base_sha256", "variant")
+    payload = _object(payload, "the run request", ("landscape", "edits", *keys))
+    name, base = payload.get("build"), payload.get("base_sha256")
+    if not isinstance(name, str) or not name:
+        raise InputError("the run request does not name its build",
+                         fix="send 'build': the name of the build the edit was made on")
+    if not isinstance(base, str) or not SHA256.fullmatch(base):
+        raise InputError("the run request has no 'base_sha256' (64 hex digits)",
+                         fix="send the hash of the landscape the editor loaded")
+    variant = payload.get("variant")
+    if variant is not None and (not isinstance(variant, str)
+                                or not VARIANT_NAME.fullmatch(variant)):
+        raise InputError(f"variant name {str(variant)[:80]!r} is not a plain folder name",
+                         fix="use 1-64 letters, digits, '-' or '_' (e.g. petal-2), starting "
+                             "with a letter or digit")
+    land, edits = parse_landscape({k: v for k, v in payload.items() if k not in keys},
+                                  n_vertices, edits=True)
+    return {"build": name, "base_sha256": base, "landscape": land, "edits": edits,
+            "variant": variant}
+
+
+def parse_landscape_csv(text, n_vertices: int) -> np.ndarray:
+    """A landscape from CSV text (untrusted: an upload), as the editor's *CSV* writes it.
+
+    Parameters
+    ----------
+    text : str
+        ``vertex_id,time_s`` then one row per stencil vertex, each id once (any order).
+    n_vertices : int
+
+    Returns
+    -------
+    (n_vertices,) float, s
+
+    Raises
+    ------
+    InputError
+        Not text, another header, a row that is not two numbers, an id outside
+        ``0..n_vertices-1`` or given twice, a missing id, a time outside
+        ``[0, LIMITS.max_landscape_s]`` s; the message names the line.
+    """
+    if not isinstance(text, str):
+        raise InputError("the CSV must be sent as text", fix="send {'csv': '<file contents>'}")
+    lines = [ln.strip() for ln in text.replace("\r\n", "\n").split("\n")]
+    while lines and not lines[-1]:
+        lines.pop()
+    fix = "export a landscape with the CSV button and edit its time_s column"
+    if not lines or lines[0].replace(" ", "") != "vertex_id,time_s":
+        raise InputError(f"line 1 is {lines[0][:60] if lines else ''!r}, not the header "
+                         "'vertex_id,time_s'", fix=fix)
+    if len(lines) - 1 != n_vertices:
+        raise InputError(f"{len(lines) - 1} rows for a target of {n_vertices} vertices",
+                         fix=f"give one row per vertex, {n_vertices} in all")
+    land = np.full(n_vertices, np.nan)
+    for k, line in enumerate(lines[1:], start=2):
+        cells = line.split(",")
+        if len(cells) != 2 or not re.fullmatch(r"[0-9]{1,9}", cells[0].strip()):
+            raise InputError(f"line {k} {line[:60]!r} is not 'vertex_id,time_s'", fix=fix)
+        i = int(cells[0])
+        if i >= n_vertices or not np.isnan(land[i]):
+            raise InputError(f"line {k}: vertex {i} is "
+                             + ("given twice" if i < n_vertices else
+                                f"not one of 0-{n_vertices - 1}"), fix=fix)
+        try:
+            t = float(cells[1]) if _NUMBER.fullmatch(cells[1].strip()) else math.nan
+        except ValueError:
+            t = math.nan
+        if not math.isfinite(t) or not 0 <= t <= LIMITS.max_landscape_s:
+            raise InputError(f"line {k}: time {cells[1].strip()[:30]!r} is not a number from 0 "
+                             f"to {LIMITS.max_landscape_s:g} s", fix=fix)
+        land[i] = t
+    return land
+
+
+_NUMBER = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
+
+
 def keyframe_values(keyframes) -> tuple[np.ndarray, np.ndarray]:
     """Fixed vertices and their times; a later keyframe on the same vertex wins.
 
@@ -248,5 +368,6 @@ class Feasibility:
                 "clamped": np.asarray(res["clamped"], bool), "side": np.asarray(res["side"])}
 
 
-__all__ = ["parse_keyframes", "parse_landscape", "keyframe_values", "harmonic_landscape",
+__all__ = ["parse_keyframes", "parse_landscape", "parse_run", "parse_landscape_csv",
+           "landscape_sha256", "VARIANT_NAME", "keyframe_values", "harmonic_landscape",
            "Feasibility", "EDIT_TOOLS"]

@@ -3,9 +3,11 @@
     python -m pysolver.studio.rerun < request.json
 
 The request (stdin, JSON) is ``{"folder": path, "landscape": [s per stencil vertex],
-"source": {...}}``; :func:`pysolver.build.rebuild` runs the stages after the design stage
-with the build's own options and replaces the folder only when all have finished.  Its
-progress lines go to stderr (the studio's progress bar reads them).  Exit codes as the
+"source": {...}, "out": path (optional: a new build beside the original)}``;
+:func:`pysolver.build.rebuild` runs the stages after the design stage with the build's own
+options and replaces the folder (or writes ``out``) only when all have finished.  Its
+progress lines go to stderr, and as JSON lines to stdout (:func:`pysolver.progress.
+emit_events`: the studio's progress bar reads those).  Exit codes as the
 command line: 0 done, 3 done with a FAIL verdict, 2 bad input (nothing saved), 1 a bug.
 """
 
@@ -18,12 +20,15 @@ import traceback
 from ..build import rebuild
 from ..cli import environment_message
 from ..errors import EXIT_BAD_INPUT, EXIT_INTERNAL, MorphshellError
+from ..progress import emit_events
 
 
 def main() -> int:
+    emit_events(sys.stdout)   # the studio reads the progress as JSON lines on stdout
     try:
         req = json.loads(sys.stdin.read())
-        summary = rebuild(req["folder"], req["landscape"], source=req.get("source"))
+        summary = rebuild(req["folder"], req["landscape"], source=req.get("source"),
+                          out=req.get("out"))
     except MorphshellError as e:
         print(f"morphshell studio run: error: {e}", file=sys.stderr, flush=True)
         return e.exit_code

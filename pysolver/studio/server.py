@@ -34,7 +34,12 @@ Endpoints (``<i>`` = index of a build folder)::
     GET  /api/build/<i>/report          the report (report/index.html)
     POST /api/build/<i>/preview         {"landscape"} -> feasibility per cell
     POST /api/build/<i>/keyframes       {"keyframes"} -> harmonic landscape + feasibility
-    POST /api/build/<i>/run             {"landscape", "edits"} -> build it again (a job)
+    POST /api/build/<i>/import          {"csv"} -> the landscape of a CSV + feasibility
+    POST /api/build/<i>/compare         {"other": j, "cells"} -> builds i and j cell by cell
+                                         (the painted region, A - B) and their figures
+    POST /api/build/<i>/run             {"build", "base_sha256", "landscape", "edits",
+                                         "variant"} -> build it again, or into a new
+                                         build beside it (a job)
     GET  /api/job                       progress of the running job
     POST /session                       token=<token> (a form) -> 303 to /, the session cookie
 
@@ -46,6 +51,7 @@ design stage, which replaces the folder only when every stage has finished.
 from __future__ import annotations
 
 import errno
+import gzip
 import hmac
 import json
 import os
@@ -66,18 +72,23 @@ from urllib.parse import parse_qs, quote, urlsplit
 
 import numpy as np
 
-from ..build import report_figures
+from ..build import rebuild_options, report_figures
 from ..child import python_argv
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, PROGRAMMING
 from ..simulator import build_parts, morph_viewer, viewer_assets
+from ..stages import STAGES
 from ..tables import LANDSCAPE_SOURCE, read_record, read_stencil, read_table
+from .compare import compare_cells
 from .landscape import (
     Feasibility,
     harmonic_landscape,
     keyframe_values,
+    landscape_sha256,
     parse_keyframes,
     parse_landscape,
+    parse_landscape_csv,
+    parse_run,
 )
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -92,6 +103,11 @@ STL_NAME = re.compile(r"[a-z][a-z0-9_]{0,63}\.stl")
 
 class Busy(MorphshellError):
     """A job is running: the request would change what it is working on (HTTP 409)."""
+
+
+class Stale(MorphshellError):
+    """A Run whose landscape was not edited from the build's current one: another build's,
+    or this build's before it was built again (HTTP 409)."""
 
 
 def _static_files() -> dict:
@@ -117,6 +133,7 @@ class Build:
         self.lock = threading.Lock()
         self._viewer = None
         self._viewer_key = None
+        self._viewer_bytes = None
         self._feas = None
 
     def info(self, i: int) -> dict:
@@ -137,9 +154,26 @@ class Build:
         key = (p.stat().st_mtime_ns, (self.folder / "cells.csv").stat().st_mtime_ns)
         with self.lock:
             if self._viewer_key != key:
-                self._viewer = morph_viewer(self.folder, max_frames=241, quantise=False)
+                # positions as uint16 over their box (~2 um on a 150 mm shell, as the
+                # report's viewer): petal's morph 6.8 MB instead of 12.5 MB of JSON
+                self._viewer = morph_viewer(self.folder, max_frames=241, quantise=True)
                 self._viewer_key = key
             return self._viewer
+
+    def viewer_body(self, gzipped: bool) -> bytes:
+        """The viewer's JSON as bytes, gzip-compressed when ``gzipped`` (kept with the data:
+        petal's morph is 6.8 MB of JSON, 3.9 MB compressed; ``docs/results.md``)."""
+        data = self.viewer()
+        with self.lock:
+            cache = self._viewer_bytes
+            if cache is None or cache[0] is not data:
+                raw = json.dumps(data, separators=(",", ":")).encode()
+                cache = self._viewer_bytes = (data, raw, {})
+            if not gzipped:
+                return cache[1]
+            if "gz" not in cache[2]:
+                cache[2]["gz"] = gzip.compress(cache[1], compresslevel=5, mtime=0)
+            return cache[2]["gz"]
 
     def feasibility(self) -> Feasibility:
         with self.lock:
@@ -150,15 +184,20 @@ class Build:
     def stencil(self):
         return read_stencil(self.folder / "stencil.obj")
 
+    def landscape(self) -> np.ndarray:
+        """(n_vertices,) float, s: the build's own landscape (``time_landscape.csv``)."""
+        return read_table(self.folder, "time_landscape")["time_s"]
+
     def target(self) -> dict:
         V, _, F = self.stencil()
-        land = read_table(self.folder, "time_landscape")["time_s"]
+        land = self.landscape()
         cells = read_table(self.folder, "cells")
         ev = self.feasibility().evaluate(land)
         done = None
         if (self.folder / "sim" / "frames.npz").is_file():
             done = self.viewer()["cells"]["t_done"]
         return {"V": np.round(V, 5).reshape(-1).tolist(), "F": F.reshape(-1).tolist(),
+                "build": self.folder.name, "landscape_sha256": landscape_sha256(land),
                 "landscape": [float(x) for x in land],
                 "vertex_a": cells["vertex_a"].tolist(), "vertex_b": cells["vertex_b"].tolist(),
                 "programmed": {
@@ -192,6 +231,38 @@ class Build:
         feas["seconds"] = round(time.perf_counter() - t0, 4)
         return {"feasibility": feas}
 
+    def import_csv(self, payload) -> dict:
+        """``{"csv": text}`` (an upload: validated, :func:`parse_landscape_csv`) -> the
+        landscape and its feasibility; nothing is written."""
+        if not isinstance(payload, dict) or set(payload) != {"csv"}:
+            raise InputError("the import request must be {'csv': text}",
+                             fix="send the CSV file's text as 'csv'")
+        land = parse_landscape_csv(payload["csv"], self.n_vertices())
+        return {"landscape": [float(x) for x in land],
+                "feasibility": self._feas_json(self.feasibility().evaluate(land))}
+
+    def check_run(self, req: dict) -> None:
+        """Refuse a Run (:func:`parse_run`'s ``req``) that was not edited from this build's
+        current landscape: one landscape, one build.
+
+        Raises
+        ------
+        Stale
+            It names another build, or its base landscape is not this build's own (another
+            build's, or this one's before it was built again).
+        """
+        if req["build"] != self.folder.name:
+            raise Stale(f"this Run names build {req['build'][:80]!r} but was sent to build "
+                        f"{self.folder.name!r}: nothing was built",
+                        fix="select the build in the editor, wait for it to load, then Run")
+        if req["base_sha256"] != landscape_sha256(self.landscape()):
+            raise Stale(f"the edit was not made on the current landscape of build "
+                        f"{self.folder.name!r} "
+                        "(another build's, or this one's before it was built "
+                        "again): nothing was built",
+                        fix="load the build again in the editor (select it), then Run; "
+                            "export the edit as CSV first to keep it")
+
     def keyframes(self, payload) -> dict:
         V, _, F = self.stencil()
         b, bc = keyframe_values(parse_keyframes(payload, len(V)))
@@ -218,11 +289,11 @@ class Build:
 
 
 class Job:
-    """The one job (a rebuild) running in a subprocess; its progress lines drive one progress
-    bar over every stage, weighted by the stage times of the build being run again."""
+    """The one job (a rebuild) running in a subprocess; its progress events (JSON lines on
+    its stdout, :func:`pysolver.progress.emit_events`) drive one progress bar over every
+    stage, weighted by the stage times of the build being run again; its stderr is kept
+    (the last lines) for the error message."""
 
-    STAGE = re.compile(r"^\[build\] .*?: (\w+) \.\.\.$")
-    FRACTION = re.compile(r"^\[\w+\] .*?: (\d+)/(\d+)\b")
     DEFAULT_S = {"start": 4.0, "program": 3.0, "simulate": 20.0, "simulate_contact": 20.0,
                  "refine": 25.0, "render": 40.0, "report": 10.0}
     """Expected seconds of a stage the build did not time (its own times come first);
@@ -232,6 +303,7 @@ class Job:
         self.lock = threading.Lock()
         self.state = {"state": "idle", "progress": 0.0, "message": "", "build": None,
                       "error": None, "stage": None, "eta_s": None}
+        self.on_done = None
 
     def snapshot(self) -> dict:
         with self.lock:
@@ -241,21 +313,21 @@ class Job:
         with self.lock:
             return self.state["state"] == "running"
 
-    def start(self, build: Build, index: int, land, edits) -> None:
-        """Start a rebuild of ``build`` with landscape ``land`` (validated) and its edit log.
+    def start(self, build: Build, index: int, land, edits, *, out: Path | None = None,
+              on_done=None) -> None:
+        """Start a rebuild of ``build`` with landscape ``land`` (validated) and its edit log;
+        into the new folder ``out`` (a variant) when given, ``on_done(out)`` called once it
+        is complete.
 
         Raises
         ------
         Busy
             A job is already running (this build's or another's).
         """
-        summ = read_record(build.folder / "summary.json") or {}
+        summ, opts = rebuild_options(build.folder)   # InputError: not a build, nothing run
         times = summ.get("timings_s") or {}
-        opts = summ.get("options") or {}
-        run = summ.get("run") or {}
-        plan = ["start", "program", "simulate"] + (["refine"] if opts.get("refine") else [])
-        plan += ["render"] if run.get("render", (build.folder / "stl").is_dir()) else []
-        plan += ["report"]
+        # the stages a rebuild runs, as it decides (pysolver.stages.STAGES after the design)
+        plan = ["start"] + [s.name for s in STAGES[1:] if s.wanted(opts)]
         expect = {s: float(times.get(s) or self.DEFAULT_S[s]) for s in self.DEFAULT_S}
         with self.lock:
             if self.state["state"] == "running":
@@ -266,52 +338,67 @@ class Job:
             self.state = {"state": "running", "progress": 0.0, "message": "starting",
                           "build": index, "error": None, "stage": None, "plan": plan,
                           "eta_s": round(sum(expect[s] for s in plan), 1),
-                          "started": time.time(), "log": []}
+                          "started": time.time(), "log": [],
+                          "variant": None if out is None else out.name}
         req = json.dumps({"folder": str(build.folder), "landscape": [float(x) for x in land],
-                          "source": {"edits": edits}})
+                          "source": {"edits": edits},
+                          **({} if out is None else {"out": str(out)})})
+        self.on_done = (lambda: on_done(out)) if out is not None and on_done else None
         threading.Thread(target=self._run, args=(build, req, plan, expect),
                          daemon=True).start()
 
     def _run(self, build: Build, req: str, plan: list, expect: dict):
         cmd = python_argv("pysolver.studio.rerun")
         done_s = 0.0           # expected seconds of the finished stages
+        actual: dict = {}      # seconds the finished stages took in this run
         stage, t_stage, frac = "start", time.time(), 0.0
         tail: list[str] = []
         t0 = time.time()
         try:
-            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
-            ticker = threading.Event()
+            drain = threading.Thread(target=_keep_tail, args=(proc.stderr, tail), daemon=True)
+            drain.start()
+            ticker, timed_out = threading.Event(), threading.Event()
 
             def tick():   # the bar moves between progress lines too (time / expected time)
                 while not ticker.wait(0.5):
-                    self._progress(plan, expect, done_s, stage, t_stage, frac, None)
+                    if time.time() - t0 > LIMITS.studio_job_timeout_s:   # even when silent
+                        timed_out.set()
+                        proc.kill()
+                        return
+                    self._progress(plan, expect, (done_s, actual), stage, t_stage, frac,
+                                   None)
 
             threading.Thread(target=tick, daemon=True).start()
             proc.stdin.write(req)
             proc.stdin.close()
-            for line in proc.stderr:
-                line = line.rstrip()
-                tail = (tail + [line])[-40:]
-                m = self.STAGE.match(line)
-                if m and m.group(1) in self.DEFAULT_S:
+            for raw in proc.stdout:
+                ev = progress_event(raw)
+                if ev is None:        # not an event (the verdict printed on stdout)
+                    continue
+                if ev.get("starts") in self.DEFAULT_S:
                     done_s += expect[stage]
-                    stage, t_stage, frac = m.group(1), time.time(), 0.0
+                    actual[stage] = time.time() - t_stage
+                    stage, t_stage, frac = ev["starts"], time.time(), 0.0
                     if stage not in plan:     # contact switched on: one more simulation
                         plan.insert(plan.index("report") if "report" in plan else len(plan),
                                     stage)
-                elif stage != "start":
-                    f = self.FRACTION.search(line)
-                    if f and (stage != "refine" or line.startswith("[refine]")):
-                        frac = max(frac, min(int(f.group(1)) / max(int(f.group(2)), 1), 1.0))
-                self._progress(plan, expect, done_s, stage, t_stage, frac, line)
-                if time.time() - t0 > LIMITS.studio_job_timeout_s:
-                    proc.kill()
-                    raise MorphshellError(f"the run took longer than "
-                                          f"{LIMITS.studio_job_timeout_s:g} s and was stopped")
+                elif stage != "start" and "k" in ev and (stage != "refine"
+                                                         or ev["stage"] == "refine"):
+                    frac = max(frac, min(ev["k"] / max(ev["n"], 1), 1.0))
+                self._progress(plan, expect, (done_s, actual), stage, t_stage, frac,
+                               ev["text"])
             rc = proc.wait()
             ticker.set()
+            drain.join(10)
+            if timed_out.is_set():
+                raise MorphshellError(f"the run took longer than "
+                                      f"{LIMITS.studio_job_timeout_s:g} s (stage {stage}) and "
+                                      "was stopped; nothing of this edit was saved")
             build.forget()
+            if rc in (0, 3) and self.on_done is not None:
+                self.on_done()
             if rc not in (0, 3):   # 3 = the report's FAIL verdict: the build is complete
                 msg = [t for t in tail if "error:" in t or t.startswith("  Fix:")] or tail[-3:]
                 raise MorphshellError(" / ".join(msg).replace("morphshell studio run: ", "")
@@ -322,7 +409,8 @@ class Job:
         except Exception as e:  # noqa: BLE001 - reported to the browser, not raised
             self._set(state="error", error=str(e), message="failed", eta_s=None)
 
-    def _progress(self, plan, expect, done_s, stage, t_stage, frac, line):
+    def _progress(self, plan, expect, done, stage, t_stage, frac, line):
+        done_s, actual = done
         total = sum(expect[s] for s in plan)
         now = time.time()
         with self.lock:
@@ -336,11 +424,7 @@ class Job:
                 p = (done_s + f * expect[stage]) / total
                 self.state["progress"] = round(max(self.state["progress"], min(p, 0.999)), 4)
                 self.state["stage"] = stage
-                elapsed = now - self.state["started"]
-                left = total * (1 - self.state["progress"])
-                # scale by how fast this run goes compared with the build's own times
-                pace = elapsed / max(total * self.state["progress"], 1e-6)
-                self.state["eta_s"] = round(left * min(max(pace, 0.25), 4.0), 1)
+                self.state["eta_s"] = eta_seconds(plan, expect, actual, stage, spent, frac)
             if line is not None:
                 self.state["message"] = line[-200:]
                 self.state["log"] = (self.state["log"] + [line[-200:]])[-12:]
@@ -350,6 +434,67 @@ class Job:
             self.state.update(kw)
 
 
+def progress_event(raw: str) -> dict | None:
+    """One line of a Run's stdout as a progress event (:func:`pysolver.progress.say`), or
+    None when it is not one: ``event`` ("stage" or "line"), ``stage``, ``text`` (str),
+    ``starts`` (str, a stage event), ``k`` and ``n`` (whole numbers, ``n >= 1``) or neither.
+    """
+    try:
+        ev = json.loads(raw)
+    except ValueError:
+        return None
+    if not isinstance(ev, dict) or ev.get("event") not in ("stage", "line") or not all(
+            isinstance(ev.get(key), str) for key in ("stage", "text")):
+        return None
+    if ev["event"] == "stage" and not isinstance(ev.get("starts"), str):
+        return None
+    if ("k" in ev or "n" in ev) and not (
+            isinstance(ev.get("k"), int) and isinstance(ev.get("n"), int) and ev["n"] >= 1):
+        return None
+    ev["text"] = ev["text"][-200:]
+    return ev
+
+
+def _keep_tail(stream, tail: list, keep: int = 40) -> None:
+    """Read ``stream`` to its end, keeping its last ``keep`` lines in ``tail``."""
+    for line in stream:
+        tail.append(line.rstrip())
+        del tail[:-keep]
+
+
+def eta_seconds(plan, expect, actual, stage, spent, frac) -> float:
+    """Seconds a run has left: the rest of the stage running now and the stages after it,
+    each at the build's own time scaled by this run's pace.
+
+    Parameters
+    ----------
+    plan : list of str -- the stages in order
+    expect : dict str -> float, s -- each stage's time in the build being run again
+    actual : dict str -> float, s -- the finished stages' times in this run
+    stage : str -- the stage running now
+    spent : float, s -- time in it so far
+    frac : float -- its own count (0 when it prints none)
+
+    Returns
+    -------
+    float, s
+        ``pace = sum(actual) / sum(expect)`` over the finished stages but the start (1
+        before one has finished; kept within 0.25-4); the stage running now has left
+        ``spent (1 - frac) / frac`` once its count is past 5 %, else its paced time less
+        ``spent`` (never below 0); each later stage its paced time.
+    """
+    done = [s for s in actual if s != "start" and s in expect]
+    pace = (sum(actual[s] for s in done) / max(sum(expect[s] for s in done), 1e-9)
+            if done else 1.0)
+    pace = min(max(pace, 0.25), 4.0)
+    if frac > 0.05:
+        now_left = spent * (1 - frac) / frac
+    else:
+        now_left = max(expect[stage] * pace - spent, 0.0)
+    later = plan[plan.index(stage) + 1:] if stage in plan else []
+    return round(now_left + pace * sum(expect[s] for s in later), 1)
+
+
 class StudioServer(ThreadingHTTPServer):
     daemon_threads = True
     request_queue_size = 128   # a burst of requests waits to be served, never a reset
@@ -357,6 +502,7 @@ class StudioServer(ThreadingHTTPServer):
     def __init__(self, folders, port: int = 0, token: str | None = None):
         self.slots = threading.BoundedSemaphore(LIMITS.studio_max_connections)
         self.builds = [Build(Path(f).resolve()) for f in folders]
+        self.builds_lock = threading.Lock()
         self.job = Job()
         self.files = _static_files()
         self.token = token or secrets.token_urlsafe(32)
@@ -371,6 +517,27 @@ class StudioServer(ThreadingHTTPServer):
                 raise InputError(f"port {port}: permission denied (ports below 1024 need "
                                  "root)", fix="use a port from 1024 to 65535, or 0") from None
             raise
+
+    def add_build(self, folder: Path) -> None:
+        """List a new build (a variant a Run made) after the others."""
+        with self.builds_lock:
+            if all(b.folder != folder for b in self.builds):
+                self.builds.append(Build(folder))
+
+    def variant_folder(self, build: Build, name: str) -> Path:
+        """The new folder of a variant ``name`` of ``build``: beside it, and new.
+
+        Raises
+        ------
+        InputError
+            A file or folder of that name is there already (never replaced).
+        """
+        out = build.folder.parent / name
+        if out.exists() or out.is_symlink() or any(b.folder == out for b in self.builds):
+            raise InputError(f"{out} exists already: a variant is always a new build",
+                             fix=f"name the variant otherwise (e.g. {build.folder.name}-"
+                                 f"{len(self.builds) + 1})")
+        return out
 
     def process_request(self, request, client_address):
         """Serve ``request`` in a thread once one of ``LIMITS.studio_max_connections`` slots
@@ -615,7 +782,7 @@ class Handler(BaseHTTPRequestHandler):
             return fn(path, payload) if body else fn(path)
         except InputError as e:
             return self._error(HTTPStatus.BAD_REQUEST, e.problem, e.fix)
-        except Busy as e:
+        except (Busy, Stale) as e:
             return self._error(HTTPStatus.CONFLICT, e.problem, e.fix)
         except MorphshellError as e:   # e.g. a model file the build names is broken
             return self._error(HTTPStatus.UNPROCESSABLE_ENTITY, e.problem, e.fix)
@@ -645,9 +812,10 @@ class Handler(BaseHTTPRequestHandler):
             i = int(parts[2]) if parts[2].isdigit() else -1
         except ValueError:
             i = -1
-        if not 0 <= i < len(self.server.builds):
-            raise _NotFound(f"no build number {parts[2][:20]!r}")
-        return i, self.server.builds[i]
+        with self.server.builds_lock:
+            if not 0 <= i < len(self.server.builds):
+                raise _NotFound(f"no build number {parts[2][:20]!r}")
+            return i, self.server.builds[i]
 
     def _get(self, path):
         try:
@@ -667,14 +835,19 @@ class Handler(BaseHTTPRequestHandler):
             return self._send(HTTPStatus.OK, f.read_bytes(), _TYPES[f.suffix])
         parts = path.strip("/").split("/")
         if parts == ["api", "builds"]:
-            return self._json(HTTPStatus.OK, [b.info(i) for i, b in
-                                              enumerate(self.server.builds)])
+            with self.server.builds_lock:
+                builds = list(self.server.builds)
+            return self._json(HTTPStatus.OK, [b.info(i) for i, b in enumerate(builds)])
         if parts == ["api", "job"]:
             return self._json(HTTPStatus.OK, self.server.job.snapshot())
         if len(parts) >= 4 and parts[:2] == ["api", "build"]:
             i, b = self._build(parts)
             what = parts[3]
-            if len(parts) == 4 and what in ("viewer", "target", "results", "parts"):
+            if len(parts) == 4 and what == "viewer":
+                gz = "gzip" in self.headers.get("Accept-Encoding", "")
+                return self._send(HTTPStatus.OK, b.viewer_body(gz), extra=[
+                    ("Content-Encoding", "gzip")] if gz else [])
+            if len(parts) == 4 and what in ("target", "results", "parts"):
                 return self._json(HTTPStatus.OK, getattr(b, what)())
             if len(parts) == 4 and what == "report":
                 p = b.folder / "report" / "index.html"
@@ -698,18 +871,52 @@ class Handler(BaseHTTPRequestHandler):
                 return self._json(HTTPStatus.OK, b.preview(payload))
             if parts[3] == "keyframes":
                 return self._json(HTTPStatus.OK, b.keyframes(payload))
+            if parts[3] == "import":
+                return self._json(HTTPStatus.OK, b.import_csv(payload))
+            if parts[3] == "compare":
+                return self._json(HTTPStatus.OK, self._compare(b, payload))
             if parts[3] == "run":
-                land, edits = parse_landscape(payload, b.n_vertices(), edits=True)
-                self.server.job.start(b, i, land, edits)
-                return self._json(HTTPStatus.OK, self.server.job.snapshot())
+                return self._run(i, b, payload)
         return self._error(HTTPStatus.NOT_FOUND, "not found")
+
+
+    def _compare(self, b: Build, payload) -> dict:
+        """``{"other": j, "cells": [...] (optional)}`` -> :func:`compare_cells` of this build
+        (A) and build j (B), with both builds' report figures."""
+        if not isinstance(payload, dict) or not set(payload) <= {"other", "cells"} or \
+                "other" not in payload:
+            raise InputError("the compare request must be {'other': build number, 'cells': "
+                             "[cell ids] (optional)}")
+        j = payload["other"]
+        if isinstance(j, bool) or not isinstance(j, int):
+            raise InputError(f"'other' {str(j)[:20]!r} is not a build number")
+        try:
+            _, o = self._build(["api", "build", str(j)])
+        except _NotFound as e:
+            raise InputError(f"compare: {e}", fix="pick one of the builds listed") from None
+        cells = payload.get("cells")
+        if cells is not None and (not isinstance(cells, list) or len(cells) > 10 ** 6 or any(
+                isinstance(c, bool) or not isinstance(c, int) for c in cells)):
+            raise InputError("'cells' must be a list of cell ids (whole numbers)")
+        out = compare_cells(b.viewer()["cells"], o.viewer()["cells"], cells)
+        out["figures"] = {"a": report_figures(b.folder), "b": report_figures(o.folder)}
+        out["names"] = {"a": b.folder.name, "b": o.folder.name}
+        return out
+
+    def _run(self, i: int, b: Build, payload):
+        req = parse_run(payload, b.n_vertices())
+        b.check_run(req)
+        srv = self.server
+        out = None if req["variant"] is None else srv.variant_folder(b, req["variant"])
+        srv.job.start(b, i, req["landscape"], req["edits"], out=out, on_done=srv.add_build)
+        return self._json(HTTPStatus.OK, srv.job.snapshot())
 
 
 class _NotFound(Exception):
     pass
 
 
-_POST_ROUTE = re.compile(r"/api/build/[0-9]+/(preview|keyframes|run)")
+_POST_ROUTE = re.compile(r"/api/build/[0-9]+/(preview|keyframes|import|compare|run)")
 """The only paths a POST may go to (:meth:`Handler._post`); any other is refused before its
 body is read."""
 

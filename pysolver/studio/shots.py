@@ -8,10 +8,15 @@ does, and captures each step:
 * ``studio-paint.png``: a stroke that makes a region slower, coloured by reachable band,
   with a cell's details on hover;
 * ``studio-error.png``: a bad brush radius and its message (painting refused);
-* ``studio-progress.png``: the run's progress bar with its stage and ETA;
-* ``studio-results.png``: the verdict after the run, compared with the build before, and
-  the parts with a 3D preview;
-* ``studio-ghost.png``: the morph's last frame with the target's translucent ghost;
+* ``studio-progress.png``: the run into a new build (a variant, ``<name>-2``) and its
+  progress bar with its stage and ETA;
+* ``studio-results.png``: the variant's verdict, compared with the build before, and the
+  parts with a 3D preview;
+* ``studio-compare.png``: did the edit work? the variant (A) against the original (B): the
+  painted region's requested and simulated times, and every figure of both;
+* ``studio-diff.png``: the editor coloured by the completion difference A - B per cell;
+* ``studio-ghost.png``: the morph's last frame with the target's translucent ghost, the
+  distance to the target on this frame's own colour range;
 * ``studio.png``: the whole page; ``report.png``: the top of the build's report.
 
     python -m pysolver.studio.shots build/petal docs/img
@@ -137,8 +142,10 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
     Returns
     -------
     dict
-        ``files`` (paths written), ``preview_ms`` (round trip of the live feasibility after a
-        stroke, in the browser) and ``run_s`` (the run, a rebuild, as the studio timed it).
+        ``files`` (paths written), ``usable_ms`` (page opened to editor and results shown,
+        in the browser), ``ready_ms`` (to the morph viewer loaded too), ``preview_ms``
+        (round trip of the live feasibility after a stroke, in the browser) and ``run_s``
+        (the run, a build of a variant, as the studio timed it).
     """
     build_dir = Path(build_dir)
     out_dir = Path(out_dir)
@@ -165,6 +172,9 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
             d.get(srv.url)
             _wait(d, lambda d: d.find_element("tag name", "body").get_attribute("data-ready"),
                   "the studio")
+            out["usable_ms"], out["ready_ms"] = d.execute_script(
+                "return [+document.body.getAttribute('data-usable'),"
+                " +document.body.getAttribute('data-ready-ms')]")
             _shoot_editor(d, save, out)
             _shoot_run(d, save, out)
             _shoot_report(d, report, save)
@@ -215,10 +225,13 @@ def _shoot_run(d, save, out: dict) -> None:
     """The run: the progress bar through every stage, then the results, a part's 3D preview
     and the ghost of the target (``studio-progress.png``, ``studio-results.png``,
     ``studio-ghost.png``)."""
+    d.find_element("id", "variant").click()       # into a new build beside the original
     d.find_element("id", "run").click()
+    # the bar with a stage, a percentage and an ETA (whichever stage is running then)
     _wait(d, lambda d: d.execute_script(
-        "return !!(studio.job && studio.job.stage === 'simulate'"
-        " && studio.job.progress > 0.2)"), "the run's simulation", timeout=600)
+        "var j = studio.job; return !!(j && (j.state === 'done' || j.state === 'error' ||"
+        " j.state === 'running' && j.stage && j.stage !== 'start' && j.progress > 0.1))"),
+        "the run's first stages", timeout=600)
     save(_element_png(d, ".tools"), "studio-progress.png")
     _wait(d, lambda d: d.find_element("id", "progress-text").get_attribute(
         "data-state") in ("done", "error"), "the run", timeout=1800)
@@ -231,8 +244,12 @@ def _shoot_run(d, save, out: dict) -> None:
     _wait(d, lambda d: d.find_element("id", "part-view").get_attribute("data-part"),
           "the part's 3D preview")
     save(_element_png(d, "#results-section"), "studio-results.png")
+    _wait(d, lambda d: d.find_element("id", "compare").get_attribute("data-state")
+          == "shown", "the comparison")
+    save(_element_png(d, "#compare"), "studio-compare.png")
+    save(_element_png(d, "#editor-section"), "studio-diff.png")
     d.execute_script("var v = studio.viewers[0]; v.setFrame(v.nf - 1); v.setGhost(true);"
-                     "v.setColorMode('distance');")
+                     "v.setColorMode('distance'); v.setScale('frame');")
     time.sleep(0.5)
     save(_element_png(d, "#viewer-section"), "studio-ghost.png")
 
@@ -257,8 +274,9 @@ def main(argv=None) -> int:
         res = studio_shots(a.build_dir, a.out_dir)
         for p in res["files"]:
             print(f"{p} ({p.stat().st_size // 1000} kB)")
-        print(f"live feasibility after a stroke: {res['preview_ms']} ms; run: "
-              f"{res['run_s']} s")
+        print(f"page usable (editor, results) after {res['usable_ms']} ms, viewer loaded after "
+              f"{res['ready_ms']} ms; live feasibility after a stroke: {res['preview_ms']} ms; "
+              f"run into a variant: {res['run_s']} s")
     except InputError as e:
         print(f"studio-shots: error: {e}", file=sys.stderr)
         return 2

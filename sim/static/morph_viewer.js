@@ -6,6 +6,8 @@
  *   v.setFrame(k); v.setTime(t); v.play(); v.pause(); v.setColorMode("completion");
  *   v.setGhost(on)   (the target surface, translucent, where the aligned frames should end)
  *   v.getView() / v.setView(view)  (camera)
+ *   v.setScale("morph" | "frame" | "robust" | "fixed", [lo, hi])   the colour range
+ *   v.preset("top" | "side" | "reset")   view presets
  *   MorphViewer.link([v1, v2])   one camera, one time slider and one colour scale
  *   MorphViewer.partView(element, stlArrayBuffer, {width, height})   an STL in 3D
  */
@@ -58,6 +60,23 @@
     if (hi - lo < 1e-9) hi = lo + 1;
     return [lo, hi];
   }
+  // the p-th percentile (0-100) of the finite values, linear between order statistics
+  function percentile(sorted, p) {
+    if (!sorted.length) return NaN;
+    var f = (sorted.length - 1) * p / 100, i = Math.floor(f), u = f - i;
+    return i + 1 < sorted.length ? sorted[i] + u * (sorted[i + 1] - sorted[i]) : sorted[i];
+  }
+  // [lo, hi] of the values: all of them, or the 2nd-98th percentiles (robust: one outlier
+  // does not stretch the scale; the values beyond are marked, see OUTLIER)
+  function rangeOf(values, robust) {
+    if (!robust) return range(values);
+    var v = [];
+    for (var i = 0; i < values.length; i++) if (finite(values[i])) v.push(values[i]);
+    v.sort(function (a, b) { return a - b; });
+    return range([percentile(v, ROBUST[0]), percentile(v, ROBUST[1])]);
+  }
+  var ROBUST = [2, 98];
+  var OUTLIER = [1.0, 0.5, 0.0];   // orange: a value beyond the colour range
   function el(tag, attrs, parent) {
     var e = document.createElement(tag);
     for (var k in attrs || {}) {
@@ -68,12 +87,14 @@
     return e;
   }
 
-  /* Orbit camera: left drag turns, right drag (or shift) pans, wheel zooms. */
+  /* Orbit camera: a drag turns (left or right button), a shift-drag or a middle-drag pans,
+   * the wheel zooms: the same buttons in the studio's editor, where a left-drag on the
+   * target paints instead. */
   function Orbit(camera, dom, onChange) {
     this.camera = camera; this.dom = dom; this.onChange = onChange;
     this.target = new THREE.Vector3(); this.radius = 100; this.theta = 0.6; this.phi = 1.0;
     // what a pointer-down does: "turn", "pan" or null (another tool handles it)
-    this.modeOf = function (e) { return (e.button === 2 || e.shiftKey) ? "pan" : "turn"; };
+    this.modeOf = function (e) { return (e.button === 1 || e.shiftKey) ? "pan" : "turn"; };
     var self = this, last = null, mode = null;
     dom.addEventListener("contextmenu", function (e) { e.preventDefault(); });
     dom.addEventListener("pointerdown", function (e) {
@@ -104,6 +125,13 @@
       self.update(true);
     }, {passive: false});
   }
+  // view presets: from the top (+z down onto the shell), from the side, or fit()
+  Orbit.prototype.preset = function (name, fit) {
+    if (name === "top") this.phi = 0.02;
+    else if (name === "side") this.phi = Math.PI / 2;
+    else if (fit) { fit(); return this.update(true); }
+    this.update(true);
+  };
   Orbit.prototype.update = function (notify) {
     var c = this.camera, r = this.radius, sp = Math.sin(this.phi);
     c.position.set(this.target.x + r * sp * Math.cos(this.theta),
@@ -188,6 +216,24 @@
     this.select = el("select", {"class": "mv-mode", "aria-label": "colour by"}, bar);
     for (var m in MODES) el("option", {value: m, text: MODES[m].label}, this.select);
     this.select.value = this.mode;
+    this.scaleSelect = el("select", {"class": "mv-scale", "aria-label": "colour range"}, bar);
+    [["morph", "range: whole morph"], ["frame", "range: this frame"],
+      ["robust", "range: robust (2-98 %)"], ["fixed", "range: fixed"]].forEach(function (o) {
+      el("option", {value: o[0], text: o[1]}, this.scaleSelect);
+    }, this);
+    this.fixedBox = el("span", {"class": "mv-fixed"}, bar);
+    this.loBox = el("input", {"class": "mv-lo", type: "number", step: "any", size: "6",
+      "aria-label": "colour range from"}, this.fixedBox);
+    this.hiBox = el("input", {"class": "mv-hi", type: "number", step: "any", size: "6",
+      "aria-label": "colour range to"}, this.fixedBox);
+    this.fixedBox.hidden = true;
+    ["top", "side", "reset"].forEach(function (n) {
+      var b = el("button", {"class": "mv-view-" + n, type: "button", text: n,
+        title: n === "reset" ? "the whole morph, from the start view" : "view from the " + n}, bar);
+      b.addEventListener("click", function () { self0.preset(n); });
+    });
+    var self0 = this;
+    this.scale = {kind: "morph", fixed: null};
     if (data.target) {
       var gl = el("label", {"class": "mv-ghost-label", title: "the target surface, " +
         "translucent: where the aligned shell should end"}, bar);
@@ -260,6 +306,18 @@
       self.setFrame(parseInt(self.slider.value, 10));
     });
     this.select.addEventListener("change", function () { self.setColorMode(self.select.value); });
+    this.scaleSelect.addEventListener("change", function () {
+      var k = self.scaleSelect.value;
+      self.setScale(k, k === "fixed" ? self.range.slice() : null);
+    });
+    [this.loBox, this.hiBox].forEach(function (box) {
+      box.addEventListener("change", function () {
+        var lo = parseFloat(self.loBox.value), hi = parseFloat(self.hiBox.value);
+        var ok = isFinite(lo) && isFinite(hi) && hi > lo;
+        self.loBox.classList.toggle("bad", !ok); self.hiBox.classList.toggle("bad", !ok);
+        if (ok) self.setScale("fixed", [lo, hi]);   // a bad pair is marked, never replaced
+      });
+    });
     onClick(this.canvas, function (x, y) { self.pickAt(x, y); });
   }
 
@@ -306,7 +364,7 @@
       this.memGeo.computeVertexNormals();
       this.memGeo.computeBoundingSphere();
     }
-    if (MODES[this.mode].perFrame) this.colorBases();
+    if (MODES[this.mode].perFrame || this.scale.kind === "frame") this.colorBases();
     this.slider.value = String(k);
     this.timeLabel.textContent = "t = " + this.data.t[k].toFixed(1) + " s";
     this.requestRender();
@@ -335,40 +393,70 @@
     this.requestRender();
   };
 
-  MorphViewer.prototype.fieldValues = function () {
-    if (this.mode === "distance") {
+  MorphViewer.prototype.fieldValues = function (mode) {
+    mode = mode || this.mode;
+    if (mode === "distance") {
       var nb = this.data.n_bases;
       return Array.prototype.slice.call(this.distance, this.frame * nb, (this.frame + 1) * nb);
     }
-    return this.data.base_fields[this.mode];
+    return this.data.base_fields[mode];
   };
 
   MorphViewer.prototype.colorBases = function () {
     var mode = MODES[this.mode], vals = this.fieldValues(), rg = this.scaleOf(this.mode);
-    if (mode.symmetric) { var a = Math.max(Math.abs(rg[0]), Math.abs(rg[1])); rg = [-a, a]; }
-    var col = new THREE.Color();
+    if (mode.symmetric && this.scale.kind !== "fixed") {
+      var a = Math.max(Math.abs(rg[0]), Math.abs(rg[1])); rg = [-a, a];
+    }
+    var col = new THREE.Color(), out = 0, tol = 1e-9 * (rg[1] - rg[0]);
     for (var b = 0; b < vals.length; b++) {
       var v = vals[b];
       if (this.picked === b) col.setRGB(1.0, 0.1, 0.6);
       else if (!finite(v)) col.setRGB(0.55, 0.55, 0.55);
+      else if (v < rg[0] - tol || v > rg[1] + tol) { col.setRGB(OUTLIER[0], OUTLIER[1], OUTLIER[2]); out++; }
       else { var c = cmap(mode.map, (v - rg[0]) / (rg[1] - rg[0])); col.setRGB(c[0], c[1], c[2]); }
       this.bases.setColorAt(b, col);
     }
     this.bases.instanceColor.needsUpdate = true;
     this.range = rg;
+    this.outliers = out;
+    this.root.setAttribute("data-outliers", String(out));
+    this.root.setAttribute("data-range", rg[0].toFixed(4) + " " + rg[1].toFixed(4));
     this.drawLegend(mode, rg);
     this.requestRender();
   };
 
+  // the colour range: over the whole morph, this frame only (distance changes per frame),
+  // the 2nd-98th percentiles (robust), or fixed by the user; linked viewers share it
+  MorphViewer.prototype.setScale = function (kind, fixed) {
+    var list = this.group || [this];
+    list.forEach(function (o) {   // every linked viewer first, then the colours (one scale)
+      o.scale = {kind: kind, fixed: kind === "fixed" ? fixed : null};
+      o.scaleSelect.value = kind;
+      o.fixedBox.hidden = kind !== "fixed";
+      if (kind === "fixed") {
+        o.loBox.value = String(+fixed[0].toPrecision(6)); o.hiBox.value = String(+fixed[1].toPrecision(6));
+      }
+    });
+    list.forEach(function (o) { o.colorBases(); });
+  };
+  MorphViewer.prototype.preset = function (name) {
+    var self = this;
+    this.orbit.preset(name, function () { self.fit(); });
+  };
+
   // the colour range of a mode: over the whole morph (distance), and over every linked viewer
   MorphViewer.prototype.ownRange = function (mode) {
+    var kind = this.scale.kind, robust = kind === "robust";
     if (MODES[mode].perFrame) {
-      if (!this._distRange) this._distRange = range(Array.prototype.slice.call(this.distance));
-      return this._distRange;
+      if (kind === "frame") return rangeOf(this.fieldValues(mode), false);
+      var key = robust ? "_distRobust" : "_distRange";
+      if (!this[key]) this[key] = rangeOf(this.distance, robust);
+      return this[key];
     }
-    return range(this.data.base_fields[mode]);
+    return rangeOf(this.data.base_fields[mode], robust);
   };
   MorphViewer.prototype.scaleOf = function (mode) {
+    if (this.scale.kind === "fixed" && this.scale.fixed) return this.scale.fixed.slice();
     var list = this.group || [this], lo = Infinity, hi = -Infinity;
     list.forEach(function (v) {
       var r = v.ownRange(mode);
@@ -384,7 +472,8 @@
     el("span", {text: mode.label + ": " + rg[0].toFixed(2)}, this.legend);
     var bar = el("span", {"class": "mv-ramp"}, this.legend);
     bar.style.background = "linear-gradient(90deg," + stops.join(",") + ")";
-    el("span", {text: rg[1].toFixed(2) + "  (grey: no value)"}, this.legend);
+    el("span", {text: rg[1].toFixed(2) + "  (grey: no value" + (this.outliers ?
+      "; orange: " + this.outliers + " beyond the range" : "") + ")"}, this.legend);
   };
 
   MorphViewer.prototype.setColorMode = function (mode) {

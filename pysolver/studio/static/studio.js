@@ -98,7 +98,7 @@
     var keep = {};   // camera, time, picked base, colour mode and ghost survive a reload
     studio.viewers.forEach(function (v) {
       keep[v.buildId] = {view: v.getView(), t: v.data.t[v.frame], picked: v.picked,
-        mode: v.mode, ghost: v.ghost ? v.ghost.visible : true};
+        mode: v.mode, ghost: v.ghost ? v.ghost.visible : true, scale: v.scale};
     });
     var withFrames = studio.builds.filter(function (b) { return b.has_frames; });
     var width = withFrames.length > 1 ? 520 : 760;
@@ -126,6 +126,7 @@
         if (!k) return;
         v.setView(k.view);
         v.setTime(k.t);
+        if (k.scale.kind !== "morph") v.setScale(k.scale.kind, k.scale.fixed);
         if (k.picked !== null && k.picked < v.data.n_bases) v.selectBase(k.picked);
       });
       if (!list.length) box.textContent = "no simulated build (press Run)";
@@ -142,7 +143,7 @@
     this.orbit = new MorphViewer.Orbit(this.camera, this.canvas, function () { self.render(); });
     this.orbit.modeOf = function (e) {
       var tool = self.tool();
-      if (e.shiftKey) return "pan";
+      if (e.shiftKey || e.button === 1) return "pan";   // the viewer's buttons (Orbit)
       if (e.button === 2) return "turn";
       if (e.button !== 0) return null;
       if (tool === "look") return "turn";
@@ -152,7 +153,7 @@
     this.canvas.addEventListener("pointerdown", function (e) { self.pointerDown(e); });
     this.canvas.addEventListener("pointermove", function (e) { self.pointerMove(e); });
     this.canvas.addEventListener("pointerup", function (e) { self.pointerUp(e); });
-    this.canvas.addEventListener("pointerleave", function () { $("hover").style.display = "none"; });
+    this.canvas.addEventListener("pointerleave", function () { $("hover").style.display = "none"; self.hovered = null; });
     MorphViewer.onClick(this.canvas, function (x, y) {
       if (self.tool() === "keyframe") self.clickAt(x, y);
     });
@@ -162,10 +163,18 @@
     return document.querySelector("input[name=tool]:checked").value;
   };
 
-  Editor.prototype.load = function (build, keepCamera) {
-    var self = this;
-    this.build = build;
+  // Load a build into the editor.  Until its target arrives every control that writes is
+  // disabled (studio.loading), and a late answer for a build no longer selected is dropped:
+  // the landscape on screen, the state edited and the build a Run goes to are always one.
+  // opts.keepCamera keeps the view; opts.state replaces the build's editing state.
+  Editor.prototype.load = function (build, opts) {
+    var self = this, seq = (this.loadSeq = (this.loadSeq || 0) + 1);
+    opts = opts || {};
+    studio.loading = build.id;
+    this.updateButtons();
     return api("/api/build/" + build.id + "/target").then(function (d) {
+      if (seq !== self.loadSeq) return;      // another build was selected meanwhile
+      self.build = build;
       self.target = d;
       MAX_TIME = d.limits.max_time_s; MAX_RADIUS = d.limits.max_radius_mm;
       var V = new Float32Array(d.V), F = new Uint32Array(d.F);
@@ -208,28 +217,35 @@
         self.scene.add(self.strokeMark);
       }
       g.computeBoundingSphere();
-      if (!keepCamera || self.fittedFor !== build.id) {
-        var bs = g.boundingSphere;
-        self.orbit.target.copy(bs.center);
-        self.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.05;
-        self.orbit.theta = -Math.PI / 2 + 0.5; self.orbit.phi = 0.8;
+      if (!opts.keepCamera || self.fittedFor !== build.id) {
+        self.fit();
         self.fittedFor = build.id;
       }
       self.orbit.update(false);
       self.buildLand = Float64Array.from(d.landscape);
-      var st = keepCamera ? null : self.states[build.id];
-      if (!st) {
-        st = self.states[build.id] = {land: Float64Array.from(d.landscape), undo: [], redo: [],
-          edits: [], keyframes: []};
+      var st = opts.state || self.states[build.id];
+      // a state edited from another landscape of this build (built again since) is not kept
+      if (!st || st.base !== d.landscape_sha256) {
+        st = {land: Float64Array.from(d.landscape), undo: [], redo: [], edits: [], keyframes: []};
       }
-      self.st = st;
-      self.scale = null;
+      st.id = build.id; st.name = d.build; st.base = d.landscape_sha256;
+      self.states[build.id] = self.st = st;
+      if (studio.loading === build.id) studio.loading = null;
+      self.fixScale(null);     // the build's own range, fixed while painting
+      self.version = (self.version || 0) + 1;
       self.feas = d.feasibility;
       self.listKeyframes();
       self.paint();
       self.updateButtons();
       return self.preview();
     });
+  };
+
+  Editor.prototype.fit = function () {
+    var bs = this.mesh.geometry.boundingSphere;
+    this.orbit.target.copy(bs.center);
+    this.orbit.radius = bs.radius / Math.sin(17.5 * Math.PI / 180) * 1.05;
+    this.orbit.theta = -Math.PI / 2 + 0.5; this.orbit.phi = 0.8;
   };
 
   // ------------------------------------------------ history: undo restores byte for byte
@@ -267,6 +283,7 @@
     this.changed("back to the build's landscape");
   };
   Editor.prototype.changed = function (what) {
+    this.version++;
     this.listKeyframes();
     this.paint();
     this.updateButtons();
@@ -274,13 +291,34 @@
     return this.preview();
   };
   Editor.prototype.dirty = function () { return this.st && this.st.undo.length > 0; };
+  // controls that write are disabled while a build loads or runs; the brush, undo and redo
+  // stay live during a run: what they change is a pending draft (drawDraft)
   Editor.prototype.updateButtons = function () {
-    var busy = studio.job && studio.job.state === "running";
-    $("undo").disabled = !this.st.undo.length || busy;
-    $("redo").disabled = !this.st.redo.length || busy;
-    $("run").disabled = !!busy;
-    $("reset").disabled = !!busy;
-    this.container.setAttribute("data-undo", String(this.st.undo.length));
+    var running = !!(studio.job && studio.job.state === "running");
+    var loading = studio.loading !== null && studio.loading !== undefined;
+    var st = this.st || {undo: [], redo: []};
+    $("undo").disabled = !st.undo.length || loading;
+    $("redo").disabled = !st.redo.length || loading;
+    ["run", "reset", "import", "edit-build", "variant", "variant-name"].forEach(function (id) {
+      $(id).disabled = running || loading;
+    });
+    $("variant-name").disabled = $("variant-name").disabled || !$("variant").checked;
+    document.body.setAttribute("data-loading", loading ? "1" : "0");
+    this.container.setAttribute("data-undo", String(st.undo.length));
+    this.drawDraft();
+  };
+  // the edit made during a run (on the build being run): shown, and kept after the run
+  Editor.prototype.draft = function () {
+    var sent = studio.sent, st = this.st;
+    if (!sent || !st || sent.id !== st.id || sent.variant) return 0;
+    return this.draftOf(st, sent);
+  };
+  Editor.prototype.drawDraft = function () {
+    var box = $("draft"), n = this.draft();
+    box.hidden = !n;
+    box.setAttribute("data-vertices", String(n));
+    box.textContent = n ? "Pending draft: " + n + " vertices changed since the Run started. " +
+      "They are not in this run and are kept after it (Run again to build them)." : "";
   };
 
   // ------------------------------------------------ picking
@@ -325,6 +363,7 @@
     });
     $("brush-error").textContent = errs.join("; ");
     out.ok = !errs.length;
+    if (out.ok) setError("brush", null);     // its cause is fixed: the message goes
     return out;
   };
   // weight of a vertex at distance d from a dab: 1 inside (1 - falloff) r, then a smooth
@@ -338,6 +377,7 @@
   }
   Editor.prototype.pointerDown = function (e) {
     if (this.tool() !== "brush" || e.button !== 0 || e.shiftKey) return;
+    if (studio.loading !== null && studio.loading !== undefined) return;   // no state yet
     var hit = this.hitPoint(e.clientX, e.clientY);
     if (!hit) return;   // off the target: the orbit turns the view
     var b = this.brush();
@@ -398,7 +438,7 @@
     this.container.setAttribute("data-strokes", String((this.strokes = (this.strokes || 0) + 1)));
     status(sk.b.mode + ": " + n + " vertices changed" + (this.held ? "; " + this.held : ""), "idle");
     this.updateButtons();
-    this.preview();
+    this.preview();     // the release's one request (a pending one is cancelled, a repeat skipped)
   };
   Editor.prototype.dab = function (p) {
     var sk = this.stroke, b = sk.b, V = this.V, pts = [[p.x, p.y, p.z]];
@@ -413,7 +453,7 @@
       }
       pts.push([p.x, p.y, p.z]);
     }
-    var W = sk.W, L0 = sk.L0, land = this.st.land, held = 0, i;
+    var W = sk.W, L0 = sk.L0, land = this.st.land, held = 0, moved = false, i;
     pts.forEach(function (q) {
       sk.points.push(q);
       for (var v = 0; v < W.length; v++) {
@@ -430,12 +470,14 @@
         b.mode === "subtract" ? L0[i] - b.value : sk.S[i];
       var t = L0[i] + W[i] * (goal - L0[i]);
       if (t < 0) { t = 0; held++; } else if (t > MAX_TIME) { t = MAX_TIME; held++; }
-      land[i] = t;
+      if (land[i] !== t) { land[i] = t; moved = true; }
     }
     this.held = held ? held + " vertices held at the limit (0-" + MAX_TIME + " s)" : "";
     this.strokeMark.position.set(p.x, p.y, p.z);
     this.strokeMark.scale.setScalar(b.radius);
     this.strokeMark.visible = true;
+    if (!moved) { this.render(); return; }   // the same landscape: nothing new to ask about
+    this.version++;
     this.paint();
     this.previewSoon();
   };
@@ -538,40 +580,58 @@
     this._soon = setTimeout(function () { self._soon = null; self.preview(); }, 150);
   };
   Editor.prototype.preview = function () {
+    if (this._soon) { clearTimeout(this._soon); this._soon = null; }
+    // the landscape asked about already (a timer fired before the release): no second request
+    if (this.previewed === this.version && this.previewedFor === this.st) return this.lastPreview;
+    this.previewed = this.version; this.previewedFor = this.st;
+    this.previewRequests = (this.previewRequests || 0) + 1;
     var self = this, seq = (this.seq = (this.seq || 0) + 1), t0 = performance.now();
-    return api("/api/build/" + this.build.id + "/preview", {landscape: Array.from(this.st.land)})
+    return (this.lastPreview = api("/api/build/" + this.build.id + "/preview", {landscape: Array.from(this.st.land)})
       .then(function (r) {
         if (seq !== self.seq) return;   // a newer edit is on its way
         setError("preview", null);
         self.feas = r.feasibility;
         self.paint();
+        self.refreshHover();
         var f = $("feas");
         f.setAttribute("data-seq", String(seq));
         f.setAttribute("data-ms", String(Math.round(performance.now() - t0)));
-      }).catch(function (e) { if (seq === self.seq) setError("preview", e.message); });
+      }).catch(function (e) { if (seq === self.seq) setError("preview", e.message); }));
   };
 
   // ------------------------------------------------ drawing
+  var OUTLIER = [1.0, 0.5, 0.0];
   var BAND = {early: [0.85, 0.12, 0.1], late: [0.12, 0.3, 0.95], both: [0.6, 0.1, 0.7],
     ok: [0.2, 0.68, 0.32]};
+  // the time scale: fixed (colours never shift under the brush) to the build's range, or
+  // to the user's; a time beyond it is drawn orange and counted in the legend
+  Editor.prototype.fixScale = function (range) {
+    var land = range ? null : (this.buildLand || []), lo = Infinity, hi = -Infinity;
+    if (range) { lo = range[0]; hi = range[1]; }
+    else for (var i = 0; i < land.length; i++) { lo = Math.min(lo, land[i]); hi = Math.max(hi, land[i]); }
+    if (!(hi - lo >= 1e-6)) { lo = (isFinite(lo) ? lo : 0) - 1; hi = lo + 2; }
+    this.scale = {lo: lo, hi: hi, user: !!range};
+    $("scale-lo").value = String(+lo.toPrecision(6)); $("scale-hi").value = String(+hi.toPrecision(6));
+    $("scale-lo").classList.remove("bad"); $("scale-hi").classList.remove("bad");
+    if (this.st) this.paint();
+  };
   Editor.prototype.paint = function () {
     if (!this.mesh || !this.st) return;
-    var land = this.st.land, feas = this.feas, i, lo = Infinity, hi = -Infinity;
-    for (i = 0; i < land.length; i++) { lo = Math.min(lo, land[i]); hi = Math.max(hi, land[i]); }
-    // a scale that only grows while painting (colours do not shift under the brush)
-    if (!this.scale || this.scale.build !== this.build.id) this.scale = {lo: lo, hi: hi, build: this.build.id};
-    this.scale.lo = Math.min(this.scale.lo, lo); this.scale.hi = Math.max(this.scale.hi, hi);
+    var land = this.st.land, feas = this.feas, i, beyond = 0;
     var slo = this.scale.lo, shi = this.scale.hi;
-    if (shi - slo < 1e-6) { slo -= 1; shi += 1; }
     var mode = $("colour-mode").value, col = this.mesh.geometry.getAttribute("color");
     for (i = 0; i < land.length; i++) {
       var c;
-      if (mode === "band" && feas) {
+      if (mode === "diff") {
+        c = this.diffColour(i);
+      } else if (mode === "band" && feas) {
         var early = false, late = false;
         this.cellsOf[i].forEach(function (k) {
           if (feas.side[k] < 0) early = true; else if (feas.side[k] > 0) late = true;
         });
         c = early && late ? BAND.both : early ? BAND.early : late ? BAND.late : BAND.ok;
+      } else if (land[i] < slo || land[i] > shi) {
+        c = OUTLIER; beyond++;
       } else {
         c = MorphViewer.cmap("viridis", (land[i] - slo) / (shi - slo));
       }
@@ -580,8 +640,27 @@
     col.needsUpdate = true;
     this.container.setAttribute("data-colour", mode);
     if (feas) this.drawMarks(feas);
+    this.beyond = mode === "band" ? 0 : beyond;
+    this.container.setAttribute("data-beyond", String(this.beyond));
     this.drawLegend(mode, slo, shi);
     this.render();
+  };
+  // completion A - B of the compared builds at a vertex: the mean over its cells, on a
+  // blue-white-red scale symmetric about 0 up to the 98th percentile of |A - B| (beyond it:
+  // orange); grey where no cell has both times, or when nothing is compared
+  Editor.prototype.diffColour = function (v) {
+    var cmp = studio.compare, d = cmp && cmp.r.diff_done_s;
+    if (!d || d.length !== this.target.vertex_a.length) return [0.55, 0.55, 0.55];
+    if (!cmp.span) {
+      var abs = d.filter(function (x) { return x !== null; }).map(Math.abs).sort(function (p, q) { return p - q; });
+      cmp.span = abs.length ? Math.max(abs[Math.floor(0.98 * (abs.length - 1))], 1e-3) : 1;
+    }
+    var s = 0, n = 0;
+    this.cellsOf[v].forEach(function (k) { if (d[k] !== null) { s += d[k]; n++; } });
+    if (!n) return [0.55, 0.55, 0.55];
+    var x = s / n;
+    if (Math.abs(x) > cmp.span * (1 + 1e-9)) return OUTLIER;
+    return MorphViewer.cmap("diverging", 0.5 + 0.5 * x / cmp.span);
   };
   Editor.prototype.drawMarks = function (feas) {
     var mid = this.target.mid, pts = [], cols = [], early = 0, late = 0, i;
@@ -612,6 +691,13 @@
   Editor.prototype.drawLegend = function (mode, lo, hi) {
     var leg = $("legend-editor");
     leg.innerHTML = "";
+    if (mode === "diff") {
+      var cmp = studio.compare;
+      leg.textContent = cmp ? "completion A - B (s): blue -" + fmt(cmp.span, 1) + ", white 0, red +" +
+        fmt(cmp.span, 1) + " (98th percentile of |A - B|; orange beyond; grey: never completes)" :
+        "completion A - B: compare two builds first (Results, Compare)";
+      return;
+    }
     if (mode === "band") {
       [["too early", BAND.early], ["too late", BAND.late], ["both", BAND.both], ["within reach", BAND.ok]]
         .forEach(function (p) {
@@ -629,7 +715,8 @@
     leg.appendChild(document.createTextNode("requested time " + lo.toFixed(1) + " s "));
     var ramp = el("span", {"class": "mv-ramp"}, leg);
     ramp.style.background = "linear-gradient(90deg," + stops.join(",") + ")";
-    leg.appendChild(document.createTextNode(" " + hi.toFixed(1) + " s"));
+    leg.appendChild(document.createTextNode(" " + hi.toFixed(1) + " s" + (this.beyond ?
+      " (orange: " + this.beyond + " vertices beyond the scale)" : "")));
   };
 
   // per-cell details of the cell nearest the pointer
@@ -659,6 +746,13 @@
     tip.style.left = (x - r.left + 14) + "px"; tip.style.top = (y - r.top + 10) + "px";
     tip.style.display = "block";
     tip.setAttribute("data-cell", String(c));
+    tip.setAttribute("data-version", String(this.version));
+    this.hovered = {c: c, x: x, y: y};
+  };
+  // a tooltip still shown is drawn again with the new numbers (never stale after a stroke)
+  Editor.prototype.refreshHover = function () {
+    var h = this.hovered;
+    if (h && $("hover").style.display === "block" && h.c < this.feas.side.length) this.showCell(h.c, h.x, h.y);
   };
 
   Editor.prototype.render = function () {
@@ -675,7 +769,8 @@
   // ---------------------------------------------------------------- results and parts
   var FIGURES = [
     ["verdict", "verdict", null, 0],
-    ["timing_rms_s", "timing RMS error (s)", -1, 2],
+    ["timing_rms_s", "timing RMS error, programmable cells (s)", -1, 2],
+    ["timing_rms_all_s", "timing RMS error, all cells (s)", -1, 2],
     ["spearman", "Spearman (completion order)", 1, 3],
     ["n_clamped", "clamped cells", -1, 0],
     ["n_never_complete", "cells that never complete", -1, 0],
@@ -699,7 +794,7 @@
       });
       if (!(r.now.reasons || []).length) el("li", {text: "every check passed"}, ul);
       var tab = el("table", {id: "figures"}, box), head = el("tr", {}, tab);
-      (r.before ? ["", "this build", "the run before", "change"] : ["", "this build"])
+      (r.before ? ["", "this build", "before this run (the build it was made from)", "change"] : ["", "this build"])
         .forEach(function (h) { el("th", {text: h}, head); });
       FIGURES.forEach(function (f) {
         var tr = el("tr", {"data-key": f[0]}, tab), now = r.now[f[0]], then = r.before ? r.before[f[0]] : undefined;
@@ -770,13 +865,26 @@
   }
 
   // ---------------------------------------------------------------- run (a build again)
+  // a Run names its build and the hash of the landscape the editor loaded for it (the server
+  // refuses any other), and is sent from that build's own editing state
   function run() {
-    var ed = studio.editor;
+    var ed = studio.editor, st = ed.st;
+    if (!st || (studio.loading !== null && studio.loading !== undefined)) return Promise.resolve();
+    var variant = $("variant").checked ? $("variant-name").value.trim() : null;
+    if (variant !== null && !/^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$/.test(variant)) {
+      setError("run", "variant name \"" + variant + "\": use 1-64 letters, digits, - or _ (e.g. " +
+        st.name + "-2)");
+      return Promise.resolve();
+    }
     setError("run", null);
     $("run").disabled = true;
-    return api("/api/build/" + ed.build.id + "/run",
-      {landscape: Array.from(ed.st.land), edits: ed.st.edits}).then(function (j) {
+    var sent = {id: st.id, name: st.name, land: Float64Array.from(st.land), edits: st.edits.length,
+      variant: variant};
+    return api("/api/build/" + st.id + "/run",
+      {build: st.name, base_sha256: st.base, landscape: Array.from(st.land), edits: st.edits,
+        variant: variant}).then(function (j) {
       studio.job = j;
+      studio.sent = sent;
       ed.updateButtons();
       return poll();
     }).catch(function (e) {
@@ -787,8 +895,10 @@
 
   function eta(s) {
     if (s === null || s === undefined) return "";
-    return s < 60 ? "about " + Math.max(1, Math.round(s)) + " s left" :
-      "about " + Math.round(s / 60) + " min left";
+    if (s < 60) return "about " + Math.max(1, Math.round(s)) + " s left";
+    var m = Math.floor(s / 60), r = Math.round((s - 60 * m) / 10) * 10;
+    if (r === 60) { m++; r = 0; }
+    return "about " + m + " min " + (r ? r + " s " : "") + "left";
   }
   function poll() {
     return api("/api/job").then(function (j) {
@@ -812,18 +922,149 @@
       }
       if (j.state !== "done") return;
       text.textContent = "done in " + fmt(j.seconds, 0) + " s; reloading";
-      var ed = studio.editor;
-      return api("/api/builds").then(function (b) {
-        studio.builds = b;
-        ed.states[ed.build.id] = null;     // the build's landscape is now the edited one
-        return Promise.all([ed.load(b[ed.build.id], true), loadViewers(), loadResults(), loadParts()]);
-      }).then(function () {
+      return afterRun(j).then(function (where) {
         text.textContent = "done in " + fmt(j.seconds, 0) + " s";
         text.setAttribute("data-state", "done");
-        status("built again: see the results", "done");
+        Object.keys(errors).forEach(function (k) { errors[k] = null; });   // a run that worked
+        showErrors();
+        status(where, "done");
       });
     }).catch(function (e) { setError("run", e.message); });
   }
+
+  // After a run: the builds again (a variant is listed after the others); an in-place run
+  // reloads its build, keeping a pending draft as one undoable step on the new landscape;
+  // a variant run leaves the original's state (and its undo history) as it was and opens
+  // the variant.
+  function afterRun(j) {
+    var ed = studio.editor, sent = studio.sent || {id: j.build, variant: j.variant, edits: 0};
+    return api("/api/builds").then(function (b) {
+      studio.builds = b;
+      fillSelector();
+      var target = sent.variant ? b.filter(function (x) { return x.name === sent.variant; })[0] : b[sent.id];
+      var old = ed.states[sent.id], state = null, kept = 0;
+      if (!sent.variant) {
+        kept = old && sent.land && old.id === sent.id ? ed.draftOf(old, sent) : 0;
+        state = {land: kept ? Float64Array.from(old.land) : null, undo: [], redo: [],
+          edits: kept ? old.edits.slice(sent.edits) : [], keyframes: []};
+        ed.states[sent.id] = null;
+      }
+      studio.sent = null;
+      $("edit-build").value = String(target.id);
+      return ed.load(target, {keepCamera: !sent.variant}).then(function () {
+        return Promise.all([loadViewers(), loadResults(), loadParts()]);
+      }).then(function () {
+        if (sent.variant) {   // did the edit work? the variant (A) against its original (B)
+          $("variant").checked = false; $("variant-name").value = "";   // that name is taken now
+          ed.updateButtons();
+          $("cmp-a").value = String(target.id); $("cmp-b").value = String(sent.id);
+          compare();
+        }
+        if (kept) {   // the draft on the new landscape, one undo step back to the built one
+          ed.st.undo = [{land: Float64Array.from(ed.buildLand), edits: [], keyframes: []}];
+          ed.st.land = state.land; ed.st.edits = state.edits;
+          ed.changed(null);
+        }
+        return sent.variant ? "built into the new build " + sent.variant + " (" + sent.name +
+          " is unchanged)" : "built again: see the results" +
+          (kept ? "; the draft (" + kept + " vertices) is kept on the new landscape" : "");
+      });
+    });
+  }
+  // the cells with a vertex whose time differs from the build's own landscape
+  Editor.prototype.paintedCells = function () {
+    var st = this.st, seen = {}, out = [], self = this;
+    for (var i = 0; i < st.land.length; i++) {
+      if (st.land[i] === this.buildLand[i]) continue;
+      this.cellsOf[i].forEach(function (c) { if (!seen[c]) { seen[c] = 1; out.push(c); } });
+    }
+    return out.sort(function (p, q) { return p - q; });
+  };
+  Editor.prototype.draftOf = function (st, sent) {
+    var n = 0;
+    for (var i = 0; i < st.land.length; i++) if (st.land[i] !== sent.land[i]) n++;
+    return n;
+  };
+  function fillSelector() {
+    var sel = $("edit-build"), keep = sel.value;
+    sel.innerHTML = "";
+    studio.builds.forEach(function (b) { el("option", {value: String(b.id), text: b.name}, sel); });
+    if (keep) sel.value = keep;
+    fillCompare();
+    $("builds-note").textContent = studio.builds.map(function (b) { return b.path; }).join(" | ");
+  }
+
+  // ---------------------------------------------------------------- compare: A - B
+  var REGION = [["requested_mean_s", "requested t*, mean (s)", 2], ["simulated_mean_s",
+    "simulated completion, mean (s)", 2], ["timing_rms_s", "timing RMS, programmable cells (s)", 2],
+    ["n_never_complete", "cells that never complete", 0], ["n_out_of_reach", "out of reach (clamped)", 0]];
+  function compare() {
+    var a = parseInt($("cmp-a").value, 10), b = parseInt($("cmp-b").value, 10), box = $("compare");
+    var body = {other: b}, ed = studio.editor, painted = $("cmp-painted").checked;
+    if (painted) {   // the region painted in the editor now (on the build it shows)
+      body.cells = ed.paintedCells();
+      if (!body.cells.length) {
+        setError("compare", "compare: nothing is painted in the editor on " + ed.st.name +
+          " (its landscape is the build's): paint there, or untick 'cells painted in the editor'");
+        return Promise.resolve();
+      }
+    }
+    var where = painted ? "painted in the editor on " + ed.st.name : "those whose requested time differs";
+    box.setAttribute("data-state", "loading");
+    return api("/api/build/" + a + "/compare", body).then(function (r) {
+      setError("compare", null);
+      studio.compare = {a: a, b: b, r: r};
+      box.innerHTML = "";
+      var na = "A: " + r.names.a, nb = "B: " + r.names.b;
+      el("h4", {text: "The painted region: " + r.region.length + " cells (" + where + ")"}, box);
+      var t = el("table", {id: "cmp-region"}, box), h = el("tr", {}, t);
+      ["", na, nb, "A - B"].forEach(function (x) { el("th", {text: x}, h); });
+      REGION.forEach(function (f) {
+        var tr = el("tr", {"data-key": f[0]}, t), x = r.a[f[0]], y = r.b[f[0]];
+        el("td", {text: f[1]}, tr); el("td", {text: fmt(x, f[2])}, tr); el("td", {text: fmt(y, f[2])}, tr);
+        el("td", {text: (x === null || y === null) ? "n/a" : fmt(x - y, f[2])}, tr);
+      });
+      el("h4", {text: "Every figure of both builds"}, box);
+      var t2 = el("table", {id: "cmp-figures"}, box), h2 = el("tr", {}, t2);
+      ["", na, nb, "A - B"].forEach(function (x) { el("th", {text: x}, h2); });
+      FIGURES.forEach(function (f) {
+        var fa = r.figures.a || {}, fb = r.figures.b || {}, x = fa[f[0]], y = fb[f[0]];
+        var tr = el("tr", {"data-key": f[0]}, t2);
+        el("td", {text: f[1]}, tr);
+        el("td", {text: typeof x === "string" ? x : fmt(x, f[3])}, tr);
+        el("td", {text: typeof y === "string" ? y : fmt(y, f[3])}, tr);
+        el("td", {text: typeof x === "number" && typeof y === "number" ? fmt(x - y, f[3]) : (x === y ? "same" : "")}, tr);
+      });
+      box.setAttribute("data-state", "shown");
+      box.setAttribute("data-region", String(r.region.length));
+      $("colour-mode").value = "diff";
+      studio.editor.paint();
+    }).catch(function (e) { setError("compare", "compare: " + e.message); box.setAttribute("data-state", "error"); });
+  }
+  function fillCompare() {
+    ["cmp-a", "cmp-b"].forEach(function (id, k) {
+      var sel = $(id), keep = sel.value;
+      sel.innerHTML = "";
+      studio.builds.forEach(function (b) { el("option", {value: String(b.id), text: b.name}, sel); });
+      sel.value = keep || String(Math.min(k, studio.builds.length - 1));
+    });
+  }
+
+  // a CSV file (vertex_id,time_s) as the landscape: checked by the server, one undoable step
+  function importCsv(file) {
+    var ed = studio.editor, st = ed.st;
+    return file.text().then(function (text) {
+      return api("/api/build/" + st.id + "/import", {csv: text});
+    }).then(function (r) {
+      if (ed.st !== st) return;
+      setError("import", null);
+      ed.remember();
+      st.land = Float64Array.from(r.landscape);
+      st.edits.push({tool: "import", mode: "csv"});
+      ed.changed("landscape imported from " + file.name);
+    }).catch(function (e) { setError("import", "import refused: " + e.message); });
+  }
+  studio.importCsv = importCsv;   // (tests: a File made in the page)
 
   // ---------------------------------------------------------------- start
   function init() {
@@ -858,20 +1099,44 @@
     });
     session(studio.token).then(function () { return api("/api/builds"); }).then(function (builds) {
       studio.builds = builds;
-      $("builds-note").textContent = builds.map(function (b) { return b.path; }).join(" | ");
       var sel = $("edit-build");
-      builds.forEach(function (b) {
-        el("option", {value: String(b.id), text: b.name}, sel);
-      });
+      fillSelector();
       ed = studio.editor = new Editor($("editor-view"));
       sel.addEventListener("change", function () {
-        var b = builds[parseInt(sel.value, 10)];
-        Promise.all([ed.load(b), loadResults(), loadParts()]);
+        var b = studio.builds[parseInt(sel.value, 10)];
+        ed.load(b).then(function () { return Promise.all([loadResults(), loadParts()]); });
+      });
+      $("variant").addEventListener("change", function () {
+        if ($("variant").checked && !$("variant-name").value) {
+          var names = studio.builds.map(function (b) { return b.name; }), k = 2;
+          while (names.indexOf(ed.st.name + "-" + k) >= 0) k++;
+          $("variant-name").value = ed.st.name + "-" + k;
+        }
+        ed.updateButtons();
+      });
+      $("import").addEventListener("click", function () { $("import-file").click(); });
+      $("import-file").addEventListener("change", function () {
+        var f = $("import-file").files[0];
+        if (f) importCsv(f);
+        $("import-file").value = "";
       });
       $("undo").addEventListener("click", function () { ed.undo(); });
       $("redo").addEventListener("click", function () { ed.redo(); });
       $("reset").addEventListener("click", function () { ed.reset(); });
       $("colour-mode").addEventListener("change", function () { ed.paint(); });
+      ["scale-lo", "scale-hi"].forEach(function (id) {
+        $(id).addEventListener("change", function () {
+          var lo = parseFloat($("scale-lo").value), hi = parseFloat($("scale-hi").value);
+          var ok = isFinite(lo) && isFinite(hi) && hi > lo;
+          $("scale-lo").classList.toggle("bad", !ok); $("scale-hi").classList.toggle("bad", !ok);
+          if (ok) ed.fixScale([lo, hi]);     // a bad pair is marked, never replaced
+        });
+      });
+      $("scale-build").addEventListener("click", function () { ed.fixScale(null); });
+      $("cmp-go").addEventListener("click", compare);
+      ["top", "side", "reset"].forEach(function (n) {
+        $("view-" + n).addEventListener("click", function () { ed.orbit.preset(n, function () { ed.fit(); }); });
+      });
       $("download").addEventListener("click", function () {
         var a = el("a", {href: URL.createObjectURL(new Blob([ed.csv()], {type: "text/csv"})),
           download: ed.build.name + "-time_landscape.csv"});
@@ -893,13 +1158,20 @@
         if (ed.dirty() && !(studio.job && studio.job.state === "running")) { e.preventDefault(); e.returnValue = ""; }
       });
       $("run").addEventListener("click", run);
-      return Promise.all([loadViewers(), ed.load(builds[0])]).then(function () {
+      // the editor and the results first (small): the page is usable while the morph
+      // viewer's data (megabytes, gzip-compressed) still loads
+      return ed.load(builds[0]).then(function () {
         return Promise.all([loadResults(), loadParts(), api("/api/job").then(function (j) {
           studio.job = j;
           if (j.state === "running") poll();   // a run started before a reload: follow it
         })]);
+      }).then(function () {
+        document.body.setAttribute("data-usable", String(Math.round(performance.now())));
+        $("viewers").textContent = "loading the morph viewer ...";
+        return loadViewers();
       });
     }).then(function () {
+      document.body.setAttribute("data-ready-ms", String(Math.round(performance.now())));
       document.body.setAttribute("data-ready", "1");
     }).catch(function (e) {
       if (e.status === 403) $("token-missing").hidden = false;   // neither cookie nor token
