@@ -1266,23 +1266,22 @@ def build_lock(target):
         f.close()
 
 
-def claim_result_folder(folder, *, what: str) -> Path:
+def claim_result_folder(folder, *, what: str, inputs=()) -> Path:
     """Claim an output folder that may already hold this command's own results, so that a
     rerun resumes there: new, empty, or stamped by morphshell with nothing of the user's
     in it.  A new or empty folder gets an empty manifest, so that each result written into
     it (:func:`atomic_file`) is recorded as it is written.
 
-    Returns
-    -------
-    Path
-        ``folder``, absolute.
+    The arguments are :func:`claim_output`'s (``inputs``: the run's input files, none of
+    which may lie inside ``folder``).  Returns ``folder``, absolute.
 
     Raises
     ------
     InputError
-        The folder holds files morphshell did not write (see :func:`claim_output`).
+        The folder holds files morphshell did not write, or one of ``inputs`` (see
+        :func:`claim_output`).
     """
-    folder = claim_output(folder, what=what)
+    folder = claim_output(folder, what=what, inputs=inputs)
     make_dirs(folder)
     if read_stamp(folder) is None:
         start_stamp(folder)

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
-from pysolver.atomic import atomic_file, atomic_write_text, make_dirs
+from pysolver.atomic import atomic_file, atomic_write_text, claim_result_folder, make_dirs
 from pysolver.errors import InputError, check_input_file, read_input
 from pysolver.geometry import rigid_fit
 from pysolver.params import tol as TOL
@@ -516,8 +516,10 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
                             for k, v in results.items()}
     out["pairs"] = [[int(a), int(ids[b]), float(d)] for (a, b), d in
                     zip(reg["pairs"], reg["dist"], strict=True)]
-    out_dir = Path(out_dir) if out_dir is not None else folder / "scan_report"
-    make_dirs(out_dir)
+    if out_dir is None:
+        out_dir = make_dirs(folder / "scan_report")   # recorded in the design folder's stamp
+    else:   # a folder of its own, stamped, so that a rerun may replace what it wrote
+        out_dir = claim_result_folder(out_dir, what="scan output folder", inputs=[scan_path])
     stem = scan_path.stem
     bases = read_table(folder, "bases")
     flat = np.c_[bases["flat_x_mm"], bases["flat_y_mm"]]
