@@ -13,8 +13,8 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from .atomic import (
-    build_lock,
+from .core.locks import build_lock
+from .core.ownership import (
     check_design_folder,
     claim_output,
     claim_output_file,

@@ -25,7 +25,7 @@ import pytest
 from _shared import run_cli
 from test_report import make_synthetic_design
 
-from pysolver import atomic
+from pysolver.core import manifest, ownership, writes
 from pysolver.stages import argument, commands
 
 SHAPE = "regular:rows=2,cols=2"
@@ -34,20 +34,20 @@ SHAPE = "regular:rows=2,cols=2"
 def _stub_writer(name):
     """A stand-in for a slow stage: writes ``name`` into its folder through the writer."""
     def write(folder):
-        atomic.atomic_write_text(Path(folder) / name, "stub\n")
+        writes.atomic_write_text(Path(folder) / name, "stub\n")
     return write
 
 
 def _fit_material_stub(*, data_dir, out_path, report_dir, compare_to, progress):
-    atomic.atomic_write_text(out_path, '{"provenance": {}}\n')
-    atomic.make_dirs(report_dir)
+    writes.atomic_write_text(out_path, '{"provenance": {}}\n')
+    writes.make_dirs(report_dir)
     _stub_writer("fit_report.json")(report_dir)
     return {"model_file": str(out_path)}
 
 
 def _fit_membrane_stub(*, out_path, report_dir):
-    atomic.atomic_write_text(out_path, '{"provenance": {}}\n')
-    atomic.make_dirs(report_dir)
+    writes.atomic_write_text(out_path, '{"provenance": {}}\n')
+    writes.make_dirs(report_dir)
     _stub_writer("membrane_fit.png")(report_dir)
 
 
@@ -75,7 +75,7 @@ def synthetic(tmp_path):
     of its top markers."""
     d = tmp_path / "design"
     d.mkdir()
-    atomic.start_stamp(d)
+    manifest.start_stamp(d)
     make_synthetic_design(d, n=5, membrane=False)
     with np.load(d / "sim" / "frames.npz") as z:
         M = z["marker_top"][-1]
@@ -123,8 +123,8 @@ def test_a_second_run_into_the_same_output_is_accepted(name, synthetic, tmp_path
     folders = [tmp_path / v for k, v in zip(out, out[1:], strict=False)
                if k in ("--out", "--report") and not v.endswith(".json")]
     for f in folders:
-        assert atomic.read_stamp(f) is not None, f
-        assert atomic.audit(f) == [], f
+        assert manifest.read_stamp(f) is not None, f
+        assert ownership.audit(f) == [], f
 
 
 def test_a_users_file_in_the_scan_output_is_still_refused(synthetic, tmp_path, capsys,
@@ -145,7 +145,7 @@ def test_fit_report_writers_record_their_files(tmp_path):
     then audits clean): checked on the membrane fit's picture, drawn from a tiny model."""
     from pysolver.fitting.membrane_fit import plot_membrane_fit
 
-    folder = atomic.claim_result_folder(tmp_path / "R", what="--report folder")
+    folder = ownership.claim_result_folder(tmp_path / "R", what="--report folder")
     b = np.array([2.0, 2.0, 3.0, 3.0])
     d = np.array([0.1, 0.2, 0.1, 0.2])
     model = {"form": "c0", "terms": ["1"], "coefficients": [1.0], "boundary_factor": 0.6,
@@ -153,5 +153,5 @@ def test_fit_report_writers_record_their_files(tmp_path):
              "samples": {"b0_mm": b.tolist(), "d_mm": d.tolist(), "force_N": [1.0] * 4},
              "boundary": {"rows_b0_d_faces_ratio": [[2.0, 0.1, 3, 0.6]]}}
     plot_membrane_fit(model, folder / "membrane_fit.png")
-    assert "membrane_fit.png" in atomic.read_stamp(folder)["files"]
-    assert atomic.audit(folder) == []
+    assert "membrane_fit.png" in manifest.read_stamp(folder)["files"]
+    assert ownership.audit(folder) == []

@@ -76,7 +76,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_write_text, make_dirs
+from ..core.writes import atomic_write_text, make_dirs
 from ..errors import InputError
 from ..material.creep import INTEGRATIONS, CreepModel
 from ..material.measurements import (

@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..atomic import atomic_file  # noqa: E402
+from ..core.writes import atomic_file  # noqa: E402
 from ..material.measurements import (  # noqa: E402
     SCORE_STRAIN_CUT,
     SPECIMEN_BRACKETS,

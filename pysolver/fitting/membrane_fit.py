@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from ..atomic import atomic_file, atomic_write_text, make_dirs
+from ..core.writes import atomic_file, atomic_write_text, make_dirs
 from ..mechanics import MembraneMesh
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FITS, SIM, UNIT_CELL
 from ..params import tol as TOL
