@@ -50,8 +50,8 @@ def main() -> int:
     ap.add_argument("--workers", default="1,2")
     ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
     a = ap.parse_args()
-    from pysolver.atomic import atomic_write_text
     from pysolver.build import build
+    from pysolver.core.writes import atomic_write_text
     from pysolver.tolerance import tolerance_analysis
 
     out = Path(a.out)

@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pysolver.atomic import atomic_write_text  # noqa: E402
+from pysolver.core.writes import atomic_write_text  # noqa: E402
 from pysolver.geometry import rigid_fit  # noqa: E402
 from pysolver.material.bumper import (  # noqa: E402
     SMALL_DEFLECTION,

@@ -4,7 +4,8 @@ simulated again with barrier contact when far-apart parts passed through each ot
 :func:`pysolver.simulator.contact_if_needed`).
 
 ``build(source)`` runs every stage its :class:`~pysolver.stages.BuildOptions` ask for in a
-staging folder ``build/.staging/<name>`` and moves it to ``build/<name>`` only when all
+staging folder ``build/.<name>.morphshell-staging/<name>``
+(:func:`pysolver.core.staging.staging_dir`) and moves it to ``build/<name>`` only when all
 stages have finished, so an interrupted build leaves the previous complete result (or
 nothing).  The staging folder survives an interruption: a re-run with the same inputs
 reuses it, which lets the simulation resume from its last checkpoint.  A lock per shape
@@ -28,31 +29,24 @@ from pathlib import Path
 import numpy as np
 
 from . import tables
-from .atomic import (
-    STAMP_NAME,
+from .core.inputs import check_input_file
+from .core.locks import build_lock
+from .core.manifest import STAMP_NAME, public_mode
+from .core.ownership import claim_output
+from .core.staging import (
     atomic_dir,
-    atomic_write_text,
-    build_lock,
-    claim_output,
     open_staging,
-    public_mode,
     recover_stale,
     remove_staging,
     replace_dir,
     seal,
     staging_dir,
 )
+from .core.writes import atomic_write_text
 from .design import check_design_options
 from .design.surfaces import BUILTIN_SHAPES, check_spec
 from .design.time_landscape import read_time_file, write_landscape
-from .errors import (
-    EXIT_CHECK_FAILED,
-    EXIT_OK,
-    ExternalToolError,
-    InputError,
-    MorphshellError,
-    check_input_file,
-)
+from .errors import EXIT_CHECK_FAILED, EXIT_OK, ExternalToolError, InputError, MorphshellError
 from .material.model import check_bracket_geometry, load_bracket_model
 from .params import BRACKET_MODEL_FILE, LIMITS, MEMBRANE_MODEL_FILE, SIM, UNIT_CELL
 from .progress import say
@@ -229,6 +223,17 @@ def build(source: str, options: BuildOptions | None = None, **changes) -> dict:
     -------
     summary : dict
         The content of ``summary.json`` plus ``exit_code``.
+
+    Examples
+    --------
+    The design stage alone of a two-base patch (``tmp`` is a scratch folder; a full build
+    of ``petal`` takes minutes):
+
+    >>> from pysolver.build import build
+    >>> s = build("regular:rows=1,cols=2", out=tmp / "tiny", program=False, render=False,
+    ...           simulate=False, progress=False)
+    >>> s["exit_code"], (tmp / "tiny" / "stencil.obj").is_file()
+    (0, True)
     """
     opts = (options or BuildOptions()).replace(**changes)
     opts = opts.replace(params=UNIT_CELL if opts.params is None else opts.params)

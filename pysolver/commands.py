@@ -13,13 +13,12 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from .atomic import (
-    build_lock,
+from .core.locks import build_lock
+from .core.ownership import (
     check_design_folder,
     claim_output,
     claim_output_file,
     claim_result_folder,
-    write_stamp,
 )
 from .errors import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_INTERNAL, EXIT_OK
 from .params import UNCERTAINTY
@@ -95,13 +94,12 @@ def compare_scan(args: argparse.Namespace) -> int:
 
     folder = Path(args.dir).absolute()
     check_design_folder(folder)
+    # checked before any work; made (and stamped) by the stage once it has a result
     out = None if args.out is None else claim_output(args.out, what="--out folder",
                                                      inputs=[args.scan])
     with build_lock(folder):
         run(folder, Path(args.scan), layer=args.layer, state=args.state, gate_mm=args.gate_mm,
             out_dir=out, progress=_progress(args))
-    if out is not None:
-        write_stamp(out)
     return EXIT_OK
 
 
@@ -149,7 +147,7 @@ def fit_material(args: argparse.Namespace) -> int:
     if out is not None:
         claim_output_file(out, what="--out model file")
     if report is not None:
-        claim_output(report, what="--report folder")
+        claim_result_folder(report, what="--report folder")
     res = fit(data_dir=args.data, out_path=out, report_dir=report, compare_to=args.compare_to,
               progress=_progress(args))
     missing = {k: v for k, v in (res.get("missing_specimens") or {}).items() if v}
@@ -166,7 +164,7 @@ def fit_membrane(args: argparse.Namespace) -> int:
     if args.out is not None:
         claim_output_file(args.out, what="--out model file")
     if args.report is not None:
-        claim_output(args.report, what="--report folder")
+        claim_result_folder(args.report, what="--report folder")
     fit_membrane_model(out_path=args.out, report_dir=args.report)
     return EXIT_OK
 

@@ -35,9 +35,10 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .atomic import atomic_write_text
 from .child import safe_path_environ
-from .errors import InputError, read_input
+from .core.inputs import read_input
+from .core.writes import atomic_write_text
+from .errors import InputError
 from .params import TOLERANCE_RUN
 from .progress import duration, say
 from .records import json_default, json_text

@@ -3,8 +3,8 @@
 Every JSON file morphshell writes (``design.json``, ``summary.json``, ``sim/summary.json``,
 ``report/report.json``, the tolerance and sweep records) goes through :func:`json_text`, so
 numpy scalars and arrays, paths and non-finite numbers are written the same way everywhere.
-The file itself is written by :func:`pysolver.atomic.atomic_write_text` (or inside an
-:func:`pysolver.atomic.atomic_dir`).
+The file itself is written by :func:`pysolver.core.writes.atomic_write_text` (or inside an
+:func:`pysolver.core.staging.atomic_dir`).
 """
 
 from __future__ import annotations

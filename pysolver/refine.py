@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import tables
-from .atomic import atomic_write_text
+from .core.writes import atomic_write_text
 from .errors import InputError
 from .params import PROGRAMMING, REPORT, SIM, UNIT_CELL
 from .progress import say

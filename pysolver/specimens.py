@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_dir, atomic_write_text
+from .core.staging import atomic_dir
+from .core.writes import atomic_write_text
 from .errors import InputError
 from .params import UNIT_CELL
 from .render import (

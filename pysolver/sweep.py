@@ -48,8 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_file, atomic_write_text, claim_result_folder
 from .build import build
+from .core.inputs import read_input
+from .core.ownership import claim_result_folder
+from .core.writes import atomic_file, atomic_write_text
 from .distributed import (
     ResultStore,
     Task,
@@ -59,7 +61,7 @@ from .distributed import (
     fingerprint,
     run_tasks,
 )
-from .errors import InputError, MorphshellError, read_input
+from .errors import InputError, MorphshellError
 from .params import TOLERANCE_RUN
 from .progress import say
 

@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_file, atomic_write_text
-from .errors import InputError, check_input_file, read_input, refuse_first
+from .core.inputs import check_input_file, read_input
+from .core.writes import atomic_file, atomic_write_text
+from .errors import InputError, refuse_first
 from .geometry import unit_cells
 from .params import UNIT_CELL, check_unit_cell
 from .params import tol as TOL

@@ -10,7 +10,7 @@ them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests kee
   solver, rim margin) sit just above the core, below both the simulator and temporal
   programming, which share them;
 * the simulator (``sim``) imports nothing from ``pysolver`` but the core (table reader,
-  ``params``, ``errors``, ``atomic``, ``geometry``), the mechanics and the runtime material
+  ``params``, ``errors``, ``core``, ``geometry``), the mechanics and the runtime material
   model;
 * of ``pysolver``, only the gateway :mod:`pysolver.simulator` imports ``sim``; the other
   front ends (the build and its stage runners, the refinement, studio, tolerance analysis,
@@ -42,8 +42,9 @@ TOP_PACKAGES = ("pysolver", "sim")
 
 # Layers, lowest first: a module may import its own group and any group of a lower rank.
 LAYERS = {
-    "core": 0,        # errors, params, atomic, child (argv of child Pythons), machine (memory
-                      # left), geometry, tables, progress lines, JSON records, provenance:
+    "core": 0,        # errors, params, the plumbing package core (manifest, writes, locks,
+                      # ownership, staging, inputs), child (argv of child Pythons), machine
+                      # (memory left), geometry, tables, progress lines, JSON records, provenance:
                       # used by every stage
     "mechanics": 1,   # shell model, membrane energy and mesh, Newton solver, rim margin
     "material": 1,    # runtime bracket material model
@@ -58,7 +59,7 @@ LAYERS = {
                       # to the simulator, command line, studio, sweep, tolerance, specimens
 }
 
-CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.atomic", "pysolver.child",
+CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.core", "pysolver.child",
         "pysolver.machine", "pysolver.geometry", "pysolver.tables", "pysolver.progress",
         "pysolver.records", "pysolver.provenance"}
 FITTING = ("pysolver.fitting", "pysolver.fitting.material_fit",
@@ -70,7 +71,7 @@ LAZY_ALLOWED = {"pysolver.cli", "pysolver.commands"}  # the command line: see th
 def group(mod: str) -> str:
     """The layer group of a project module (the settings package ``pysolver.params`` and its
     topic modules are all core)."""
-    if mod in CORE or mod.startswith("pysolver.params."):
+    if mod in CORE or mod.startswith(("pysolver.params.", "pysolver.core.")):
         return "core"
     for prefix, g in (("pysolver.fitting", "fitting"), ("pysolver.material", "material"),
                       ("pysolver.design", "design"),

@@ -17,8 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from pysolver import atomic
-from pysolver.atomic import atomic_dir, build_lock, recover_stale, replace_dir, start_stamp
+from pysolver.core import manifest, staging
+from pysolver.core.locks import build_lock
+from pysolver.core.manifest import start_stamp
+from pysolver.core.staging import atomic_dir, recover_stale, replace_dir
 from pysolver.errors import EXIT_BAD_INPUT
 
 REPO = Path(__file__).resolve().parent.parent
@@ -124,8 +126,8 @@ def test_replace_interrupted_between_its_renames_is_recovered(tmp_path):
     dst = tmp_path / "petal"
     with atomic_dir(dst) as tmp:
         (tmp / "summary.json").write_text("old complete\n")
-    tok = atomic._token()
-    aside = atomic._make_private(tmp_path, f".petal.old-{tok}", role="old", token=tok,
+    tok = manifest.new_token()
+    aside = manifest.make_private(tmp_path, f".petal.old-{tok}", role="old", token=tok,
                                  **{"for": "petal"})
     os.replace(dst, aside / "petal")                  # the state after the first rename
     with pytest.raises(RuntimeError), atomic_dir(dst, keep_on_error=True) as tmp:
@@ -140,7 +142,7 @@ def test_replace_interrupted_between_its_renames_is_recovered(tmp_path):
     new.mkdir()
     (new / "summary.json").write_text("new complete\n")
     start_stamp(new)
-    atomic.seal(new)
+    staging.seal(new)
     replace_dir(new, dst)
     assert (dst / "summary.json").read_text() == "new complete\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["petal"]

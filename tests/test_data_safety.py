@@ -23,18 +23,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from pysolver import atomic
-from pysolver.atomic import (
-    STAMP_NAME,
-    atomic_dir,
-    atomic_write_text,
-    claim_output,
-    foreign_files,
-    open_staging,
-    staging_dir,
-    start_stamp,
-)
 from pysolver.cli import _parser, main
+from pysolver.core import staging
+from pysolver.core.manifest import STAMP_NAME, start_stamp
+from pysolver.core.ownership import claim_output, foreign_files
+from pysolver.core.staging import atomic_dir, open_staging, staging_dir
+from pysolver.core.writes import atomic_write_text
 from pysolver.design.mesh_input import load_input
 from pysolver.design.time_landscape import evaluate_expression, parse_expression
 from pysolver.errors import EXIT_BAD_INPUT, InputError
@@ -283,7 +277,7 @@ def test_stale_locks_and_staging_are_cleaned_and_printed_paths_are_final(room, c
     (build / ".petal.morphshell-lock").write_text("pid 999999")   # a killed build's lock
     now = time.time()
     with pytest.MonkeyPatch.context() as mp:                          # two weeks ago
-        mp.setattr(atomic.time, "time", lambda: now - 2 * atomic.STALE_STAGING_S)
+        mp.setattr(staging.time, "time", lambda: now - 2 * staging.STALE_STAGING_S)
         open_staging(staging_dir(build / "petal"), inputs_sha256="x")
     (staging_dir(build / "petal") / "cells.csv").write_text("half\n")
     open_staging(staging_dir(build / "dome"), inputs_sha256="y")     # a recent interrupted one

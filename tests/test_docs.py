@@ -189,3 +189,41 @@ def test_commands_in_the_docs_exist():
 def test_doc_is_readable_text(doc):
     text = (REPO / doc).read_text(encoding="utf-8")
     assert text.strip(), doc
+
+
+# ---------------------------------------------------------------- the README, the front door
+
+README_LINES = 150
+"""The README is a front door: what it is, a picture, the commands, the options, the outputs
+and links; the rest is in ``docs/`` by topic."""
+MADE_BY_MAKE = {".venv", ".venv/bin/morphshell"}
+"""Paths the README names that the first ``make`` creates (not in a checkout)."""
+FILE_LIKE = re.compile(r"`([^`\s]*(?:/|\.(?:csv|obj|json|npz|html|png|stl|svg|md|lock|toml)))`")
+
+
+def test_the_readme_is_short():
+    n = len((REPO / "README.md").read_text(encoding="utf-8").splitlines())
+    assert n < README_LINES, f"README.md has {n} lines: move the details to a page in docs/"
+
+
+def test_every_path_the_readme_names_exists():
+    """Every file or folder the README names in backticks is in the checkout, in a design
+    folder (``docs/design-folder.md``'s table; ``build/<shape>/`` is one; ``*`` globs match
+    it), or made by ``make`` (:data:`MADE_BY_MAKE`); every picture and page it links too."""
+    import fnmatch
+
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    names = design_folder_files()
+    named = set(FILE_LIKE.findall(text))
+    assert {"stencil.obj", "sim/frames.npz", "docs/usage.md"} <= named   # the pattern sees them
+    missing = []
+    for p in sorted(named):
+        q = p.removeprefix("build/<shape>/")
+        if (REPO / p).exists() or p in MADE_BY_MAKE or q == "" or \
+                _in_design_folder(q, names) or any(fnmatch.fnmatch(n, q) for n in names):
+            continue
+        missing.append(p)
+    for link in LINK.findall(text):
+        if not (REPO / link).is_file():
+            missing.append(f"link {link}")
+    assert not missing, "README.md names paths that do not exist: " + ", ".join(missing)

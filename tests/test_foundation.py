@@ -10,8 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from pysolver.atomic import atomic_dir, atomic_write_text, build_lock
 from pysolver.cli import main
+from pysolver.core.locks import build_lock
+from pysolver.core.staging import atomic_dir
+from pysolver.core.writes import atomic_write_text
 from pysolver.errors import EXIT_BAD_INPUT, InputError, refuse_first
 from pysolver.params import UNIT_CELL
 
@@ -63,7 +65,7 @@ def test_atomic_write_text(tmp_path):
 
 def test_build_lock_excludes_same_shape_not_others(tmp_path):
     a, b = tmp_path / "petal", tmp_path / "dome"
-    code = ("import sys; from pysolver.atomic import build_lock\n"
+    code = ("import sys; from pysolver.core.locks import build_lock\n"
             "try:\n"
             "    with build_lock(sys.argv[1]): print('got')\n"
             "except Exception as e: print('refused', e)\n")

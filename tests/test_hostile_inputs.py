@@ -234,10 +234,10 @@ def test_a_file_size_limit_is_named_and_leaves_nothing(tmp_path):
 
 
 def test_a_full_disk_is_named(tmp_path, monkeypatch, capsys):
-    from pysolver import atomic
+    from pysolver.core import manifest, writes
 
     monkeypatch.chdir(tmp_path)
-    real = atomic._write_new
+    real = manifest.write_new
     calls = []
 
     def full(path, data):
@@ -246,12 +246,14 @@ def test_a_full_disk_is_named(tmp_path, monkeypatch, capsys):
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(path, data)
 
-    monkeypatch.setattr(atomic, "_write_new", full)
+    for mod in (manifest, writes):     # the stamp's writer and the files' writer
+        monkeypatch.setattr(mod, "write_new", full)
     rc, msg = _cli(["design", SHAPE, "--out", "X"], capsys)
     assert rc == EXIT_BAD_INPUT, msg
     assert "no space left on the device (the disk is full)" in msg
     assert "internal error" not in msg
-    monkeypatch.setattr(atomic, "_write_new", real)
+    for mod in (manifest, writes):
+        monkeypatch.setattr(mod, "write_new", real)
     rc, msg = _cli(["design", SHAPE, "--out", "X"], capsys)      # and a rebuild works
     assert rc == 0, msg
 

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from _shared import run_cli
 
-from pysolver import atomic
 from pysolver.cli import main
+from pysolver.core import locks, manifest, ownership, staging, writes
 from pysolver.errors import EXIT_BAD_INPUT, InputError
 
 SHAPE = "regular:rows=2,cols=2"
@@ -59,19 +59,19 @@ def test_a_users_file_is_never_adopted_by_a_failed_stage(design, capsys):
     scan.write_text("x,y,z\n0,0,0\n1,0,0\n0,1,0\n")
     rc, msg = _cli(["compare-scan", design, scan], capsys)
     assert rc == EXIT_BAD_INPUT, msg
-    assert "scan.csv" not in atomic.read_stamp(design)["files"]
+    assert "scan.csv" not in manifest.read_stamp(design)["files"]
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     _refused(rc, msg, r"scan\.csv: not written by morphshell", r"Fix: .*never deletes")
     assert scan.read_text().startswith("x,y,z")
 
 
 def test_every_file_is_recorded_with_its_hash_and_size(design):
-    m = atomic.read_stamp(design)
-    assert m["version"] == atomic.STAMP_VERSION
+    m = manifest.read_stamp(design)
+    assert m["version"] == manifest.STAMP_VERSION
     for rel, (sha, size) in m["files"].items():
         p = design / rel
         assert (_sha(p), p.stat().st_size) == (sha, size), rel
-    assert atomic.audit(design) == []
+    assert ownership.audit(design) == []
 
 
 def test_an_edited_file_is_neither_overwritten_nor_deleted(design, capsys):
@@ -87,7 +87,7 @@ def test_an_edited_file_is_neither_overwritten_nor_deleted(design, capsys):
 
 
 def test_stage_commands_do_not_ignore_ownership_when_the_stamp_is_gone(design, capsys):
-    (design / atomic.STAMP_NAME).unlink()
+    (design / manifest.STAMP_NAME).unlink()
     before = {p.name: _sha(p) for p in design.iterdir() if p.is_file()}
     for stage in ("program", "simulate", "report", "render"):
         rc, msg = _cli([stage, design], capsys)
@@ -97,8 +97,8 @@ def test_stage_commands_do_not_ignore_ownership_when_the_stamp_is_gone(design, c
 
 
 def test_an_older_stamp_without_hashes_is_not_trusted(design, capsys):
-    names = sorted(atomic.read_stamp(design)["files"])
-    (design / atomic.STAMP_NAME).write_text(json.dumps({"made_by": "morphshell", "files": names}))
+    names = sorted(manifest.read_stamp(design)["files"])
+    (design / manifest.STAMP_NAME).write_text(json.dumps({"made_by": "morphshell", "files": names}))
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     _refused(rc, msg, r"made by an older morphshell that did not record file contents")
     assert (design / "cells.csv").is_file()
@@ -118,9 +118,9 @@ def test_empty_subfolders_are_the_users(tmp_path, design, capsys):
 
 def test_a_copy_of_an_own_subfolder_is_the_users(design, capsys):
     """A copy keeps the stamp inside, but the build folder's manifest does not list it."""
-    with atomic.atomic_dir(design / "stl") as tmp:
+    with staging.atomic_dir(design / "stl") as tmp:
         (tmp / "top.stl").write_text("solid top\nendsolid top\n")
-    assert "stl" in atomic.read_stamp(design)["dirs"]
+    assert "stl" in manifest.read_stamp(design)["dirs"]
     shutil.copytree(design / "stl", design / "stl-printed")
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     _refused(rc, msg, r"stl-printed: a folder morphshell did not make")
@@ -159,7 +159,7 @@ def test_a_planted_link_at_a_temporary_name_is_never_followed(tmp_path, design, 
     assert rc in (0, EXIT_BAD_INPUT), msg
 
 
-@pytest.mark.parametrize("where", ["cells.csv", "sim", atomic.STAMP_NAME])
+@pytest.mark.parametrize("where", ["cells.csv", "sim", manifest.STAMP_NAME])
 def test_links_in_the_folder_are_refused_not_followed(tmp_path, design, capsys, where):
     victim = tmp_path / "victim"
     victim.mkdir()
@@ -197,42 +197,43 @@ def test_a_killed_write_leaves_the_old_file_and_a_rebuild_works(design, capsys):
     holds the old file or the new one, and both are morphshell's."""
     cells = design / "cells.csv"
     old = _sha(cells)
-    cm = atomic.atomic_file(cells)
+    cm = writes.atomic_file(cells)
     tmp = cm.__enter__()                              # a kill: no __exit__, no clean-up
     tmp.write_text("half")
     assert _sha(cells) == old
-    cm2 = atomic.atomic_file(design / "sim" / "checkpoint.npz")
+    cm2 = writes.atomic_file(design / "sim" / "checkpoint.npz")
     np.savez(cm2.__enter__(), k=np.arange(3))         # a killed simulate's checkpoint
-    assert atomic.audit(design) == []
+    assert ownership.audit(design) == []
     rc, msg = _cli(["design", SHAPE, "--out", design], capsys)
     assert rc == 0, msg
-    assert not list(design.glob(".*tmp*")) and atomic.audit(design) == []
+    assert not list(design.glob(".*tmp*")) and ownership.audit(design) == []
 
 
 def test_a_full_disk_leaves_the_old_file_and_no_temporary(design):
     cells = design / "cells.csv"
     old = cells.read_bytes()
     with pytest.raises(OSError, match="No space left"):
-        with atomic.atomic_file(cells) as tmp:
+        with writes.atomic_file(cells) as tmp:
             tmp.write_text("partial")
             raise OSError(28, "No space left on device")
     assert cells.read_bytes() == old
-    assert sorted(p.name for p in design.iterdir() if p.name.startswith(".")) == [atomic.STAMP_NAME]
-    assert atomic.audit(design) == []
+    hidden = sorted(p.name for p in design.iterdir() if p.name.startswith("."))
+    assert hidden == [manifest.STAMP_NAME]
+    assert ownership.audit(design) == []
 
 
 def test_a_rename_killed_after_the_record_is_still_recognised(design):
     """The new hash is recorded before the rename, the old one kept as ``prev``."""
     cells = design / "cells.csv"
-    m = atomic.read_stamp(design)
+    m = manifest.read_stamp(design)
     new = b"cell_id\n"
     rec = [hashlib.sha256(new).hexdigest(), len(new)]
-    with atomic._folder_lock(design):
-        atomic._store(design, dict(m, files={**m["files"], "cells.csv": rec},
+    with manifest.folder_lock(design):
+        manifest.store_stamp(design, dict(m, files={**m["files"], "cells.csv": rec},
                                    prev={"cells.csv": m["files"]["cells.csv"]}), m)
-    assert atomic.audit(design) == []                        # still the old file: ours
+    assert ownership.audit(design) == []                        # still the old file: ours
     cells.write_bytes(new)
-    assert atomic.audit(design) == []                        # the new one: ours too
+    assert ownership.audit(design) == []                        # the new one: ours too
 
 
 # ---------------------------------------------------------------- stale runs
@@ -241,24 +242,24 @@ def test_a_rename_killed_after_the_record_is_still_recognised(design):
 def test_stale_run_folders_are_recognised_by_their_stamp_not_their_name(tmp_path):
     parent = tmp_path / "build"
     dst = parent / "petal"
-    with atomic.atomic_dir(dst) as tmp:
+    with staging.atomic_dir(dst) as tmp:
         (tmp / "summary.json").write_text("old complete\n")
     # the state after replace_dir's first rename: the old folder moved aside, dst absent
-    tok = atomic._token()
-    aside = atomic._make_private(parent, f".petal.old-{tok}", role="old", token=tok,
+    tok = manifest.new_token()
+    aside = manifest.make_private(parent, f".petal.old-{tok}", role="old", token=tok,
                                  **{"for": "petal"})
     os.replace(dst, aside / "petal")
-    tok2 = atomic._token()
-    killed = atomic._make_private(parent, f".petal.tmp-{tok2}", role="tmp", token=tok2,
+    tok2 = manifest.new_token()
+    killed = manifest.make_private(parent, f".petal.tmp-{tok2}", role="tmp", token=tok2,
                                   **{"for": "petal"})
     (killed / "cells.csv").write_text("half\n")
-    for name in (".petal.tmp-notes", ".petal.old-2023", f".petal.tmp-{atomic._token()}"):
+    for name in (".petal.tmp-notes", ".petal.old-2023", f".petal.tmp-{manifest.new_token()}"):
         (parent / name).mkdir()
         (parent / name / "mine.txt").write_text("keep me\n")
-    forged = parent / f".petal.tmp-{atomic._token()}"   # a copy of a build, renamed
+    forged = parent / f".petal.tmp-{manifest.new_token()}"   # a copy of a build, renamed
     shutil.copytree(aside / "petal", forged)
-    with atomic.build_lock(dst):
-        done = atomic.recover_stale(dst)
+    with locks.build_lock(dst):
+        done = staging.recover_stale(dst)
     assert (dst / "summary.json").read_text() == "old complete\n"
     assert not aside.exists() and not killed.exists() and len(done) == 3
     names = sorted(p.name for p in parent.iterdir())
@@ -272,46 +273,46 @@ def test_staging_is_recognised_by_stamp_and_kept_for_a_week(tmp_path, monkeypatc
     parent = tmp_path / "build"
     parent.mkdir()
     now = time.time()
-    monkeypatch.setattr(atomic.time, "time", lambda: now - 8 * 24 * 3600)
-    atomic.open_staging(atomic.staging_dir(parent / "old"), inputs_sha256="a")       # 8 days old
-    monkeypatch.setattr(atomic.time, "time", lambda: now - 2 * 24 * 3600)
-    atomic.open_staging(atomic.staging_dir(parent / "recent"), inputs_sha256="b")    # 2 days old
-    monkeypatch.setattr(atomic.time, "time", lambda: now)
+    monkeypatch.setattr(staging.time, "time", lambda: now - 8 * 24 * 3600)
+    staging.open_staging(staging.staging_dir(parent / "old"), inputs_sha256="a")       # 8 days old
+    monkeypatch.setattr(staging.time, "time", lambda: now - 2 * 24 * 3600)
+    staging.open_staging(staging.staging_dir(parent / "recent"), inputs_sha256="b")    # 2 days old
+    monkeypatch.setattr(staging.time, "time", lambda: now)
     mine = parent / ".notes.morphshell-staging"                          # the user's
     mine.mkdir()
     (mine / "n.txt").write_text("keep\n")
     os.utime(mine, (now - 1e8, now - 1e8))
-    done = atomic.clean_stale_siblings(parent / "petal")
+    done = staging.clean_stale_siblings(parent / "petal")
     assert [p.name for p in done] == [".old.morphshell-staging"]
     assert sorted(p.name for p in parent.iterdir()) == [".notes.morphshell-staging",
                                                         ".recent.morphshell-staging"]
-    assert atomic.STALE_STAGING_S == 7 * 24 * 3600
+    assert staging.STALE_STAGING_S == 7 * 24 * 3600
     with pytest.raises(InputError, match="not a staging folder of morphshell's"):
-        atomic.open_staging(atomic.staging_dir(parent / "notes"), inputs_sha256="c")
+        staging.open_staging(staging.staging_dir(parent / "notes"), inputs_sha256="c")
     assert (mine / "n.txt").is_file()
 
 
 def test_a_users_file_in_a_replaced_folder_is_kept(tmp_path):
     dst = tmp_path / "out"
-    with atomic.atomic_dir(dst) as tmp:
+    with staging.atomic_dir(dst) as tmp:
         (tmp / "a.txt").write_text("a\n")
     new = tmp_path / "new"
     new.mkdir()
-    atomic.start_stamp(new)
-    atomic.seal(new)
-    real_claim = atomic.claim_output
+    manifest.start_stamp(new)
+    staging.seal(new)
+    real_claim = staging.claim_output               # (the name replace_dir calls)
 
     def late(d, **kw):                                # the user writes right after the check
         out = real_claim(d, **kw)
         (dst / "late.txt").write_text("mine\n")
         return out
 
-    atomic.claim_output = late
+    staging.claim_output = late
     try:
         with pytest.warns(UserWarning, match="kept 1 file"):
-            atomic.replace_dir(new, dst)
+            staging.replace_dir(new, dst)
     finally:
-        atomic.claim_output = real_claim
+        staging.claim_output = real_claim
     kept = list(tmp_path.glob(".out.old-*/out/late.txt"))
     assert len(kept) == 1 and kept[0].read_text() == "mine\n"
 
@@ -321,12 +322,12 @@ def test_nested_and_result_folders(tmp_path):
     out.mkdir()
     (out / "a.csv").write_text("x\n")
     with pytest.raises(InputError, match="not a morphshell build folder"):
-        atomic.claim_output(out)
+        ownership.claim_output(out)
     (out / "a.csv").unlink()
-    atomic.start_stamp(out)
-    atomic.atomic_write_text(out / "a.csv", "x\n")
-    atomic.atomic_write_text(out / "sub" / "b.csv", "y\n")   # a folder made in place is recorded
-    assert atomic.read_stamp(out)["dirs"] == ["sub"] and atomic.foreign_files(out) == []
+    manifest.start_stamp(out)
+    writes.atomic_write_text(out / "a.csv", "x\n")
+    writes.atomic_write_text(out / "sub" / "b.csv", "y\n")   # a folder made in place is recorded
+    assert manifest.read_stamp(out)["dirs"] == ["sub"] and ownership.foreign_files(out) == []
     (out / "sub" / "c.csv").write_text("user\n")
-    assert atomic.foreign_files(out) == [out / "sub" / "c.csv"]
-    assert atomic.claim_output(out / "sub2") == out / "sub2"
+    assert ownership.foreign_files(out) == [out / "sub" / "c.csv"]
+    assert ownership.claim_output(out / "sub2") == out / "sub2"

@@ -1,8 +1,9 @@
 """The settings package (:mod:`pysolver.params`): every field documented, one name per setting.
 
-* every dataclass of the package names each of its fields in its ``Attributes`` section
-  (numpy style: ``name : type[, unit]`` and a description below) and says where its values come
-  from (a ``Source`` sentence);
+* every dataclass of the package documents each of its fields, in its ``Attributes`` section
+  (numpy style: ``name : type[, unit]`` and a description below) or beside the value (a string
+  right after the field: ``type[, unit]: description``), and says where its values come from
+  (a ``Source`` sentence);
 * every default instance the package exports is an instance of one of its classes;
 * no module of the project re-exports a setting under another name at module level
   (``NAME = UNIT_CELL.base_r``): code reads ``UNIT_CELL.base_r`` where it needs it, so a
@@ -15,6 +16,7 @@ import ast
 import dataclasses
 import inspect
 import re
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -29,8 +31,21 @@ INSTANCES = {k: v for k, v in vars(params).items()
              if dataclasses.is_dataclass(v) and not inspect.isclass(v)}
 
 
+def _beside_values(cls) -> dict[str, str]:
+    """field name -> the string right after the field in the class body (its description
+    beside its value), read with ``ast``."""
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    return {a.target.id: b.value.value for a, b in zip(body, body[1:], strict=False)
+            if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr)
+            and isinstance(b.value, ast.Constant) and isinstance(b.value.value, str)}
+
+
 def _documented(cls) -> dict[str, str]:
-    """field name -> its description, from the ``Attributes`` section of the docstring."""
+    """field name -> its description, from the ``Attributes`` section of the docstring or
+    beside the values (:func:`_beside_values`)."""
+    beside = _beside_values(cls)
+    if beside:
+        return beside
     doc = inspect.getdoc(cls) or ""
     part = doc.split("Attributes\n----------\n", 1)
     assert len(part) == 2, f"{cls.__name__}: no Attributes section"

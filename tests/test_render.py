@@ -21,7 +21,7 @@ from pysolver import tables
 from pysolver.errors import ExternalToolError, InputError
 from pysolver.geometry import apply_transform, print_transform
 from pysolver.params import LAYERS, SIM, UNIT_CELL, layer_sign, tol
-from pysolver.render import from_manifold, load_stl, render_design, to_manifold
+from pysolver.render import from_manifold, load_stl, render_design, solids, to_manifold
 from pysolver.render import parts as render
 from pysolver.render.scad_io import SCAD_DIR
 
@@ -442,11 +442,11 @@ def test_count_bodies_matches_decompose():
     import manifold3d
 
     cube = manifold3d.Manifold.cube([1.0, 1.0, 1.0])
-    solids = [cube, cube.translate([0.5, 0.0, 0.0]), cube.translate([3.0, 0.0, 0.0]),
+    cubes = [cube, cube.translate([0.5, 0.0, 0.0]), cube.translate([3.0, 0.0, 0.0]),
               manifold3d.Manifold.sphere(0.5, 24).translate([0.0, 5.0, 0.0])]
-    m = render.union(solids)
-    assert render.count_bodies(m) == len(m.decompose()) == 3
-    assert render.count_bodies(render.union([])) == 0
+    m = solids.union(cubes)
+    assert solids.count_bodies(m) == len(m.decompose()) == 3
+    assert solids.count_bodies(solids.union([])) == 0
 
 
 def test_stl_export_welds_what_float32_merges(tmp_path):
@@ -456,7 +456,7 @@ def test_stl_export_welds_what_float32_merges(tmp_path):
     and drops the slivers, and the file is watertight with the same volume."""
     import trimesh
 
-    from pysolver.render.parts import as_float32
+    from pysolver.render.solids import as_float32
     A, B, C, D = [0.3, 0.2, 0.1], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 10.0]
     A2 = [0.3 + 1e-9, 0.2, 0.1]
     V = np.array([A, B, C, D, A2])

@@ -517,7 +517,7 @@ def test_render_refuses_hand_edited_thickness(regular_dir, tmp_path):
 
 
 def test_openscad_missing_named_with_install_fix(regular_dir, tmp_path, monkeypatch):
-    from pysolver.render import parts as render
+    from pysolver import render
 
     monkeypatch.setenv(render.OPENSCAD_ENV, str(tmp_path / "no-openscad"))
     with pytest.raises(ExternalToolError) as e:
@@ -567,7 +567,7 @@ with open(out, "wb") as f:
 
 
 def test_openscad_failing_on_one_part_names_it_and_keeps_the_rest(tmp_path, monkeypatch):
-    from pysolver.render import parts as render
+    from pysolver import render
 
     d = tmp_path / "design"
     run_design("regular:rows=1,cols=2", d, progress=False, plots=False)    # 4 bases

@@ -125,9 +125,9 @@ def test_bottom_layer_is_detected_and_forced(design, tmp_path):
     P, *_ = synthetic_scan(M, rng, drop=0.3, outliers=0.0)     # fewer points than markers
     path = tmp_path / "bottom.xyz"
     np.savetxt(path, P)
-    r = compare_scan(design, path, out_dir=tmp_path, progress=False)
+    r = compare_scan(design, path, out_dir=tmp_path / "out", progress=False)
     assert r["layer"] == "bottom" and r["mean_mm"] < 0.45
-    forced = compare_scan(design, path, layer="top", out_dir=tmp_path, progress=False)
+    forced = compare_scan(design, path, layer="top", out_dir=tmp_path / "out", progress=False)
     assert forced["layer"] == "top" and forced["mean_mm"] > r["mean_mm"]
 
 

@@ -21,8 +21,8 @@ from pathlib import Path
 import pytest
 from _shared import run_cli
 
-from pysolver.atomic import staging_dir
 from pysolver.child import PACKAGE_ROOT, python_argv
+from pysolver.core.staging import staging_dir
 
 # ------------------------------------------------------------------------------ child Pythons
 
@@ -126,7 +126,7 @@ def design(tmp_path, monkeypatch, capsys):
 
 
 def _edit_stamp(folder: Path, **changes) -> None:
-    from pysolver.atomic import STAMP_NAME
+    from pysolver.core.manifest import STAMP_NAME
 
     p = folder / STAMP_NAME
     p.write_text(json.dumps(dict(json.loads(p.read_text()), **changes)))
@@ -166,7 +166,7 @@ def test_a_stamp_naming_a_path_outside_its_folder_deletes_nothing(design, tmp_pa
     ("files", {"cells.csv": "sha"}),
 ])
 def test_every_path_a_stamp_names_is_checked(design, capsys, key, value):
-    from pysolver.atomic import DamagedFolder, read_stamp
+    from pysolver.core.manifest import DamagedFolder, read_stamp
 
     _edit_stamp(design, **{key: value})
     with pytest.raises(DamagedFolder):
@@ -179,7 +179,7 @@ def test_every_path_a_stamp_names_is_checked(design, capsys, key, value):
 @pytest.mark.parametrize("text", ['{"made_by": "morphshell", "vers', "[1, 2]", ""])
 def test_a_damaged_stamp_is_reported_as_damaged(design, capsys, text):
     """LOW: a truncated stamp was reported as "no stamp" or "not made by morphshell"."""
-    from pysolver.atomic import STAMP_NAME
+    from pysolver.core.manifest import STAMP_NAME
 
     (design / STAMP_NAME).write_text(text)
     before = _tree(design)
@@ -697,7 +697,7 @@ def test_another_users_stamp_above_the_output_is_not_ours(tmp_path, monkeypatch,
     """MED: the owner search walked up to ``/``: a damaged ``.morphshell-build`` that another
     user left in a shared sticky folder made every build beneath it exit 2 "damaged" (and
     told to delete their file); a well-formed one was honoured (and written to)."""
-    from pysolver.atomic import STAMP_NAME, STAMP_VERSION
+    from pysolver.core.manifest import STAMP_NAME, STAMP_VERSION
 
     shared = tmp_path / "shared"
     shared.mkdir()

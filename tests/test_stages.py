@@ -10,9 +10,9 @@ import json
 import pytest
 
 from pysolver import stages
-from pysolver.atomic import atomic_write_text
 from pysolver.cli import _parser, main, stages_help
 from pysolver.commands import build_options
+from pysolver.core.writes import atomic_write_text
 from pysolver.stages import OPTIONS, STAGES, BuildOptions, Stage, StageContext
 from pysolver.tables import read_table
 

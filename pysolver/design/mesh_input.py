@@ -27,7 +27,8 @@ from pathlib import Path
 import igl
 import numpy as np
 
-from ..errors import InputError, check_input_file, read_input
+from ..core.inputs import check_input_file, read_input
+from ..errors import InputError
 from ..geometry import face_adjacency
 from ..params import tol as TOL
 from ..tables import STENCIL_MARKER, read_stencil

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
-from ..atomic import atomic_write_text, output_folder
+from ..core.staging import output_folder
+from ..core.writes import atomic_write_text
 from ..errors import InputError
 from ..geometry import signed_areas_2d
 from ..params import LIMITS, UNIT_CELL, UnitCell, check_unit_cell
@@ -206,8 +207,8 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
         PLY, OFF; one connected disk-like surface in mm) or a stencil OBJ (v = target,
         vt = flat, row-aligned; its vertex and face order is kept).
     out_dir : str or Path
-        Design folder: new, empty, or one morphshell made (:func:`pysolver.atomic.claim_output`);
-        it appears complete or not at all (:func:`pysolver.atomic.output_folder`).
+        Design folder: new, empty, or one morphshell made (``claim_output``); it appears
+        complete or not at all (:func:`pysolver.core.staging.output_folder`).
     vertices : int, optional
         Stencil vertex count N (default: searched to minimise the stencil scaling).
     time : None, float, str or array
@@ -249,6 +250,17 @@ def run_design(source, out_dir, *, vertices=None, time=None, scale=1.0, flatteni
     summary : dict
         Counts, sizes, cell lengths, distortion, scale factors, flattening comparison,
         checks and timings per stage (also in ``design.json``).
+
+    Examples
+    --------
+    A four-vertex patch of eight bases (``tmp`` is a scratch folder; the examples of the
+    later stages continue on this ``folder``):
+
+    >>> from pysolver.design import run_design
+    >>> folder = tmp / "patch"
+    >>> s = run_design("regular:rows=2,cols=2", folder, progress=False, plots=False)
+    >>> s["counts"]["bases"], s["counts"]["cells"]
+    (8, 8)
     """
     check_design_options(vertices=vertices, time=time, scale=scale, flattening=flattening,
                          thickness=thickness, params=params, size=size, time_file=time_file)

@@ -76,7 +76,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_write_text
+from ..core.writes import atomic_write_text, make_dirs
 from ..errors import InputError
 from ..material.creep import INTEGRATIONS, CreepModel
 from ..material.measurements import (
@@ -717,7 +717,7 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
     d = model_file_dict(res, meas)
     text = dumps_model(d)
     atomic_write_text(out_path, text)
-    report_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(report_dir)
     summary = {
         "model_file": str(out_path),
         "model_sha256": hashlib.sha256(text.encode()).hexdigest(),
@@ -739,8 +739,8 @@ def fit_material(data_dir=None, out_path=None, report_dir=None, compare_to=None,
         summary["compared_to"] = str(cmp_path)
     write_report(report_dir, meas, res, summary)
     summary["wall_time_s"] = round(time.time() - t0, 1)
-    (report_dir / "fit_report.json").write_text(json.dumps(_round_sig(summary, 8), indent=1)
-                                                 + "\n")
+    atomic_write_text(report_dir / "fit_report.json",
+                      json.dumps(_round_sig(summary, 8), indent=1) + "\n")
     if progress:
         print(f"fit-material: wrote {out_path} and {report_dir} in {summary['wall_time_s']} s",
               file=sys.stderr)

@@ -13,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..core.writes import atomic_file  # noqa: E402
 from ..material.measurements import (  # noqa: E402
     SCORE_STRAIN_CUT,
     SPECIMEN_BRACKETS,
@@ -73,7 +74,8 @@ def plot_dry(meas, res, out_png) -> None:
     fig.suptitle(f"Dry compression: data (solid) vs fit (dashed: p_dry; dotted: tabulated model "
                  f"at t = 0). Model RMS displacement error {rms:.3f} mm", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
-    fig.savefig(out_png, dpi=90)
+    with atomic_file(out_png) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 
@@ -115,7 +117,8 @@ def plot_wet(meas, res, out_png) -> None:
                  f"x/b = {cut:.3g}) vs tabulated model (dashed). RMS {r['rms_mm']:.3f} mm "
                  f"(x/b < {SCORE_STRAIN_CUT:g}, t <= {res.model.grid_max[2]:g} s)", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
-    fig.savefig(out_png, dpi=90)
+    with atomic_file(out_png) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 
@@ -158,7 +161,8 @@ def plot_rates(meas, res, out_png) -> None:
                  "at 1e-3) and p_wet at 25 s (lines; dotted where that l was not tested at that "
                  "load)", fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
-    fig.savefig(out_png, dpi=90)
+    with atomic_file(out_png) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 
@@ -209,7 +213,8 @@ def compare_models(model_a, model_b, out_png, labels=("a", "b"),
     fig.suptitle(f"Force per bracket vs compression. solid: {labels[0]}   dashed: {labels[1]}   "
                  "(y axis scaled to the wet curves; t = 0 leaves the axes)", fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
-    fig.savefig(out_png, dpi=90)
+    with atomic_file(out_png) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 

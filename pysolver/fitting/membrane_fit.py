@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from ..atomic import atomic_write_text
+from ..core.writes import atomic_file, atomic_write_text, make_dirs
 from ..mechanics import MembraneMesh
 from ..params import MEMBRANE_MODEL_FILE, MODEL_FITS, SIM, UNIT_CELL
 from ..params import tol as TOL
@@ -368,7 +368,7 @@ def plot_membrane_fit(model: dict, png) -> Path:
     import matplotlib.pyplot as plt
 
     png = Path(png)
-    png.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs(png.parent)
     s = model["samples"]
     b, d, T = (np.asarray(s[k]) for k in ("b0_mm", "d_mm", "force_N"))
     coef = np.asarray(model["coefficients"])
@@ -406,7 +406,8 @@ def plot_membrane_fit(model: dict, png) -> Path:
     ax2.legend(fontsize=8)
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(png, dpi=120)
+    with atomic_file(png) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
     return png
 

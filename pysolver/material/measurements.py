@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, read_input, refuse_first
+from ..core.inputs import read_input
+from ..errors import InputError, refuse_first
 from ..params import LIMITS, UNIT_CELL
 from ..params import tol as TOL
 

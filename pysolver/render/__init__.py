@@ -1,30 +1,27 @@
 """The render stage: OpenSCAD part files and STLs from the design tables.
 
-Modules: :mod:`.scad_io` (part files, SCAD library), :mod:`.parts` (renderers, the part
-cache, union, :func:`render_design`) and :mod:`.fast` (the fast part renderer).
+Modules: :mod:`.scad_io` (part files, SCAD library), :mod:`.parts` (renderers and the part
+cache), :mod:`.fast` (the fast part renderer), :mod:`.solids` (STL meshes, manifold3d
+unions) and :mod:`.layers` (the stage: :func:`render_design` unites the parts into layers
+and writes ``stl/``).
 """
+from .layers import STL_FILES, render_design
 from .parts import (
     DEFAULT_RENDERER,
     OPENSCAD_ENV,
     RENDERERS,
-    STL_FILES,
     RendererFallbackWarning,
     check_renderer,
     default_cache_dir,
-    describe_stl,
     fast_self_check,
     find_openscad,
-    from_manifold,
     library_digest,
-    load_stl,
     openscad_version,
     part_key,
-    render_design,
     render_parts,
     start_self_check,
-    to_manifold,
-    union,
 )
+from .solids import describe_stl, from_manifold, load_stl, to_manifold, union
 
 __all__ = [
     "DEFAULT_RENDERER",

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_file
+from ..core.writes import atomic_file
 from ..params import UNIT_CELL
 from ..tables import read_stencil
 

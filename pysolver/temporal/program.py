@@ -63,7 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
-from ..atomic import atomic_write_text
+from ..core.writes import atomic_write_text
 from ..design.time_landscape import cell_target_times, write_landscape
 from ..errors import InputError
 from ..material import load_bracket_model
@@ -571,6 +571,15 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     InputError
         More than half of the cells cannot reach their time (the message names the
         achievable range); missing or inconsistent tables.
+
+    Examples
+    --------
+    On the ``folder`` of :func:`pysolver.design.run_design`'s example:
+
+    >>> from pysolver.temporal import program_design
+    >>> p = program_design(folder, progress=False)
+    >>> p["n_cells"], [0.30 <= h <= 0.65 for h in p["thickness_range_mm"]["top"]]
+    (8, [True, True])
     """
     t0 = time.perf_counter()
     design_dir = Path(design_dir)

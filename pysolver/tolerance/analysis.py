@@ -75,7 +75,8 @@ from pathlib import Path
 import numpy as np
 
 from pysolver import distributed
-from pysolver.atomic import atomic_write_text, claim_result_folder
+from pysolver.core.ownership import claim_result_folder
+from pysolver.core.writes import atomic_write_text
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
 from pysolver.material.model import load_bracket_model
@@ -643,6 +644,20 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     dict
         The content of ``summary.json`` (``figures``, ``cells``, ``bases``,
         ``sensitivity``, ``options``, ``run``).
+
+    Examples
+    --------
+    Two samples of the ``folder`` programmed in :func:`pysolver.temporal.program_design`'s
+    example, 5 s each, on a Dask client in this process:
+
+    >>> from distributed import Client
+    >>> from pysolver.tolerance import tolerance_analysis
+    >>> with Client(processes=False, n_workers=1, threads_per_worker=1,
+    ...             dashboard_address=":0") as client:
+    ...     s = tolerance_analysis(folder, samples=2, sensitivity=0, t_end=5.0,
+    ...                            client=client, report=False, progress=False)
+    >>> s["figures"]["samples"], 0.0 <= s["figures"]["p_pass"] <= 1.0
+    (2, True)
     """
     scheduler, workers = distributed.check_scheduler(scheduler), distributed.check_workers(workers)
     if sensitivity is None:

@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
-from pysolver.atomic import atomic_file, atomic_write_text, remove_file  # noqa: E402
+from pysolver.core.writes import atomic_file, atomic_write_text, remove_file  # noqa: E402
 from pysolver.tables import read_table
 
 _CSS = ("body{font-family:sans-serif;max-width:1100px;margin:1em auto;padding:0 1em}"

@@ -66,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pysolver.atomic import atomic_file, atomic_write_text, remove_file
+from pysolver.core.writes import atomic_file, atomic_write_text, remove_file
 from pysolver.errors import InputError, MorphshellError
 from pysolver.geometry import rigid_fit
 from pysolver.material.bumper import bumper_modulus, dry_bumper_modulus
@@ -791,6 +791,16 @@ def simulate_design(design_dir, *, t_end: float = SIM.t_end, dt: float = SIM.dt,
         Bad design folder or settings.
     MorphshellError
         The simulation diverged (frames so far are kept in ``frames.npz``).
+
+    Examples
+    --------
+    The first 10 s in water of the ``folder`` programmed in
+    :func:`pysolver.temporal.program_design`'s example:
+
+    >>> from sim.model.simulate import simulate_design
+    >>> r = simulate_design(folder, t_end=10.0, progress=False)
+    >>> r["t_final_s"] <= 10.0, (folder / "sim" / "frames.npz").is_file()
+    (True, True)
     """
     folder = Path(design_dir)
     mat = _resolve_material(material)  # a bad model file is refused before anything else

@@ -10,7 +10,7 @@ Files (names and columns are a contract, issue #44):
   ``membrane``), and what the test did (fixture bases, specimen size, steps converged).
 
 Everything is computed before the first file is written; each file is written whole
-(:func:`pysolver.atomic.atomic_write_text`).
+(:func:`pysolver.core.writes.atomic_write_text`).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 (after the backend)
 import numpy as np  # noqa: E402
 
-from pysolver.atomic import atomic_write_bytes, atomic_write_text, make_dirs  # noqa: E402
+from pysolver.core.writes import atomic_write_bytes, atomic_write_text, make_dirs  # noqa: E402
 from pysolver.params import MECHTEST, MechTest  # noqa: E402
 from pysolver.records import json_text  # noqa: E402
 from sim.model.mechtest import readings  # noqa: E402

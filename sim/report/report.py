@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pysolver.atomic import atomic_dir
+from pysolver.core.staging import atomic_dir
 from pysolver.errors import InputError, MorphshellError
 from pysolver.params import PHYSICS_DEFAULT, PICTURES, SCAN_AGREEMENT, ReportThresholds
 from pysolver.progress import Steps
@@ -85,6 +85,17 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     dict
         The content of ``report.json``: ``verdict``, ``reasons``, ``metrics``,
         ``thresholds``, ``files``, ``renderer``, ``timings_s``, ``out_dir``.
+
+    Examples
+    --------
+    The check of the ``folder`` simulated in :func:`sim.model.simulate.simulate_design`'s
+    example (small pictures drawn with matplotlib, to be quick):
+
+    >>> from sim.report.report import make_report
+    >>> r = make_report(folder, times=(0,), image_px=200, viewer_frames=5,
+    ...                 renderer="matplotlib", progress=False)
+    >>> r["verdict"] in ("PASS", "WARN", "FAIL"), (folder / "report" / "index.html").is_file()
+    (True, True)
     """
     th = ReportThresholds.coerce(thresholds)
     gif_frames = _checked_options(renderer, image_px, gif_frames)

@@ -43,8 +43,10 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
-from pysolver.atomic import atomic_file, atomic_write_text, make_dirs
-from pysolver.errors import InputError, check_input_file, read_input
+from pysolver.core.inputs import check_input_file, read_input
+from pysolver.core.ownership import claim_result_folder
+from pysolver.core.writes import atomic_file, atomic_write_text, make_dirs
+from pysolver.errors import InputError
 from pysolver.geometry import rigid_fit
 from pysolver.params import tol as TOL
 from pysolver.records import json_text
@@ -486,6 +488,20 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
         ``layer``, ``state``, ``mean_mm``, ``max_mm``, ``std_mm``, ``mean_over_diameter``,
         ``matched``, ``outliers``, ``unmatched_markers``, ``transform_scan_to_sim``,
         ``per_layer`` (auto), ``pairs`` (scan index, base id, distance), ``files``.
+
+    Examples
+    --------
+    A "scan" of the simulated top markers of the ``folder`` of
+    :func:`sim.model.simulate.simulate_design`'s example, moved 5 mm: the registration
+    undoes the move.
+
+    >>> import numpy as np
+    >>> from sim.report.scan import compare_scan, simulated_markers
+    >>> M, _ = simulated_markers(folder, "top")
+    >>> np.savetxt(tmp / "dots.csv", M + [5.0, 0.0, 0.0], delimiter=",")
+    >>> r = compare_scan(folder, tmp / "dots.csv", layer="top", progress=False)
+    >>> r["matched"] == len(M), r["mean_mm"] < 1e-6
+    (True, True)
     """
     if layer not in ("auto", "top", "bottom"):
         raise InputError(f"layer = {layer!r}", fix="use 'auto', 'top' or 'bottom'")
@@ -516,8 +532,10 @@ def compare_scan(design_dir, scan_path, *, layer="auto", out_dir=None, gate_mm=N
                             for k, v in results.items()}
     out["pairs"] = [[int(a), int(ids[b]), float(d)] for (a, b), d in
                     zip(reg["pairs"], reg["dist"], strict=True)]
-    out_dir = Path(out_dir) if out_dir is not None else folder / "scan_report"
-    make_dirs(out_dir)
+    if out_dir is None:
+        out_dir = make_dirs(folder / "scan_report")   # recorded in the design folder's stamp
+    else:   # a folder of its own, stamped, so that a rerun may replace what it wrote
+        out_dir = claim_result_folder(out_dir, what="scan output folder", inputs=[scan_path])
     stem = scan_path.stem
     bases = read_table(folder, "bases")
     flat = np.c_[bases["flat_x_mm"], bases["flat_y_mm"]]
