@@ -166,6 +166,26 @@ def specimens(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def coupon(args: argparse.Namespace) -> int:
+    """``morphshell coupon``: the timing coupon into its own folder (docs/coupon.md)."""
+    from .coupon import make_coupon  # lazy: the stage loads when its subcommand runs
+
+    make_coupon(claim_output(args.out, what="--out folder"), material=args.material,
+                jobs=args.jobs, progress=_progress(args), renderer=args.renderer)
+    return EXIT_OK
+
+
+def calibrate_time(args: argparse.Namespace) -> int:
+    """``morphshell calibrate-time COUPON_CSV``: the fit printed, the material file written."""
+    from .temporal.coupon import calibrate  # lazy: the stage loads when its subcommand runs
+
+    out = claim_output_file(args.out or "build/material/coupon-calibrated.json",
+                            what="--out material file")
+    print(calibrate(args.coupon_csv, out, material=args.material))
+    print(f"material model: {out} (use it with MATERIAL={out})")
+    return EXIT_OK
+
+
 def studio(args: argparse.Namespace) -> int:
     """``morphshell studio``."""
     from .studio import serve  # lazy: the stage loads when its subcommand runs
@@ -201,4 +221,5 @@ def shapes(args: argparse.Namespace) -> int:
 
 
 __all__ = ["build_options", "build", "design", "stage", "compare_scan", "tolerance",
-           "fit_material", "fit_membrane", "specimens", "studio", "sweep", "shapes"]
+           "fit_material", "fit_membrane", "specimens", "coupon", "calibrate_time", "studio",
+           "sweep", "shapes"]

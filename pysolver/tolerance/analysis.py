@@ -78,7 +78,7 @@ from pysolver import distributed
 from pysolver.atomic import atomic_write_text, claim_result_folder
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
-from pysolver.material.model import load_bracket_model
+from pysolver.material.model import CompliantBracketModel, load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
 from pysolver.params import BRACKET_MODEL_FILE, SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
@@ -93,37 +93,10 @@ FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
 DESIGN_FILES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
                 "support_frame.csv", "design.json", MODEL_FILE)
 SUMMARY_FORMAT = "morphshell.tolerance"
-_POW = np.arange(1, 5)
 
 
 # ------------------------------------------------------------------------------------------
 # the perturbed material
-
-
-class CompliantBracketModel:
-    """A bracket model ``s`` times as compliant as ``base``: ``F_s(x) = F(x / s)``.
-
-    Parameters
-    ----------
-    base : BracketModel
-        Anything with ``coefficients(h_mm, b_mm, t_s, eta) -> (n, 4)``.
-    scale : float or (n,) float
-        Compliance factor ``s > 0`` (1 = the base model).
-    """
-
-    def __init__(self, base, scale):
-        s = np.asarray(scale, float)
-        if not np.all(np.isfinite(s) & (s > 0)):
-            raise InputError(f"compliance factor {scale!r}", fix="use a positive number")
-        self.base = base
-        self.scale = s
-        self.path = getattr(base, "path", None)
-
-    def coefficients(self, h_mm, b_mm, t_s, eta: float = 0.0):
-        """Force coefficients of ``x^1..x^4`` (N mm^-k), shape ``(n, 4)``."""
-        c = np.asarray(self.base.coefficients(h_mm, b_mm, t_s, eta=eta), float)
-        s = self.scale if self.scale.ndim == 0 else self.scale[:, None]
-        return c / s ** _POW
 
 
 def material_scatter(material=None, data_dir=None) -> dict:

@@ -1,0 +1,152 @@
+"""The timing coupon (issue #45): its table spans the programmable thicknesses, the fit
+recovers known print factors from synthetic closing times, and bad data are refused (exit 2).
+
+Fast: the coupon is designed without rendering (about 1 s); every fit takes well under a
+second.  The render of the coupon (its engraved labels) is run by ``make coupon``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pysolver import cli
+from pysolver.coupon import make_coupon
+from pysolver.errors import EXIT_BAD_INPUT, EXIT_OK
+from pysolver.params import COUPON, UNIT_CELL
+from pysolver.temporal import coupon as tc
+from pysolver.temporal.program import load_material
+
+
+@pytest.fixture(scope="module")
+def coupon(tmp_path_factory):
+    out = tmp_path_factory.mktemp("coupon") / "coupon"
+    res = make_coupon(out, progress=False, render=False)
+    return out, res
+
+
+@pytest.fixture(scope="module")
+def material():
+    return load_material(None)
+
+
+def _measured(out, tmp_path, times, rows=None) -> str:
+    """The coupon's CSV with ``closing_time_s`` filled in (``times`` as text or numbers)."""
+    lines = (out / tc.CSV_NAME).read_text().splitlines()
+    body = lines[1:] if rows is None else [lines[1 + i] for i in rows]
+    text = [lines[0]] + [ln + (t if isinstance(t, str) else f"{t:.3f}" if np.isfinite(t)
+                               else tc.NEVER)
+                         for ln, t in zip(body, times, strict=True)]
+    path = tmp_path / "timed.csv"
+    path.write_text("\n".join(text) + "\n")
+    return str(path)
+
+
+def _synthetic(d: dict, material, s, m, rng, sd=COUPON.reading_sd_s):
+    t = tc.closing_times(material, d["b0"], d["x"], d["f_bracket"], d["thickness"], s, m)
+    return t + rng.normal(0.0, sd, len(t))
+
+
+def test_coupon_table_spans_the_programmable_thicknesses(coupon, material):
+    out, res = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    h = d["thickness"]
+    assert len(h) >= 20
+    # the interior cells span the printable range end to end (to 1e-6 mm)
+    assert h.min() == pytest.approx(UNIT_CELL.thickness_min, abs=1e-6)
+    assert h.max() == pytest.approx(UNIT_CELL.thickness_max, abs=1e-6)
+    # every timed cell closes within the model's time range, with the margin, and the
+    # predicted times are the time model's own
+    t = tc.closing_times(material, d["b0"], d["x"], d["f_bracket"], h)
+    assert np.all(t <= 120.0 - COUPON.time_margin_s + 1e-9)
+    np.testing.assert_allclose(t, d["predicted"], rtol=1e-8)
+    # labels name two bases, each cell once; the sheet is written beside the table
+    assert all(len(lab.split("-")) == 2 for lab in d["label"])
+    assert len(set(d["label"])) == len(d["label"])
+    assert (out / "coupon.md").read_text().startswith("# The timing coupon")
+
+
+def test_csv_contract(coupon):
+    out, _ = coupon
+    header = (out / tc.CSV_NAME).read_text().splitlines()[0]
+    assert header == ",".join(tc.COLUMNS)
+    assert tc.COLUMNS[-1] == "closing_time_s"
+
+
+@pytest.mark.parametrize(("s", "m"), [(1.35, 1.0), (0.75, 1.0)])
+def test_fit_recovers_the_compliance(coupon, material, tmp_path, s, m):
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    t = _synthetic(d, material, s, m, np.random.default_rng(7))
+    fit = tc.fit_coupon(tc.read_coupon_csv(_measured(out, tmp_path, t)), material)
+    # reading error 1 s on ~26 cells: the compliance within 3 % and inside its interval
+    assert fit["compliance"]["value"] == pytest.approx(s, rel=0.03)
+    lo, hi = fit["compliance"]["ci"]
+    assert lo <= s <= hi
+    assert fit["residual_rms_s"] < 2.0
+    assert fit["compliance"]["z_from_model"] > 3.0  # far from the shipped model, and says so
+
+
+def test_fit_of_the_shipped_model_is_near_one(coupon, material, tmp_path):
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    t = _synthetic(d, material, 1.0, 1.0, np.random.default_rng(3))
+    fit = tc.fit_coupon(tc.read_coupon_csv(_measured(out, tmp_path, t)), material)
+    assert fit["compliance"]["value"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_modulus_folded_into_compliance_keeps_the_times(coupon, material, tmp_path):
+    """A softer membrane: when the fit cannot separate it, the compliance it finds still
+    predicts the coupon's times (within 2 s rms)."""
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    t = _synthetic(d, material, 1.0, 0.85, np.random.default_rng(5), sd=0.0)
+    fit = tc.fit_coupon(tc.read_coupon_csv(_measured(out, tmp_path, t)), material)
+    assert fit["residual_rms_s"] < 2.0
+    assert fit["compliance"]["value"] < 1.0  # a weaker pull closes later: stiffer brackets
+
+
+def test_calibrate_time_writes_a_material_the_build_reads(coupon, material, tmp_path):
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    t = _synthetic(d, material, 1.3, 1.0, np.random.default_rng(11))
+    csv_path = _measured(out, tmp_path, t)
+    model = tmp_path / "calibrated.json"
+    assert cli.main(["--quiet", "calibrate-time", csv_path, "--out", str(model)]) == EXIT_OK
+    rec = json.loads(model.read_text())
+    s = rec["calibration"]["compliance"]["value"]
+    assert s == pytest.approx(1.3, rel=0.03)
+    cal = load_material(model)  # the build's own reader (validation included)
+    # the calibrated model is the shipped one with brackets s times as compliant
+    h, b, tt, x = 0.45, 4.0, 30.0, 1.0
+    assert cal.force(h, b, tt, x) == pytest.approx(material.force(h, b, tt, x / s), rel=1e-9)
+
+
+@pytest.mark.parametrize("case", ["few", "spread", "range", "text", "nan", "column"])
+def test_refusals_exit_2(coupon, material, tmp_path, capsys, case):
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    t = list(_synthetic(d, material, 1.0, 1.0, np.random.default_rng(1)))
+    rows = None
+    if case == "few":
+        rows, t = [0, 1, 2], t[:3]
+    elif case == "spread":  # cells of one thickness only
+        same = [i for i in range(len(t)) if abs(d["thickness"][i, 0] - 0.3) < 1e-9]
+        rows, t = same, [t[i] for i in same]
+    elif case == "range":
+        t[4] = 500.0
+    elif case == "text":
+        t[2] = "__import__('os')"
+    elif case == "nan":
+        t[2] = "nan"
+    path = _measured(out, tmp_path, t, rows)
+    if case == "column":
+        text = open(path).read().replace("closing_time_s", "time")
+        open(path, "w").write(text)
+    model = tmp_path / "m.json"
+    assert cli.main(["calibrate-time", path, "--out", str(model)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "calibrate-time: error" in err and "fix" in err.lower()
+    assert not model.exists()  # no half-written output
