@@ -120,7 +120,7 @@ def tolerance(args: argparse.Namespace) -> int:
                        seed=args.seed, time_tol_s=args.time_tol, sensitivity=args.sensitivity,
                        material=args.material, out=args.out, scheduler=args.scheduler,
                        workers=args.workers, progress=_progress(args),
-                       dashboard=args.dashboard, **kw)
+                       dashboard=args.dashboard, coupon=args.coupon, **kw)
     return EXIT_OK
 
 

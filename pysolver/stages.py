@@ -526,6 +526,9 @@ TOOLS = (
                       "residuals; 0 = off)"),
              opt("--relaxation", action="store_true",
                  help="also draw membrane stress relaxation from the measured curve"),
+             opt("--coupon", action="store_true",
+                 help="also simulate the timing coupon workflow: each sample's coupon fitted, "
+                      "its shell programmed again and simulated (docs/coupon.md)"),
              opt("--time-tol", type=float, default=TOLERANCE_RUN.time_tol_s,
                  help="a cell is on time within this of t*, s (default "
                       f"{TOLERANCE_RUN.time_tol_s:g})"),

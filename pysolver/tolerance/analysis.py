@@ -81,12 +81,20 @@ from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements,
 from pysolver.material.model import CompliantBracketModel, load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
-from pysolver.params import BRACKET_MODEL_FILE, SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
+from pysolver.params import (
+    BRACKET_MODEL_FILE,
+    COUPON,
+    SIM,
+    TOLERANCE_RUN,
+    UNCERTAINTY,
+    Uncertainty,
+)
 from pysolver.progress import say
 from pysolver.records import finite, json_text
 from pysolver.simulator import check_sim_span, simulate_and_check
 from pysolver.tables import MODEL_FILE, read_design, read_table
 
+from . import coupon as cp
 from .report import write_report
 
 FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
@@ -581,7 +589,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                        sensitivity: int | None = None, t_end: float = SIM.t_end,
                        dt: float = SIM.dt, material=None, out=None, scheduler=None,
                        workers=None, client=None, progress: bool = True, report: bool = True,
-                       on_result=None, dashboard: bool = False) -> dict:
+                       on_result=None, dashboard: bool = False, coupon: bool = False) -> dict:
     """Monte Carlo tolerance analysis of a programmed design folder.
 
     Parameters
@@ -610,6 +618,9 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         Progress lines; write ``report.html`` and pictures.
     on_result : callable, optional
         Passed to :func:`pysolver.distributed.run_tasks`.
+    coupon : bool
+        Also simulate the coupon workflow (:mod:`pysolver.tolerance.coupon`): one more
+        simulation per sample, ``coupon-NNNNN``.
 
     Returns
     -------
@@ -632,6 +643,10 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     t_start = time.perf_counter()
     unc, mat_info = _uncertainty(uncertainty, material)
     perts, active = _perturbations(seed, samples, sensitivity, unc, n_cells)
+    coupon_info = None
+    if coupon:
+        extra, coupon_info = _coupon_perturbations(seed, samples, unc, folder, material, cells)
+        perts += extra
     settings = {"t_end": float(t_end), "dt": float(dt), "thresholds": None}
     results, stats = _simulate_all(payload, perts, settings, out, client=client,
                                    scheduler=scheduler, workers=workers, progress=progress,
@@ -641,7 +656,8 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                                 "sensitivity_runs": sensitivity, "t_end_s": float(t_end),
                                 "dt_s": float(dt), "uncertainty": dataclasses.asdict(unc),
                                 "material_scatter": mat_info, "factors": active,
-                                "material": None if material is None else str(material)},
+                                "material": None if material is None else str(material),
+                                "coupon": coupon_info},
                        wall_s=round(time.perf_counter() - t_start, 3))
     atomic_write_text(out / "summary.json", json_text(summary, indent=1, strict=True))
     if report:
@@ -666,6 +682,7 @@ def _summary(results: dict, stats, perts, active, cells, n_bases: int, folder: P
            for f in active}
     agg = aggregate(main, nominal, cells["t_star_s"], options["time_tol_s"], oat,
                     len(cells["cell_id"]), n_bases, float(t_end))
+    agg["figures"].update(_maker_figures(results, perts, cells, agg, options))
     agg["sensitivity_regression"] = regression_sensitivity(
         [p for p in perts if p.name.startswith("sample-")], main, float(t_end))
     return finite({
@@ -676,6 +693,57 @@ def _summary(results: dict, stats, perts, active, cells, n_bases: int, folder: P
         **agg,
         "run": dict(stats.to_dict(), wall_s=wall_s,
                     sample_wall_s=_stats([results[p.name]["wall_s"] for p in perts]))})
+
+
+def _maker_figures(results: dict, perts, cells, agg: dict, options: dict) -> dict:
+    """P(on time) with the coupon, P(order kept) with and without it, and the per-print /
+    per-bracket split of the timing variance (:mod:`pysolver.tolerance.coupon`)."""
+    t_star = np.asarray(cells["t_star_s"], float)
+    n = len(t_star)
+    pairs = cp.neighbour_pairs(cells, t_star, TOLERANCE_RUN.order_separation_s)
+
+    def times(prefix):
+        return _arr([results[p.name] for p in perts if p.name.startswith(prefix)], "t_done",
+                    (n,))
+
+    T, Tc = times("sample-"), times("coupon-")
+    out = {"p_order_kept": cp.order_kept(T, pairs), "order_pairs": int(len(pairs)),
+           "timing_variance_share": cp.variance_share(agg["sensitivity"]),
+           "p_on_time_cell_mean_coupon": None, "p_order_kept_coupon": None}
+    if len(Tc):
+        with np.errstate(invalid="ignore"):
+            on = np.isfinite(Tc) & (np.abs(Tc - t_star) <= options["time_tol_s"])
+        out.update(p_on_time_cell_mean_coupon=float(on.mean()),
+                   p_all_cells_on_time_coupon=float(on.all(axis=1).mean()),
+                   p_order_kept_coupon=cp.order_kept(Tc, pairs))
+    return out
+
+
+def _coupon_perturbations(seed: int, samples: int, unc: Uncertainty, folder: Path, material,
+                          cells):
+    """One ``coupon-NNNNN`` perturbation per sample: the sample's print, its shell
+    programmed again from the fit of its own coupon (:mod:`pysolver.tolerance.coupon`);
+    returns (perturbations, record of the fits)."""
+    mat = load_bracket_model(material)
+    setup = cp.coupon_setup(mat)
+    shell = cp.tc.cell_geometry(folder)
+    n = len(cells["cell_id"])
+    h = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
+    perts, fits = [], []
+    for i in range(samples):
+        d = _draw(seed, i, n, unc, unc.material_sd)
+        rng = np.random.default_rng([int(seed), int(i), cp.COUPON_STREAM])
+        fit = cp.coupon_fit(setup, mat, d, rng, unc.thickness_sd)
+        h2 = h if fit is None else cp.reprogrammed_thickness(shell, h, mat, fit)
+        perts.append(make_perturbation(f"coupon-{i:05d}",
+                                       dict(d, thickness=d["thickness"] + (h2 - h)), n,
+                                       unc=unc))
+        fits.append(None if fit is None else {
+            "compliance": fit["compliance"]["value"], "modulus": fit["modulus"]["value"],
+            "drawn_compliance": d["material"], "drawn_modulus": d["modulus"] * d["relaxation"],
+            "residual_rms_s": fit["residual_rms_s"]})
+    return perts, {"cells": int(len(setup["b0"])), "reading_sd_s": COUPON.reading_sd_s,
+                   "refused": sum(f is None for f in fits), "fits": fits}
 
 
 def _simulate_all(payload, perts, settings: dict, out: Path, **run):

@@ -191,6 +191,14 @@ def _head(summary: dict, design_dir) -> list:
                 ("verdicts", ", ".join(f"{k} {v}" for k, v in fig["verdicts"].items())),
                 ("reasons (samples)", "; ".join(f"{k}: {v}" for k, v in
                                                 fig["reasons"].items()) or "-"),
+                ("P(cell on time), mean over cells: without / with the coupon",
+                 f"{_f(fig['p_on_time_cell_mean'])} / "
+                 f"{_f(fig.get('p_on_time_cell_mean_coupon'))}"),
+                ("P(order kept), neighbours >= 15 s apart: without / with the coupon",
+                 f"{_f(fig.get('p_order_kept'))} / {_f(fig.get('p_order_kept_coupon'))}"),
+                ("timing variance share: per print / per bracket",
+                 " / ".join(_f((fig.get("timing_variance_share") or {}).get(k))
+                            for k in ("per_print", "per_bracket"))),
                 ("P(every cell on time)", _f(fig["p_all_cells_on_time"])),
                 ("P(on time), worst cell", _f(fig["p_on_time_cell_min"])),
                 ("completion time sd, mean / max over cells",
