@@ -150,3 +150,45 @@ def test_refusals_exit_2(coupon, material, tmp_path, capsys, case):
     err = capsys.readouterr().err
     assert "calibrate-time: error" in err and "fix" in err.lower()
     assert not model.exists()  # no half-written output
+
+
+# ------------------------------------------------------------------------------------------
+# the coupon workflow in the tolerance analysis (pysolver.tolerance.coupon)
+
+
+def test_reprogramming_compensates_the_fitted_print(coupon, material):
+    from pysolver.tolerance import coupon as cp
+
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    shell = {"b0": d["b0"], "x": d["x"], "f_bracket": d["f_bracket"]}
+    h = d["thickness"]
+    one = {"compliance": {"value": 1.0}, "modulus": {"value": 1.0}}
+    np.testing.assert_allclose(cp.reprogrammed_thickness(shell, h, material, one), h, atol=1e-6)
+    soft = {"compliance": {"value": 1.2}, "modulus": {"value": 1.0}}
+    h2 = cp.reprogrammed_thickness(shell, h, material, soft)
+    t0 = tc.closing_times(material, d["b0"], d["x"], d["f_bracket"], h)
+    t2 = tc.closing_times(material, d["b0"], d["x"], d["f_bracket"], h2, 1.2, 1.0)
+    inside = (h2 > UNIT_CELL.thickness_min + 1e-6).all(1) & (h2 < UNIT_CELL.thickness_max
+                                                             - 1e-6).all(1)
+    assert inside.sum() >= 10
+    # softer brackets are printed thicker, and then close when the programmed ones did (0.5 s)
+    assert np.all(h2[inside] > h[inside])
+    np.testing.assert_allclose(t2[inside], t0[inside], atol=0.5)
+
+
+def test_order_kept_and_variance_share():
+    from pysolver.tolerance import coupon as cp
+
+    cells = {"base_a": np.array([0, 0, 1]), "base_b": np.array([1, 2, 2])}
+    t_star = np.array([10.0, 30.0, 20.0])
+    pairs = cp.neighbour_pairs(cells, t_star, 15.0)
+    assert pairs.tolist() == [[0, 1]]  # 0-2 and 1-2 share a base but are only 10 s apart
+    T = np.array([[12.0, 31.0, 20.0], [35.0, 30.0, 20.0], [np.nan, 30.0, 20.0],
+                  [11.0, np.nan, 20.0]])
+    assert cp.order_kept(T, pairs) == pytest.approx(0.5)
+    sens = [{"factor": "thickness", "timing_share": 0.2}, {"factor": "material",
+                                                          "timing_share": 0.7},
+            {"factor": "modulus", "timing_share": 0.1}]
+    assert cp.variance_share(sens) == pytest.approx({"per_print": 0.8, "per_bracket": 0.2})
+    assert cp.variance_share([]) is None

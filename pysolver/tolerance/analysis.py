@@ -323,8 +323,10 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
         frames, check = simulate_and_check(varied, material, ctx["design"],
                                            t_end=settings["t_end"], dt=settings["dt"],
                                            thresholds=settings.get("thresholds"))
-    except MorphshellError as e:  # a diverged sample is a result: it fails the check
-        diverged, message = True, str(e)
+    except (MorphshellError, ArithmeticError) as e:  # a diverged sample is a result: it fails
+        # the check (ArithmeticError: the solver's kernels divided by zero on a collapsed state)
+        diverged, message = True, f"{type(e).__name__}: {e}" if isinstance(
+            e, ArithmeticError) else str(e)
         frames = check = None
     if check is None:
         n_c, n_b = model.n_cells, model.n_bases
