@@ -685,6 +685,8 @@ def _summary(results: dict, stats, perts, active, cells, n_bases: int, folder: P
     agg = aggregate(main, nominal, cells["t_star_s"], options["time_tol_s"], oat,
                     len(cells["cell_id"]), n_bases, float(t_end))
     agg["figures"].update(_maker_figures(results, perts, cells, agg, options))
+    agg["figures"]["predicted_timing_sd"] = _predicted_sd(agg, folder, options, oat,
+                                                          (n_bases, float(t_end)))
     agg["sensitivity_regression"] = regression_sensitivity(
         [p for p in perts if p.name.startswith("sample-")], main, float(t_end))
     return finite({
@@ -721,6 +723,29 @@ def _maker_figures(results: dict, perts, cells, agg: dict, options: dict) -> dic
     return out
 
 
+def _predicted_sd(agg: dict, folder: Path, options: dict, oat: dict, sizes: tuple) -> dict:
+    """Each cell's completion-time sd under the per-bracket thickness scatter as the bracket
+    model predicts it (:func:`pysolver.temporal.program.timing_sd`), written into
+    ``agg["cells"]`` (``t_sd_predicted_s``); returns its mean and, with one-at-a-time
+    thickness runs (``sizes``: bases, t_end s), their mean sd and the correlation over
+    cells."""
+    sd = cp.predicted_timing_sd(folder, load_bracket_model(options["material"]),
+                                options["uncertainty"]["thickness_sd"])
+    for row, v in zip(agg["cells"], sd, strict=True):
+        row["t_sd_predicted_s"] = _num(v)
+    out = {"mean_s": _num(np.nanmean(sd)) if np.isfinite(sd).any() else None,
+           "oat_thickness_mean_s": None, "correlation": None}
+    runs = oat.get("thickness") or []
+    if len(runs) >= 2:
+        _, _, var_t, _ = _spread(runs, len(sd), *sizes)
+        mc = np.sqrt(var_t)
+        ok = np.isfinite(sd)
+        out["oat_thickness_mean_s"] = float(mc.mean())
+        if ok.sum() >= 3 and np.ptp(sd[ok]) > 0 and np.ptp(mc[ok]) > 0:
+            out["correlation"] = float(np.corrcoef(sd[ok], mc[ok])[0, 1])
+    return out
+
+
 def _coupon_perturbations(seed: int, samples: int, unc: Uncertainty, folder: Path, material,
                           cells):
     """One ``coupon-NNNNN`` perturbation per sample: the sample's print, its shell
@@ -728,7 +753,7 @@ def _coupon_perturbations(seed: int, samples: int, unc: Uncertainty, folder: Pat
     returns (perturbations, record of the fits)."""
     mat = load_bracket_model(material)
     setup = cp.coupon_setup(mat)
-    shell = cp.tc.cell_geometry(folder)
+    shell = cp.shell_geometry(folder)
     n = len(cells["cell_id"])
     h = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
     perts, fits = [], []

@@ -27,8 +27,9 @@ from pysolver.design.pipeline import run_design
 from pysolver.errors import InputError
 from pysolver.material.model import CompliantBracketModel
 from pysolver.params import COUPON, TOLERANCE_RUN
+from pysolver.tables import read_table
 from pysolver.temporal import coupon as tc
-from pysolver.temporal.program import completion_time, solve_thickness
+from pysolver.temporal.program import completion_time, solve_thickness, time_limit, timing_sd
 
 COUPON_STREAM = 45
 """Third seed word of a sample's coupon draws (thickness scatter, reading error)."""
@@ -65,7 +66,9 @@ def simulated_coupon(setup: dict, material, draw: dict, rng, thickness_sd: float
     t = tc.closing_times(material, setup["b0"], setup["x"], setup["f_bracket"], th,
                          draw["material"], draw["modulus"] * draw["relaxation"])
     t = t + COUPON.reading_sd_s * rng.standard_normal(n)
-    t = np.where(np.isfinite(t), np.maximum(t, COUPON.reading_sd_s), np.inf)
+    # the maker stops at the end of the model's range: a later cell is written "never"
+    t = np.where(np.isfinite(t) & (t <= time_limit(material)),
+                 np.maximum(t, COUPON.reading_sd_s), np.inf)
     return {"label": np.array([str(k) for k in range(n)], dtype=object),
             "thickness": setup["thickness"], "b0": setup["b0"], "x": setup["x"],
             "f_bracket": setup["f_bracket"], "t": t}
@@ -83,6 +86,22 @@ def reprogrammed_thickness(shell: dict, thickness, material, fit: dict):
     ok = np.isfinite(t)
     h, _ = solve_thickness(cal, bb, shell["x"], np.where(ok, t, 0.0), ff * m)
     return np.where(ok, h, th)
+
+
+def shell_geometry(folder) -> dict:
+    """What the time model needs of a design folder's cells
+    (:func:`pysolver.temporal.coupon.cell_geometry`)."""
+    return tc.cell_geometry(folder)
+
+
+def predicted_timing_sd(folder, material, thickness_sd: float):
+    """Each cell's completion-time sd (n,) s under the per-bracket thickness scatter, as the
+    bracket model predicts it (:func:`pysolver.temporal.program.timing_sd`)."""
+    cells = read_table(folder, "cells")
+    geom = tc.cell_geometry(folder)
+    h = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
+    sd, _ = timing_sd(material, h, geom["b0"], geom["x"], geom["f_bracket"], thickness_sd)
+    return sd
 
 
 def coupon_fit(setup: dict, material, draw: dict, rng, thickness_sd: float):
@@ -142,4 +161,5 @@ def variance_share(sensitivity: list) -> dict | None:
 
 
 __all__ = ["COUPON_STREAM", "coupon_setup", "simulated_coupon", "reprogrammed_thickness",
-           "coupon_fit", "neighbour_pairs", "order_kept", "variance_share"]
+           "shell_geometry", "predicted_timing_sd", "coupon_fit", "neighbour_pairs",
+           "order_kept", "variance_share"]

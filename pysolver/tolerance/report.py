@@ -246,10 +246,11 @@ def _least_reliable(summary: dict) -> list:
     worst = sorted(summary["cells"], key=lambda r: (r["p_on_time"], -r["t_sd_s"]))[:15]
     return ["<h2>Least reliable cells</h2>",
             _table(["cell", "t* (s)", "nominal (s)", "P(on time)", "P(complete)", "sd (s)",
-                    "5 % (s)", "95 % (s)"],
+                    "predicted sd, thickness (s)", "5 % (s)", "95 % (s)"],
                    [(r["cell_id"], _f(r["t_star_s"]), _f(r["t_nominal_s"]),
                      _f(r["p_on_time"]), _f(r["p_complete"]), _f(r["t_sd_s"]),
-                     _f(r["t_p05_s"]), _f(r["t_p95_s"])) for r in worst]),
+                     _f(r.get("t_sd_predicted_s")), _f(r["t_p05_s"]), _f(r["t_p95_s"]))
+                    for r in worst]),
             "<p class='note'>All cells and bases: summary.json.</p></body></html>"]
 
 
