@@ -97,15 +97,20 @@ def test_fit_of_the_shipped_model_is_near_one(coupon, material, tmp_path):
     assert fit["compliance"]["value"] == pytest.approx(1.0, abs=0.02)
 
 
-def test_modulus_folded_into_compliance_keeps_the_times(coupon, material, tmp_path):
-    """A softer membrane: when the fit cannot separate it, the compliance it finds still
-    predicts the coupon's times (within 2 s rms)."""
+def test_a_weaker_membrane_is_separated_or_folded_into_the_compliance(coupon, material,
+                                                                      tmp_path):
+    """A membrane 15 % weaker, read without error: the fit either separates it (modulus within
+    3 % of 0.85) or folds it into a stiffer bracket (compliance < 1); either way its factors
+    reproduce the coupon's times within 2 s rms."""
     out, _ = coupon
     d = tc.read_coupon_csv(out / tc.CSV_NAME)
     t = _synthetic(d, material, 1.0, 0.85, np.random.default_rng(5), sd=0.0)
     fit = tc.fit_coupon(tc.read_coupon_csv(_measured(out, tmp_path, t)), material)
     assert fit["residual_rms_s"] < 2.0
-    assert fit["compliance"]["value"] < 1.0  # a weaker pull closes later: stiffer brackets
+    if fit["modulus_fitted"]:
+        assert fit["modulus"]["value"] == pytest.approx(0.85, rel=0.03)
+    else:
+        assert fit["compliance"]["value"] < 0.98
 
 
 def test_calibrate_time_writes_a_material_the_build_reads(coupon, material, tmp_path):
