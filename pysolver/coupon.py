@@ -6,7 +6,7 @@ on :func:`pysolver.temporal.coupon.coupon_source`), with the bracket thicknesses
 render stage (the shells' own SCAD modules).  Its top layer is printed with each base's number
 engraved in the far face (``scad/coupon.scad``), so that a cell is named by its two bases.
 Beside the STLs: ``coupon.csv`` (one row per timed cell, ``closing_time_s`` to fill in) and
-``coupon.md`` (how to time it; ``docs/coupon.md``).
+``coupon.md`` (how to time it; ``docs/coupon.md``) and ``coupon.png`` (the map).
 """
 
 from __future__ import annotations
@@ -31,10 +31,13 @@ from .render import (
 from .render.scad_io import SCAD_DIR, Part, part_text
 from .tables import read_table
 from .temporal import coupon as tc
+from .temporal.plots import plot_coupon
 from .temporal.program import load_material
 
 SHEET = Path(__file__).resolve().parents[1] / "docs" / "coupon.md"
 """The one-page sheet, copied beside the coupon's STLs."""
+PICTURE = "coupon.png"
+"""The coupon's map: base numbers, each timed cell's thickness and predicted time."""
 TOP_STL = "coupon_top.stl"
 """The top layer with the base numbers engraved (print it with ``stl/bottom.stl``)."""
 
@@ -120,6 +123,7 @@ def make_coupon(out, *, material=None, jobs=None, progress: bool = True, rendere
     if render:
         render_design(out, jobs=jobs, progress=progress, actuated=False, renderer=renderer)
         res["top"] = engrave_labels(out, jobs=jobs, progress=progress, renderer=renderer)
+    plot_coupon(read_table(out, "bases"), cells, rows, out / PICTURE)
     atomic_write_text(out / tc.CSV_NAME, tc.coupon_csv_text(rows))
     atomic_write_text(out / "coupon.md", SHEET.read_text())
     say("coupon", out.name, f"{len(rows)} timed cells, brackets "
