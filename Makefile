@@ -6,6 +6,7 @@
 #   make tolerance shape=petal [SAMPLES=64]   Monte Carlo tolerance analysis (Dask)
 #   make sweep SPEC=file.toml                 build and tabulate design variants (Dask)
 #   make mechtest shape=mechtest              SI Note 6's virtual mechanical tests
+#   make coupon [OUT=dir]                     the printable timing coupon (docs/coupon.md)
 #   make scad-params        regenerate scad/params.scad from pysolver/params/
 #   make lock               re-resolve uv.lock (every package to its newest allowed release)
 #
@@ -71,7 +72,7 @@ DASK_OPTS  := $${MS_SCHEDULER:+--scheduler "$$MS_SCHEDULER"} \
 
 .PHONY: all build design sim report test bench clean material membrane-model specimens \
         system-deps venv lint shapes studio studio-shots tolerance sweep scad-params lock \
-        mechtest
+        mechtest coupon
 
 all: build
 
@@ -98,6 +99,11 @@ tolerance: $(STAMP)
 sweep: $(STAMP)
 	@$(RUN) test -n "$$MS_SPEC" || { echo 'usage: make sweep SPEC=file.toml'; exit 2; }; \
 	$(PY) -m pysolver.cli sweep "$$MS_SPEC" $${MS_OUT:+--out "$$MS_OUT"} $(DASK_OPTS) $$MS_ARGS
+
+# The timing coupon: STLs, coupon.csv to fill in and coupon.md (docs/coupon.md)
+coupon: $(STAMP)
+	@$(RUN) $(PY) -m pysolver.cli coupon $${MS_OUT:+--out "$$MS_OUT"} \
+	  $${MS_MATERIAL:+--material "$$MS_MATERIAL"} $${MS_JOBS:+--jobs "$$MS_JOBS"} $$MS_ARGS
 
 shapes: $(STAMP)
 	$(PY) -m pysolver.cli shapes

@@ -131,7 +131,7 @@ def tolerance(args: argparse.Namespace) -> int:
                        seed=args.seed, time_tol_s=args.time_tol, sensitivity=args.sensitivity,
                        material=args.material, out=args.out, scheduler=args.scheduler,
                        workers=args.workers, progress=_progress(args),
-                       dashboard=args.dashboard, **kw)
+                       dashboard=args.dashboard, coupon=args.coupon, **kw)
     return EXIT_OK
 
 
@@ -177,6 +177,26 @@ def specimens(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def coupon(args: argparse.Namespace) -> int:
+    """``morphshell coupon``: the timing coupon into its own folder (docs/coupon.md)."""
+    from .coupon import make_coupon  # lazy: the stage loads when its subcommand runs
+
+    make_coupon(claim_output(args.out, what="--out folder"), material=args.material,
+                jobs=args.jobs, progress=_progress(args), renderer=args.renderer)
+    return EXIT_OK
+
+
+def calibrate_time(args: argparse.Namespace) -> int:
+    """``morphshell calibrate-time COUPON_CSV``: the fit printed, the material file written."""
+    from .temporal.coupon import calibrate  # lazy: the stage loads when its subcommand runs
+
+    out = claim_output_file(args.out or "build/material/coupon-calibrated.json",
+                            what="--out material file")
+    print(calibrate(args.coupon_csv, out, material=args.material))
+    print(f"material model: {out} (use it with MATERIAL={out})")
+    return EXIT_OK
+
+
 def studio(args: argparse.Namespace) -> int:
     """``morphshell studio``."""
     from .studio import serve  # lazy: the stage loads when its subcommand runs
@@ -212,5 +232,5 @@ def shapes(args: argparse.Namespace) -> int:
 
 
 __all__ = ["build_options", "build", "design", "stage", "compare_scan", "mechtest",
-           "tolerance",
-           "fit_material", "fit_membrane", "specimens", "studio", "sweep", "shapes"]
+           "tolerance", "fit_material", "fit_membrane", "specimens", "coupon", "calibrate_time",
+           "studio", "sweep", "shapes"]

@@ -489,6 +489,23 @@ TOOLS = (
             "printable unit-cell test specimens from the same SCAD modules",
             "pysolver.commands:specimens",
             (opt("--out", default="build/specimens", help="output folder"), "jobs")),
+    Command("coupon", "printable timing coupon: unit cells to time in the bath",
+            "printable timing coupon (a strip of labelled unit cells from the same SCAD "
+            "modules) and its coupon.csv; see docs/coupon.md",
+            "pysolver.commands:coupon",
+            (opt("--out", default="build/coupon", help="output folder"),
+             opt("--material", default=None, help="bracket model file (default: the "
+                                                   "committed one)"), "jobs", "renderer")),
+    Command("calibrate-time", "fit the print's factors to a timed coupon",
+            "fit the bracket compliance (and membrane modulus) to a timed coupon.csv and "
+            "write a material file for --material / MATERIAL=",
+            "pysolver.commands:calibrate_time",
+            (opt("coupon_csv", metavar="COUPON_CSV", help="coupon.csv with closing_time_s "
+                                                          "filled in (docs/coupon.md)"),
+             opt("--out", default=None, help="material file to write (default "
+                                             "build/material/coupon-calibrated.json)"),
+             opt("--material", default=None, help="bracket model the coupon is fitted "
+                                                   "against (default: the committed one)"))),
     Command("shapes", "list the built-in shapes", "list the built-in shapes",
             "pysolver.commands:shapes"),
     Command("studio", "browser front end: paint the time landscape, build it again, compare",
@@ -520,6 +537,9 @@ TOOLS = (
                       "residuals; 0 = off)"),
              opt("--relaxation", action="store_true",
                  help="also draw membrane stress relaxation from the measured curve"),
+             opt("--coupon", action="store_true",
+                 help="also simulate the timing coupon workflow: each sample's coupon fitted, "
+                      "its shell programmed again and simulated (docs/coupon.md)"),
              opt("--time-tol", type=float, default=TOLERANCE_RUN.time_tol_s,
                  help="a cell is on time within this of t*, s (default "
                       f"{TOLERANCE_RUN.time_tol_s:g})"),

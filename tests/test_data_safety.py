@@ -146,7 +146,10 @@ def test_other_outputs_are_claimed_too(room, capsys):
                        "not a model file morphshell wrote"),
                       (["fit-material", "--report", "mydocs"], r"mydocs is not a morphshell"),
                       (["fit-membrane", "--report", "mydocs"], r"mydocs is not a morphshell"),
-                      (["specimens", "--out", "mydocs"], r"mydocs is not a morphshell")):
+                      (["specimens", "--out", "mydocs"], r"mydocs is not a morphshell"),
+                      (["coupon", "--out", "mydocs"], r"mydocs is not a morphshell"),
+                      (["calibrate-time", "coupon.csv", "--out", "model.json"],
+                       r"model\.json exists and is not a model file morphshell wrote")):
         rc, msg = _cli(args, capsys)
         _refused(rc, msg, pat)
     _check_untouched(room, before)

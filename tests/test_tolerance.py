@@ -435,3 +435,19 @@ def test_code_fingerprint_covers_every_module():
         assert mods and mods <= files, sorted(str(p) for p in mods - files)
     assert root / "sim" / "model" / "simulate.py" in files
     assert set((root / "pysolver" / "data").glob("*.json")) <= files
+
+
+def test_coupon_workflow_adds_its_runs_and_figures(design, cluster2, tmp_path):
+    """--coupon: one coupon-NNNNN simulation per sample, each sample's coupon fitted; the
+    contract's figures are in the summary (issue #45)."""
+    s = _run(design, tmp_path / "tol", client=cluster2[1], samples=1, coupon=True)
+    f = s["figures"]
+    for k in ("p_on_time_cell_mean", "p_on_time_cell_mean_coupon", "p_order_kept",
+              "timing_variance_share"):
+        assert k in f
+    assert 0.0 <= f["p_on_time_cell_mean_coupon"] <= 1.0
+    assert s["run"]["total"] == 1 + 1 + 1
+    assert len(s["options"]["coupon"]["fits"]) == 1
+    assert sorted(p.name for p in (tmp_path / "tol" / "samples").glob("coupon-*.json")) == [
+        "coupon-00000.json"]
+    assert all(c["t_sd_predicted_s"] is None or c["t_sd_predicted_s"] >= 0 for c in s["cells"])

@@ -282,6 +282,42 @@ class BracketModel:
         return model_dict(self.grid_min, self.grid_step, self.coef, self.meta)
 
 
+class CompliantBracketModel:
+    """A bracket model ``s`` times as compliant as ``base``: ``F_s(x) = F(x / s)``.
+
+    Parameters
+    ----------
+    base : BracketModel
+        Anything with ``coefficients(h_mm, b_mm, t_s, eta) -> (n, 4)``.
+    scale : float or (n,) float
+        Compliance factor ``s > 0`` (1 = the base model).
+    """
+
+    def __init__(self, base, scale):
+        s = np.asarray(scale, float)
+        if not np.all(np.isfinite(s) & (s > 0)):
+            raise InputError(f"compliance factor {scale!r}", fix="use a positive number")
+        self.base = base
+        self.scale = s
+        self.path = getattr(base, "path", None)
+
+    def coefficients(self, h_mm, b_mm, t_s, eta: float = 0.0):
+        """Force coefficients of ``x^1..x^4`` (N mm^-k), shape ``(n, 4)``."""
+        c = np.asarray(self.base.coefficients(h_mm, b_mm, t_s, eta=eta), float)
+        s = self.scale if self.scale.ndim == 0 else self.scale[:, None]
+        return c / s ** _POW
+
+    @property
+    def grid_max(self) -> np.ndarray:
+        """Last grid node of the base model along (h mm, b mm, t s)."""
+        return self.base.grid_max
+
+    def force(self, h_mm, b_mm, t_s, x_mm):
+        """Bracket force (N) at compression ``x_mm`` (mm): ``F(x / s)`` of the base model."""
+        c = self.coefficients(h_mm, b_mm, t_s)
+        return poly_force(c, np.asarray(x_mm, float))
+
+
 def model_dict(grid_min, grid_step, coef, meta) -> dict:
     """The JSON object of a model file (see ``docs`` in the file itself)."""
     d = {"format": "morphshell.bracket_model", "format_version": 1,

@@ -14,7 +14,8 @@ module                                     settings
 :mod:`~pysolver.params.stencil`            :class:`StencilSearch`: stencil search,
                                            optimisation and layout checks
 :mod:`~pysolver.params.landscape`          :class:`Sequencing`: the automatic time landscape
-:mod:`~pysolver.params.programming`        :class:`Programming`: thickness solve, refinement
+:mod:`~pysolver.params.programming`        :class:`Programming`: thickness solve, refinement;
+                                           :class:`Coupon`: the timing coupon
 :mod:`~pysolver.params.simulation`         :class:`SimConstants`, :class:`NewtonSettings`,
                                            :class:`PhysicsOptions`
 :mod:`~pysolver.params.material`           :class:`ModelFileRules`, :class:`ModelFits`, the
@@ -46,7 +47,7 @@ from .material import (
     ModelFits,
 )
 from .mechtest import MECHTEST, TESTS, MechTest
-from .programming import DEFAULT_REFINE, PROGRAMMING, Programming
+from .programming import COUPON, DEFAULT_REFINE, PROGRAMMING, Coupon, Programming
 from .report import PICTURES, REPORT, SCAN_AGREEMENT, Pictures, ReportThresholds, ScanAgreement
 from .simulation import (
     BUMPER_MODULUS,
@@ -77,7 +78,7 @@ __all__ = [
     "check_unit_cell",
     "StencilSearch", "STENCIL", "REFERENCE_MIN_BUMPER_MM",
     "Sequencing", "SEQUENCING",
-    "Programming", "PROGRAMMING", "DEFAULT_REFINE",
+    "Programming", "PROGRAMMING", "DEFAULT_REFINE", "Coupon", "COUPON",
     "SimConstants", "SIM", "NewtonSettings", "NEWTON", "PhysicsOptions", "PHYSICS_OFF",
     "PHYSICS_DEFAULT", "RELAXATION_PRONY", "BUMPER_MODULUS",
     "ModelFileRules", "MODEL_FILES", "ModelFits", "MODEL_FITS", "PAPER_BRACKET_HEIGHT_MM",

@@ -75,4 +75,64 @@ DEFAULT_REFINE = 1
 """Rounds of timing refinement from the simulation, the one default of ``morphshell build``,
 ``make`` and :func:`pysolver.build.build`."""
 
-__all__ = ["Programming", "PROGRAMMING", "DEFAULT_REFINE"]
+
+
+@dataclass(frozen=True)
+class Coupon:
+    """The timing coupon (``morphshell coupon``) and its fit (``morphshell calibrate-time``).
+
+    Source: morphshell's (issue #45).  The coupon is the paper's flat test patch
+    (:func:`pysolver.design.surfaces.regular`) cut to a strip: its cells are timed in the
+    bath and fitted with the programming's own bracket/membrane time model
+    (:mod:`pysolver.temporal.coupon`).
+
+    Attributes
+    ----------
+    rows, cols : int
+        Triangle rows and columns of the strip (``regular:rows=..,cols=..``): 2 x 6 gives
+        4 interior cells (both ends of their stencil edge inside) and 24 boundary cells.
+    central_length_mm : float, mm
+        Flat central length of every cell.  9 mm is the longest flat cell of the built-in
+        shapes (petal: 8.9-9.3 mm); at this length an interior cell closes within the
+        material model's 120 s for every printable thickness (0.30-0.65 mm), so its
+        brackets span the programmable range.
+    time_margin_s : float, s
+        A cell is timed when the shipped model closes it at least this long before the end
+        of the model's time range (a later cell could be censored in the bath).
+    reading_sd_s : float, s
+        Reading error of one closing time from a phone video (a frame is 1/30 s; the moment
+        the bumpers touch is judged within about a second).  Floor of the fit's residual sd.
+    min_cells : int
+        Fewest timed cells a fit accepts (two parameters need redundancy to give a
+        confidence interval).
+    min_thickness_spread_mm : float, mm
+        Smallest range of bracket thickness among the timed cells a fit accepts.
+    compliance_bounds : (float, float)
+        Range of the fitted bracket compliance factor ``s`` (a print 5x stiffer or softer
+        than the model is a mistake, not a calibration).
+    modulus_bounds : (float, float)
+        Range of the fitted membrane modulus factor.
+    max_correlation : float
+        The membrane modulus is fitted with the compliance only when the data separate them:
+        the estimates' correlation is at most this and the modulus interval is finite;
+        otherwise the modulus is kept at 1 (the compliance then carries both).
+    confidence : float
+        Level of the printed confidence intervals.
+    """
+
+    rows: int = 2
+    cols: int = 6
+    central_length_mm: float = 9.0
+    time_margin_s: float = 10.0
+    reading_sd_s: float = 1.0
+    min_cells: int = 4
+    min_thickness_spread_mm: float = 0.1
+    compliance_bounds: tuple = (0.2, 5.0)
+    modulus_bounds: tuple = (0.3, 3.0)
+    max_correlation: float = 0.95
+    confidence: float = 0.95
+
+
+COUPON = Coupon()
+
+__all__ = ["Programming", "PROGRAMMING", "DEFAULT_REFINE", "Coupon", "COUPON"]

@@ -82,6 +82,9 @@ class ToleranceRun:
         Smallest bracket thickness a sample draws (a printed bracket has a thickness).
     modulus_floor : float
         Smallest membrane modulus factor a sample draws.
+    order_separation_s : float, s
+        P(order kept) counts pairs of neighbouring cells (sharing a base) programmed at least
+        this far apart (issue #45: regions a maker would see close one after the other).
     """
 
     samples: int = 64
@@ -94,6 +97,7 @@ class ToleranceRun:
     progress_every_s: float = 2.0
     thickness_floor_mm: float = 0.05
     modulus_floor: float = 0.05
+    order_separation_s: float = 15.0
 
 
 UNCERTAINTY = Uncertainty()

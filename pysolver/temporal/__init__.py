@@ -24,6 +24,7 @@ from .program import (
     time_limit,
     time_ranges,
     timing_errors,
+    timing_sd,
 )
 
 __all__ = [
@@ -43,4 +44,5 @@ __all__ = [
     "time_limit",
     "time_ranges",
     "timing_errors",
+    "timing_sd",
 ]

@@ -103,4 +103,57 @@ def _ranges_panel(ax2, t_star, res: dict, side) -> None:
     ax2.grid(alpha=0.3)
 
 
-__all__ = ["plot_feasibility"]
+def plot_coupon(bases: dict, cells: dict, rows: list, png) -> Path:
+    """The timing coupon seen from its numbered (top) face: each base's number, each timed
+    cell's bracket thickness (colour) and predicted closing time (s).
+
+    Parameters
+    ----------
+    bases, cells : dict of arrays -- ``bases.csv`` and ``cells.csv`` of the coupon
+    rows : list of dict -- :func:`pysolver.temporal.coupon.coupon_rows` (labelled)
+    png : path-like
+
+    Returns
+    -------
+    Path of the PNG.
+    """
+    # optional heavy dependency: matplotlib loads only when a picture is drawn
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # (matplotlib, as above)
+
+    xy = np.c_[bases["flat_x_mm"], bases["flat_y_mm"]]
+    fig, ax = plt.subplots(figsize=(11, 3.6))
+    cmap = plt.get_cmap("viridis")
+    for j in range(len(cells["cell_id"])):
+        a, b = xy[int(cells["base_a"][j])], xy[int(cells["base_b"][j])]
+        ax.plot(*np.c_[a, b], color="0.85", lw=1, zorder=1)
+    for r in rows:
+        j = r["cell_id"]
+        a, b = xy[int(cells["base_a"][j])], xy[int(cells["base_b"][j])]
+        lo, hi = UNIT_CELL.thickness_min, UNIT_CELL.thickness_max
+        u = (r["thickness_top_mm"] - lo) / (hi - lo)
+        ax.plot(*np.c_[a, b], color=cmap(min(max(u, 0.0), 1.0)), lw=5, zorder=2)
+        m = (a + b) / 2
+        ax.text(m[0], m[1], f"{r['predicted_s']:.0f} s", fontsize=7, ha="center",
+                va="center", zorder=4, bbox={"fc": "white", "ec": "none", "pad": 0.5})
+    for i, p in enumerate(xy):
+        ax.add_patch(plt.Circle(p, 2.0, color="0.3", zorder=3))
+        ax.text(p[0], p[1], str(i + 1), color="white", fontsize=7, ha="center",
+                va="center", zorder=5)
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(UNIT_CELL.thickness_min,
+                                                             UNIT_CELL.thickness_max))
+    fig.colorbar(sm, ax=ax, label="bracket thickness (mm)", fraction=0.03)
+    ax.set_aspect("equal")
+    ax.set_xlabel("mm")
+    ax.set_title("timing coupon, numbered face up: cells by bracket thickness, with the "
+                 "predicted closing time", fontsize=10)
+    fig.tight_layout()
+    with atomic_file(png) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return Path(png)
+
+
+__all__ = ["plot_coupon", "plot_feasibility"]

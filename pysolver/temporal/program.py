@@ -255,6 +255,39 @@ def time_ranges(material, b0, x, f_bracket, t_max=None):
     return lmin.max(axis=1), lmax.min(axis=1), lmin, lmax
 
 
+def timing_sd(material, h, b0, x, f_bracket, thickness_sd: float, dh: float = 0.005):
+    """Predicted sd (s) of each cell's completion time under the per-bracket thickness scatter.
+
+    The sensitivity ``dt/dh`` of each layer's completion time is the central difference of
+    :func:`completion_time` over ``+-dh`` mm; a layer's sd is ``|dt/dh| thickness_sd``
+    (first order), and the cell's is ``sqrt(sd_top^2 + sd_bottom^2) / sqrt(2)``, the sd of
+    the mean of two independently printed layers programmed for the same time (a first-order
+    stand-in for the later of the two).
+
+    Parameters
+    ----------
+    h, x : (n, 2) float, mm
+    b0, f_bracket : (n,) float, mm, N
+    thickness_sd : float, mm
+
+    Returns
+    -------
+    sd : (n,) float, s -- NaN where a layer does not close within the model's range at
+        ``h +- dh``
+    dtdh : (n, 2) float, s/mm
+    """
+    h = np.asarray(h, float)
+    bb = np.repeat(np.asarray(b0, float)[:, None], 2, 1)
+    ff = np.repeat(np.asarray(f_bracket, float)[:, None], 2, 1)
+    t_hi = completion_time(material, h + dh, bb, x, ff)
+    t_lo = completion_time(material, np.maximum(h - dh, UNIT_CELL.thickness_min), bb, x, ff)
+    step = h + dh - np.maximum(h - dh, UNIT_CELL.thickness_min)
+    with np.errstate(invalid="ignore"):
+        dtdh = np.where(np.isfinite(t_hi) & np.isfinite(t_lo), (t_hi - t_lo) / step, np.nan)
+    sd = np.sqrt(np.sum((dtdh * thickness_sd) ** 2, axis=1) / 2.0)
+    return sd, dtdh
+
+
 # ----------------------------------------------------------------------------------------------
 # programming
 # ----------------------------------------------------------------------------------------------

@@ -79,52 +79,33 @@ from pysolver.core.ownership import claim_result_folder
 from pysolver.core.writes import atomic_write_text
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
-from pysolver.material.model import load_bracket_model
+from pysolver.material.model import CompliantBracketModel, load_bracket_model
 from pysolver.material.relaxation import relaxation_factor
 from pysolver.mechanics import load_model, vary_model
-from pysolver.params import BRACKET_MODEL_FILE, SIM, TOLERANCE_RUN, UNCERTAINTY, Uncertainty
+from pysolver.params import (
+    BRACKET_MODEL_FILE,
+    COUPON,
+    SIM,
+    TOLERANCE_RUN,
+    UNCERTAINTY,
+    Uncertainty,
+)
 from pysolver.progress import say
 from pysolver.records import finite, json_text
 from pysolver.simulator import check_sim_span, simulate_and_check
 from pysolver.tables import MODEL_FILE, read_design, read_table
 
+from . import coupon as cp
 from .report import write_report
 
 FACTORS = ("thickness", "stretch", "modulus", "material", "relaxation")
 DESIGN_FILES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscape.csv",
                 "support_frame.csv", "design.json", MODEL_FILE)
 SUMMARY_FORMAT = "morphshell.tolerance"
-_POW = np.arange(1, 5)
 
 
 # ------------------------------------------------------------------------------------------
 # the perturbed material
-
-
-class CompliantBracketModel:
-    """A bracket model ``s`` times as compliant as ``base``: ``F_s(x) = F(x / s)``.
-
-    Parameters
-    ----------
-    base : BracketModel
-        Anything with ``coefficients(h_mm, b_mm, t_s, eta) -> (n, 4)``.
-    scale : float or (n,) float
-        Compliance factor ``s > 0`` (1 = the base model).
-    """
-
-    def __init__(self, base, scale):
-        s = np.asarray(scale, float)
-        if not np.all(np.isfinite(s) & (s > 0)):
-            raise InputError(f"compliance factor {scale!r}", fix="use a positive number")
-        self.base = base
-        self.scale = s
-        self.path = getattr(base, "path", None)
-
-    def coefficients(self, h_mm, b_mm, t_s, eta: float = 0.0):
-        """Force coefficients of ``x^1..x^4`` (N mm^-k), shape ``(n, 4)``."""
-        c = np.asarray(self.base.coefficients(h_mm, b_mm, t_s, eta=eta), float)
-        s = self.scale if self.scale.ndim == 0 else self.scale[:, None]
-        return c / s ** _POW
 
 
 def material_scatter(material=None, data_dir=None) -> dict:
@@ -343,8 +324,10 @@ def run_sample(payload: DesignPayload, pert: Perturbation, settings: dict) -> di
         frames, check = simulate_and_check(varied, material, ctx["design"],
                                            t_end=settings["t_end"], dt=settings["dt"],
                                            thresholds=settings.get("thresholds"))
-    except MorphshellError as e:  # a diverged sample is a result: it fails the check
-        diverged, message = True, str(e)
+    except (MorphshellError, ArithmeticError) as e:  # a diverged sample is a result: it fails
+        # the check (ArithmeticError: the solver's kernels divided by zero on a collapsed state)
+        diverged, message = True, f"{type(e).__name__}: {e}" if isinstance(
+            e, ArithmeticError) else str(e)
         frames = check = None
     if check is None:
         n_c, n_b = model.n_cells, model.n_bases
@@ -609,7 +592,7 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                        sensitivity: int | None = None, t_end: float = SIM.t_end,
                        dt: float = SIM.dt, material=None, out=None, scheduler=None,
                        workers=None, client=None, progress: bool = True, report: bool = True,
-                       on_result=None, dashboard: bool = False) -> dict:
+                       on_result=None, dashboard: bool = False, coupon: bool = False) -> dict:
     """Monte Carlo tolerance analysis of a programmed design folder.
 
     Parameters
@@ -638,6 +621,9 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
         Progress lines; write ``report.html`` and pictures.
     on_result : callable, optional
         Passed to :func:`pysolver.distributed.run_tasks`.
+    coupon : bool
+        Also simulate the coupon workflow (:mod:`pysolver.tolerance.coupon`): one more
+        simulation per sample, ``coupon-NNNNN``.
 
     Returns
     -------
@@ -674,6 +660,10 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
     t_start = time.perf_counter()
     unc, mat_info = _uncertainty(uncertainty, material)
     perts, active = _perturbations(seed, samples, sensitivity, unc, n_cells)
+    coupon_info = None
+    if coupon:
+        extra, coupon_info = _coupon_perturbations(seed, samples, unc, folder, material, cells)
+        perts += extra
     settings = {"t_end": float(t_end), "dt": float(dt), "thresholds": None}
     results, stats = _simulate_all(payload, perts, settings, out, client=client,
                                    scheduler=scheduler, workers=workers, progress=progress,
@@ -683,7 +673,8 @@ def tolerance_analysis(design_dir, *, samples: int = TOLERANCE_RUN.samples,
                                 "sensitivity_runs": sensitivity, "t_end_s": float(t_end),
                                 "dt_s": float(dt), "uncertainty": dataclasses.asdict(unc),
                                 "material_scatter": mat_info, "factors": active,
-                                "material": None if material is None else str(material)},
+                                "material": None if material is None else str(material),
+                                "coupon": coupon_info},
                        wall_s=round(time.perf_counter() - t_start, 3))
     atomic_write_text(out / "summary.json", json_text(summary, indent=1, strict=True))
     if report:
@@ -708,6 +699,9 @@ def _summary(results: dict, stats, perts, active, cells, n_bases: int, folder: P
            for f in active}
     agg = aggregate(main, nominal, cells["t_star_s"], options["time_tol_s"], oat,
                     len(cells["cell_id"]), n_bases, float(t_end))
+    agg["figures"].update(_maker_figures(results, perts, cells, agg, options))
+    agg["figures"]["predicted_timing_sd"] = _predicted_sd(agg, folder, options, oat,
+                                                          (n_bases, float(t_end)))
     agg["sensitivity_regression"] = regression_sensitivity(
         [p for p in perts if p.name.startswith("sample-")], main, float(t_end))
     return finite({
@@ -718,6 +712,80 @@ def _summary(results: dict, stats, perts, active, cells, n_bases: int, folder: P
         **agg,
         "run": dict(stats.to_dict(), wall_s=wall_s,
                     sample_wall_s=_stats([results[p.name]["wall_s"] for p in perts]))})
+
+
+def _maker_figures(results: dict, perts, cells, agg: dict, options: dict) -> dict:
+    """P(on time) with the coupon, P(order kept) with and without it, and the per-print /
+    per-bracket split of the timing variance (:mod:`pysolver.tolerance.coupon`)."""
+    t_star = np.asarray(cells["t_star_s"], float)
+    n = len(t_star)
+    pairs = cp.neighbour_pairs(cells, t_star, TOLERANCE_RUN.order_separation_s)
+
+    def times(prefix):
+        return _arr([results[p.name] for p in perts if p.name.startswith(prefix)], "t_done",
+                    (n,))
+
+    T, Tc = times("sample-"), times("coupon-")
+    out = {"p_order_kept": cp.order_kept(T, pairs), "order_pairs": int(len(pairs)),
+           "timing_variance_share": cp.variance_share(agg["sensitivity"]),
+           "p_on_time_cell_mean_coupon": None, "p_order_kept_coupon": None}
+    if len(Tc):
+        with np.errstate(invalid="ignore"):
+            on = np.isfinite(Tc) & (np.abs(Tc - t_star) <= options["time_tol_s"])
+        out.update(p_on_time_cell_mean_coupon=float(on.mean()),
+                   p_all_cells_on_time_coupon=float(on.all(axis=1).mean()),
+                   p_order_kept_coupon=cp.order_kept(Tc, pairs))
+    return out
+
+
+def _predicted_sd(agg: dict, folder: Path, options: dict, oat: dict, sizes: tuple) -> dict:
+    """Each cell's completion-time sd under the per-bracket thickness scatter as the bracket
+    model predicts it (:func:`pysolver.temporal.program.timing_sd`), written into
+    ``agg["cells"]`` (``t_sd_predicted_s``); returns its mean and, with one-at-a-time
+    thickness runs (``sizes``: bases, t_end s), their mean sd and the correlation over
+    cells."""
+    sd = cp.predicted_timing_sd(folder, load_bracket_model(options["material"]),
+                                options["uncertainty"]["thickness_sd"])
+    for row, v in zip(agg["cells"], sd, strict=True):
+        row["t_sd_predicted_s"] = _num(v)
+    out = {"mean_s": _num(np.nanmean(sd)) if np.isfinite(sd).any() else None,
+           "oat_thickness_mean_s": None, "correlation": None}
+    runs = oat.get("thickness") or []
+    if len(runs) >= 2:
+        _, _, var_t, _ = _spread(runs, len(sd), *sizes)
+        mc = np.sqrt(var_t)
+        ok = np.isfinite(sd)
+        out["oat_thickness_mean_s"] = float(mc.mean())
+        if ok.sum() >= 3 and np.ptp(sd[ok]) > 0 and np.ptp(mc[ok]) > 0:
+            out["correlation"] = float(np.corrcoef(sd[ok], mc[ok])[0, 1])
+    return out
+
+
+def _coupon_perturbations(seed: int, samples: int, unc: Uncertainty, folder: Path, material,
+                          cells):
+    """One ``coupon-NNNNN`` perturbation per sample: the sample's print, its shell
+    programmed again from the fit of its own coupon (:mod:`pysolver.tolerance.coupon`);
+    returns (perturbations, record of the fits)."""
+    mat = load_bracket_model(material)
+    setup = cp.coupon_setup(mat)
+    shell = cp.shell_geometry(folder)
+    n = len(cells["cell_id"])
+    h = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
+    perts, fits = [], []
+    for i in range(samples):
+        d = _draw(seed, i, n, unc, unc.material_sd)
+        rng = np.random.default_rng([int(seed), int(i), cp.COUPON_STREAM])
+        fit = cp.coupon_fit(setup, mat, d, rng, unc.thickness_sd)
+        h2 = h if fit is None else cp.reprogrammed_thickness(shell, h, mat, fit)
+        perts.append(make_perturbation(f"coupon-{i:05d}",
+                                       dict(d, thickness=d["thickness"] + (h2 - h)), n,
+                                       unc=unc))
+        fits.append(None if fit is None else {
+            "compliance": fit["compliance"]["value"], "modulus": fit["modulus"]["value"],
+            "drawn_compliance": d["material"], "drawn_modulus": d["modulus"] * d["relaxation"],
+            "residual_rms_s": fit["residual_rms_s"]})
+    return perts, {"cells": int(len(setup["b0"])), "reading_sd_s": COUPON.reading_sd_s,
+                   "refused": sum(f is None for f in fits), "fits": fits}
 
 
 def _simulate_all(payload, perts, settings: dict, out: Path, **run):

@@ -191,6 +191,14 @@ def _head(summary: dict, design_dir) -> list:
                 ("verdicts", ", ".join(f"{k} {v}" for k, v in fig["verdicts"].items())),
                 ("reasons (samples)", "; ".join(f"{k}: {v}" for k, v in
                                                 fig["reasons"].items()) or "-"),
+                ("P(cell on time), mean over cells: without / with the coupon",
+                 f"{_f(fig['p_on_time_cell_mean'])} / "
+                 f"{_f(fig.get('p_on_time_cell_mean_coupon'))}"),
+                ("P(order kept), neighbours >= 15 s apart: without / with the coupon",
+                 f"{_f(fig.get('p_order_kept'))} / {_f(fig.get('p_order_kept_coupon'))}"),
+                ("timing variance share: per print / per bracket",
+                 " / ".join(_f((fig.get("timing_variance_share") or {}).get(k))
+                            for k in ("per_print", "per_bracket"))),
                 ("P(every cell on time)", _f(fig["p_all_cells_on_time"])),
                 ("P(on time), worst cell", _f(fig["p_on_time_cell_min"])),
                 ("completion time sd, mean / max over cells",
@@ -238,10 +246,11 @@ def _least_reliable(summary: dict) -> list:
     worst = sorted(summary["cells"], key=lambda r: (r["p_on_time"], -r["t_sd_s"]))[:15]
     return ["<h2>Least reliable cells</h2>",
             _table(["cell", "t* (s)", "nominal (s)", "P(on time)", "P(complete)", "sd (s)",
-                    "5 % (s)", "95 % (s)"],
+                    "predicted sd, thickness (s)", "5 % (s)", "95 % (s)"],
                    [(r["cell_id"], _f(r["t_star_s"]), _f(r["t_nominal_s"]),
                      _f(r["p_on_time"]), _f(r["p_complete"]), _f(r["t_sd_s"]),
-                     _f(r["t_p05_s"]), _f(r["t_p95_s"])) for r in worst]),
+                     _f(r.get("t_sd_predicted_s")), _f(r["t_p05_s"]), _f(r["t_p95_s"]))
+                    for r in worst]),
             "<p class='note'>All cells and bases: summary.json.</p></body></html>"]
 
 

@@ -1,0 +1,165 @@
+"""The coupon workflow checked by simulation (``morphshell tolerance DIR --coupon``, issue #45).
+
+For each Monte Carlo sample, the print's draws (bracket compliance, membrane modulus and
+relaxation) apply to the timing coupon as to the shell.  The coupon's closing times come from
+the programming's time model (:func:`pysolver.temporal.coupon.closing_times`) with the
+coupon's own bracket thickness scatter (``thickness_sd``, drawn from
+``default_rng([seed, i, COUPON_STREAM])``, so the shell's draws are unchanged) and a reading
+error of :attr:`pysolver.params.Coupon.reading_sd_s`; they are fitted by
+``calibrate-time``'s own code (:func:`pysolver.temporal.coupon.fit_coupon`).  The shell is then
+programmed again with the fit: each layer's bracket gets the thickness with which the fitted
+print closes it when the shipped model closed the nominal one
+(:func:`reprogrammed_thickness`), so the programming's own corrections (the refinement's
+requested times) are kept.  That shell, printed with the sample's own thickness scatter, is
+simulated like the sample.
+
+Also here: the figures a maker reads (:func:`order_kept`, :func:`variance_share`).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from pysolver.design.pipeline import run_design
+from pysolver.errors import InputError
+from pysolver.material.model import CompliantBracketModel
+from pysolver.params import COUPON, TOLERANCE_RUN
+from pysolver.tables import read_table
+from pysolver.temporal import coupon as tc
+from pysolver.temporal.program import completion_time, solve_thickness, time_limit, timing_sd
+
+COUPON_STREAM = 45
+"""Third seed word of a sample's coupon draws (thickness scatter, reading error)."""
+PER_PRINT = ("stretch", "modulus", "material", "relaxation")
+"""Factors drawn once per print (the rest, ``thickness``, once per bracket)."""
+
+
+def coupon_setup(material) -> dict:
+    """The coupon's timed cells as ``morphshell coupon`` makes them (designed in a temporary
+    folder; nothing is rendered): :func:`pysolver.temporal.coupon.cell_geometry` of the timed
+    cells plus ``thickness`` (n, 2) mm."""
+    with tempfile.TemporaryDirectory(prefix="morphshell-coupon-") as tmp:
+        folder = Path(tmp) / "coupon"
+        run_design(tc.coupon_source(), folder, progress=False, plots=False)
+        geom = tc.cell_geometry(folder)
+    th, timed = tc.coupon_thicknesses(material, geom)
+    out = {k: v[timed] for k, v in geom.items()}
+    out["thickness"] = th[timed]
+    return out
+
+
+def simulated_coupon(setup: dict, material, draw: dict, rng, thickness_sd: float) -> dict:
+    """The coupon of one print as the maker would type it: :func:`read_coupon_csv`'s dict.
+
+    Parameters
+    ----------
+    draw : dict -- the sample's draws (``material`` compliance, ``modulus``, ``relaxation``)
+    rng : numpy Generator -- the coupon's own stream
+    thickness_sd : float, mm
+    """
+    n = len(setup["b0"])
+    th = np.maximum(setup["thickness"] + thickness_sd * rng.standard_normal((n, 2)),
+                    TOLERANCE_RUN.thickness_floor_mm)
+    t = tc.closing_times(material, setup["b0"], setup["x"], setup["f_bracket"], th,
+                         draw["material"], draw["modulus"] * draw["relaxation"])
+    t = t + COUPON.reading_sd_s * rng.standard_normal(n)
+    # the maker stops at the end of the model's range: a later cell is written "never"
+    t = np.where(np.isfinite(t) & (t <= time_limit(material)),
+                 np.maximum(t, COUPON.reading_sd_s), np.inf)
+    return {"label": np.array([str(k) for k in range(n)], dtype=object),
+            "thickness": setup["thickness"], "b0": setup["b0"], "x": setup["x"],
+            "f_bracket": setup["f_bracket"], "t": t}
+
+
+def reprogrammed_thickness(shell: dict, thickness, material, fit: dict):
+    """Thicknesses (n, 2) mm with which the fitted print closes each layer when the shipped
+    model closes the programmed one (a layer that never closes keeps its thickness)."""
+    th = np.asarray(thickness, float)
+    bb = np.repeat(shell["b0"][:, None], 2, 1)
+    ff = np.repeat(shell["f_bracket"][:, None], 2, 1)
+    t = completion_time(material, th, bb, shell["x"], ff)
+    s, m = fit["compliance"]["value"], fit["modulus"]["value"]
+    cal = CompliantBracketModel(material, s)
+    ok = np.isfinite(t)
+    h, _ = solve_thickness(cal, bb, shell["x"], np.where(ok, t, 0.0), ff * m)
+    return np.where(ok, h, th)
+
+
+def shell_geometry(folder) -> dict:
+    """What the time model needs of a design folder's cells
+    (:func:`pysolver.temporal.coupon.cell_geometry`)."""
+    return tc.cell_geometry(folder)
+
+
+def predicted_timing_sd(folder, material, thickness_sd: float):
+    """Each cell's completion-time sd (n,) s under the per-bracket thickness scatter, as the
+    bracket model predicts it (:func:`pysolver.temporal.program.timing_sd`)."""
+    cells = read_table(folder, "cells")
+    geom = tc.cell_geometry(folder)
+    h = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
+    sd, _ = timing_sd(material, h, geom["b0"], geom["x"], geom["f_bracket"], thickness_sd)
+    return sd
+
+
+def coupon_fit(setup: dict, material, draw: dict, rng, thickness_sd: float):
+    """The fit of one print's coupon, or None when ``calibrate-time`` would refuse it."""
+    d = simulated_coupon(setup, material, draw, rng, thickness_sd)
+    try:
+        return tc.fit_coupon(d, material)
+    except InputError:
+        return None
+
+
+# ----------------------------------------------------------------------------------------------
+# figures
+
+
+def neighbour_pairs(cells: dict, t_star, separation_s: float):
+    """Pairs (k, 2) int of cells sharing a base whose programmed times are at least
+    ``separation_s`` apart, the earlier cell first."""
+    ts = np.asarray(t_star, float)
+    by_base: dict = {}
+    for j, (a, b) in enumerate(zip(cells["base_a"], cells["base_b"], strict=True)):
+        by_base.setdefault(int(a), []).append(j)
+        by_base.setdefault(int(b), []).append(j)
+    pairs = set()
+    for js in by_base.values():
+        for p in js:
+            for q in js:
+                if p != q and ts[q] - ts[p] >= separation_s:
+                    pairs.add((p, q))
+    return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+
+
+def order_kept(T, pairs) -> float | None:
+    """Fraction of (sample, pair) in which the earlier-programmed cell completes first.
+
+    Parameters
+    ----------
+    T : (S, n) float, s -- completion times, NaN where a cell never completes (it then counts
+        as completing after every cell that does; two that never complete: order lost)
+    pairs : (k, 2) int -- :func:`neighbour_pairs`
+    """
+    if not len(pairs) or not len(T):
+        return None
+    Tc = np.where(np.isfinite(T), T, np.inf)
+    a, b = Tc[:, pairs[:, 0]], Tc[:, pairs[:, 1]]
+    return float(np.mean(a < b))
+
+
+def variance_share(sensitivity: list) -> dict | None:
+    """Shares of the one-at-a-time timing variance drawn once per print and once per bracket:
+    ``{"per_print": .., "per_bracket": ..}`` (None without a sensitivity run)."""
+    if not sensitivity:
+        return None
+    pp = sum(r["timing_share"] for r in sensitivity if r["factor"] in PER_PRINT)
+    pb = sum(r["timing_share"] for r in sensitivity if r["factor"] not in PER_PRINT)
+    return {"per_print": float(pp), "per_bracket": float(pb)}
+
+
+__all__ = ["COUPON_STREAM", "coupon_setup", "simulated_coupon", "reprogrammed_thickness",
+           "shell_geometry", "predicted_timing_sd", "coupon_fit", "neighbour_pairs",
+           "order_kept", "variance_share"]
