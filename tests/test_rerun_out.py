@@ -7,7 +7,8 @@ morphshell").  :data:`RUNS` holds one rerun per such command, and
 :func:`test_every_command_with_an_output_is_covered` fails when a new command with ``--out``
 has none.
 
-``design``, ``build`` and ``compare-scan`` run for real on tiny inputs (about a second each).
+``design``, ``build``, ``compare-scan``, ``coupon`` (without its renders) and
+``calibrate-time`` run for real on tiny inputs (a few seconds each).
 The others would take minutes (a material fit, a membrane fit, OpenSCAD renders, Monte Carlo
 on Dask), so their computation is replaced by a stub that claims the folder the way the
 real code does (the command's own claim, then the stage's ``claim_result_folder``) and
@@ -26,6 +27,7 @@ from _shared import run_cli
 from test_report import make_synthetic_design
 
 from pysolver.core import manifest, ownership, writes
+from pysolver.coupon import make_coupon
 from pysolver.stages import argument, commands
 
 SHAPE = "regular:rows=2,cols=2"
@@ -69,6 +71,31 @@ def _specimens_stub(folder, *, jobs):
     _stub_writer("specimens.csv")(folder)
 
 
+def _coupon_unrendered(out, **kw):
+    """The real coupon (design, tables, sheet) without its OpenSCAD renders."""
+    return make_coupon(out, material=kw.get("material"), progress=False, render=False)
+
+
+def _timed_coupon(tmp_path) -> Path:
+    """A coupon's CSV with closing times the shipped model predicts for brackets 1.2 times
+    as compliant (what a maker would type in after timing the coupon)."""
+    from pysolver.temporal import coupon as tc
+    from pysolver.temporal.program import load_material
+
+    out = tmp_path / "coupon"
+    if not out.exists():
+        make_coupon(out, progress=False, render=False)
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    t = tc.closing_times(load_material(None), d["b0"], d["x"], d["f_bracket"], d["thickness"],
+                         1.2, 1.0)
+    lines = (out / tc.CSV_NAME).read_text().splitlines()
+    rows = [ln + (f"{x:.3f}" if np.isfinite(x) else tc.NEVER)
+            for ln, x in zip(lines[1:], t, strict=True)]
+    timed = tmp_path / "timed.csv"
+    timed.write_text("\n".join([lines[0], *rows]) + "\n")
+    return timed
+
+
 @pytest.fixture
 def synthetic(tmp_path):
     """A small design folder with a simulation, stamped like one morphshell made, and a scan
@@ -100,6 +127,9 @@ RUNS = {
                   {"pysolver.tolerance.tolerance_analysis": _tolerance_stub}),
     "sweep": (lambda t, s: [t / "spec.toml"], ["--out", "X"],
               {"pysolver.sweep.run_sweep": _sweep_stub}),
+    "coupon": (lambda t, s: [], ["--out", "X"],
+               {"pysolver.coupon.make_coupon": _coupon_unrendered}),
+    "calibrate-time": (lambda t, s: [str(_timed_coupon(t))], ["--out", "m.json"], {}),
 }
 
 
