@@ -287,8 +287,10 @@ class StencilSearch:
         alternatives (a smaller ``--size`` that was tried, ``--min-bumper 0.1``), instead of
         printing a shell silently smaller or larger than asked.
     min_area_covered : float
-        When the stencil the first rim inset gives covers less than this fraction of the
-        target's area (3D area of the stencil over the target's), the search also tries the
+        When the region inside the first rim inset covers less than this fraction of the
+        target's 3D area (:meth:`pysolver.design.remesh.FlatDomain.region_covered`, a
+        function of the target; it was the chosen stencil's own area, which put the petal at
+        74.9 % or 75.1 % by where its rim points fell), the search also tries the
         stencil without an inset and takes it only if it prints at least as well (its longest
         flat cell within ``max_cell_length - margin``, or within the limit when the inset
         stencil is not within the margin either); otherwise the inset stencil stays.  On a
