@@ -635,7 +635,8 @@ def test_narrow_strip_falls_back_to_the_rim_and_a_wide_one_keeps_the_inset():
     V, F = _bent_strip(25.0)
     V2, F2, info = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     rim = info["rim"]
-    assert rim["inset_area_covered"] < STENCIL.min_area_covered
+    assert rim["inset_region_covered"] < STENCIL.min_area_covered
+    assert rim["inset_area_covered"] < rim["inset_region_covered"]  # (chords cut corners)
     assert rim["fallback"]["taken"] and info["rim_inset_mm"] == 0.0 == rim["inset_mm"]
     assert info["max_cell_length_mm"] <= UNIT_CELL.max_cell_length
     assert rim["area_covered"] > STENCIL.min_area_covered
@@ -647,8 +648,28 @@ def test_narrow_strip_falls_back_to_the_rim_and_a_wide_one_keeps_the_inset():
     V, F = _bent_strip(60.0)
     _, _, info = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     assert info["rim_inset_mm"] > 0 and info["rim"]["fallback"] is None
-    assert info["rim"]["inset_area_covered"] >= STENCIL.min_area_covered
+    assert info["rim"]["inset_region_covered"] >= STENCIL.min_area_covered
     assert all(c[2] > 0 for c in info["candidates"])
+
+
+def test_inset_region_cover_is_the_offset_rectangle():
+    """A flat 40 x 60 mm rectangle lays out isometrically, and the curve 4 mm inside its rim
+    is the 32 x 52 mm rectangle: the region covers 32 * 52 / (40 * 60) = 0.6933 of it, to
+    the quadrature's resolution (four points per triangle of about 1 mm), and every
+    relabelling and rigid motion of the target gives the same figure."""
+    from pysolver.design.remesh import FlatDomain
+
+    P, F = surfaces._dense(np.array([[0, 0], [60.0, 0], [60.0, 40.0], [0, 40.0]]))
+    V = np.c_[P, np.zeros(len(P))]
+    dom = FlatDomain(V, F, STENCIL)
+    assert dom.region_covered(4.0) == pytest.approx(32 * 52 / 2400, abs=5e-3)
+    assert dom.region_covered(0.0) == pytest.approx(1.0, abs=1e-9)
+    rng = np.random.default_rng(3)
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    p = rng.permutation(len(V))
+    inv = np.argsort(p)
+    moved = FlatDomain(V[p] @ R.T + 5.0, inv[F][rng.permutation(len(F))], STENCIL)
+    assert moved.region_covered(4.0) == pytest.approx(dom.region_covered(4.0), abs=1e-3)
 
 
 def test_rim_fallback_never_trades_printability():

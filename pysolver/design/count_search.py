@@ -28,7 +28,7 @@ moved with them (petal, relabelled: 172 to 233 bases).
    held at scale 1, the shortest longest cell per unit of scaling: the best of several
    starts.  Else the former rule: scaling closest to 1 with the longest flat cell ``margin``
    below the limit, else within it.
-3. **The rim** (:func:`_rim_fallback`): a narrow target whose inset stencil covers too little
+3. **The rim** (:func:`_rim_fallback`): a narrow target whose inset region covers too little
    also gets the stencil reaching the rim, taken if it prints as well.
 4. **The polish** (:meth:`CountSearch.converge`, :meth:`CountSearch.polish`): the pick
    optimised on until its rounds converge, then with its 3D scaling held at 1.  The size
@@ -215,11 +215,13 @@ def _tier(c: dict, params: UnitCell, margin: float) -> int:
 
 
 def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell,
-                  settings: StencilSearch, search_rim, centres=None):
+                  settings: StencilSearch, search_rim, centres=None, region=None):
     """The stencil without a rim inset as a measured alternative to an inset stencil.
 
-    When the chosen inset stencil ``best`` covers less than ``settings.min_area_covered`` of
-    the target, ``search_rim()`` searches the counts without an inset; its best candidate
+    When the inset's region covers less than ``settings.min_area_covered`` of the target
+    (``region``: :meth:`pysolver.design.remesh.FlatDomain.region_covered`, a function of
+    the target; without it, the chosen stencil's own cover),
+    ``search_rim()`` searches the counts without an inset; its best candidate
     replaces ``best`` only if it prints at least as well (:func:`_tier`, never worse than the
     inset stencil and never beyond the limit).
 
@@ -238,6 +240,8 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
         Searches the vertex count with inset 0 (adds its candidates to ``tried``).
     centres : dict, optional
         Rim inset (mm) -> the count the secant found there (:func:`_pick`).
+    region : float, optional
+        Fraction of the target's area inside the inset curve.
 
     Returns
     -------
@@ -245,14 +249,16 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
         The key chosen.
     rim : dict
         ``inset_mm``, ``min_area_covered``, ``inset_area_covered`` (of the inset stencil),
+        ``inset_region_covered`` (what the decision measured),
         ``fallback`` (None when not searched, else ``requested``, ``seed``, ``scale3d``,
         ``max_cell_length_mm``, ``area_covered``, ``taken``) and ``why``.
     """
-    cov = _covered(*meshes[best][:2], area)
+    cov = _covered(*meshes[best][:2], area) if region is None else region
     rim = {"inset_mm": float(best[2]), "min_area_covered": settings.min_area_covered,
-           "inset_area_covered": cov, "fallback": None}
+           "inset_area_covered": _covered(*meshes[best][:2], area),
+           "inset_region_covered": cov, "fallback": None}
     if cov >= settings.min_area_covered:
-        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (at least "
+        rim["why"] = (f"the inset region covers {100 * cov:.0f} % of the target (at least "
                       f"{100 * settings.min_area_covered:.0f} %)")
         return best, rim
     try:
@@ -262,7 +268,7 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
     alt = _pick({k: c for k, c in tried.items() if k[2] == 0.0}, params, settings.margin,
                 centres=centres)
     if alt is None:
-        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target; no stencil "
+        rim["why"] = (f"the inset region covers {100 * cov:.0f} % of the target; no stencil "
                       "without the inset could be laid out")
         return best, rim
     c, c0 = tried[alt], tried[best]
@@ -271,13 +277,13 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
                        "scale3d": c["scale3d"], "max_cell_length_mm": c["max_cell_length_mm"],
                        "area_covered": _covered(*meshes[alt][:2], area), "taken": bool(taken)}
     if taken:
-        rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+        rim["why"] = (f"the inset region covers {100 * cov:.0f} % of the target (under "
                       f"{100 * settings.min_area_covered:.0f} %); the stencil reaching the rim "
                       f"prints (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
                       f"{c0['max_cell_length_mm']:.2f} mm with the inset)")
         rim["inset_mm"] = 0.0
         return alt, rim
-    rim["why"] = (f"the inset stencil covers {100 * cov:.0f} % of the target (under "
+    rim["why"] = (f"the inset region covers {100 * cov:.0f} % of the target (under "
                   f"{100 * settings.min_area_covered:.0f} %), but the stencil reaching the rim "
                   f"prints worse (longest flat cell {c['max_cell_length_mm']:.2f} mm, "
                   f"{c0['max_cell_length_mm']:.2f} mm with the inset; limit "
@@ -542,8 +548,9 @@ class CountSearch:
             def rim_search():
                 if not any(k[2] == 0.0 for k in self.tried):
                     self.search_inset(0.0, vertices, seeds, start)
+            region = None if self.dom is None else self.dom.region_covered(best[2])
             best, rim = _rim_fallback(best, self.tried, self.meshes, self.area, self.params,
-                                      st, rim_search, self.centres)
+                                      st, rim_search, self.centres, region)
             self.say(f"rim: {rim['why']}")
         return best, rim
 

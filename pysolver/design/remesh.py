@@ -374,6 +374,17 @@ class FlatDomain:
         t = np.linspace(0.0, s[-1], max(4 * len(self.loop), 200))
         return np.c_[np.interp(t, s, R[:, 0]), np.interp(t, s, R[:, 1])]
 
+    def region_covered(self, inset_mm: float) -> float:
+        """Fraction of the target's 3D area inside the curve ``inset_mm`` (mm) from its rim
+        (:meth:`boundary_polygon`): the share the stencils of that inset can cover, a
+        function of the target alone (each quadrature point carries a quarter of its
+        triangle's 3D area), where one stencil's own area also depends on where its rim
+        points fell (the petal's inset stencils: 74.9 % to 75.1 %, its region 78 %)."""
+        a3 = 0.5 * igl.doublearea(self.V, self.F)
+        w = np.tile(a3 / 4, 4)
+        inside = PolygonPath(self.boundary_polygon(inset_mm)).contains_points(self.quad)
+        return round(float(w[inside].sum() / w.sum()), 4)
+
     def cvt(self, n: int, seed: int = 0, inset: float = 0.0):
         """Flat points of a weighted CVT with ``n`` points, boundary first, the boundary
         ``inset`` mm inside the target's rim.

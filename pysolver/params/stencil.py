@@ -222,9 +222,10 @@ class StencilSearch:
     smaller ``--size`` that was tried, ``--min-bumper 0.1``), instead of printing a shell
     silently smaller or larger than asked."""
     min_area_covered: float = 0.75
-    """float: When the first rim inset's stencil covers less than this fraction of the target's
-    area, the stencil without an inset is tried too and taken if it prints at least as well
-    (narrow targets: the spiral's inset stencil covers 72 %). Runs: ``docs/results.md``, "How
+    """float: When the region inside the first rim inset covers less than this fraction of the
+    target's 3D area (``FlatDomain.region_covered``, a function of the target alone), the
+    stencil without an inset is tried too and taken if it prints at least as well (narrow
+    targets: the spiral's inset region covers 73 %). Runs: ``docs/results.md``, "How
     the stencil settings were chosen"."""
     remove_flaps: bool = True
     """bool: Merge the two triangles of a rim vertex that has only two (a flap:
