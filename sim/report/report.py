@@ -142,12 +142,20 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
 
 def what_it_bears(folder) -> dict:
     """The report's "What it bears" figures (:func:`sim.model.mechtest.bearing` on the last
-    frame, dried; the committed bracket model), or ``{"error": why}`` when the shell cannot
-    be loaded that way (the section then says so; the report goes on)."""
+    frame, dried; the bracket model the build recorded, else the committed one), or
+    ``{"error": why}`` when the shell cannot be loaded that way (odd or damaged frames: the
+    section then says why, naming the exception and where it was raised; the report goes
+    on).  Other exceptions (genuine bugs) propagate."""
     try:
         return bearing(dried_shell(folder, settle=False))
-    except (MorphshellError, ValueError, RuntimeError, np.linalg.LinAlgError) as e:
-        return {"error": f"{type(e).__name__}: {e}"}
+    except (MorphshellError, ValueError, RuntimeError, IndexError, KeyError,
+            np.linalg.LinAlgError) as e:
+        tb = e.__traceback__
+        while tb is not None and tb.tb_next is not None:
+            tb = tb.tb_next
+        where = ("" if tb is None else
+                 f" (at {Path(tb.tb_frame.f_code.co_filename).name}:{tb.tb_lineno})")
+        return {"error": f"{type(e).__name__}: {e}{where}"}
 
 
 def _checked_options(renderer, image_px, gif_frames) -> int:
