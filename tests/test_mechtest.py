@@ -348,6 +348,9 @@ def test_the_build_recorded_material_is_used_and_checked(tmp_path):
     for value, want in ((str(model), model), (None, None)):
         (folder / "summary.json").write_text(json.dumps({"options": {"material": value}}))
         assert recorded_material(folder) == want
+    (folder / "summary.json").write_text(json.dumps({"options": {"material": str(model)}}))
+    assert recorded_material(folder, {}) is None  # a running build's options come first
+    assert recorded_material(folder, {"material": str(model)}) == model
     for value in (str(tmp_path / "gone.json"), ["x"]):
         (folder / "summary.json").write_text(json.dumps({"options": {"material": value}}))
         with pytest.raises(InputError, match="--material"):
@@ -372,3 +375,46 @@ def test_what_it_bears_degrades_on_odd_frames_but_not_on_bugs(monkeypatch):
     monkeypatch.setattr(rep, "dried_shell", bug)
     with pytest.raises(TypeError):
         rep.what_it_bears("nowhere")
+
+
+def _bench():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "bench_mechtest.py"
+    spec = importlib.util.spec_from_file_location("bench_mechtest", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_refuses_a_physics_spec_that_is_not_switch_names(capsys):
+    """``--physics ../../docs`` (a path out of build/) exits 2 before any folder is touched;
+    known switch names pass."""
+    from pysolver.errors import InputError
+
+    b = _bench()
+    assert b.check_spec("default,membrane-temperature") == "default,membrane-temperature"
+    for bad in ("../../docs", "none;rm", "", "clearance,nonsense", "a/b"):
+        with pytest.raises(InputError):
+            b.check_spec(bad)
+    assert b.main(["--physics", "none", "../../docs"]) == 2
+    assert "not a list of physics switches" in capsys.readouterr().err
+
+
+def test_bench_converts_with_the_testers_a0_b0():
+    """A bend curve made with the tester's own a0, b0 and span is unchanged; one made with
+    half the width reads half the stress (force = the same), strain as a0 scales."""
+    b = _bench()
+    tester = {"a0": 4.8, "b0": 60.0, "length": MECHTEST.bend_span}
+    x, y = np.array([0.0, 5.0, 15.17]), np.array([0.0, 0.4, 1.097])
+    same = {"a0_mm": 4.8, "b0_mm": 60.0}
+    for got, want in zip(b.to_tester("bend", x, y, same, tester), (x, y), strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+    xs, ys = b.to_tester("bend", x, y, {"a0_mm": 2.4, "b0_mm": 30.0}, tester)
+    np.testing.assert_allclose(xs, 2 * x, rtol=1e-12)  # same deflection, twice the a0
+    np.testing.assert_allclose(ys, y / 8, rtol=1e-12)  # b0 a0^2: 8 x larger
+    st = {"a0": 4.8, "b0": 60.0, "length": MECHTEST.stretch_length}
+    xs, ys = b.to_tester("stretch", x, y, {"a0_mm": 2.4, "b0_mm": 60.0}, st)
+    np.testing.assert_allclose(xs, x, rtol=1e-12)
+    np.testing.assert_allclose(ys, y / 2, rtol=1e-12)

@@ -216,9 +216,10 @@ def _frames(folder: Path) -> dict:
     return out
 
 
-def recorded_material(design_dir) -> Path | None:
+def recorded_material(design_dir, options: dict | None = None) -> Path | None:
     """The bracket model file the build of ``design_dir`` ran with (``summary.json``'s
-    ``options.material``, as ``morphshell build --material`` recorded it), or ``None`` for
+    ``options.material``, as ``morphshell build --material`` recorded it; or ``options``,
+    the build's options while it runs, before its summary is written), or ``None`` for
     the committed model (no record, or none given).
 
     Raises
@@ -227,20 +228,21 @@ def recorded_material(design_dir) -> Path | None:
         The recorded value is not a path string, or names no file (moved or deleted).
     """
     folder = Path(design_dir)
-    rec = read_record(folder / "summary.json")
-    options = rec.get("options") if isinstance(rec, dict) else None
+    where = f"{folder / 'summary.json'}" if options is None else "the build's options"
+    if options is None:
+        rec = read_record(folder / "summary.json")
+        options = rec.get("options") if isinstance(rec, dict) else None
     value = options.get("material") if isinstance(options, dict) else None
     if value is None or value == "":
         return None
     fix = ("pass the model file with --material FILE, or rebuild the folder with "
            "'morphshell build ... --material FILE'")
     if not isinstance(value, str) or "\0" in value:
-        raise InputError(f"{folder / 'summary.json'}: options.material is {value!r}, not a "
-                         "file path", fix=fix)
+        raise InputError(f"{where}: material is {value!r}, not a file path", fix=fix)
     path = Path(value)
     if not path.is_file():
-        raise InputError(f"{folder / 'summary.json'}: the build's material model {value} "
-                         "is not a file (moved or deleted?)", fix=fix)
+        raise InputError(f"{where}: the build's material model {value} is not a file "
+                         "(moved or deleted?)", fix=fix)
     return path
 
 
