@@ -127,7 +127,8 @@ studio-shots: $(STAMP)
 # (e.g. ARGS="--test stretch --test bend").
 mechtest: $(STAMP)
 	@$(RUN) test -f "build/$$MS_NAME/sim/frames.npz" || \
-	  $(PY) -m pysolver.cli build "$$MS_SOURCE" --no-render $(DESIGN_OPTS) || test $$? = 3 || exit $$?; \
+	  $(PY) -m pysolver.cli build "$$MS_SOURCE" --no-render $(DESIGN_OPTS) || \
+	  { rc=$$?; [ $$rc = 3 ] || exit $$rc; }; \
 	$(PY) -m pysolver.cli mechtest "build/$$MS_NAME" $$MS_ARGS
 
 material: $(STAMP)

@@ -105,12 +105,14 @@ def compare_scan(args: argparse.Namespace) -> int:
 
 def mechtest(args: argparse.Namespace) -> int:
     """``morphshell mechtest DIR --test ...``: into ``DIR/mechtest`` (SI Note 6)."""
+    from .simulator import TESTS, check_mechtest_targets  # lazy: loads with its subcommand
     from .simulator import mechtest as run  # lazy: the stage loads when its subcommand runs
 
     folder = Path(args.dir).absolute()
     check_design_folder(folder)
     tests = list(dict.fromkeys(args.test)) if args.test else None
     with build_lock(folder):
+        check_mechtest_targets(folder, tests or TESTS)  # every target before any test runs
         run(folder, **({"tests": tests} if tests else {}), axis_deg=args.axis_deg,
             material=args.material, progress=_progress(args))
     return EXIT_OK

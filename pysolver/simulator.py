@@ -15,8 +15,9 @@ from sim.model.mechtest import dried_shell, run_test
 from sim.model.physics import parse_physics
 from sim.model.simulate import SimSettings, simulate_design, simulate_model
 from sim.report import base_base_collisions, check_morph, load_sim, make_report, print_verdict
-from sim.report.mechtest import write_mechtest
 from sim.report.fabrication import parts_made_from, stl_inventory
+from sim.report.mechtest import check_targets as check_mechtest_targets  # noqa: F401 (commands)
+from sim.report.mechtest import write_mechtest
 from sim.report.plots import start_pyvista_probe
 from sim.report.scan import compare_scan
 from sim.viewer import ASSETS as VIEWER_ASSETS

@@ -182,10 +182,7 @@ def test_cli_contract(strip):
     r = subprocess.run(python_argv("pysolver.cli") + ["mechtest", str(strip), "--test",
                                    "shear", "--quiet", "--axis-deg", "0"],
                        capture_output=True, text=True, timeout=300)
-    if r.returncode != 0 and "too short" in r.stderr:
-        assert r.returncode == 2  # a clear refusal is fine for a tiny strip
-        return
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 0, r.stderr  # a refusal ("too short") is a failure here
     with open(strip / "mechtest" / "shear.csv") as f:
         rows = list(csv.reader(f))
     assert rows[0] == ["displacement_mm", "shear_stress_MPa"]
@@ -256,3 +253,168 @@ def test_the_dried_shell_keeps_the_morphs_equilibrium(strip):
     m = sh.model.n_bases
     assert np.abs(g[: 6 * m].reshape(m, 6)[:, :3]).max() < 1e-4  # forces, N
     assert np.abs(g[6 * m:]).max() < 1e-4
+
+
+# ------------------------------------------------------------------------------------------------
+# the tester's formulas, the outputs' ownership and consistency (in process, no simulation)
+
+
+def test_bend_conversions_match_the_testers_worked_example():
+    """shell-tests/README.md: Fmax 25.28 N at s = 8.43 mm, span 40 mm, a0 = 4.8 mm,
+    b0 = 60 mm give the peak 1.097 MPa at 15.17 % (to the README's 4 digits)."""
+    from sim.model.mechtest import flexural_strain, flexural_stress
+
+    assert flexural_stress(25.28, 4.8, 60.0, 40.0) == pytest.approx(1.097, abs=5e-4)
+    assert flexural_strain(8.43, 4.8, 40.0) == pytest.approx(15.17, abs=5e-3)
+    # linear in force and deflection: the bench's conversion back and forth is exact
+    assert flexural_stress(2 * 25.28, 4.8, 60.0, 40.0) == pytest.approx(2 * 1.0972, rel=1e-3)
+
+
+def _stamped(tmp_path):
+    from pysolver.core.manifest import start_stamp
+
+    folder = tmp_path / "design"
+    folder.mkdir()
+    start_stamp(folder)
+    return folder
+
+
+def test_a_users_file_is_refused_before_any_test_runs(tmp_path, monkeypatch, capsys):
+    """A user's ``mechtest/summary.json``: exit 2 naming it, no test computed, and the
+    earlier outputs (CSV, PNG) and the user's file unchanged, byte for byte."""
+    import pysolver.simulator as gateway
+    from pysolver.cli import main
+    from pysolver.core.writes import atomic_write_bytes, atomic_write_text
+
+    folder = _stamped(tmp_path)
+    out = folder / "mechtest"
+    atomic_write_text(out / "shear.csv", "displacement_mm,shear_stress_MPa\n0,0\n")
+    atomic_write_bytes(out / "mechtest.png", b"old png")
+    (out / "summary.json").write_text('{"mine": true}')
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def must_not_run(*a, **k):
+        raise AssertionError("computed before checking the targets")
+
+    monkeypatch.setattr(gateway, "mechtest", must_not_run)
+    assert main(["mechtest", str(folder), "--test", "shear", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "summary.json" in err and "move" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def _fake_curve(test: str, scale: float, axis: float = 90.0) -> dict:
+    x = np.linspace(0.0, 2.0, 5)
+    return {"test": test, "x": x, "y": scale * x, "columns": ["strain_percent", "stress_MPa"],
+            "force_N": 10 * scale * x, "max_bracket_N": np.zeros(5),
+            "energy": [{"brackets": float(i), "membrane": 0.0} for i in range(5)],
+            "converged": [True] * 5, "a0": 4.656, "b0": 55.0, "axis_deg": axis,
+            "bases": {}, "stopped": None}
+
+
+def test_a_partial_rerun_keeps_only_tests_of_the_same_shell(tmp_path):
+    """Same shell and axis: the earlier test stays listed and its CSV stays; another shell:
+    the earlier test is dropped from the summary and its CSV removed."""
+    from sim.report.mechtest import write_mechtest
+
+    folder = _stamped(tmp_path)
+    shell = {"t_end_s": 5.0, "physics": [], "material": "committed"}
+    write_mechtest(folder, {"stretch": _fake_curve("stretch", 1.0)}, shell)
+    rec = write_mechtest(folder, {"compress": _fake_curve("compress", 2.0)}, shell)
+    assert set(rec["tests"]) == {"stretch", "compress"}
+    assert rec["tests"]["stretch"]["initial_slope"] == pytest.approx(1.0, rel=1e-9)
+    rec = write_mechtest(folder, {"compress": _fake_curve("compress", 3.0)},
+                         {**shell, "t_end_s": 6.0})
+    assert set(rec["tests"]) == {"compress"}
+    assert not (folder / "mechtest" / "stretch.csv").exists()
+    saved = json.loads((folder / "mechtest" / "summary.json").read_text())
+    assert set(saved["tests"]) == {"compress"} and saved["shell"]["t_end_s"] == 6.0
+    rec = write_mechtest(folder, {"stretch": _fake_curve("stretch", 1.0, axis=0.0)},
+                         {**shell, "t_end_s": 6.0})
+    assert set(rec["tests"]) == {"stretch"}  # another axis: compress dropped
+
+
+def test_the_build_recorded_material_is_used_and_checked(tmp_path):
+    """``summary.json``'s ``options.material``: a file is returned, none -> the committed
+    model, a path to nothing or a non-string -> a clear InputError."""
+    from pysolver.errors import InputError
+    from sim.model.mechtest import recorded_material
+
+    folder = tmp_path / "b"
+    folder.mkdir()
+    assert recorded_material(folder) is None
+    model = tmp_path / "m.json"
+    model.write_text("{}")
+    for value, want in ((str(model), model), (None, None)):
+        (folder / "summary.json").write_text(json.dumps({"options": {"material": value}}))
+        assert recorded_material(folder) == want
+    (folder / "summary.json").write_text(json.dumps({"options": {"material": str(model)}}))
+    assert recorded_material(folder, {}) is None  # a running build's options come first
+    assert recorded_material(folder, {"material": str(model)}) == model
+    for value in (str(tmp_path / "gone.json"), ["x"]):
+        (folder / "summary.json").write_text(json.dumps({"options": {"material": value}}))
+        with pytest.raises(InputError, match="--material"):
+            recorded_material(folder)
+
+
+def test_what_it_bears_degrades_on_odd_frames_but_not_on_bugs(monkeypatch):
+    """An IndexError/KeyError while loading odd frames: the section's error names it and
+    where it was raised; any other exception (a bug) propagates."""
+    import sim.report.report as rep
+
+    def odd(*a, **k):
+        return [][0]
+
+    monkeypatch.setattr(rep, "dried_shell", odd)
+    b = rep.what_it_bears("nowhere")
+    assert b["error"].startswith("IndexError") and "test_mechtest.py:" in b["error"]
+
+    def bug(*a, **k):
+        raise TypeError("a bug")
+
+    monkeypatch.setattr(rep, "dried_shell", bug)
+    with pytest.raises(TypeError):
+        rep.what_it_bears("nowhere")
+
+
+def _bench():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "bench_mechtest.py"
+    spec = importlib.util.spec_from_file_location("bench_mechtest", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_refuses_a_physics_spec_that_is_not_switch_names(capsys):
+    """``--physics ../../docs`` (a path out of build/) exits 2 before any folder is touched;
+    known switch names pass."""
+    from pysolver.errors import InputError
+
+    b = _bench()
+    assert b.check_spec("default,membrane-temperature") == "default,membrane-temperature"
+    for bad in ("../../docs", "none;rm", "", "clearance,nonsense", "a/b"):
+        with pytest.raises(InputError):
+            b.check_spec(bad)
+    assert b.main(["--physics", "none", "../../docs"]) == 2
+    assert "not a list of physics switches" in capsys.readouterr().err
+
+
+def test_bench_converts_with_the_testers_a0_b0():
+    """A bend curve made with the tester's own a0, b0 and span is unchanged; one made with
+    half the width reads half the stress (force = the same), strain as a0 scales."""
+    b = _bench()
+    tester = {"a0": 4.8, "b0": 60.0, "length": MECHTEST.bend_span}
+    x, y = np.array([0.0, 5.0, 15.17]), np.array([0.0, 0.4, 1.097])
+    same = {"a0_mm": 4.8, "b0_mm": 60.0}
+    for got, want in zip(b.to_tester("bend", x, y, same, tester), (x, y), strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+    xs, ys = b.to_tester("bend", x, y, {"a0_mm": 2.4, "b0_mm": 30.0}, tester)
+    np.testing.assert_allclose(xs, 2 * x, rtol=1e-12)  # same deflection, twice the a0
+    np.testing.assert_allclose(ys, y / 8, rtol=1e-12)  # b0 a0^2: 8 x larger
+    st = {"a0": 4.8, "b0": 60.0, "length": MECHTEST.stretch_length}
+    xs, ys = b.to_tester("stretch", x, y, {"a0_mm": 2.4, "b0_mm": 60.0}, st)
+    np.testing.assert_allclose(xs, x, rtol=1e-12)
+    np.testing.assert_allclose(ys, y / 2, rtol=1e-12)

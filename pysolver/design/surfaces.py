@@ -1,8 +1,8 @@
 """Built-in procedural target shapes (generated in code) and their default time landscapes.
 
-Names: ``regular``, ``mechtest`` (SI Note 6's test specimen), ``petal``, ``saddle``, ``dome``, ``weave``, ``spiral``; an option
-may follow a colon: ``"weave:large"`` (551 bases, the benchmark size), or
-``"dome:size=1.5"`` (linear size factor, more bases).  See :func:`builtin`.
+Names: ``regular``, ``mechtest`` (SI Note 6's test specimen), ``petal``, ``saddle``, ``dome``,
+``weave``, ``spiral``; an option may follow a colon: ``"weave:large"`` (551 bases, the
+benchmark size), or ``"dome:size=1.5"`` (linear size factor, more bases).  See :func:`builtin`.
 
 A :class:`Surface` is either a dense target surface (then the pipeline remeshes and
 flattens it) or a ready stencil (``UV`` given, e.g. ``regular``).

@@ -37,7 +37,7 @@ from pysolver.mechanics.model import load_model
 from pysolver.mechanics.solver import StaticProblem, newton
 from pysolver.params import MECHTEST, TESTS, MechTest, PhysicsOptions
 from pysolver.progress import Steps
-from pysolver.tables import tables_sha256
+from pysolver.tables import read_record, tables_sha256
 
 from .physics import ExternalTerms, bending_stiffness, bumper_stiffness
 from .simulate import (
@@ -216,6 +216,36 @@ def _frames(folder: Path) -> dict:
     return out
 
 
+def recorded_material(design_dir, options: dict | None = None) -> Path | None:
+    """The bracket model file the build of ``design_dir`` ran with (``summary.json``'s
+    ``options.material``, as ``morphshell build --material`` recorded it; or ``options``,
+    the build's options while it runs, before its summary is written), or ``None`` for
+    the committed model (no record, or none given).
+
+    Raises
+    ------
+    InputError
+        The recorded value is not a path string, or names no file (moved or deleted).
+    """
+    folder = Path(design_dir)
+    where = f"{folder / 'summary.json'}" if options is None else "the build's options"
+    if options is None:
+        rec = read_record(folder / "summary.json")
+        options = rec.get("options") if isinstance(rec, dict) else None
+    value = options.get("material") if isinstance(options, dict) else None
+    if value is None or value == "":
+        return None
+    fix = ("pass the model file with --material FILE, or rebuild the folder with "
+           "'morphshell build ... --material FILE'")
+    if not isinstance(value, str) or "\0" in value:
+        raise InputError(f"{where}: material is {value!r}, not a file path", fix=fix)
+    path = Path(value)
+    if not path.is_file():
+        raise InputError(f"{where}: the build's material model {value} is not a file "
+                         "(moved or deleted?)", fix=fix)
+    return path
+
+
 def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST, *,
                 settle: bool = True) -> DryShell:
     """The morphed shell of a design folder, dried and at rest (no fixture, no weight).
@@ -223,7 +253,8 @@ def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST, *,
     Parameters
     ----------
     design_dir : path-like -- a simulated design folder (``sim/frames.npz``)
-    material : BracketModel or path-like, optional -- default: the committed model
+    material : BracketModel or path-like, optional -- default: the model the build
+        recorded (:func:`recorded_material`), else the committed one
     consts : MechTest
     settle : bool
         Solve the dry equilibrium (the last frame is one already but for the membrane's
@@ -238,6 +269,8 @@ def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST, *,
     z = _frames(folder)
     ph = PhysicsOptions(**json.loads(str(z["physics"])))
     model = load_model(folder, physics=ph)
+    if material is None:
+        material = recorded_material(folder)
     mat = _resolve_material(material)
     sim = Simulation(model, mat, SimSettings(physics=PhysicsOptions(
         **{**ph.to_dict(), "gravity": False, "dry_rest": False})))
@@ -259,6 +292,8 @@ def dried_shell(design_dir, material=None, consts: MechTest = MECHTEST, *,
                      z["collided"][-1].reshape(-1).astype(bool),
                      2 * model.unit.layer_h + model.consts.membrane_h / model.consts.tau**2,
                      {"t_end_s": t_end, "physics": ph.switched_on(),
+                      "material": ("committed" if material is None else str(material)
+                                   if isinstance(material, str | Path) else type(mat).__name__),
                       "bracket_force_end_N": [float(f_end.min()), float(f_end.max())]})
     if settle:
         shell.state = solve(shell, shell.state, consts)[0]
@@ -378,6 +413,30 @@ def setup(shell: DryShell, test: str, axis_deg: float = 90.0,
                  lambda f: f / area, ("strain_percent", "stress_MPa"), bases)
 
 
+def flexural_strain(s, a0: float, span: float):
+    """The tester's three-point bending strain ``eps = 6 s a0 / L^2``, in %.
+
+    Parameters
+    ----------
+    s : float or (n,) float, mm -- the nose's deflection
+    a0 : float, mm -- the specimen's thickness
+    span : float, mm -- the supports' span ``L``
+    """
+    return 100 * 6 * np.asarray(s, float) * a0 / span**2
+
+
+def flexural_stress(force, a0: float, b0: float, span: float):
+    """The tester's three-point bending stress ``sigma = 3 F L / (2 b0 a0^2)``, MPa.
+
+    Parameters
+    ----------
+    force : float or (n,) float, N -- the nose's force
+    a0, b0 : float, mm -- the specimen's thickness and width
+    span : float, mm -- the supports' span ``L``
+    """
+    return 3 * np.asarray(force, float) * span / (2 * b0 * a0**2)
+
+
 def _bend_setup(shell, sp, consts: MechTest) -> Setup:
     s, b0, a0, span = sp["s"], sp["b0"], shell.a0, consts.bend_span
     r, h = shell.model.unit.base_r, shell.model.unit.layer_h
@@ -406,8 +465,8 @@ def _bend_setup(shell, sp, consts: MechTest) -> Setup:
                    np.zeros(len(nose), bool)]
     travel = consts.bend_max * span**2 / (6 * a0)
     return Setup(Holds(body, loc, P, K, normal), moving, -z, travel,
-                 lambda d: 100 * 6 * d * a0 / span**2,
-                 lambda f: 3 * f * span / (2 * b0 * a0**2),
+                 lambda d: flexural_strain(d, a0, span),
+                 lambda f: flexural_stress(f, a0, b0, span),
                  ("strain_percent", "stress_MPa"), {"supports": sup.tolist(),
                                                    "nose": nose.tolist()})
 
@@ -635,5 +694,6 @@ def _first_events(shell: DryShell, state: State, du: np.ndarray, consts: MechTes
     limit = float((np.maximum(room[ok], 0.0) / grow[ok]).min()) if ok.any() else None
     return (None if opens is None else max(opens, 0.0)), limit
 
-__all__ = ["Holds", "DryShell", "dried_shell", "solve", "Setup", "setup", "specimen",
-           "run_test", "readings", "initial_slope", "bearing"]
+__all__ = ["Holds", "DryShell", "dried_shell", "recorded_material", "solve", "Setup", "setup",
+           "specimen", "flexural_strain", "flexural_stress", "run_test", "readings",
+           "initial_slope", "bearing"]

@@ -15,6 +15,7 @@ Everything is computed before the first file is written; each file is written wh
 
 from __future__ import annotations
 
+import csv
 import io
 import json
 from pathlib import Path
@@ -25,8 +26,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 (after the backend)
 import numpy as np  # noqa: E402
 
-from pysolver.core.writes import atomic_write_bytes, atomic_write_text, make_dirs  # noqa: E402
-from pysolver.params import MECHTEST, MechTest  # noqa: E402
+from pysolver.core.ownership import audit  # noqa: E402
+from pysolver.core.writes import (  # noqa: E402
+    atomic_write_bytes,
+    atomic_write_text,
+    make_dirs,
+    remove_file,
+)
+from pysolver.errors import InputError  # noqa: E402
+from pysolver.params import MECHTEST, TESTS, MechTest  # noqa: E402
 from pysolver.records import json_text  # noqa: E402
 from sim.model.mechtest import readings  # noqa: E402
 
@@ -77,8 +85,76 @@ def plot_curves(curves: dict, summary: dict, title: str) -> bytes:
     return buf.getvalue()
 
 
+def check_targets(folder, tests) -> Path:
+    """Refuse, before any test runs, when a file ``morphshell mechtest`` would write (or the
+    ``mechtest`` folder itself) is not morphshell's: a user's file, one changed since
+    morphshell wrote it, a link or a folder it did not make.
+
+    Parameters
+    ----------
+    folder : path-like -- the (stamped) design folder
+    tests : iterable of str -- the tests to run
+
+    Returns
+    -------
+    Path -- ``folder/mechtest``, absolute
+
+    Raises
+    ------
+    InputError
+        Naming every such file and the fix; nothing is written.
+    """
+    folder = Path(folder).absolute()
+    out = folder / OUT_NAME
+    targets = {out / f"{t}.csv" for t in tests} | {out / "mechtest.png", out / "summary.json"}
+    bad = [(p, why) for p, why in audit(folder) if p == out or p in targets]
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        bad.insert(0, (out, "a symbolic link" if out.is_symlink() else "not a folder"))
+    if bad:
+        listing = "; ".join(f"{p}: {why}" for p, why in bad)
+        raise InputError(f"mechtest would overwrite what morphshell did not write ({listing})",
+                         fix=f"move those files out of {out} (morphshell never overwrites "
+                             "a file it did not write) and run the tests again")
+    return out
+
+
+def _kept_tests(out: Path, info: dict, curves: dict) -> tuple[dict, dict]:
+    """The tests of an earlier run that stay listed beside the new ones: those made from the
+    same dried shell (``shell`` record) along the same axis, whose CSV is still there;
+    returns their summaries and curves (read back from their CSVs, for the plot)."""
+    old = _json_record(out / "summary.json")
+    axis = {c["axis_deg"] for c in curves.values()}
+    if old.get("shell") != json.loads(json_text(info, sort_keys=True)):
+        return {}, {}
+    kept, again = {}, {}
+    for name, entry in (old.get("tests") or {}).items():
+        if name in curves or name not in TESTS or not isinstance(entry, dict) or \
+                {entry.get("axis_deg")} != axis:
+            continue
+        curve = _read_curve(out / f"{name}.csv")
+        if curve is not None and {"peak_at", "peak_stress_MPa", "limit"} <= set(entry):
+            kept[name], again[name] = entry, curve
+    return kept, again
+
+
+def _read_curve(path: Path) -> dict | None:
+    """A test's CSV read back (``columns``, ``x``, ``y``), ``None`` if unreadable."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+        x, y = (np.array([float(r[i]) for r in rows[1:]]) for i in (0, 1))
+    except (OSError, ValueError, IndexError):
+        return None
+    return {"columns": rows[0][:2], "x": x, "y": y}
+
+
 def write_mechtest(folder, curves: dict, info: dict, consts: MechTest = MECHTEST) -> dict:
     """Write ``folder/mechtest/``: one CSV per test, ``mechtest.png``, ``summary.json``.
+
+    Every target is checked (:func:`check_targets`) and everything computed before the
+    first file is written.  Tests of an earlier run stay listed (and plotted) only when
+    made from the same dried shell along the same axis; the CSVs of the others are removed,
+    so that the folder always describes one shell.
 
     Parameters
     ----------
@@ -90,30 +166,33 @@ def write_mechtest(folder, curves: dict, info: dict, consts: MechTest = MECHTEST
     -------
     dict -- the summary written
     """
-    out = Path(folder) / OUT_NAME
+    out = check_targets(folder, curves)
     summary = {name: test_summary(c, consts) for name, c in curves.items()}
-    png = plot_curves(curves, summary, f"{Path(folder).name}: virtual mechanical tests "
-                                       "(SI Note 6)")
+    kept, kept_curves = _kept_tests(out, info, curves) if out.is_dir() else ({}, {})
+    tests = {**kept, **summary}
+    png = plot_curves({**kept_curves, **curves}, tests,
+                      f"{Path(folder).name}: virtual mechanical tests (SI Note 6)")
     texts = {f"{name}.csv": curve_csv(c) for name, c in curves.items()}
-    record = {"tests": summary, "shell": info}
+    record = {"tests": dict(sorted(tests.items())), "shell": info}
     make_dirs(out)
     for name, text in texts.items():
         atomic_write_text(out / name, text)
+    for name in TESTS:
+        if name not in tests:
+            remove_file(out / f"{name}.csv")  # of another shell or axis; a user's file stays
     atomic_write_bytes(out / "mechtest.png", png)
-    old = out / "summary.json"
-    if old.is_file() and set(curves) != set(_json_tests(old)):
-        record["tests"] = {**_json_tests(old), **summary}  # tests run before stay listed
-    atomic_write_text(old, json_text(record, sort_keys=True))
+    atomic_write_text(out / "summary.json", json_text(record, sort_keys=True))
     return record
 
 
-def _json_tests(path: Path) -> dict:
-    """The tests of an earlier ``summary.json`` (only entries that are objects)."""
+def _json_record(path: Path) -> dict:
+    """An earlier ``summary.json`` (``{}`` when missing or not a JSON object)."""
     try:
-        tests = json.loads(path.read_text()).get("tests")
-    except (ValueError, OSError, AttributeError):
+        rec = json.loads(path.read_text())
+    except (ValueError, OSError):
         return {}
-    return {k: v for k, v in (tests or {}).items() if isinstance(v, dict)}
+    return rec if isinstance(rec, dict) else {}
 
 
-__all__ = ["OUT_NAME", "curve_csv", "test_summary", "plot_curves", "write_mechtest"]
+__all__ = ["OUT_NAME", "check_targets", "curve_csv", "test_summary", "plot_curves",
+           "write_mechtest"]

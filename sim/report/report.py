@@ -37,7 +37,7 @@ from pysolver.progress import Steps
 from pysolver.records import finite, json_text
 from pysolver.tables import read_table, tables_sha256
 
-from ..model.mechtest import bearing, dried_shell
+from ..model.mechtest import bearing, dried_shell, recorded_material
 from ..viewer import frame_alignments, viewer_data
 from . import fabrication as fab
 from . import plots as rp
@@ -109,7 +109,7 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
                         where=str(folder / "sim/frames.npz"))
     timings["check"] = round(steps.step("checks and verdict"), 3)
     notes = _notes(check.metrics, sd.frames)
-    bears = what_it_bears(folder)
+    bears = what_it_bears(folder, build_info)
     with atomic_dir(out_dir) as tmp:
         files = _plots(tmp, sd, check, th)
         timings["plots"] = round(steps.step("plots"), 3)
@@ -140,14 +140,25 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
     return result
 
 
-def what_it_bears(folder) -> dict:
+def what_it_bears(folder, build_info: dict | None = None) -> dict:
     """The report's "What it bears" figures (:func:`sim.model.mechtest.bearing` on the last
-    frame, dried; the committed bracket model), or ``{"error": why}`` when the shell cannot
-    be loaded that way (the section then says so; the report goes on)."""
+    frame, dried; the bracket model the build ran with: ``build_info["options"]`` during a
+    build, else the folder's ``summary.json``, else the committed one), or ``{"error": why}``
+    when the shell cannot be loaded that way (odd or damaged frames: the section then says
+    why, naming the exception and where it was raised; the report goes on).  Other
+    exceptions (genuine bugs) propagate."""
+    options = (build_info or {}).get("options")
     try:
-        return bearing(dried_shell(folder, settle=False))
-    except (MorphshellError, ValueError, RuntimeError, np.linalg.LinAlgError) as e:
-        return {"error": f"{type(e).__name__}: {e}"}
+        material = recorded_material(folder, options if isinstance(options, dict) else None)
+        return bearing(dried_shell(folder, material, settle=False))
+    except (MorphshellError, ValueError, RuntimeError, IndexError, KeyError,
+            np.linalg.LinAlgError) as e:
+        tb = e.__traceback__
+        while tb is not None and tb.tb_next is not None:
+            tb = tb.tb_next
+        where = ("" if tb is None else
+                 f" (at {Path(tb.tb_frame.f_code.co_filename).name}:{tb.tb_lineno})")
+        return {"error": f"{type(e).__name__}: {e}{where}"}
 
 
 def _checked_options(renderer, image_px, gif_frames) -> int:
