@@ -19,6 +19,7 @@ after the design stage again from an edited time landscape (the studio's *Run*).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 import os
@@ -31,8 +32,8 @@ import numpy as np
 from . import tables
 from .core.inputs import check_input_file
 from .core.locks import build_lock
-from .core.manifest import STAMP_NAME, public_mode
-from .core.ownership import claim_output
+from .core.manifest import STAMP_NAME, file_digest, public_mode, read_stamp
+from .core.ownership import audit, claim_output
 from .core.staging import (
     atomic_dir,
     open_staging,
@@ -438,6 +439,8 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
     old, opts = rebuild_options(folder, progress)
     V, _, _ = tables.read_stencil(folder / "stencil.obj")
     land = tables.round_sig9(check_landscape(landscape, len(V)))   # as time_landscape.csv keeps it
+    if out is not None:
+        check_variant_source(folder)
     claim_output(dest, what="build folder" if out is None else "variant folder",
                  inputs=() if out is None else (folder / "stencil.obj",))
     validate_model_files(opts.material, unit=tables.read_unit_cell(folder))
@@ -459,7 +462,8 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
                                 "before": report_figures(folder)}}
     ctx = StageContext(staging_dir(dest), opts, name=dest.name, build=summary)
     _run_build(ctx, dest, STAGES[1:], digest,
-               setup=lambda staging: _copy_for_rebuild(folder, staging, land, edit))
+               setup=lambda staging: _copy_for_rebuild(folder, staging, land, edit,
+                                                       variant=out is not None))
     return _closing(summary, dest.name, dest, progress)
 
 
@@ -483,17 +487,73 @@ def rebuild_options(folder: Path, progress: bool = False):
         solver=run.get("solver") or "fast", progress=progress)
 
 
-def _copy_for_rebuild(folder: Path, staging: Path, land: np.ndarray, edit: dict) -> None:
+def check_variant_source(folder: Path) -> None:
+    """Refuse to make a variant of ``folder`` unless everything in it is morphshell's
+    (:func:`~pysolver.core.ownership.audit`): a variant copies the build's files and records
+    them as morphshell's, so a file of the user's there would be taken over.
+
+    Raises
+    ------
+    InputError
+        Naming the first foreign entries and the fix; nothing is written.
+    """
+    bad = audit(folder) if read_stamp(folder) is not None else [(folder, "no stamp")]
+    if bad:
+        names = ", ".join(f"{p if p == folder else p.relative_to(folder).as_posix()}: {why}"
+                          for p, why in bad[:3])
+        raise InputError(f"{folder} holds files morphshell did not write ({names}"
+                         f"{f' and {len(bad) - 3} more' if len(bad) > 3 else ''}): a variant "
+                         "copies the build's files and would record them as morphshell's",
+                         fix=f"move those files out of {folder} (or build the shape again "
+                             "into a new folder), then make the variant")
+
+
+def _copy_for_rebuild(folder: Path, staging: Path, land: np.ndarray, edit: dict, *,
+                      variant: bool = False) -> None:
     """The design stage's files of the build in ``folder``, with the new landscape
-    (``time_landscape.csv``) and its record (``studio_landscape.json``), into ``staging``."""
-    for p in folder.iterdir():
-        if p.is_file() and not p.is_symlink() and p.name not in REBUILD_DROPPED:
-            shutil.copy2(p, staging / p.name)
+    (``time_landscape.csv``) and its record (``studio_landscape.json``), into ``staging``.
+
+    Only the top-level files ``folder``'s stamp records are copied (never a user's file
+    or a killed writer's temporary file), each checked against its recorded SHA-256 after
+    the copy.  A ``variant`` (``folder`` is not the build being written, whose lock the
+    caller holds) copies holding ``folder``'s build lock, so no build replaces it
+    meanwhile.
+
+    Raises
+    ------
+    InputError
+        ``folder`` is being built, or a file changed since morphshell wrote it (the staging
+        folder is then removed).
+    """
+    lock = build_lock(folder) if variant else contextlib.nullcontext()
+    try:
+        with lock:
+            _copy_recorded(folder, staging)
+    except InputError:
+        remove_staging(staging)
+        raise
     write_landscape(staging, land)
     atomic_write_text(staging / tables.LANDSCAPE_SOURCE,
                       json_text(edit, indent=1, sort_keys=False))
 
 
+def _copy_recorded(folder: Path, staging: Path) -> None:
+    """Copy the top-level files ``folder``'s stamp records (but :data:`REBUILD_DROPPED`)
+    into ``staging``, each checked against its record after the copy."""
+    m = read_stamp(folder) or {"files": {}, "prev": {}}
+    for rel in sorted(m["files"]):
+        if "/" in rel or rel in REBUILD_DROPPED:
+            continue
+        try:
+            shutil.copy2(folder / rel, staging / rel, follow_symlinks=False)
+            got = list(file_digest(staging / rel))
+        except OSError:   # gone, or a link now: not the file morphshell wrote
+            got = None
+        if got not in (list(m["files"][rel]), list(m["prev"].get(rel) or [])):
+            raise InputError(f"{folder / rel} changed since morphshell wrote it (while it "
+                             "was being copied for the new build): nothing was built",
+                             fix=f"check {folder / rel}; build the shape again if it is "
+                                 "damaged, then run again")
 
 
 def report_figures(folder) -> dict | None:

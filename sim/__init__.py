@@ -7,6 +7,6 @@ a design folder, energies, compiled kernels, the Newton solver); ``completion_ti
 :mod:`sim.report` is the check report (``check_morph``: the one verdict; pictures,
 fabrication sheet, scan comparison); :mod:`sim.viewer` the data of the 3D morph viewer.
 ``sim`` reads the design folder only: it imports nothing from :mod:`pysolver` but the core
-(``params``, ``errors``, ``atomic``, ``geometry``, ``tables``, ``progress``, ``records``,
+(``params``, ``errors``, ``core``, ``geometry``, ``tables``, ``progress``, ``records``,
 ``provenance``), the mechanics and the runtime material model (``tests/test_architecture.py``).
 """

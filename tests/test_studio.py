@@ -368,10 +368,10 @@ def _held_runs(srv, release):
 
 
 def _run_body(folder, **kw):
-    from pysolver.studio.landscape import landscape_sha256
+    from pysolver.studio.landscape import run_base_sha256
 
     land = read_table(folder, "time_landscape")["time_s"]
-    body = {"build": folder.name, "base_sha256": landscape_sha256(land),
+    body = {"build": folder.name, "base_sha256": run_base_sha256(folder, land),
             "landscape": land.tolist(), "edits": []}
     body.update(kw)
     return body
@@ -402,6 +402,35 @@ def test_a_run_is_refused_unless_it_names_its_build_and_the_landscape_it_was_edi
         _wait_for(lambda: sent)
         assert sent[0]["folder"] == str(b) and "out" not in sent[0]
         assert sent[0]["landscape"] == _run_body(b)["landscape"]
+    finally:
+        release.set()
+        _stop(srv)
+
+
+def test_a_run_made_on_one_build_is_refused_by_another_of_the_same_name(small_build,
+                                                                         tmp_path):
+    """Review of #47: two builds named ``regular`` with one landscape (a studio showing
+    ['regular', 'regular', 'regular-2']): a Run edited on the first and sent to the second
+    is refused (409, naming the folder) and nothing starts; sent to its own build it runs."""
+    a = _copy(small_build, tmp_path)
+    b = shutil.copytree(small_build, tmp_path / "elsewhere" / "regular", symlinks=True)
+    srv = _serve([a, b])
+    release = threading.Event()
+    sent = _held_runs(srv, release)
+    try:
+        assert _run_body(a)["build"] == _run_body(b)["build"] == "regular"
+        st, out = _request(srv, "POST", "/api/build/1/run", body=_run_body(a))
+        assert st == 409, out
+        assert "perhaps one of the same name" in json.loads(out)["error"]
+        assert str(b) in json.loads(out)["error"]
+        assert sent == [] and srv.job.snapshot()["state"] == "idle"
+        # the landscape the editor loads carries the base of its own build
+        st, out = _request(srv, "GET", "/api/build/0/target")
+        assert st == 200 and json.loads(out)["landscape_sha256"] == _run_body(a)["base_sha256"]
+        st, out = _request(srv, "POST", "/api/build/0/run", body=_run_body(a))
+        assert st == 200, out
+        _wait_for(lambda: sent)
+        assert sent[0]["folder"] == str(a)
     finally:
         release.set()
         _stop(srv)
@@ -506,6 +535,34 @@ def test_compare_takes_the_cells_whose_request_changed_and_their_figures():
         compare_cells(a, b, [9])
 
 
+@pytest.mark.parametrize("cells, words", [
+    ([2 ** 63], "region cell 9223372036854775808 is not one of 0-3"),
+    ([1, 2 ** 64 + 5], "region cell 18446744073709551621 is not one of 0-3"),
+    ([10 ** 400], "region cell (a 1329-bit number) is not one of 0-3"),
+    ([-1], "region cell -1 is not one of 0-3"),
+    ([1, 2.0], "region cell '2.0' is not a whole number"),
+    ([True], "region cell 'True' is not a whole number"),
+    ("0,1", "must be a list of cell ids"),
+])
+def test_compare_names_a_region_cell_id_that_is_not_one_of_the_cells(cells, words):
+    """Review: an id >= 2^63 overflowed numpy's int64 (a 500 "this is a bug")."""
+    from pysolver.studio.compare import compare_cells
+
+    a = {"t_star": [10.0, 20.0, 30.0, 40.0], "t_done": [11.0, 26.0, None, 41.0],
+         "clamped": [0, 0, 1, 0]}
+    with pytest.raises(InputError) as e:
+        compare_cells(a, a, cells)
+    assert words in e.value.problem
+
+
+def test_a_huge_region_cell_id_is_a_400_naming_it(server):
+    for cells in ([2 ** 63], [-(2 ** 63) - 1]):
+        st, out = _request(server, "POST", "/api/build/0/compare",
+                           body={"other": 1, "cells": cells})
+        assert st == 400, out
+        assert f"region cell {cells[0]} is not one of" in json.loads(out)["error"]
+
+
 def test_the_viewer_data_is_sent_gzip_compressed_when_the_browser_takes_it(server):
     import gzip
 
@@ -574,6 +631,66 @@ def test_a_failed_stage_saves_nothing_of_the_edit(small_build, tmp_path):
         rebuild(f, np.full(n, 900.0), progress=False)
     assert _files(f) == before
     assert sorted(p.name for p in f.parent.iterdir()) == ["regular"]   # no staging left
+
+
+# ---------------------------------------------------------------- a variant's source
+
+
+def test_a_variant_of_a_build_holding_a_users_file_is_refused_and_writes_nothing(
+        small_build, tmp_path):
+    """Review: a variant copied every top-level file of its source (a user's notes) and
+    recorded them as morphshell's; the source was never audited."""
+    from pysolver.build import rebuild
+
+    f = _copy(small_build, tmp_path)
+    (f / "notes.txt").write_text("mine\n")
+    before = _files(f)
+    land = read_table(f, "time_landscape")["time_s"]
+    with pytest.raises(InputError) as e:
+        rebuild(f, land, out=f.parent / "regular-2", progress=False)
+    assert "notes.txt: not written by morphshell" in e.value.problem
+    assert e.value.exit_code == 2
+    assert _files(f) == before
+    assert sorted(p.name for p in f.parent.iterdir()) == ["regular"]  # no variant, no staging
+
+
+def test_a_variant_is_refused_while_its_source_is_being_built(small_build, tmp_path):
+    """Review: a variant read its source without its build lock."""
+    from pysolver.build import rebuild
+    from pysolver.core.locks import build_lock
+
+    f = _copy(small_build, tmp_path)
+    land = read_table(f, "time_landscape")["time_s"]
+    with build_lock(f):
+        with pytest.raises(InputError, match="is being built by pid"):
+            rebuild(f, land, out=f.parent / "regular-2", progress=False)
+        assert sorted(p.name for p in f.parent.iterdir()) == [
+            ".regular.morphshell-lock", "regular"]   # the held lock only
+    assert sorted(p.name for p in f.parent.iterdir()) == ["regular"]
+
+
+def test_a_rebuild_copies_only_the_files_the_stamp_records(small_build, tmp_path):
+    """A killed writer's temporary file (a ``pending`` entry of the stamp) is morphshell's,
+    so the audit passes it, but it is not part of the design: it is not copied; a recorded
+    file that changed is refused."""
+    from pysolver.build import REBUILD_DROPPED, _copy_recorded
+    from pysolver.core.manifest import read_stamp
+
+    f = _copy(small_build, tmp_path)
+    m = read_stamp(f)
+    tmp = ".cells.csv.tmp-0123456789abcdef"
+    m["pending"][tmp] = 1
+    (f / tmp).write_text("half a table")
+    (f / ".morphshell-build").write_text(json.dumps(m))
+    (tmp_path / "st").mkdir()
+    _copy_recorded(f, tmp_path / "st")
+    want = {k for k in m["files"] if "/" not in k and k not in REBUILD_DROPPED}
+    assert "cells.csv" in want and "stencil.obj" in want
+    assert {p.name for p in (tmp_path / "st").iterdir()} == want
+    with open(f / "cells.csv", "a") as fh:
+        fh.write("\n")
+    with pytest.raises(InputError, match="cells.csv changed since morphshell wrote it"):
+        _copy_recorded(f, tmp_path / "st")
 
 
 def _binary_stl(path):

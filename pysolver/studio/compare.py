@@ -57,6 +57,31 @@ def _figures(t_star, t_done, clamped, cells) -> dict:
             "n_never_complete": int((~done).sum()), "n_out_of_reach": int(cl.sum())}
 
 
+def _region(cells, n_cells: int) -> np.ndarray:
+    """The cell ids ``cells`` (untrusted: a request's list) as a (k,) int array, each checked
+    to be a whole number in ``0 .. n_cells - 1`` before any conversion (a huge id would
+    overflow a fixed-size integer).
+
+    Raises
+    ------
+    InputError
+        Naming the first id that is not a whole number or not one of the cells.
+    """
+    if not isinstance(cells, (list, tuple)):
+        raise InputError("the region must be a list of cell ids",
+                         fix="give cell ids of these builds")
+    for c in cells:
+        if isinstance(c, bool) or not isinstance(c, (int, np.integer)):
+            raise InputError(f"region cell {str(c)[:40]!r} is not a whole number",
+                             fix="give cell ids of these builds")
+        c = int(c)
+        if not 0 <= c < n_cells:
+            shown = str(c) if c.bit_length() <= 128 else f"(a {c.bit_length()}-bit number)"
+            raise InputError(f"region cell {shown} is not one of 0-{n_cells - 1}",
+                             fix="give cell ids of these builds")
+    return np.asarray(cells, dtype=np.int64).reshape(-1)
+
+
 def compare_cells(a: dict, b: dict, cells=None) -> dict:
     """Builds ``a`` and ``b`` cell by cell.
 
@@ -79,7 +104,7 @@ def compare_cells(a: dict, b: dict, cells=None) -> dict:
     ------
     InputError
         The builds have different numbers of cells (not variants of one design), or a
-        region cell id outside them.
+        region cell id that is not a whole number or outside them (:func:`_region`).
     """
     ta, da, ca = _outcome(a)
     tb, db, cb = _outcome(b)
@@ -91,10 +116,7 @@ def compare_cells(a: dict, b: dict, cells=None) -> dict:
     if cells is None:
         region = region_cells(a, b)
     else:
-        region = np.asarray(cells, int).reshape(-1)
-        if region.size and (region.min() < 0 or region.max() >= len(ta)):
-            raise InputError(f"region cell {int(region.max())} is not one of 0-{len(ta) - 1}",
-                             fix="give cell ids of these builds")
+        region = _region(cells, len(ta))
     diff = da - db
     return {"region": region.tolist(),
             "a": _figures(ta, da, ca, region), "b": _figures(tb, db, cb, region),

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import re
 from pathlib import Path
 
@@ -172,6 +173,21 @@ def landscape_sha256(landscape) -> str:
     return hashlib.sha256(np.asarray(landscape, float).astype("<f8").tobytes()).hexdigest()
 
 
+def run_base_sha256(folder, landscape) -> str:
+    """The hash that names the landscape of one build in a *Run* request (``base_sha256``):
+    SHA-256 of the build folder's resolved path and :func:`landscape_sha256`, so that an
+    edit made on one build is refused by another, even one of the same name and landscape.
+
+    Parameters
+    ----------
+    folder : path-like
+        The build folder (as the studio opened it; resolved here).
+    landscape : (n_vertices,) float, s
+    """
+    path = os.fsencode(Path(folder).resolve())
+    return hashlib.sha256(path + b"\0" + landscape_sha256(landscape).encode()).hexdigest()
+
+
 def parse_run(payload, n_vertices: int) -> dict:
     """Validate a *Run* request (untrusted JSON).
 
@@ -180,7 +196,8 @@ def parse_run(payload, n_vertices: int) -> dict:
     payload : dict
         ``{"build": name, "base_sha256": hex, "landscape": [...], "edits": [...],
         "variant": name or null}``: the build the edit was made on (its folder's name), the
-        hash of that build's landscape as the editor loaded it (:func:`landscape_sha256`),
+        hash of that build and its landscape as the editor loaded them
+        (:func:`run_base_sha256`),
         the landscape and edit log (:func:`parse_landscape`), and the name of a new build to
         run into (absent or null: the build itself).
     n_vertices : int
@@ -369,5 +386,5 @@ class Feasibility:
 
 
 __all__ = ["parse_keyframes", "parse_landscape", "parse_run", "parse_landscape_csv",
-           "landscape_sha256", "VARIANT_NAME", "keyframe_values", "harmonic_landscape",
-           "Feasibility", "EDIT_TOOLS"]
+           "landscape_sha256", "run_base_sha256", "VARIANT_NAME", "keyframe_values",
+           "harmonic_landscape", "Feasibility", "EDIT_TOOLS"]

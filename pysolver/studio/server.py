@@ -84,11 +84,11 @@ from .landscape import (
     Feasibility,
     harmonic_landscape,
     keyframe_values,
-    landscape_sha256,
     parse_keyframes,
     parse_landscape,
     parse_landscape_csv,
     parse_run,
+    run_base_sha256,
 )
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -197,7 +197,8 @@ class Build:
         if (self.folder / "sim" / "frames.npz").is_file():
             done = self.viewer()["cells"]["t_done"]
         return {"V": np.round(V, 5).reshape(-1).tolist(), "F": F.reshape(-1).tolist(),
-                "build": self.folder.name, "landscape_sha256": landscape_sha256(land),
+                "build": self.folder.name,
+                "landscape_sha256": run_base_sha256(self.folder, land),   # a Run's base
                 "landscape": [float(x) for x in land],
                 "vertex_a": cells["vertex_a"].tolist(), "vertex_b": cells["vertex_b"].tolist(),
                 "programmed": {
@@ -243,23 +244,25 @@ class Build:
 
     def check_run(self, req: dict) -> None:
         """Refuse a Run (:func:`parse_run`'s ``req``) that was not edited from this build's
-        current landscape: one landscape, one build.
+        current landscape: one landscape, one build.  The base hash binds the build's
+        resolved folder (:func:`run_base_sha256`), so two builds of one name (``regular``
+        beside another ``regular``) and one landscape are still told apart.
 
         Raises
         ------
         Stale
-            It names another build, or its base landscape is not this build's own (another
-            build's, or this one's before it was built again).
+            It names another build, or its base is not this build's own landscape (another
+            build's, of any name, or this one's before it was built again).
         """
         if req["build"] != self.folder.name:
             raise Stale(f"this Run names build {req['build'][:80]!r} but was sent to build "
                         f"{self.folder.name!r}: nothing was built",
                         fix="select the build in the editor, wait for it to load, then Run")
-        if req["base_sha256"] != landscape_sha256(self.landscape()):
+        if req["base_sha256"] != run_base_sha256(self.folder, self.landscape()):
             raise Stale(f"the edit was not made on the current landscape of build "
-                        f"{self.folder.name!r} "
-                        "(another build's, or this one's before it was built "
-                        "again): nothing was built",
+                        f"{self.folder.name!r} ({self.folder}) "
+                        "(another build's, perhaps one of the same name, or this one's "
+                        "before it was built again): nothing was built",
                         fix="load the build again in the editor (select it), then Run; "
                             "export the edit as CSV first to keep it")
 
