@@ -637,7 +637,8 @@ def test_diverging_simulation_stops_keeps_frames_names_step_and_cause(tmp_path):
 
 
 @pytest.mark.parametrize("argv, patterns", [
-    (["build", "nosuch"], [r"unknown shape 'nosuch'", r"regular, petal, saddle, dome"]),
+    (["build", "nosuch"], [r"unknown shape 'nosuch'",
+                           *(rf"\b{n}\b" for n in ("regular", "petal", "saddle", "dome"))]),
     (["build", "dome:bogus=1"], [r"bad option: unknown option\(s\) \['bogus'\] for 'dome'",
                                  r"dome takes: size, radius, cap_deg"]),
     (["build", "dome:size=big"], [r"'size=big': value must be a number"]),

@@ -264,9 +264,10 @@ def _bears(b) -> Markup:
                              f"predicted the initial stiffness {100 * lo:+.0f} % to "
                              f"{100 * hi:+.0f} % off the measured, and the peak stresses "
                              f"{100 * plo:+.0f} % to {100 * phi:+.0f} % (stretching and "
-                             "bending, docs/results.md): read the stiffnesses as good to a "
-                             "factor of about two, the loads to about 20 %; first-order "
-                             "figures (small loads), on one flat specimen's evidence.")
+                             f"bending, docs/results.md): read the stiffnesses as good to a "
+                             f"factor of about {1 + max(-lo, hi):.1f}, the loads to about "
+                             f"{100 * max(-plo, phi):.0f} %; first-order figures (small "
+                             "loads), on one flat specimen's evidence.")
     return fill("section_bears", supports=b["n_supports"], apex=b["apex_base"],
                 table=table(rows), note=note)
 
