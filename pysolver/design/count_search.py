@@ -253,10 +253,10 @@ def _rim_fallback(best, tried: dict, meshes: dict, area: float, params: UnitCell
         ``fallback`` (None when not searched, else ``requested``, ``seed``, ``scale3d``,
         ``max_cell_length_mm``, ``area_covered``, ``taken``) and ``why``.
     """
-    cov = _covered(*meshes[best][:2], area) if region is None else region
+    own = _covered(*meshes[best][:2], area)
+    cov = own if region is None else region
     rim = {"inset_mm": float(best[2]), "min_area_covered": settings.min_area_covered,
-           "inset_area_covered": _covered(*meshes[best][:2], area),
-           "inset_region_covered": cov, "fallback": None}
+           "inset_area_covered": own, "inset_region_covered": cov, "fallback": None}
     if cov >= settings.min_area_covered:
         rim["why"] = (f"the inset region covers {100 * cov:.0f} % of the target (at least "
                       f"{100 * settings.min_area_covered:.0f} %)")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..temporal.program import timing_errors
 
 REGION_TOL_S = 1e-6
 """Two requested times closer than this (s) are the same: ``time_landscape.csv`` keeps 9
@@ -46,14 +47,13 @@ def _figures(t_star, t_done, clamped, cells) -> dict:
     that complete)."""
     ts, td, cl = t_star[cells], t_done[cells], clamped[cells]
     done = np.isfinite(td)
-    prog = done & ~cl
-    err = td[prog] - ts[prog]
+    rms = timing_errors(ts, td, exclude=cl)["rms_s"]
 
     def mean(x):
         return float(np.mean(x)) if x.size else None
 
     return {"requested_mean_s": mean(ts), "simulated_mean_s": mean(td[done]),
-            "timing_rms_s": float(np.sqrt(np.mean(err ** 2))) if err.size else None,
+            "timing_rms_s": None if np.isnan(rms) else rms,
             "n_never_complete": int((~done).sum()), "n_out_of_reach": int(cl.sum())}
 
 
