@@ -62,7 +62,8 @@ def _build(shape: str, out: Path) -> None:
         return None
 
     import importlib
-    for mod_name in ("sim.report", "pysolver.build", "pysolver.simulator", "pysolver.stage_runs"):
+    for mod_name in ("sim.report", "pysolver.build", "pysolver.simulator",
+                     "pysolver.stages.runners"):
         try:
             mod = importlib.import_module(mod_name)
         except ModuleNotFoundError:  # an older layout of the orchestrator

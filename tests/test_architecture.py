@@ -19,13 +19,17 @@ them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests kee
 * the offline fitting tools (:mod:`pysolver.fitting`: material fit and report, membrane-model
   fit) sit above every runtime stage: only the command line imports them;
 * project modules are imported at module level: an import inside a function hides an edge
-  of the graph.  The one exception is the command line (:mod:`pysolver.cli` and the
-  subcommands it runs, :mod:`pysolver.commands`), whose subcommands import their stage when
+  of the graph.  The one exception is the command line (the package :mod:`pysolver.cli`:
+  its subcommands, :mod:`pysolver.cli.commands`), whose subcommands import their stage when
   they run so that ``morphshell --help`` is instant; every such import carries a
   ``# lazy:`` comment;
-* the pipeline's table (:mod:`pysolver.stages`) names its runners as ``"module:function"``
-  strings, imported when they run: each name is an edge of the graph too (from the
-  orchestrator :mod:`pysolver.build`, or from :mod:`pysolver.cli` for the subcommands),
+* the command line is the top of the graph: no module outside :mod:`pysolver.cli` imports
+  it (the build, the studio and the tools read the stage table, :mod:`pysolver.stages`,
+  which lives outside the package for that reason);
+* the pipeline's table (:mod:`pysolver.stages`) and the command line's
+  (:mod:`pysolver.cli.table`) name their runners as ``"module:function"`` strings, imported
+  when they run: each name is an edge of the graph too (from the orchestrator
+  :mod:`pysolver.build` for the stages, from :mod:`pysolver.cli` for the subcommands),
   checked like the imports, and every name exists;
 * any other import inside a function (an optional or heavy third-party dependency) carries a
   comment saying why (a bare ``# noqa`` is not a reason).
@@ -65,7 +69,8 @@ CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.core", "pyso
 FITTING = ("pysolver.fitting", "pysolver.fitting.material_fit",
            "pysolver.fitting.material_report", "pysolver.fitting.membrane_fit",
            "pysolver.fitting.cell_membrane")
-LAZY_ALLOWED = {"pysolver.cli", "pysolver.commands"}  # the command line: see the docstring
+CLI = "pysolver.cli"  # the command line's package
+LAZY_ALLOWED = {CLI, "pysolver.cli.commands"}  # the command line: see the docstring
 
 
 def group(mod: str) -> str:
@@ -157,23 +162,27 @@ def imports() -> list[tuple[str, str, int, bool, str]]:
 RUNNER = re.compile(r"^((?:pysolver|sim)(?:\.\w+)*):(\w+)$")
 
 
-def runner_names() -> list[tuple[str, str, str, int]]:
-    """The ``"module:function"`` names of the stage table: (caller, module, function, line);
-    the caller is the module that imports and runs them."""
-    path = MODULES["pysolver.stages"]
+TABLES = {"pysolver.stages": "pysolver.build", "pysolver.cli.table": CLI}
+"""The modules that name runners, and the module that imports and runs them."""
+
+
+def runner_names() -> list[tuple[str, str, str, int, str]]:
+    """The ``"module:function"`` names of the tables: (caller, module, function, line,
+    table); the caller is the module that imports and runs them."""
     out = []
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.Constant) and isinstance(node.value, str):
-            m = RUNNER.match(node.value)
-            if m:
-                caller = "pysolver.cli" if m.group(1) == "pysolver.commands" else "pysolver.build"
-                out.append((caller, m.group(1), m.group(2), node.lineno))
+    for table, caller in TABLES.items():
+        path = MODULES[table]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                m = RUNNER.match(node.value)
+                if m:
+                    out.append((caller, m.group(1), m.group(2), node.lineno, table))
     return out
 
 
 RUNNERS = runner_names()
-IMPORTS = imports() + [(caller, mod, line, False, f"stages.py:{line} runner {mod}:{fn}")
-                       for caller, mod, fn, line in RUNNERS if mod in MODULES]
+IMPORTS = imports() + [(caller, mod, line, False, f"{table}:{line} runner {mod}:{fn}")
+                       for caller, mod, fn, line, table in RUNNERS if mod in MODULES]
 
 
 def test_every_import_is_resolved():
@@ -242,11 +251,11 @@ def test_the_stage_table_names_functions_that_exist():
     module (read from the source: nothing is imported)."""
     assert len(RUNNERS) >= 8  # the stages and the commands: the parser sees the table
     bad = []
-    for _caller, mod, fn, line in RUNNERS:
+    for _caller, mod, fn, line, table in RUNNERS:
         defs = ({n.name for n in ast.parse(MODULES[mod].read_text()).body
                  if isinstance(n, ast.FunctionDef)} if mod in MODULES else set())
         if fn not in defs:
-            bad.append(f"stages.py:{line}: {mod}:{fn}")
+            bad.append(f"{table}:{line}: {mod}:{fn}")
     assert not bad, "the stage table names functions that do not exist:\n" + "\n".join(bad)
 
 
@@ -259,6 +268,21 @@ def test_only_the_gateway_imports_sim():
     bad = [f"{a}:{line} ({group(a)}) imports {b}" for a, b, line, _, _ in IMPORTS
            if a.split(".")[0] == "pysolver" and a not in SIM_IMPORTERS
            and b.split(".")[0] == "sim"]
+    assert not bad, "\n".join(bad)
+
+
+def test_both_tables_name_their_runners():
+    """The parser sees the runner names of the stage table and of the command line's."""
+    assert {table for *_, table in RUNNERS} == set(TABLES)
+    assert all(caller == CLI for caller, mod, *_ in RUNNERS if mod.startswith(CLI + "."))
+
+
+def test_nothing_imports_the_command_line():
+    """The command line is the top of the graph: only its own package imports it (the
+    build it runs, the studio and the tools read :mod:`pysolver.stages` instead)."""
+    assert CLI in MODULES and f"{CLI}.commands" in MODULES
+    bad = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
+           if (b == CLI or b.startswith(CLI + ".")) and not (a == CLI or a.startswith(CLI + "."))]
     assert not bad, "\n".join(bad)
 
 

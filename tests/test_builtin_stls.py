@@ -37,7 +37,7 @@ def _nonmanifold_edges(m: trimesh.Trimesh) -> int:
 def test_builtin_shape_stls_are_watertight(name, tmp_path, tmp_path_factory):
     out = tmp_path / name
     shutil.copytree(designed(name, tmp_path_factory), out)
-    # the build's program and render stages (pysolver/stage_runs.py), the fast renderer
+    # the build's program and render stages (pysolver/stages/runners.py), the fast renderer
     program_design(out, progress=False, picture=False, fit_landscape=True)
     render_design(out, jobs=1, progress=False, renderer="fast")
     stls = sorted((out / "stl").glob("*.stl"))

@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pysolver.cli import _parser, main
+from pysolver.cli import main
+from pysolver.cli.parser import make_parser
 from pysolver.core import staging
 from pysolver.core.manifest import STAMP_NAME, start_stamp
 from pysolver.core.ownership import claim_output, foreign_files
@@ -312,7 +313,7 @@ def test_failed_build_leaves_nothing_and_says_what_failed(room, capsys):
 
 
 def test_one_refine_default_for_cli_api_and_make():
-    build_sub = next(a for a in _parser()._subparsers._group_actions[0].choices.values()
+    build_sub = next(a for a in make_parser()._subparsers._group_actions[0].choices.values()
                      if a.prog.endswith(" build"))
     assert build_sub.get_default("refine") == DEFAULT_REFINE == 1
     assert BuildOptions().refine == DEFAULT_REFINE

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from pysolver import cli
+from pysolver.cli.parser import make_parser
 
 REPO = Path(__file__).resolve().parent.parent
 DOCS = [REPO / "README.md", REPO / "scad" / "README.md",
@@ -149,7 +149,7 @@ def _make_targets() -> set[str]:
 
 
 def _subcommands() -> dict[str, argparse.ArgumentParser]:
-    parser = cli._parser()
+    parser = make_parser()
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             return dict(action.choices)

@@ -230,9 +230,9 @@ def test_unknown_renderer_is_an_input_error(both):
 
 
 def test_cli_has_the_renderer_option():
-    from pysolver.cli import _parser
+    from pysolver.cli.parser import make_parser
 
-    ap = _parser()
+    ap = make_parser()
     assert ap.parse_args(["render", "d", "--renderer", "fast"]).renderer == "fast"
     assert ap.parse_args(["build", "petal", "--renderer", "auto"]).renderer == "auto"
     assert ap.parse_args(["render", "d"]).renderer is None

@@ -349,9 +349,9 @@ def test_build_simulates_again_with_contact_when_parts_collide(tmp_path, monkeyp
             np.savez_compressed(p, **fr)
         return {}
 
-    # (the stages the runners imported; pysolver.stage_runs looks them up when it runs)
-    monkeypatch.setattr("pysolver.stage_runs.run_design", fake_design)
-    monkeypatch.setattr("pysolver.stage_runs.simulate_design", fake_simulate)
+    # (the stages the runners imported; pysolver.stages.runners looks them up when it runs)
+    monkeypatch.setattr("pysolver.stages.runners.run_design", fake_design)
+    monkeypatch.setattr("pysolver.stages.runners.simulate_design", fake_simulate)
     s = build("regular", out=tmp_path / "b", program=False, render=False, progress=False)
     with_contact = [*PHYSICS_DEFAULT.switched_on(), "contact"]
     assert [c.switched_on() if c else None for c in calls] == [None, with_contact]

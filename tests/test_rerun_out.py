@@ -26,9 +26,9 @@ import pytest
 from _shared import run_cli
 from test_report import make_synthetic_design
 
+from pysolver.cli.table import argument, commands
 from pysolver.core import manifest, ownership, writes
 from pysolver.coupon import make_coupon
-from pysolver.stages import argument, commands
 
 SHAPE = "regular:rows=2,cols=2"
 

@@ -691,7 +691,7 @@ def test_builtin_spec_with_dot_is_a_shape_not_a_file(tmp_path, capsys):
 def test_internal_error_exit_1_no_traceback(tmp_path):
     code = textwrap.dedent(f"""
         import sys
-        import pysolver.stage_runs as d
+        import pysolver.stages.runners as d
         def boom(*a, **k):
             raise RuntimeError("boom in the design stage")
         d.run_design = boom
@@ -725,7 +725,7 @@ def test_disk_full_is_named_not_called_a_bug(tmp_path, capsys, monkeypatch):
     def full(*a, **k):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "cells.csv"))
 
-    monkeypatch.setattr("pysolver.stage_runs.run_design", full)
+    monkeypatch.setattr("pysolver.stages.runners.run_design", full)
     rc, err = _main(["design", "regular", "--out", tmp_path / "o"], capsys)
     assert rc == EXIT_BAD_INPUT
     _names(err, r"error: no space left on the device \(the disk is full\) \(.*cells\.csv\)",

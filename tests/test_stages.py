@@ -10,8 +10,10 @@ import json
 import pytest
 
 from pysolver import stages
-from pysolver.cli import _parser, main, stages_help
-from pysolver.commands import build_options
+from pysolver.cli import main
+from pysolver.cli.commands import build_options
+from pysolver.cli.parser import make_parser, stages_help
+from pysolver.cli.table import TOOLS
 from pysolver.core.writes import atomic_write_text
 from pysolver.stages import OPTIONS, STAGES, BuildOptions, Stage, StageContext
 from pysolver.tables import read_table
@@ -20,7 +22,7 @@ TINY = "regular:rows=1,cols=2"
 
 
 def _sub(name):
-    ap = _parser()
+    ap = make_parser()
     return ap._subparsers._group_actions[0].choices[name]
 
 
@@ -44,23 +46,23 @@ def test_the_cli_is_generated_from_the_table():
             sub = _sub(s.name)
             dests = {a.dest for a in sub._actions}
             assert {OPTIONS[o].dest for o in s.options} <= dests, s.name
-    for c in stages.TOOLS:
+    for c in TOOLS:
         assert c.name in text and _sub(c.name)
-    assert "refine" not in _parser()._subparsers._group_actions[0].choices  # build only
+    assert "refine" not in make_parser()._subparsers._group_actions[0].choices  # build only
 
 
 def test_cli_defaults_are_the_build_options_defaults():
     from pysolver.design import unit_cell_options
 
-    args = _parser().parse_args(["build", "petal"])
+    args = make_parser().parse_args(["build", "petal"])
     opts = build_options(args)
     assert opts == BuildOptions(params=unit_cell_options())
-    args = _parser().parse_args(["--quiet", "build", "petal", "--no-sim", "--no-render",
-                                 "--t-end", "30", "--max-cell-length", "8", "--debug"])
+    args = make_parser().parse_args(["--quiet", "build", "petal", "--no-sim", "--no-render",
+                                     "--t-end", "30", "--max-cell-length", "8", "--debug"])
     opts = build_options(args)
     assert not (opts.simulate or opts.render or opts.progress) and opts.keep_failed
     assert opts.t_end == 30.0 and opts.params.max_cell_length == 8.0
-    sim = build_options(_parser().parse_args(["simulate", "d", "--no-resume",
+    sim = build_options(make_parser().parse_args(["simulate", "d", "--no-resume",
                                               "--physics", "gravity"]))
     assert sim.resume is False and sim.physics.switched_on() == ["gravity"]
 
@@ -96,7 +98,8 @@ def test_a_new_stage_is_one_table_entry(tmp_path, monkeypatch):
     table = (*STAGES[:1], extra, *STAGES[1:])
     monkeypatch.setattr(stages, "STAGES", table)
     monkeypatch.setattr("pysolver.build.STAGES", table)
-    monkeypatch.setattr("pysolver.cli.STAGES", table)
+    monkeypatch.setattr("pysolver.cli.parser.STAGES", table)
+    monkeypatch.setattr("pysolver.cli.table.STAGES", table)
     s = build(TINY, out=tmp_path / "b", program=False, simulate=False, render=False,
               progress=False)
     assert list(s["stages"])[:2] == ["design", "preview"]

@@ -18,8 +18,7 @@ import sys
 import traceback
 
 from ..build import rebuild
-from ..cli import environment_message
-from ..errors import EXIT_BAD_INPUT, EXIT_INTERNAL, MorphshellError
+from ..errors import EXIT_BAD_INPUT, EXIT_INTERNAL, MorphshellError, environment_message
 from ..progress import emit_events
 
 

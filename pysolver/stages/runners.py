@@ -12,18 +12,18 @@ from __future__ import annotations
 
 import functools
 
-from .design import run_design
-from .refine import refine_design
-from .render import render_design, start_self_check
-from .simulator import (
+from ..design import run_design
+from ..refine import refine_design
+from ..render import render_design, start_self_check
+from ..simulator import (
     contact_if_needed,
     make_report,
     print_verdict,
     simulate_design,
     start_pyvista_probe,
 )
-from .stages import StageContext
-from .temporal import program_design
+from ..temporal import program_design
+from . import StageContext
 
 
 def design(ctx: StageContext) -> dict:

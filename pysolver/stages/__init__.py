@@ -1,14 +1,16 @@
-"""The pipeline as data: the stages, the commands and their options, in one table.
+"""The pipeline as data: the stages, their options and the options of a build, in one table.
 
 :data:`STAGES` declares the pipeline in the order a build runs it: each :class:`Stage`
-names its runner (``"module:function"``, called with a :class:`StageContext`), the files it
-reads and writes in the design folder, the :class:`BuildOptions` fields that switch it on,
-the outputs a build that skips it may carry over, and the options its subcommand takes.
-:data:`TOOLS` declares the other subcommands.  From these tables
+names its runner (``"module:function"``, called with a :class:`StageContext`; the runners
+are :mod:`pysolver.stages.runners`), the files it reads and writes in the design folder, the
+:class:`BuildOptions` fields that switch it on, the outputs a build that skips it may carry
+over, and the options (:data:`OPTIONS`) its subcommand takes.  From this table
 
 * :func:`pysolver.build.build` runs the stages (``for stage in STAGES``), checks the inputs
   of the skipped ones and starts their early checks;
-* :mod:`pysolver.cli` generates every subcommand, its options and the ``--help`` text;
+* the command line (:mod:`pysolver.cli`) generates a subcommand per stage, its options and
+  the ``--help`` text, beside the subcommands of its own table (:mod:`pysolver.cli.table`);
+* the studio shows the plan of a *Run*;
 * ``docs/for-contributors.md`` shows how adding a stage is one entry here and one module.
 
 This module is light on purpose (the standard library and :mod:`pysolver.params`): the
@@ -25,16 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .params import (
-    DEFAULT_REFINE,
-    PHYSICS_DEFAULT,
-    PROGRAMMING,
-    SIM,
-    TESTS,
-    TOLERANCE_RUN,
-    UNCERTAINTY,
-    UNIT_CELL,
-)
+from ..params import DEFAULT_REFINE, PHYSICS_DEFAULT, PROGRAMMING, SIM, UNIT_CELL
 
 # ------------------------------------------------------------------------------------------
 # options
@@ -347,37 +340,37 @@ TABLES = ("stencil.obj", "bases.csv", "cells.csv", "bumpers.csv", "time_landscap
 """The design stage's tables: the contract every later stage reads."""
 
 STAGES = (
-    Stage("design", "pysolver.stage_runs:design",
+    Stage("design", "pysolver.stages.runners:design",
           "target surface -> stencil -> flat layout -> the design tables",
           reads=("<input mesh or built-in shape>",), writes=TABLES + ("design_*.png",),
           options=("out",) + DESIGN_OPTIONS + ("thickness_file",)),
-    Stage("program", "pysolver.stage_runs:program",
+    Stage("program", "pysolver.stages.runners:program",
           "bracket thicknesses from the time landscape (temporal programming)",
           reads=TABLES, writes=("cells.csv", "time_landscape.csv", "temporal.json",
                                 "temporal_feasibility.png"),
           options=("material",) + PHYSICS_OPTIONS, needs=("program",)),
-    Stage("simulate", "pysolver.stage_runs:simulate",
+    Stage("simulate", "pysolver.stages.runners:simulate",
           "quasi-static morphing simulation (in a build, again with barrier contact when "
           "far parts pass through each other)",
           reads=TABLES, writes=("sim/frames.npz", "sim/summary.json"),
           options=("t_end", "dt", "material", "resume", "solver") + PHYSICS_OPTIONS,
           needs=("simulate",), keeps=("sim",), depends=("material", "t_end", "dt")),
-    Stage("refine", "pysolver.stage_runs:refine",
+    Stage("refine", "pysolver.stages.runners:refine",
           "close the timing loop: correct the thicknesses from the simulated completion "
           "times and simulate again",
           reads=TABLES + ("temporal.json", "sim/frames.npz"),
           writes=("cells.csv", "sim/frames.npz", "sim/refine.json"),
           needs=("simulate", "program", "refine"), command=False),
-    Stage("render", "pysolver.stage_runs:render",
+    Stage("render", "pysolver.stages.runners:render",
           "per-part rendering (OpenSCAD or its fast evaluator) and union into the STLs",
           reads=TABLES + ("scad/*.scad (the library)",), writes=("scad/", "stl/"),
           options=("jobs", "renderer"), needs=("render",), keeps=("scad", "stl"),
-          depends=("scad",), prepare="pysolver.stage_runs:start_render_check"),
-    Stage("report", "pysolver.stage_runs:report",
+          depends=("scad",), prepare="pysolver.stages.runners:start_render_check"),
+    Stage("report", "pysolver.stages.runners:report",
           "simulation check report: verdict, pictures, 3D viewer, fabrication sheet",
           reads=TABLES + ("sim/frames.npz", "stl/"), writes=("report/",),
           needs=("simulate",), keeps=("report",), depends=("material", "t_end", "dt"),
-          prepare="pysolver.stage_runs:start_report_probe"),
+          prepare="pysolver.stages.runners:start_report_probe"),
 )
 """The pipeline, in the order a build runs it."""
 
@@ -396,190 +389,5 @@ def runner(ref: str):
     return getattr(importlib.import_module(module), name)
 
 
-# ------------------------------------------------------------------------------------------
-# commands
-
-
-@dataclass(frozen=True)
-class Command:
-    """A subcommand that is not one stage on a design folder.
-
-    Attributes
-    ----------
-    name, help, summary : str
-        The subcommand, its help, and its line in ``morphshell --help``.
-    run : str
-        ``"module:function"``, ``function(args: argparse.Namespace) -> int`` (exit code).
-    arguments : tuple of Option or str
-        Its arguments; a str names an entry of :data:`OPTIONS`.
-    """
-
-    name: str
-    help: str
-    summary: str
-    run: str
-    arguments: tuple = ()
-
-
-DASK_OPTIONS = (
-    opt("--scheduler", default=None,
-        help="address of a running Dask scheduler (tls://host:8786; plain tcp:// is warned "
-             "about; credentials from Dask's configuration, see docs/tolerance.md); default: a "
-             "local cluster sized to this machine, on 127.0.0.1 with TLS"),
-    opt("--workers", type=int, default=None,
-        help="worker processes of the local cluster (default: one per core)"),
-    opt("--dashboard", action="store_true",
-        help="serve the local cluster's Dask dashboard (on 127.0.0.1 only)"),
-)
-DIR = opt("dir", help="design folder (e.g. build/petal)")
-
-BUILD = Command(
-    "build", "run the whole pipeline for a shape or a mesh file",
-    "the whole pipeline: " + " -> ".join(s.name for s in STAGES), "pysolver.commands:build",
-    (opt("shape", help="built-in shape name (see 'shapes') or a mesh/stencil file"), "out",
-     *DESIGN_OPTIONS, "material", "seed", "refine", "program", "render", "simulate", "t_end",
-     "dt", "jobs", "renderer", "solver"))
-"""``morphshell build``: every stage of :data:`STAGES` that its options ask for."""
-
-TOOLS = (
-    Command("compare-scan", "compare scanned marker dots with the simulation",
-            "compare a 3D scan of the printed shell's marker dots with the simulation",
-            "pysolver.commands:compare_scan",
-            (DIR, opt("scan", help="point set: OBJ vertices, PLY, or CSV with x y z columns "
-                                   "(mm)"),
-             opt("--layer", choices=("auto", "top", "bottom"), default="auto",
-                 help="layer whose markers were scanned (default: the better fitting one)"),
-             opt("--state", choices=("auto", "final", "rest"), default="auto",
-                 help="compare the last frame in water (final) or the dry resting shape "
-                      "(rest, from --physics ...,dry-rest); default: rest when simulated"),
-             opt("--gate-mm", type=float, default=None, metavar="MM",
-                 help="leave out matches farther than MM (outlier dots); default: every dot "
-                      "is matched, the printed shells' procedure"),
-             opt("--out", default=None,
-                 help="folder of scan_<name>.json and .png (default DIR/scan_report)"))),
-    Command("mechtest", "virtual mechanical tests of the morphed, dried shell (SI Note 6)",
-            "stretch, bend, shear, compress the morphed shell as SI Note 6's tester did",
-            "pysolver.commands:mechtest",
-            (DIR, opt("--test", action="append", choices=TESTS, default=None,
-                      help="a test to run (repeat for several; default: all four)"),
-             opt("--axis-deg", type=float, default=90.0, metavar="DEG",
-                 help="in-plane direction of the load, degrees from the flat x axis "
-                      "(default 90: along y, the mechtest shape's length)"),
-             opt("--material", default=None,
-                 help="bracket model file (default: the committed one)"))),
-    Command("fit-material", "fit the bracket model from measurements",
-            "fit the bracket material model from tensile-test measurements",
-            "pysolver.commands:fit_material",
-            (opt("--data", default=None,
-                 help="measurement folder (default: data/material-measurements, the paper's "
-                      "tests shipped with the project)"),
-             opt("--out", default=None,
-                 help="model file to write (default: the committed model when fitting the "
-                      "shipped data, else build/material/<data folder>.json)"),
-             opt("--report", default=None,
-                 help="fit report folder (default: build/material[/<data folder>])"),
-             opt("--compare-to", default=None,
-                 help="plot the new model against this one (default: the committed model)"))),
-    Command("fit-membrane", "fit the linearised membrane model (F_mem)",
-            "fit the linearised membrane model from FEM samples",
-            "pysolver.commands:fit_membrane",
-            (opt("--out", default=None, help="model file to write"),
-             opt("--report", default=None, help="fit report folder"))),
-    Command("specimens", "printable unit-cell test specimens",
-            "printable unit-cell test specimens from the same SCAD modules",
-            "pysolver.commands:specimens",
-            (opt("--out", default="build/specimens", help="output folder"), "jobs")),
-    Command("coupon", "printable timing coupon: unit cells to time in the bath",
-            "printable timing coupon (a strip of labelled unit cells from the same SCAD "
-            "modules) and its coupon.csv; see docs/coupon.md",
-            "pysolver.commands:coupon",
-            (opt("--out", default="build/coupon", help="output folder"),
-             opt("--material", default=None, help="bracket model file (default: the "
-                                                   "committed one)"), "jobs", "renderer")),
-    Command("calibrate-time", "fit the print's factors to a timed coupon",
-            "fit the bracket compliance (and membrane modulus) to a timed coupon.csv and "
-            "write a material file for --material / MATERIAL=",
-            "pysolver.commands:calibrate_time",
-            (opt("coupon_csv", metavar="COUPON_CSV", help="coupon.csv with closing_time_s "
-                                                          "filled in (docs/coupon.md)"),
-             opt("--out", default=None, help="material file to write (default "
-                                             "build/material/coupon-calibrated.json)"),
-             opt("--material", default=None, help="bracket model the coupon is fitted "
-                                                   "against (default: the committed one)"))),
-    Command("shapes", "list the built-in shapes", "list the built-in shapes",
-            "pysolver.commands:shapes"),
-    Command("studio", "browser front end: paint the time landscape, build it again, compare",
-            "browser front end: paint the time landscape, build it again, compare builds",
-            "pysolver.commands:studio",
-            (opt("dirs", nargs="*", metavar="DIR",
-                 help="build folders, shown side by side (default: every build/<name>)"),
-             opt("--port", type=int, default=0, help="port on 127.0.0.1 (default: any free)"),
-             opt("--no-browser", action="store_true", help="do not open a browser"))),
-    Command("tolerance", "Monte Carlo tolerance analysis of a design folder (Dask)",
-            "Monte Carlo over print and material scatter: P(PASS), spreads (on Dask)",
-            "pysolver.commands:tolerance",
-            (opt("dir", help="programmed design folder (e.g. build/petal)"),
-             opt("--samples", type=int, default=TOLERANCE_RUN.samples,
-                 help=f"Monte Carlo samples (default {TOLERANCE_RUN.samples})"),
-             opt("--seed", type=int, default=TOLERANCE_RUN.seed,
-                 help="seed of the draws (fixed: a rerun gives the same numbers)"),
-             opt("--thickness-sd", type=float, default=UNCERTAINTY.thickness_sd,
-                 help=f"bracket thickness sd, mm (default {UNCERTAINTY.thickness_sd})"),
-             opt("--stretch", type=float, default=UNCERTAINTY.stretch_mean,
-                 help=f"membrane pre-stretch mean (default {UNCERTAINTY.stretch_mean})"),
-             opt("--stretch-sd", type=float, default=UNCERTAINTY.stretch_sd,
-                 help=f"pre-stretch sd (default {UNCERTAINTY.stretch_sd})"),
-             opt("--modulus-sd", type=float, default=UNCERTAINTY.modulus_rel_sd,
-                 help="relative sd of the membrane modulus (default "
-                      f"{UNCERTAINTY.modulus_rel_sd})"),
-             opt("--material-sd", type=float, default=UNCERTAINTY.material_sd,
-                 help="sd of ln(bracket compliance factor) (default: from the material fit "
-                      "residuals; 0 = off)"),
-             opt("--relaxation", action="store_true",
-                 help="also draw membrane stress relaxation from the measured curve"),
-             opt("--coupon", action="store_true",
-                 help="also simulate the timing coupon workflow: each sample's coupon fitted, "
-                      "its shell programmed again and simulated (docs/coupon.md)"),
-             opt("--time-tol", type=float, default=TOLERANCE_RUN.time_tol_s,
-                 help="a cell is on time within this of t*, s (default "
-                      f"{TOLERANCE_RUN.time_tol_s:g})"),
-             opt("--sensitivity", type=int, default=None,
-                 help="one-at-a-time runs per factor (default "
-                      f"min({TOLERANCE_RUN.sensitivity_samples}, samples); 0 = none)"),
-             "t_end", "dt", opt("--material", default=None, help="bracket model file"),
-             opt("--out", default=None, help="output folder (default DIR/tolerance)"),
-             *DASK_OPTIONS)),
-    Command("sweep", "build the design variants of a TOML spec and tabulate them (Dask)",
-            "build a grid or list of design variants from a TOML spec (on Dask)",
-            "pysolver.commands:sweep",
-            (opt("spec", help="sweep spec (TOML; see docs/tolerance.md)"),
-             opt("--out", default=None, help="output folder (default build/sweep-<name>)"),
-             *DASK_OPTIONS)),
-)
-"""The subcommands besides ``build`` and the stages."""
-
-
-def stage_command(s: Stage) -> Command:
-    """The subcommand of a stage: ``morphshell <stage> DIR [options]`` (the design stage
-    makes a new folder from a shape: ``morphshell design SHAPE [--out DIR]``)."""
-    if s.name == "design":
-        return Command("design", "design the flat layout only", s.help,
-                       "pysolver.commands:design",
-                       (opt("shape", help="built-in shape name (see 'shapes') or a "
-                                          "mesh/stencil file"), *s.options))
-    return Command(s.name, s.help, s.help, "pysolver.commands:stage", (DIR, *s.options))
-
-
-def commands() -> tuple[Command, ...]:
-    """Every subcommand, in the order of ``morphshell --help``."""
-    return (BUILD, *(stage_command(s) for s in STAGES if s.command), *TOOLS)
-
-
-def argument(a) -> Option:
-    """An argument of a :class:`Command` as an :class:`Option`."""
-    return OPTIONS[a] if isinstance(a, str) else a
-
-
 __all__ = ["Option", "opt", "OPTIONS", "DESIGN_OPTIONS", "PHYSICS_OPTIONS", "BuildOptions",
-           "StageContext", "Stage", "STAGES", "TABLES", "stage", "runner", "Command", "BUILD",
-           "TOOLS", "stage_command", "commands", "argument"]
+           "StageContext", "Stage", "STAGES", "TABLES", "stage", "runner"]

@@ -1,7 +1,7 @@
 """What each ``morphshell`` subcommand does once its arguments are parsed.
 
-:mod:`pysolver.cli` builds the parser from :mod:`pysolver.stages` and calls the function a
-:class:`~pysolver.stages.Command` names here, ``function(args) -> exit code``.  Like the
+:func:`pysolver.cli.main` parses (:mod:`pysolver.cli.parser`) and calls the function a
+:class:`~pysolver.cli.table.Command` names here, ``function(args) -> exit code``.  Like the
 command line itself, this module imports each stage inside the function that runs it
 (``# lazy:``), so that a subcommand loads only what it needs.
 """
@@ -13,22 +13,22 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from .core.locks import build_lock
-from .core.ownership import (
+from ..core.locks import build_lock
+from ..core.ownership import (
     check_design_folder,
     claim_output,
     claim_output_file,
     claim_result_folder,
 )
-from .errors import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_INTERNAL, EXIT_OK
-from .params import UNCERTAINTY
-from .stages import (
+from ..errors import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_INTERNAL, EXIT_OK
+from ..params import UNCERTAINTY
+from ..stages import (
     PHYSICS_OPTIONS,
     BuildOptions,
     StageContext,
     runner,
 )
-from .stages import stage as stage_named
+from ..stages import stage as stage_named
 
 _FIELDS = {f.name for f in dataclasses.fields(BuildOptions)}
 
@@ -44,12 +44,12 @@ def build_options(args: argparse.Namespace) -> BuildOptions:
     from ``--debug``."""
     kw = {k: v for k, v in vars(args).items() if k in _FIELDS}
     if hasattr(args, "max_cell_length"):
-        from .design import unit_cell_options  # lazy: the stage loads when its subcommand runs
+        from ..design import unit_cell_options  # lazy: the stage loads when its subcommand runs
 
         kw["params"] = unit_cell_options(min_bumper=args.min_bumper, min_gap=args.min_gap,
                                          max_cell_length=args.max_cell_length)
     if hasattr(args, "physics"):
-        from .simulator import parse_physics  # lazy: the stage loads when its subcommand runs
+        from ..simulator import parse_physics  # lazy: the stage loads when its subcommand runs
 
         kw["physics"] = parse_physics(args.physics, **{k: getattr(args, k)
                                                        for k in PHYSICS_OPTIONS[1:]})
@@ -58,14 +58,14 @@ def build_options(args: argparse.Namespace) -> BuildOptions:
 
 def build(args: argparse.Namespace) -> int:
     """``morphshell build``: every stage the options ask for (:func:`pysolver.build.build`)."""
-    from .build import build as run_build  # lazy: the stage loads when its subcommand runs
+    from ..build import build as run_build  # lazy: the stage loads when its subcommand runs
 
     return run_build(args.shape, build_options(args)).get("exit_code", EXIT_OK)
 
 
 def design(args: argparse.Namespace) -> int:
     """``morphshell design``: the design stage into a new folder."""
-    from .build import design_only  # lazy: the stage loads when its subcommand runs
+    from ..build import design_only  # lazy: the stage loads when its subcommand runs
 
     design_only(args.shape, build_options(args))
     return EXIT_OK
@@ -75,7 +75,7 @@ def stage(args: argparse.Namespace) -> int:
     """``morphshell <stage> DIR``: one stage of :data:`pysolver.stages.STAGES` on a design
     folder, in place: only into a folder morphshell made (its stamp records what it wrote),
     one stage or build at a time.  Exit code 3 when the stage's verdict is FAIL."""
-    from .build import check_build_options  # lazy: the stage loads when its subcommand runs
+    from ..build import check_build_options  # lazy: the stage loads when its subcommand runs
 
     s = stage_named(args.command)
     opts = build_options(args)
@@ -90,7 +90,7 @@ def stage(args: argparse.Namespace) -> int:
 def compare_scan(args: argparse.Namespace) -> int:
     """``morphshell compare-scan DIR SCAN``: into ``DIR/scan_report``, or a folder of its own
     (``--out``, claimed like any output folder)."""
-    from .simulator import compare_scan as run  # lazy: the stage loads when its subcommand runs
+    from ..simulator import compare_scan as run  # lazy: the stage loads when its subcommand runs
 
     folder = Path(args.dir).absolute()
     check_design_folder(folder)
@@ -105,8 +105,8 @@ def compare_scan(args: argparse.Namespace) -> int:
 
 def mechtest(args: argparse.Namespace) -> int:
     """``morphshell mechtest DIR --test ...``: into ``DIR/mechtest`` (SI Note 6)."""
-    from .simulator import TESTS, check_mechtest_targets  # lazy: loads with its subcommand
-    from .simulator import mechtest as run  # lazy: the stage loads when its subcommand runs
+    from ..simulator import TESTS, check_mechtest_targets  # lazy: loads with its subcommand
+    from ..simulator import mechtest as run  # lazy: the stage loads when its subcommand runs
 
     folder = Path(args.dir).absolute()
     check_design_folder(folder)
@@ -120,8 +120,8 @@ def mechtest(args: argparse.Namespace) -> int:
 
 def tolerance(args: argparse.Namespace) -> int:
     """``morphshell tolerance DIR``: reads the design folder, writes its own result folder."""
-    from .build import check_build_options  # lazy: the stage loads when its subcommand runs
-    from .tolerance import tolerance_analysis  # lazy: the stage loads when its subcommand runs
+    from ..build import check_build_options  # lazy: the stage loads when its subcommand runs
+    from ..tolerance import tolerance_analysis  # lazy: the stage loads when its subcommand runs
 
     check_build_options(BuildOptions(t_end=args.t_end, dt=args.dt, render=False))
     kw = {k: v for k, v in (("t_end", args.t_end), ("dt", args.dt)) if v is not None}
@@ -139,7 +139,7 @@ def tolerance(args: argparse.Namespace) -> int:
 
 def fit_material(args: argparse.Namespace) -> int:
     """``morphshell fit-material``: a user's data never overwrites the committed model."""
-    from .fitting.material_fit import fit_material as fit  # lazy: loads with its subcommand
+    from ..fitting.material_fit import fit_material as fit  # lazy: loads with its subcommand
 
     out, report = args.out, args.report
     if args.data is not None:
@@ -161,7 +161,7 @@ def fit_material(args: argparse.Namespace) -> int:
 
 def fit_membrane(args: argparse.Namespace) -> int:
     """``morphshell fit-membrane``."""
-    from .fitting.membrane_fit import fit_membrane_model  # lazy: loads with its subcommand
+    from ..fitting.membrane_fit import fit_membrane_model  # lazy: loads with its subcommand
 
     if args.out is not None:
         claim_output_file(args.out, what="--out model file")
@@ -173,7 +173,7 @@ def fit_membrane(args: argparse.Namespace) -> int:
 
 def specimens(args: argparse.Namespace) -> int:
     """``morphshell specimens``."""
-    from .specimens import make_specimens  # lazy: the stage loads when its subcommand runs
+    from ..specimens import make_specimens  # lazy: the stage loads when its subcommand runs
 
     make_specimens(claim_result_folder(args.out, what="--out folder"), jobs=args.jobs)
     return EXIT_OK
@@ -181,7 +181,7 @@ def specimens(args: argparse.Namespace) -> int:
 
 def coupon(args: argparse.Namespace) -> int:
     """``morphshell coupon``: the timing coupon into its own folder (docs/coupon.md)."""
-    from .coupon import make_coupon  # lazy: the stage loads when its subcommand runs
+    from ..coupon import make_coupon  # lazy: the stage loads when its subcommand runs
 
     make_coupon(claim_output(args.out, what="--out folder"), material=args.material,
                 jobs=args.jobs, progress=_progress(args), renderer=args.renderer)
@@ -190,7 +190,7 @@ def coupon(args: argparse.Namespace) -> int:
 
 def calibrate_time(args: argparse.Namespace) -> int:
     """``morphshell calibrate-time COUPON_CSV``: the fit printed, the material file written."""
-    from .temporal.coupon import calibrate  # lazy: the stage loads when its subcommand runs
+    from ..temporal.coupon import calibrate  # lazy: the stage loads when its subcommand runs
 
     out = claim_output_file(args.out or "build/material/coupon-calibrated.json",
                             what="--out material file")
@@ -201,7 +201,7 @@ def calibrate_time(args: argparse.Namespace) -> int:
 
 def studio(args: argparse.Namespace) -> int:
     """``morphshell studio``."""
-    from .studio import serve  # lazy: the stage loads when its subcommand runs
+    from ..studio import serve  # lazy: the stage loads when its subcommand runs
 
     serve(args.dirs, port=args.port, open_browser=not args.no_browser)
     return EXIT_OK
@@ -209,7 +209,7 @@ def studio(args: argparse.Namespace) -> int:
 
 def sweep(args: argparse.Namespace) -> int:
     """``morphshell sweep SPEC``: exit code of the worst variant that was not built."""
-    from .sweep import run_sweep  # lazy: the stage loads when its subcommand runs
+    from ..sweep import run_sweep  # lazy: the stage loads when its subcommand runs
 
     res = run_sweep(args.spec, out=args.out, scheduler=args.scheduler, workers=args.workers,
                     progress=_progress(args), dashboard=args.dashboard)
@@ -226,7 +226,7 @@ def sweep(args: argparse.Namespace) -> int:
 
 def shapes(args: argparse.Namespace) -> int:
     """``morphshell shapes``: the built-in shapes, one per line."""
-    from .design.surfaces import BUILTIN_SHAPES  # lazy: loads with its subcommand
+    from ..design.surfaces import BUILTIN_SHAPES  # lazy: loads with its subcommand
 
     for name in BUILTIN_SHAPES:
         print(name)
