@@ -33,7 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))   # this checkout's pysolver, also in the child (PACKAGE_ROOT)
 
-from pysolver.child import python_argv  # noqa: E402
+from pysolver.core.child import python_argv  # noqa: E402
 
 
 def _build(shape: str, solver: str, log) -> dict:

@@ -35,7 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pysolver.child import python_argv  # noqa: E402
+from pysolver.core.child import python_argv  # noqa: E402
 from pysolver.core.ownership import claim_output  # noqa: E402
 from pysolver.errors import InputError  # noqa: E402
 from pysolver.params import MECHTEST, PhysicsOptions  # noqa: E402

@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pysolver import cli  # noqa: E402
-from pysolver.child import python_argv  # noqa: E402
+from pysolver.core.child import python_argv  # noqa: E402
 from pysolver.core.writes import atomic_write_text  # noqa: E402
 from pysolver.distributed import ResultStore, Task, run_tasks  # noqa: E402
 from pysolver.params import PHYSICS_DEFAULT  # noqa: E402

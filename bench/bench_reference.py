@@ -8,7 +8,7 @@ benchmark and not a test; a clone on its own skips it with a message):
    given), figures: 3D and flat scaling (bar: both <= 1.001), smallest printed flat gap;
 2. ``program`` (the landscape is only checked, not remapped), then the Pearson correlation
    of the bracket thicknesses with ``cover_reference_cells.csv`` (bar: >= 0.9), cells
-   matched by face pair, +normal layer = top (:mod:`pysolver.reference_compare`).
+   matched by face pair, +normal layer = top (:mod:`pysolver.temporal.reference_compare`).
 
 Writes ``<out>/reference.json`` (default ``build/bench``).
 
@@ -33,9 +33,9 @@ sys.path.insert(0, str(ROOT))
 from _reference import reference_options  # noqa: E402  (bench/, beside this script)
 
 from pysolver.design import run_design, unit_cell_options  # noqa: E402
-from pysolver.reference_compare import read_reference_cells, thickness_correlation  # noqa: E402
 from pysolver.tables import read_cells  # noqa: E402
 from pysolver.temporal import program_design  # noqa: E402
+from pysolver.temporal.reference_compare import read_reference_cells, thickness_correlation  # noqa: E402
 
 SCALE_BAR = 1.001
 PEARSON_BAR = 0.9

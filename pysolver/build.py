@@ -13,7 +13,7 @@ keeps two builds of the same shape apart; different shapes build concurrently.
 
 Every build writes ``summary.json`` with its key figures (counts, sizes, thickness range,
 check results, timings), the versions of the project, OpenSCAD and key libraries
-(:mod:`pysolver.provenance`), and a hash of the inputs.  :func:`rebuild` runs the stages
+(:mod:`pysolver.core.provenance`), and a hash of the inputs.  :func:`rebuild` runs the stages
 after the design stage again from an edited time landscape (the studio's *Run*).
 """
 
@@ -34,6 +34,9 @@ from .core.inputs import check_input_file
 from .core.locks import build_lock
 from .core.manifest import STAMP_NAME, file_digest, public_mode, read_stamp
 from .core.ownership import audit, claim_output
+from .core.progress import say
+from .core.provenance import environment_versions, package_version, sha256_file
+from .core.records import json_text
 from .core.staging import (
     atomic_dir,
     open_staging,
@@ -50,9 +53,6 @@ from .design.time_landscape import read_time_file, write_landscape
 from .errors import EXIT_CHECK_FAILED, EXIT_OK, ExternalToolError, InputError, MorphshellError
 from .material.model import check_bracket_geometry, load_bracket_model
 from .params import BRACKET_MODEL_FILE, LIMITS, MEMBRANE_MODEL_FILE, SIM, UNIT_CELL
-from .progress import say
-from .provenance import environment_versions, package_version, sha256_file
-from .records import json_text
 from .render import (
     DEFAULT_RENDERER,
     check_renderer,
@@ -113,7 +113,7 @@ def inputs_hash(source: str, options: dict) -> str:
 
 def tool_versions() -> dict:
     """Versions of the project, Python and the key libraries, the lock file's record
-    (:func:`pysolver.provenance.environment_versions`) and OpenSCAD's version line."""
+    (:func:`pysolver.core.provenance.environment_versions`) and OpenSCAD's version line."""
     v = environment_versions()
     try:
         v["openscad"] = openscad_version(find_openscad())

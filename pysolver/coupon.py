@@ -14,11 +14,11 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
+from .core.progress import say
 from .core.writes import atomic_file, atomic_write_text
 from .design.pipeline import run_design
 from .geometry import print_transform
 from .params import UNIT_CELL
-from .progress import say
 from .render import (
     default_cache_dir,
     describe_stl,

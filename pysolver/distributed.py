@@ -35,13 +35,13 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .child import safe_path_environ
+from .core.child import safe_path_environ
 from .core.inputs import read_input
+from .core.progress import duration, say
+from .core.records import json_default, json_text
 from .core.writes import atomic_write_text
 from .errors import InputError
 from .params import TOLERANCE_RUN
-from .progress import duration, say
-from .records import json_default, json_text
 
 KEY_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,120}$")
 SCHEDULER_RE = re.compile(r"^(tcp|tls|ws|wss|inproc|ucx)://[A-Za-z0-9_.:\[\]/-]{1,200}$")
@@ -324,8 +324,8 @@ def _local_cluster(distributed, dask, n: int, dashboard: bool):
     when the cluster fails to start).
 
     Its workers are Python processes that multiprocessing starts ("spawn"), not through
-    :func:`pysolver.child.python_argv`: the cluster lives inside
-    :func:`pysolver.child.safe_path_environ`, so no worker (a restarted one included) puts
+    :func:`pysolver.core.child.python_argv`: the cluster lives inside
+    :func:`pysolver.core.child.safe_path_environ`, so no worker (a restarted one included) puts
     the working directory on its module path.
 
     Yields
@@ -371,7 +371,7 @@ def run_tasks(tasks: Iterable[Task], store: ResultStore, *, client=None,
     scheduler, workers, dashboard : see :func:`dask_client`
     progress : bool
     label : str
-        Stage of the progress lines (``[label] k/n done ... ETA``, :mod:`pysolver.progress`).
+        Stage of the progress lines (``[label] k/n done ... ETA``, :mod:`pysolver.core.progress`).
     on_result : callable, optional
         ``on_result(key, result)`` after each computed result is stored (tests use it to
         kill a worker mid-run).

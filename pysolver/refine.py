@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from . import tables
+from .core.progress import say
+from .core.records import json_text
 from .core.writes import atomic_write_text
 from .errors import InputError
 from .params import PROGRAMMING, REPORT, SIM, UNIT_CELL
-from .progress import say
-from .records import json_text
 from .simulator import (
     completion_times,
     never_due,

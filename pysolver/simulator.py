@@ -24,8 +24,8 @@ from sim.viewer import ASSETS as VIEWER_ASSETS
 from sim.viewer import STATIC_DIR as VIEWER_DIR
 from sim.viewer import viewer_data
 
+from .core.progress import say
 from .params import MECHTEST, TESTS
-from .progress import say
 
 
 def check_sim_span(t_end: float, dt: float) -> None:

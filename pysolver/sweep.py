@@ -51,6 +51,7 @@ import numpy as np
 from .build import build
 from .core.inputs import read_input
 from .core.ownership import claim_result_folder
+from .core.progress import say
 from .core.writes import atomic_file, atomic_write_text
 from .distributed import (
     ResultStore,
@@ -63,7 +64,6 @@ from .distributed import (
 )
 from .errors import InputError, MorphshellError
 from .params import TOLERANCE_RUN
-from .progress import say
 
 BUILD_ROOT = Path("build")
 OPTION_TYPES = {

@@ -47,9 +47,9 @@ TOP_PACKAGES = ("pysolver", "sim")
 # Layers, lowest first: a module may import its own group and any group of a lower rank.
 LAYERS = {
     "core": 0,        # errors, params, the plumbing package core (manifest, writes, locks,
-                      # ownership, staging, inputs), child (argv of child Pythons), machine
-                      # (memory left), geometry, tables, progress lines, JSON records, provenance:
-                      # used by every stage
+                      # ownership, staging, inputs, child: argv of child Pythons, machine:
+                      # memory left, progress lines, JSON records, provenance), geometry,
+                      # tables: used by every stage
     "mechanics": 1,   # shell model, membrane energy and mesh, Newton solver, rim margin
     "material": 1,    # runtime bracket material model
     "design": 2,      # target surface -> stencil -> layout -> design tables, model.npz
@@ -60,12 +60,11 @@ LAYERS = {
     "fitting": 3.5,   # offline fitting tools (material fit and its report, membrane-model
                       # fit): above every runtime stage, so none of them imports a fit
     "front": 4,       # orchestrator (build, stages table and runners, refine), the gateway
-                      # to the simulator, command line, studio, sweep, tolerance, specimens
+                      # to the simulator, command line, studio, sweep, tolerance, coupon
 }
 
-CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.core", "pysolver.child",
-        "pysolver.machine", "pysolver.geometry", "pysolver.tables", "pysolver.progress",
-        "pysolver.records", "pysolver.provenance"}
+CORE = {"pysolver", "pysolver.errors", "pysolver.params", "pysolver.core", "pysolver.geometry",
+        "pysolver.tables"}  # and every module of pysolver.params and pysolver.core
 FITTING = ("pysolver.fitting", "pysolver.fitting.material_fit",
            "pysolver.fitting.material_report", "pysolver.fitting.membrane_fit",
            "pysolver.fitting.cell_membrane")
@@ -284,6 +283,26 @@ def test_nothing_imports_the_command_line():
     bad = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
            if (b == CLI or b.startswith(CLI + ".")) and not (a == CLI or a.startswith(CLI + "."))]
     assert not bad, "\n".join(bad)
+
+
+def top_level() -> set[str]:
+    """The modules (``build.py``) and packages (``cli/``) at the top of ``pysolver``."""
+    top = ROOT / "pysolver"
+    return ({p.name for p in top.glob("*.py") if p.name != "__init__.py"}
+            | {p.name + "/" for p in top.iterdir() if (p / "__init__.py").is_file()})
+
+
+def test_the_map_names_every_top_level_module():
+    """``docs/for-contributors.md``'s map places every module and package at the top of
+    ``pysolver`` in its layer: a new one is placed there (or moved into a package) when it
+    is added.  The map writes a package as `` `pysolver/cli/` `` or `` `cli/` `` and a
+    module as `` `build.py` ``."""
+    text = (ROOT / "docs" / "for-contributors.md").read_text(encoding="utf-8")
+    table = text[text.index("## Map"):text.index("## Where to change")]
+    named = set(re.findall(r"`(?:pysolver/)?([\w]+(?:\.py|/))`", table))
+    tops = top_level()
+    assert {"build.py", "cli/", "core/", "stages/"} <= tops  # the glob sees the tree
+    assert not tops - named, f"top-level modules the map does not name: {sorted(tops - named)}"
 
 
 def test_project_imports_at_module_level():

@@ -13,7 +13,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from pysolver.child import python_argv
+from pysolver.core.child import python_argv
 from pysolver.design.surfaces import builtin
 from pysolver.mechanics.energies import State
 from pysolver.params import MECHTEST, UNIT_CELL

@@ -1,13 +1,13 @@
 """One of each piece of plumbing, read from the source with ``ast`` (nothing is imported):
 
 * atomic writes: only the plumbing, :mod:`pysolver.core`, renames files into place;
-* JSON records: only :mod:`pysolver.records` encodes what ``json`` cannot
+* JSON records: only :mod:`pysolver.core.records` encodes what ``json`` cannot
   (``json.dumps(default=...)``), besides the content fingerprint of
   :mod:`pysolver.distributed`, which hashes ``bytes`` by content and hands the rest to it;
 * completion: one function called ``completion_times`` (:mod:`sim.model.collisions`);
 * provenance: the runtime stages read package versions only through
-  :mod:`pysolver.provenance`;
-* progress: :class:`pysolver.progress.Steps` counts and prints ``[stage] subject: k/n ...``.
+  :mod:`pysolver.core.provenance`;
+* progress: :class:`pysolver.core.progress.Steps` counts and prints ``[stage] subject: k/n ...``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from pysolver.progress import Steps, duration, line
+from pysolver.core.progress import Steps, duration, line
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = sorted([*ROOT.glob("pysolver/**/*.py"), *ROOT.glob("sim/**/*.py")])
@@ -52,14 +52,14 @@ def test_only_atomic_moves_files_into_place():
 
 
 def test_one_json_encoder():
-    allowed = {"pysolver/records.py", "pysolver/distributed.py"}
+    allowed = {"pysolver/core/records.py", "pysolver/distributed.py"}
     bad = [f"{_rel(p)}:{c.lineno}" for p in SOURCES if _rel(p) not in allowed
            for c in _calls(p) if _dotted(c.func) in ("json.dumps", "json.dump")
            and any(k.arg in ("default", "cls") for k in c.keywords)]
     classes = [f"{_rel(p)}:{n.lineno}" for p in SOURCES
                for n in ast.walk(ast.parse(p.read_text())) if isinstance(n, ast.ClassDef)
                and any(_dotted(b).endswith("JSONEncoder") for b in n.bases)]
-    assert not bad + classes, "encode through pysolver.records:\n" + "\n".join(bad + classes)
+    assert not bad + classes, "encode through pysolver.core.records:\n" + "\n".join(bad + classes)
 
 
 def test_one_completion_rule():
@@ -76,14 +76,14 @@ def test_versions_come_from_provenance():
     offline = ("pysolver/fitting/",)  # the offline fits record their own tool versions
     bad = []
     for p in SOURCES:
-        if _rel(p) == "pysolver/provenance.py" or _rel(p).startswith(offline):
+        if _rel(p) == "pysolver/core/provenance.py" or _rel(p).startswith(offline):
             continue
         for n in ast.walk(ast.parse(p.read_text())):
             names = ([a.name for a in n.names] if isinstance(n, ast.Import)
                      else [n.module or ""] if isinstance(n, ast.ImportFrom) else [])
             if any(m.startswith("importlib.metadata") for m in names):
                 bad.append(f"{_rel(p)}:{n.lineno}")
-    assert not bad, "read versions through pysolver.provenance:\n" + "\n".join(bad)
+    assert not bad, "read versions through pysolver.core.provenance:\n" + "\n".join(bad)
 
 
 def test_progress_lines_count_and_estimate(capsys):
@@ -109,14 +109,14 @@ def test_duration_words(s, text):
 
 def test_the_studio_reads_the_progress_events(capsys):
     """The studio's progress bar reads structured events (issue #46 item 4): the JSON lines
-    :func:`pysolver.progress.emit_events` writes beside the text lines (the build's stage
+    :func:`pysolver.core.progress.emit_events` writes beside the text lines (the build's stage
     starts and the ``k/n`` counts of the stages), never the text itself
     (:func:`pysolver.studio.server.progress_event`); anything else on the stream is not an
     event."""
     import io
 
-    from pysolver import progress
-    from pysolver.progress import say
+    from pysolver.core import progress
+    from pysolver.core.progress import say
     from pysolver.studio.server import progress_event
 
     out = io.StringIO()

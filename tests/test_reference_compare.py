@@ -1,4 +1,4 @@
-"""The comparison with a reference design (``pysolver.reference_compare``), self-contained.
+"""The comparison with a reference design (``pysolver.temporal.reference_compare``), self-contained.
 
 The real comparison (the reference's cover stencil and cells, in ``../shared``, which is not
 project data) is ``bench/bench_reference.py``; here the mechanism is checked on tables made
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from pysolver.errors import InputError
-from pysolver.reference_compare import (
+from pysolver.temporal.reference_compare import (
     match_cells,
     read_reference_cells,
     thickness_correlation,

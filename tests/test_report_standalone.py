@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from _browser import chrome, have_browser
 
+from pysolver.core.provenance import sha256_file
 from pysolver.params import FABRICATION, SIM
-from pysolver.provenance import sha256_file
 from pysolver.tables import read_table
 from sim.report import fabrication as fab
 

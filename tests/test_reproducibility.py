@@ -25,8 +25,8 @@ import pytest
 from _shared import designed
 
 from pysolver.build import inputs_hash
+from pysolver.core.provenance import lock_record
 from pysolver.design import run_design
-from pysolver.provenance import lock_record
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = "regular:rows=1,cols=2"

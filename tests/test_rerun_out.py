@@ -122,7 +122,7 @@ RUNS = {
     "fit-membrane": (lambda t, s: [], ["--out", "m.json", "--report", "R"],
                      {"pysolver.fitting.membrane_fit.fit_membrane_model": _fit_membrane_stub}),
     "specimens": (lambda t, s: [], ["--out", "X"],
-                  {"pysolver.specimens.make_specimens": _specimens_stub}),
+                  {"pysolver.render.specimens.make_specimens": _specimens_stub}),
     "tolerance": (lambda t, s: [s[0]], ["--out", "X"],
                   {"pysolver.tolerance.tolerance_analysis": _tolerance_stub}),
     "sweep": (lambda t, s: [t / "spec.toml"], ["--out", "X"],

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from _shared import run_cli
 
-from pysolver.child import PACKAGE_ROOT, python_argv
+from pysolver.core.child import PACKAGE_ROOT, python_argv
 from pysolver.core.staging import staging_dir
 
 # ------------------------------------------------------------------------------ child Pythons
@@ -568,7 +568,7 @@ def _fake_machine(tmp_path: Path, cgroup: str, files: dict) -> tuple[Path, Path]
 def test_the_memory_estimate_respects_cgroup_limits(tmp_path, cgroup, files, room):
     """LOW: the pair search's memory budget read only ``MemAvailable`` (32 GiB here), and
     ignored the cgroup's ``memory.max`` (v2) or ``memory.limit_in_bytes`` (v1)."""
-    from pysolver.machine import available_memory
+    from pysolver.core.machine import available_memory
 
     proc, cg = _fake_machine(tmp_path, cgroup, files)
     assert available_memory(proc=proc, cgroup_root=cg) == room
@@ -577,7 +577,7 @@ def test_the_memory_estimate_respects_cgroup_limits(tmp_path, cgroup, files, roo
 def test_the_memory_estimate_respects_ulimit_v():
     """LOW: ``ulimit -v`` (``RLIMIT_AS``) was ignored: measured in a child with 256 MiB of
     address space more than it maps."""
-    code = ("import resource\nfrom pysolver.machine import available_memory\n"
+    code = ("import resource\nfrom pysolver.core.machine import available_memory\n"
             "size = int([l for l in open('/proc/self/status') if l.startswith('VmSize')][0]"
             ".split()[1]) * 1024\n"
             "resource.setrlimit(resource.RLIMIT_AS, (size + (256 << 20), resource.RLIM_INFINITY))\n"
@@ -644,7 +644,7 @@ def test_a_failed_cluster_start_leaves_no_scratch_folder(tmp_path, monkeypatch):
 def test_no_child_python_is_started_outside_python_argv():
     """LOW: ``bench/bench_build.py`` and ``bench/bench_printed.py`` started ``sys.executable
     -m pysolver.cli`` (the working directory first on the child's path), not through
-    :func:`pysolver.child.python_argv`."""
+    :func:`pysolver.core.child.python_argv`."""
     import re
 
     root = Path(PACKAGE_ROOT)

@@ -19,7 +19,7 @@ from pysolver.errors import InputError
 from pysolver.params import UNIT_CELL
 from pysolver.render import load_stl
 from pysolver.render.scad_io import SCAD_DIR
-from pysolver.specimens import (
+from pysolver.render.specimens import (
     make_specimens,
     plate_layout,
     specimen_grid,

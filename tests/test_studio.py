@@ -450,7 +450,7 @@ def test_a_run_whose_stage_hangs_silently_is_stopped_at_the_timeout(monkeypatch,
     import dataclasses
     import time
 
-    from pysolver.child import python_argv
+    from pysolver.core.child import python_argv
     from pysolver.studio import server as studio_server
 
     monkeypatch.setattr(studio_server, "LIMITS", dataclasses.replace(

@@ -173,7 +173,7 @@ def fit_membrane(args: argparse.Namespace) -> int:
 
 def specimens(args: argparse.Namespace) -> int:
     """``morphshell specimens``."""
-    from ..specimens import make_specimens  # lazy: the stage loads when its subcommand runs
+    from ..render.specimens import make_specimens  # lazy: the stage loads when its subcommand runs
 
     make_specimens(claim_result_folder(args.out, what="--out folder"), jobs=args.jobs)
     return EXIT_OK

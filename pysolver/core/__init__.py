@@ -44,4 +44,15 @@ The package, by concern (each module imports only those above it):
                            place; a build's staging folder; recovery after a kill
 :mod:`.inputs`             reading the user's input files (size-limited, no FIFOs)
 =========================  =======================================================
+
+Beside them, plumbing that imports nothing of the project:
+
+=========================  =======================================================
+:mod:`.progress`           progress lines on stderr (``say``, ``k/n`` and an ETA)
+                           and their JSON events
+:mod:`.records`            JSON records: the project's one encoder (``json_text``)
+:mod:`.provenance`         file hashes, package versions, the lock file's record
+:mod:`.child`              the command line of every child Python (``python_argv``)
+:mod:`.machine`            the memory this process may still take
+=========================  =======================================================
 """

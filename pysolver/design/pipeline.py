@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
+from ..core.progress import Clock
+from ..core.records import json_text
 from ..core.staging import output_folder
 from ..core.writes import atomic_write_text
 from ..errors import InputError
 from ..geometry import signed_areas_2d
 from ..params import LIMITS, UNIT_CELL, UnitCell, check_unit_cell
-from ..progress import Clock
-from ..records import json_text
 from . import surfaces
 from .alternatives import printable_alternatives, size_refusal
 from .cellnodes import bracket_nodes, collision_lengths, write_model_file

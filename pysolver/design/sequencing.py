@@ -30,8 +30,8 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from ..core.machine import available_memory
 from ..errors import InputError
-from ..machine import available_memory
 from ..params import SEQUENCING, Sequencing
 
 __all__ = ["edge_graph", "facing_pairs", "surface_parts", "stacking_order",

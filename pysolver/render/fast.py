@@ -50,9 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..child import python_argv
+from ..core.child import python_argv
+from ..core.provenance import package_version
 from ..params import LIMITS
-from ..provenance import package_version
 from .scad_io import Part, part_text
 
 DIST = "openscad-evaluator"

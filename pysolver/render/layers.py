@@ -51,12 +51,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.progress import say
+from ..core.records import json_text
 from ..core.staging import atomic_dir
 from ..geometry import print_transform, rotvec_to_matrix
 from ..params import LAYERS, SIM, UNIT_CELL, layer_sign
 from ..params import tol as TOL
-from ..progress import say
-from ..records import json_text
 from ..tables import PARTS_RECORD, tables_sha256
 from .parts import DEFAULT_RENDERER, check_renderer, default_cache_dir, find_openscad, render_parts
 from .scad_io import SCAD_DIR, Part, check_library, read_design, write_part_files

@@ -24,10 +24,10 @@ import warnings
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
+from ..core.progress import Steps, say
 from ..core.writes import atomic_file
 from ..errors import ExternalToolError, InputError, MorphshellError
 from ..params import tol as TOL
-from ..progress import Steps, say
 from . import fast as render_fast
 from .scad_io import SCAD_DIR, Part, check_library
 from .solids import load_stl, to_manifold
@@ -277,7 +277,7 @@ def render_parts(parts, *, cache_dir, scad_dir=SCAD_DIR, jobs=None, progress=Tru
     jobs : int, optional
         Parallel OpenSCAD processes / fast-renderer workers (default: CPU count).
     progress : bool
-        ``[render] ... k/n  ETA`` lines on stderr (:class:`pysolver.progress.Steps`).
+        ``[render] ... k/n  ETA`` lines on stderr (:class:`pysolver.core.progress.Steps`).
     exe : str, optional
         OpenSCAD executable (default :func:`find_openscad`).
     renderer : {"openscad", "fast", "auto"}, optional

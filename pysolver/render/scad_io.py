@@ -57,7 +57,7 @@ class Part:
         File stem, e.g. ``node_top_0007``.
     kind : str
         ``node``, ``actuated``, ``frame``, ``marker`` (or ``specimen``, see
-        :mod:`pysolver.specimens`).
+        :mod:`pysolver.render.specimens`).
     layer : str or None
         ``top``/``bottom`` (None for the marker dot, which serves both layers).
     base_id : int

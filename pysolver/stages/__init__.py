@@ -201,7 +201,7 @@ class BuildOptions:
     renderer : {"openscad", "fast", "auto"}, optional
         Part renderer (default :data:`pysolver.render.DEFAULT_RENDERER`).
     progress : bool
-        Progress lines on stderr (:mod:`pysolver.progress`).
+        Progress lines on stderr (:mod:`pysolver.core.progress`).
     keep_failed : bool
         Keep the staging folder of a build whose stage fails (``--debug``).
     """

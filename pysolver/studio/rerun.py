@@ -6,7 +6,7 @@ The request (stdin, JSON) is ``{"folder": path, "landscape": [s per stencil vert
 "source": {...}, "out": path (optional: a new build beside the original)}``;
 :func:`pysolver.build.rebuild` runs the stages after the design stage with the build's own
 options and replaces the folder (or writes ``out``) only when all have finished.  Its
-progress lines go to stderr, and as JSON lines to stdout (:func:`pysolver.progress.
+progress lines go to stderr, and as JSON lines to stdout (:func:`pysolver.core.progress.
 emit_events`: the studio's progress bar reads those).  Exit codes as the
 command line: 0 done, 3 done with a FAIL verdict, 2 bad input (nothing saved), 1 a bug.
 """
@@ -18,8 +18,8 @@ import sys
 import traceback
 
 from ..build import rebuild
+from ..core.progress import emit_events
 from ..errors import EXIT_BAD_INPUT, EXIT_INTERNAL, MorphshellError, environment_message
-from ..progress import emit_events
 
 
 def main() -> int:

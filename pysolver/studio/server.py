@@ -73,7 +73,7 @@ from urllib.parse import parse_qs, quote, urlsplit
 import numpy as np
 
 from ..build import rebuild_options, report_figures
-from ..child import python_argv
+from ..core.child import python_argv
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, PROGRAMMING
 from ..simulator import build_parts, morph_viewer, viewer_assets

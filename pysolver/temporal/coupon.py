@@ -41,12 +41,12 @@ import math
 import numpy as np
 from scipy import optimize, stats
 
+from ..core.records import json_text
 from ..core.writes import atomic_write_text
 from ..design.time_landscape import read_option_text
 from ..errors import InputError
 from ..material.model import CompliantBracketModel, model_dict
 from ..params import COUPON, UNIT_CELL, Coupon
-from ..records import json_text
 from ..tables import read_table
 from .membrane_model import load_membrane_model
 from .program import (

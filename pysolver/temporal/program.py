@@ -63,6 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import tables
+from ..core.progress import say
 from ..core.writes import atomic_write_text
 from ..design.time_landscape import cell_target_times, write_landscape
 from ..errors import InputError
@@ -71,7 +72,6 @@ from ..material.model import check_bracket_geometry
 from ..mechanics import bumper_clearance
 from ..params import PHYSICS_DEFAULT, PROGRAMMING, SEQUENCING, SIM, UNIT_CELL
 from ..params import tol as TOL
-from ..progress import say
 from ..tables import read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
 from .plots import plot_feasibility

@@ -76,6 +76,8 @@ import numpy as np
 
 from pysolver import distributed
 from pysolver.core.ownership import claim_result_folder
+from pysolver.core.progress import say
+from pysolver.core.records import finite, json_text
 from pysolver.core.writes import atomic_write_text
 from pysolver.errors import InputError, MorphshellError, refuse_first
 from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
@@ -90,8 +92,6 @@ from pysolver.params import (
     UNCERTAINTY,
     Uncertainty,
 )
-from pysolver.progress import say
-from pysolver.records import finite, json_text
 from pysolver.simulator import check_sim_span, simulate_and_check
 from pysolver.tables import MODEL_FILE, read_design, read_table
 

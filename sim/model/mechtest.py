@@ -30,13 +30,13 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from pysolver.core.progress import Steps
 from pysolver.errors import InputError
 from pysolver.material.bumper import dry_bumper_modulus
 from pysolver.mechanics.energies import State, jtkj, spring_terms
 from pysolver.mechanics.model import load_model
 from pysolver.mechanics.solver import StaticProblem, newton
 from pysolver.params import MECHTEST, TESTS, MechTest, PhysicsOptions
-from pysolver.progress import Steps
 from pysolver.tables import read_record, tables_sha256
 
 from .physics import ExternalTerms, bending_stiffness, bumper_stiffness

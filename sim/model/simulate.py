@@ -66,6 +66,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pysolver.core.progress import Steps, say
+from pysolver.core.records import json_text
 from pysolver.core.writes import atomic_file, atomic_write_text, remove_file
 from pysolver.errors import InputError, MorphshellError
 from pysolver.geometry import rigid_fit
@@ -77,8 +79,6 @@ from pysolver.mechanics.model import ShellModel, load_model
 from pysolver.mechanics.solver import SOLVERS, LinearSolver, StaticProblem, newton
 from pysolver.params import NEWTON, PHYSICS_DEFAULT, SIM, UNIT_CELL, PhysicsOptions
 from pysolver.params import tol as TOL
-from pysolver.progress import Steps, say
-from pysolver.records import json_text
 from pysolver.tables import tables_sha256
 
 from .collisions import completion_times
@@ -688,7 +688,7 @@ def run_simulation(sim: Simulation, *, progress: bool = True, label: str = "sim"
     """Run ``sim`` to the end (or early stop), with progress lines and checkpoints.
 
     Progress: one line per step, ``[simulate] <label>: k/n t=... newton ... ETA s``
-    (:class:`pysolver.progress.Steps`).  On divergence the frames so far are written to
+    (:class:`pysolver.core.progress.Steps`).  On divergence the frames so far are written to
     ``frames_path`` (if given) and the :class:`MorphshellError` is re-raised.
     """
     st = sim.settings

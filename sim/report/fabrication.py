@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pysolver.core.provenance import package_versions, sha256_file
 from pysolver.params import FABRICATION, MEMBRANE_MODEL_FILE, SIM, UNIT_CELL
 from pysolver.params import tol as TOL
-from pysolver.provenance import package_versions, sha256_file
 from pysolver.tables import LANDSCAPE_SOURCE, PARTS_RECORD, read_record, tables_sha256
 
 STL_PURPOSE = {

@@ -27,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402 (after the backend)
 import numpy as np  # noqa: E402
 
 from pysolver.core.ownership import audit  # noqa: E402
+from pysolver.core.records import json_text  # noqa: E402
 from pysolver.core.writes import (  # noqa: E402
     atomic_write_bytes,
     atomic_write_text,
@@ -35,7 +36,6 @@ from pysolver.core.writes import (  # noqa: E402
 )
 from pysolver.errors import InputError  # noqa: E402
 from pysolver.params import MECHTEST, TESTS, MechTest  # noqa: E402
-from pysolver.records import json_text  # noqa: E402
 from sim.model.mechtest import readings  # noqa: E402
 
 OUT_NAME = "mechtest"

@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection, PatchCollection  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
 
-from pysolver.child import python_argv  # noqa: E402
+from pysolver.core.child import python_argv  # noqa: E402
 from pysolver.params import LIMITS, UNIT_CELL  # noqa: E402
 
 TOP_COLOR = "#e8a33d"

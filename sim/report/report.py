@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from pysolver.core.progress import Steps
+from pysolver.core.records import finite, json_text
 from pysolver.core.staging import atomic_dir
 from pysolver.errors import InputError, MorphshellError
 from pysolver.params import PHYSICS_DEFAULT, PICTURES, SCAN_AGREEMENT, ReportThresholds
-from pysolver.progress import Steps
-from pysolver.records import finite, json_text
 from pysolver.tables import read_table, tables_sha256
 
 from ..model.mechtest import bearing, dried_shell, recorded_material

@@ -45,11 +45,11 @@ from scipy.spatial.transform import Rotation
 
 from pysolver.core.inputs import check_input_file, read_input
 from pysolver.core.ownership import claim_result_folder
+from pysolver.core.records import json_text
 from pysolver.core.writes import atomic_file, atomic_write_text, make_dirs
 from pysolver.errors import InputError
 from pysolver.geometry import rigid_fit
 from pysolver.params import tol as TOL
-from pysolver.records import json_text
 from pysolver.tables import read_table
 
 from .load import load_frames

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .params import UNIT_CELL
-from .params import tol as TOL
+from ..errors import InputError
+from ..params import UNIT_CELL
+from ..params import tol as TOL
 
 REFERENCE_COLUMNS = ("cell", "face_a", "face_b", "thickness_pos_normal_mm",
                      "thickness_neg_normal_mm", "t_star_s")

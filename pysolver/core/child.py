@@ -27,7 +27,7 @@ import os
 import sys
 from pathlib import Path
 
-PACKAGE_ROOT = str(Path(__file__).resolve().parents[1])
+PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 """The folder holding the ``pysolver`` and ``sim`` packages this process imported."""
 
 

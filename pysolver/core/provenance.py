@@ -17,7 +17,7 @@ VERSION_PACKAGES = ("morphshell", "numpy", "scipy", "libigl", "trimesh", "manifo
                     "pyvista", "openscad-evaluator", "autograd", "numba")
 """Packages whose versions a build and its report record."""
 
-LOCK_FILE = Path(__file__).resolve().parents[1] / "uv.lock"
+LOCK_FILE = Path(__file__).resolve().parents[2] / "uv.lock"
 """The lock file that ``make`` installs (absent when morphshell is installed some other way)."""
 
 NOT_INSTALLED = "not installed"

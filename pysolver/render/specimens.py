@@ -22,20 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.staging import atomic_dir
-from .core.writes import atomic_write_text
-from .errors import InputError
-from .params import UNIT_CELL
-from .render import (
-    default_cache_dir,
-    describe_stl,
-    from_manifold,
-    load_stl,
-    render_parts,
-    to_manifold,
-    union,
-)
-from .render.scad_io import SCAD_DIR, Part, check_library, part_text
+from ..core.staging import atomic_dir
+from ..core.writes import atomic_write_text
+from ..errors import InputError
+from ..params import UNIT_CELL
+from .parts import default_cache_dir, render_parts
+from .scad_io import SCAD_DIR, Part, check_library, part_text
+from .solids import describe_stl, from_manifold, load_stl, to_manifold, union
 
 AUTHORS_THICKNESSES_SHORT = (0.30, 0.40, 0.50, 0.60)
 """mm: bracket thicknesses of the authors' specimen grid for l <= 7 mm."""
