@@ -3,7 +3,8 @@
 Modules: :mod:`.scad_io` (part files, SCAD library), :mod:`.parts` (renderers and the part
 cache), :mod:`.fast` (the fast part renderer), :mod:`.solids` (STL meshes, manifold3d
 unions) and :mod:`.layers` (the stage: :func:`render_design` unites the parts into layers
-and writes ``stl/``).
+and writes ``stl/``).  Beside the stage, from the same SCAD modules: :mod:`.specimens`, the
+printable unit-cell test specimens (``morphshell specimens``).
 """
 from .layers import STL_FILES, render_design
 from .parts import (

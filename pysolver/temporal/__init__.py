@@ -2,7 +2,9 @@
 
 Modules: :mod:`.program` (force balance, thickness solve, :func:`program_design`),
 :mod:`.membrane_model` (the linearised membrane model ``F_mem``, the FEM membrane of the
-per-cell correction), :mod:`.plots`.  The fit of ``F_mem`` (``make membrane-model``) is an
+per-cell correction), :mod:`.plots`, :mod:`.coupon` (the timing coupon's calibration),
+:mod:`.reference_compare` (the thicknesses against a reference design's, for
+``bench/bench_reference.py``).  The fit of ``F_mem`` (``make membrane-model``) is an
 offline tool, in :mod:`pysolver.fitting.membrane_fit`.  Every membrane here is the one membrane
 energy of :mod:`pysolver.mechanics.energies` on the one membrane mesh of a flat layout
 (:func:`pysolver.mechanics.membrane_mesh`); nothing here imports the simulator (``sim``).
