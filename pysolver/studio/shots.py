@@ -136,8 +136,12 @@ def drag_on_editor(driver, vertex: int, dx: int, dy: int) -> None:
         dx // 2, dy // 2).move_by_offset(dx - dx // 2, dy - dy // 2).release().perform()
 
 
-def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
+def studio_shots(build_dir, out_dir, *, width: int = 1100, warm: bool = True) -> dict:
     """Write the studio's screenshots (module docstring) of a copy of ``build_dir``.
+
+    ``warm``: the studio makes the first build's data while the browser starts, as
+    ``morphshell studio`` does (:meth:`StudioServer.warm`); without it the first page load
+    finds nothing made (a cold start, to measure).
 
     Returns
     -------
@@ -159,6 +163,8 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
     copy = work / build_dir.resolve().name
     shutil.copytree(build_dir, copy, symlinks=True)
     srv = StudioServer(resolve_folders([copy]))
+    if warm:
+        srv.warm()
     threading.Thread(target=srv.serve_forever, daemon=True).start()
     profile = tempfile.mkdtemp(prefix="morphshell-shots-")
     files, out = [], {}
@@ -269,9 +275,11 @@ def main(argv=None) -> int:
                                  description=__doc__.split("\n")[0])
     ap.add_argument("build_dir")
     ap.add_argument("out_dir", nargs="?", default="docs/img")
+    ap.add_argument("--cold", action="store_true",
+                    help="no warm-up: the page's first requests make the build's data")
     a = ap.parse_args(argv)
     try:
-        res = studio_shots(a.build_dir, a.out_dir)
+        res = studio_shots(a.build_dir, a.out_dir, warm=not a.cold)
         for p in res["files"]:
             print(f"{p} ({p.stat().st_size // 1000} kB)")
         print(f"page usable (editor, results) after {res['usable_ms']} ms, viewer loaded after "
