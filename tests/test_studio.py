@@ -467,15 +467,23 @@ def test_a_run_whose_stage_hangs_silently_is_stopped_at_the_timeout(monkeypatch,
 
 
 def test_eta_is_the_rest_of_the_plan_at_this_run_s_pace():
-    from pysolver.studio.server import eta_seconds
+    from pysolver.studio.jobs import PACE_PRIOR_S as P
+    from pysolver.studio.jobs import eta_seconds
 
     plan, expect = ["start", "program", "simulate", "render", "report"], {
         "start": 4.0, "program": 10.0, "simulate": 100.0, "render": 80.0, "report": 10.0}
     # before a stage has finished: the build's own times (a slow start changes nothing)
     assert eta_seconds(plan, expect, {"start": 30.0}, "program", 4.0, 0.0) == 6.0 + 190.0
-    # stages that took twice their time: the rest at twice its time
+    # stages that took twice their time: the rest at their pace, pooled with pace 1 over
+    # P s (a short stage moves it little, a long one much)
+    pace = (20.0 + P) / (10.0 + P)
+    assert 1.0 < pace < 1.5
     assert eta_seconds(plan, expect, {"start": 4.0, "program": 20.0}, "simulate", 50.0,
-                       0.0) == 150.0 + 180.0
+                       0.0) == pytest.approx(100.0 * pace - 50.0 + 90.0 * pace, abs=0.05)
+    pace = (220.0 + P) / (110.0 + P)
+    assert pace > 1.75
+    assert eta_seconds(plan, expect, {"program": 20.0, "simulate": 200.0}, "render", 0.0,
+                       0.0) == pytest.approx(90.0 * pace, abs=0.05)
     # a stage's own count: its rest by its rate so far
     assert eta_seconds(plan, expect, {"program": 10.0}, "simulate", 30.0, 0.5) == 30.0 + 90.0
     # late in the last stage: never below 0
@@ -566,11 +574,23 @@ def test_a_huge_region_cell_id_is_a_400_naming_it(server):
 def test_the_viewer_data_is_sent_gzip_compressed_when_the_browser_takes_it(server):
     import gzip
 
+    from pysolver.studio.server import TOKEN_HEADER
+
     st, plain = _request(server, "GET", "/api/build/0/viewer")
     st2, packed = _request(server, "GET", "/api/build/0/viewer",
                            headers={"Accept-Encoding": "gzip, deflate"})
     assert st == st2 == 200 and gzip.decompress(packed) == plain
     assert len(packed) < 0.9 * len(plain)   # base64 of uint16 positions: ~0.57 on petal
+    # the JSON's own size, which the page counts the arriving (decompressed) bytes against
+    for accept in ("", "gzip"):
+        c = http.client.HTTPConnection("127.0.0.1", server.server_address[1], timeout=60)
+        c.request("GET", "/api/build/0/viewer", headers={
+            "Host": f"127.0.0.1:{server.server_address[1]}", "Accept-Encoding": accept,
+            TOKEN_HEADER: server.token})
+        r = c.getresponse()
+        r.read()
+        assert r.status == 200 and r.getheader("X-Morphshell-Bytes") == str(len(plain))
+        c.close()
 
 
 def test_the_target_is_made_without_the_viewer_and_is_kept_until_its_files_change(
@@ -925,6 +945,9 @@ def test_a_stroke_changes_only_the_painted_region(server, small_build):
         # again at load (the first paint waits for one request less)
         assert not d.execute_script("return studio.editor.previewRequests")
         assert d.find_element("id", "feas").get_attribute("data-n-clamped") is not None
+        # the viewers' data came after, counted as they arrived against their JSON's size
+        size = sum(len(b.viewer_body(False)) for b in server.builds)
+        assert d.find_element("id", "viewers").get_attribute("data-received") == str(size)
         before = _land(d)
         _brush(d, "add", "10", "10", "0.5")
         _stroke(d, c)
@@ -1293,6 +1316,10 @@ def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, s
         assert names == ["regular", "regular", "regular-2"]
         assert d.execute_script("return studio.editor.build.name") == "regular-2"
         assert _files(small_build) == before                  # the original is untouched
+        # issue #47: the same landscape run again would find the variant's parts cached
+        from pysolver.studio.builds import Build
+        assert Build(small_build).built_before(painted) == var
+        assert Build(small_build).changed_parts(painted, refine=1) == 0.0
         assert np.allclose(read_table(var, "time_landscape")["time_s"], painted, rtol=1e-8)
         assert _land(d).tobytes() == read_table(var, "time_landscape")["time_s"].tobytes()
         rec = json.loads((var / "studio_landscape.json").read_text())

@@ -15,12 +15,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..build import report_figures
+from ..build import rebuild_inputs_hash, report_figures
 from ..design.time_landscape import cell_target_times
 from ..errors import InputError, MorphshellError
 from ..params import LIMITS, PROGRAMMING
 from ..simulator import build_parts, completion_times, morph_viewer
-from ..tables import LANDSCAPE_SOURCE, TABLE_FILES, read_record, read_stencil, read_table
+from ..tables import (
+    LANDSCAPE_SOURCE,
+    TABLE_FILES,
+    read_record,
+    read_stencil,
+    read_table,
+    round_sig9,
+)
 from ..temporal import STAGE_FILE
 from .landscape import (
     Feasibility,
@@ -217,12 +224,12 @@ class Build:
                 "max_clamped_fraction": PROGRAMMING.max_clamped_fraction}
 
     def changed_parts(self, landscape, refine: int) -> float:
-        """Fraction of the printable parts whose files a Run of ``landscape`` changes (the
-        others come from the part cache): none for the build's own landscape; with
-        refinement (``refine`` rounds > 0) all for any edit, since the refinement moves
-        every cell's bracket thickness a little (petal, a 12 mm brush: 703 of 703 parts
-        rendered again); without it, the parts of the bases with a cell whose requested
-        time moved.
+        """Fraction of the printable parts a Run of ``landscape`` renders (the others come
+        from the part cache): none for the build's own landscape, or for one a build beside
+        it was made of already (:meth:`built_before`); with refinement (``refine`` rounds
+        > 0) all for any other edit, since the refinement moves every cell's bracket
+        thickness a little (petal, a 12 mm brush: 703 of 703 parts rendered again); without
+        it, the parts of the bases with a cell whose requested time moved.
 
         Parameters
         ----------
@@ -234,7 +241,24 @@ class Build:
         float -- 0 to 1
         """
         moved = self._moved_bases(landscape)
+        if moved and self.built_before(landscape) is not None:
+            return 0.0
         return 1.0 if moved and refine > 0 else moved
+
+    def built_before(self, landscape) -> Path | None:
+        """A build beside this one (``<parent>/*/``) made by a Run of this build with
+        ``landscape`` (the same inputs hash, :func:`pysolver.build.rebuild_inputs_hash`):
+        the parts it rendered are in the part cache the builds beside each other share.
+        None when there is none."""
+        own = (read_record(self.folder / "summary.json") or {}).get("inputs_sha256")
+        if not own:
+            return None
+        digest, _ = rebuild_inputs_hash(own, round_sig9(np.asarray(landscape, float)))
+        for p in sorted(self.folder.parent.glob("*/summary.json")):
+            rec = read_record(p)
+            if isinstance(rec, dict) and rec.get("inputs_sha256") == digest:
+                return p.parent
+        return None
 
     def _moved_bases(self, landscape) -> float:
         """Fraction of the bases with a cell whose requested time ``landscape`` moves."""

@@ -305,8 +305,11 @@ class Handler(BaseHTTPRequestHandler):
             what = parts[3]
             if len(parts) == 4 and what == "viewer":
                 gz = "gzip" in self.headers.get("Accept-Encoding", "")
-                return self._send(HTTPStatus.OK, b.viewer_body(gz), extra=[
-                    ("Content-Encoding", "gzip")] if gz else [])
+                body = b.viewer_body(gz)
+                # the JSON's own bytes (the page counts them as they arrive, decompressed)
+                size = ("X-Morphshell-Bytes", str(len(b.viewer_body(False))))
+                return self._send(HTTPStatus.OK, body, extra=[
+                    ("Content-Encoding", "gzip"), size] if gz else [size])
             if len(parts) == 4 and what in ("target", "results", "parts"):
                 self._json(HTTPStatus.OK, getattr(b, what)())
                 if what == "target":   # the page asks for the morph next: made meanwhile

@@ -237,6 +237,12 @@ def _keep_tail(stream, tail: list, keep: int = 40) -> None:
         del tail[:-keep]
 
 
+PACE_PRIOR_S = 30.0
+"""Seconds of expected stage time at pace 1 that a run's measured pace is pooled with
+(:func:`eta_seconds`): the pace of a run's first short stages moves the ETA little, that of
+its long ones much."""
+
+
 def eta_seconds(plan, expect, actual, stage, spent, frac) -> float:
     """Seconds a run has left: the rest of the stage running now and the stages after it,
     each at the build's own time scaled by this run's pace.
@@ -253,14 +259,16 @@ def eta_seconds(plan, expect, actual, stage, spent, frac) -> float:
     Returns
     -------
     float, s
-        ``pace = sum(actual) / sum(expect)`` over the finished stages but the start (1
-        before one has finished; kept within 0.25-4); the stage running now has left
-        ``spent (1 - frac) / frac`` once its count is past 5 %, else its paced time less
-        ``spent`` (never below 0); each later stage its paced time.
+        ``pace = (sum(actual) + P) / (sum(expect) + P)`` over the finished stages but the
+        start, ``P`` = :data:`PACE_PRIOR_S` (1 before one has finished, near 1 while only
+        short stages have: a 2 s stage taking 6 s on a busy machine said little of the
+        rest, and made a 2 min run's ETA 6.5 min; kept within 0.25-4); the stage running
+        now has left ``spent (1 - frac) / frac`` once its count is past 5 %, else its paced
+        time less ``spent`` (never below 0); each later stage its paced time.
     """
     done = [s for s in actual if s != "start" and s in expect]
-    pace = (sum(actual[s] for s in done) / max(sum(expect[s] for s in done), 1e-9)
-            if done else 1.0)
+    pace = ((sum(actual[s] for s in done) + PACE_PRIOR_S)
+            / (sum(expect[s] for s in done) + PACE_PRIOR_S))
     pace = min(max(pace, 0.25), 4.0)
     if frac > 0.05:
         now_left = spent * (1 - frac) / frac
@@ -270,4 +278,5 @@ def eta_seconds(plan, expect, actual, stage, spent, frac) -> float:
     return round(now_left + pace * sum(expect[s] for s in later), 1)
 
 
-__all__ = ["Job", "Busy", "progress_event", "eta_seconds", "expected_seconds", "RENDER_PART_S"]
+__all__ = ["Job", "Busy", "progress_event", "eta_seconds", "expected_seconds", "RENDER_PART_S",
+           "PACE_PRIOR_S"]

@@ -30,15 +30,39 @@
   function api(path, body) {
     var opt = body === undefined ? {headers: headers(false)} :
       {method: "POST", body: JSON.stringify(body), headers: headers(true)};
-    return fetch(path, opt).then(function (r) {
-      return r.json().then(function (j) {
-        if (!r.ok) {
-          var e = new Error((j.error || ("HTTP " + r.status)) + (j.fix ? " (fix: " + j.fix + ")" : ""));
-          e.status = r.status;
-          throw e;
-        }
-        return j;
-      });
+    return fetch(path, opt).then(reply);
+  }
+  function reply(r) {
+    return r.json().then(function (j) {
+      if (!r.ok) {
+        var e = new Error((j.error || ("HTTP " + r.status)) + (j.fix ? " (fix: " + j.fix + ")" : ""));
+        e.status = r.status;
+        throw e;
+      }
+      return j;
+    });
+  }
+  // a large JSON GET read as it arrives: onBytes(received, total) after each piece (total:
+  // the JSON's bytes, X-Morphshell-Bytes, since the body arrives decompressed; 0 unknown)
+  function apiRead(path, onBytes) {
+    return fetch(path, {headers: headers(false)}).then(function (r) {
+      if (!r.ok || !r.body || !window.TextDecoder) return reply(r);
+      var total = +r.headers.get("X-Morphshell-Bytes") || 0, got = 0, pieces = [];
+      var reader = r.body.getReader();
+      function next() {
+        return reader.read().then(function (x) {
+          if (!x.done) {
+            pieces.push(x.value);
+            got += x.value.length;
+            onBytes(got, total);
+            return next();
+          }
+          var all = new Uint8Array(got), k = 0;
+          pieces.forEach(function (p) { all.set(p, k); k += p.length; });
+          return JSON.parse(new TextDecoder().decode(all));
+        });
+      }
+      return next();
     });
   }
   // the token as the session cookie (downloads need no token in their URL)
@@ -53,5 +77,5 @@
   var first = {session: session(), builds: api("/api/builds"), target: api("/api/build/0/target"),
     results: api("/api/build/0/results"), job: api("/api/job")};
   Object.keys(first).forEach(function (k) { first[k].catch(function () {}); });
-  window.studioNet = {token: token, headers: headers, api: api, first: first};
+  window.studioNet = {token: token, headers: headers, api: api, apiRead: apiRead, first: first};
 })();

@@ -6,7 +6,10 @@
 
   // the server's limits (pysolver.params.Limits), sent with each build's target
   var MAX_TIME = 1000, MAX_RADIUS = 1000;
-  var studio = {viewers: [], builds: [], editor: null, token: null, job: null};
+  // (started: ms from the navigation to this file running, after three.js: the first paint's
+  // breakdown in docs/results.md)
+  var studio = {viewers: [], builds: [], editor: null, token: null, job: null,
+    started: Math.round(performance.now())};
   window.studio = studio;
 
   function $(id) { return document.getElementById(id); }
@@ -65,10 +68,20 @@
     });
     var withFrames = studio.builds.filter(function (b) { return b.has_frames; });
     var width = withFrames.length > 1 ? 520 : 760;
+    // the data arrive progressively: until the first viewers are shown, how much has come
+    var got = {}, total = {};
+    function shown(id, k, n) {
+      got[id] = k; total[id] = n;
+      if (studio.viewers.length) return;
+      var sum = function (o) { return Object.keys(o).reduce(function (a, i) { return a + o[i]; }, 0); };
+      var a = sum(got), t = sum(total);
+      box.textContent = "loading the morph viewer: " + (a / 1e6).toFixed(1) +
+        (t ? " of " + (t / 1e6).toFixed(1) : "") + " MB";
+      box.setAttribute("data-received", String(a));
+    }
     return Promise.all(withFrames.map(function (b) {
-      return api("/api/build/" + b.id + "/viewer").then(function (data) {
-        return {b: b, data: data};
-      });
+      return net.apiRead("/api/build/" + b.id + "/viewer", function (k, n) { shown(b.id, k, n); })
+        .then(function (data) { return {b: b, data: data}; });
     })).then(function (list) {
       studio.viewers.forEach(function (v) { v.renderer.dispose(); });
       studio.viewers = [];
@@ -1076,10 +1089,10 @@
       ed && ed.brush();
     });
     // the session cookie (for downloads), the builds and the first build's data were asked
-    // for at once by boot.js: every api call carries the token in its header meanwhile
+    // for at once by boot.js: every api call carries the token in its header, so nothing
+    // waits for the cookie
     var first = net.first;
-    Promise.all([first.session, first.builds]).then(function (got) {
-      var builds = got[1];
+    first.builds.then(function (builds) {
       studio.builds = builds;
       var sel = $("edit-build");
       fillSelector();
@@ -1150,7 +1163,7 @@
       })]).then(function () {
         document.body.setAttribute("data-usable", String(Math.round(performance.now())));
         $("viewers").textContent = "loading the morph viewer ...";
-        return Promise.all([loadParts(), loadViewers()]);
+        return Promise.all([loadParts(), loadViewers(), first.session]);   // (downloads: the cookie)
       });
     }).then(function () {
       document.body.setAttribute("data-ready-ms", String(Math.round(performance.now())));
