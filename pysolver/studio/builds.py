@@ -227,9 +227,10 @@ class Build:
         """Fraction of the printable parts a Run of ``landscape`` renders (the others come
         from the part cache): none for the build's own landscape, or for one a build beside
         it was made of already (:meth:`built_before`); with refinement (``refine`` rounds
-        > 0) all for any other edit, since the refinement moves every cell's bracket
-        thickness a little (petal, a 12 mm brush: 703 of 703 parts rendered again); without
-        it, the parts of the bases with a cell whose requested time moved.
+        > 0) all for any other edit, an upper bound: the refinement moves many cells'
+        bracket thickness a little (petal: 256 and 703 of 703 parts rendered again for two
+        edits, and 64 for a run of its own landscape; ``docs/results.md``); without it, the
+        parts of the bases with a cell whose requested time moved.
 
         Parameters
         ----------
