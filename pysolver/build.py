@@ -99,6 +99,15 @@ def shape_name(source: str) -> str:
                          + ") or give a mesh file path (OBJ, STL, PLY, OFF).")
 
 
+def rebuild_inputs_hash(old_inputs_sha256, landscape) -> tuple[str, str]:
+    """``(inputs_sha256, landscape_sha256)`` of a :func:`rebuild` of the build whose inputs
+    hash is ``old_inputs_sha256`` with ``landscape`` ((n_vertices,) float, s, rounded as
+    ``time_landscape.csv`` keeps it: :func:`pysolver.tables.round_sig9`): the same for the
+    same build and landscape, so a build of them made before is found by it."""
+    land_sha = hashlib.sha256(np.asarray(landscape, float).astype("<f8").tobytes()).hexdigest()
+    return hashlib.sha256(f"{old_inputs_sha256}\0{land_sha}".encode()).hexdigest(), land_sha
+
+
 def inputs_hash(source: str, options: dict) -> str:
     """Hash of everything a build depends on: the source, options, material file, code version."""
     h = hashlib.sha256()
@@ -444,11 +453,10 @@ def rebuild(folder, landscape, *, source: dict | None = None, progress: bool = T
     claim_output(dest, what="build folder" if out is None else "variant folder",
                  inputs=() if out is None else (folder / "stencil.obj",))
     validate_model_files(opts.material, unit=tables.read_unit_cell(folder))
-    land_sha = hashlib.sha256(land.astype("<f8").tobytes()).hexdigest()
+    digest, land_sha = rebuild_inputs_hash(old.get("inputs_sha256"), land)
     edit = {"made_by": "morphshell studio", "edited_from_tables_sha256":
             tables.tables_sha256(folder),
             **({} if out is None else {"variant_of": folder.name}), **(source or {})}
-    digest = hashlib.sha256(f"{old.get('inputs_sha256')}\0{land_sha}".encode()).hexdigest()
     summary: dict = {"shape": old.get("shape", folder.name), "source": old.get("source"),
                      "options": old["options"], "inputs_sha256": digest,
                      "stages": {k: v for k, v in old.get("stages", {}).items() if k == "design"},
@@ -739,5 +747,6 @@ def _key_figures(folder: Path, stages: dict) -> dict:
 
 
 __all__ = ["build", "rebuild", "design_only", "check_build_options",
-           "validate_model_files", "shape_name", "inputs_hash", "tool_versions",
+           "validate_model_files", "shape_name", "inputs_hash", "rebuild_inputs_hash",
+           "tool_versions",
            "report_figures", "check_landscape", "REBUILD_DROPPED", "BUILD_ROOT"]

@@ -477,7 +477,7 @@ def test_the_studio_page_drops_the_token_from_its_address():
     and replaces its address without it at once."""
     from pysolver.studio.server import STATIC_DIR
 
-    js = (STATIC_DIR / "studio.js").read_text()
+    js = (STATIC_DIR / "boot.js").read_text()      # the page's network side
     start = js.index("function tokenFromUrl()")
     body = js[start:js.index("\n  }\n", start)]
     assert 'history.replaceState(null, "", location.pathname + location.search)' in body

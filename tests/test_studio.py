@@ -451,31 +451,39 @@ def test_a_run_whose_stage_hangs_silently_is_stopped_at_the_timeout(monkeypatch,
     import time
 
     from pysolver.core.child import python_argv
-    from pysolver.studio import server as studio_server
+    from pysolver.studio import jobs
+    from pysolver.studio.builds import Build
 
-    monkeypatch.setattr(studio_server, "LIMITS", dataclasses.replace(
-        studio_server.LIMITS, studio_job_timeout_s=1.0))
-    monkeypatch.setattr(studio_server, "python_argv", lambda module: python_argv(
+    monkeypatch.setattr(jobs, "LIMITS", dataclasses.replace(
+        jobs.LIMITS, studio_job_timeout_s=1.0))
+    monkeypatch.setattr(jobs, "python_argv", lambda module: python_argv(
         code="import time\ntime.sleep(120)"))   # a stage that never says a word
-    job = studio_server.Job()
+    job = jobs.Job()
     job.state.update(state="running", started=time.time(), log=[])
-    job._run(studio_server.Build(tmp_path), "{}", ["start", "program", "report"],
-             dict(studio_server.Job.DEFAULT_S))
+    job._run(Build(tmp_path), "{}", ["start", "program", "report"], dict(jobs.Job.DEFAULT_S))
     state = job.snapshot()
     # (not stopped, the silent child would have ended after 120 s as "done")
     assert state["state"] == "error" and "longer than 1 s" in state["error"], state
 
 
 def test_eta_is_the_rest_of_the_plan_at_this_run_s_pace():
-    from pysolver.studio.server import eta_seconds
+    from pysolver.studio.jobs import PACE_PRIOR_S as P
+    from pysolver.studio.jobs import eta_seconds
 
     plan, expect = ["start", "program", "simulate", "render", "report"], {
         "start": 4.0, "program": 10.0, "simulate": 100.0, "render": 80.0, "report": 10.0}
     # before a stage has finished: the build's own times (a slow start changes nothing)
     assert eta_seconds(plan, expect, {"start": 30.0}, "program", 4.0, 0.0) == 6.0 + 190.0
-    # stages that took twice their time: the rest at twice its time
+    # stages that took twice their time: the rest at their pace, pooled with pace 1 over
+    # P s (a short stage moves it little, a long one much)
+    pace = (20.0 + P) / (10.0 + P)
+    assert 1.0 < pace < 1.5
     assert eta_seconds(plan, expect, {"start": 4.0, "program": 20.0}, "simulate", 50.0,
-                       0.0) == 150.0 + 180.0
+                       0.0) == pytest.approx(100.0 * pace - 50.0 + 90.0 * pace, abs=0.05)
+    pace = (220.0 + P) / (110.0 + P)
+    assert pace > 1.75
+    assert eta_seconds(plan, expect, {"program": 20.0, "simulate": 200.0}, "render", 0.0,
+                       0.0) == pytest.approx(90.0 * pace, abs=0.05)
     # a stage's own count: its rest by its rate so far
     assert eta_seconds(plan, expect, {"program": 10.0}, "simulate", 30.0, 0.5) == 30.0 + 90.0
     # late in the last stage: never below 0
@@ -566,11 +574,122 @@ def test_a_huge_region_cell_id_is_a_400_naming_it(server):
 def test_the_viewer_data_is_sent_gzip_compressed_when_the_browser_takes_it(server):
     import gzip
 
+    from pysolver.studio.server import TOKEN_HEADER
+
     st, plain = _request(server, "GET", "/api/build/0/viewer")
     st2, packed = _request(server, "GET", "/api/build/0/viewer",
                            headers={"Accept-Encoding": "gzip, deflate"})
     assert st == st2 == 200 and gzip.decompress(packed) == plain
     assert len(packed) < 0.9 * len(plain)   # base64 of uint16 positions: ~0.57 on petal
+    # the JSON's own size, which the page counts the arriving (decompressed) bytes against
+    for accept in ("", "gzip"):
+        c = http.client.HTTPConnection("127.0.0.1", server.server_address[1], timeout=60)
+        c.request("GET", "/api/build/0/viewer", headers={
+            "Host": f"127.0.0.1:{server.server_address[1]}", "Accept-Encoding": accept,
+            TOKEN_HEADER: server.token})
+        r = c.getresponse()
+        r.read()
+        assert r.status == 200 and r.getheader("X-Morphshell-Bytes") == str(len(plain))
+        c.close()
+
+
+def test_the_target_is_made_without_the_viewer_and_is_kept_until_its_files_change(
+        small_build, tmp_path):
+    """Issue #47 item 6: the editor's data no longer makes the morph viewer's (most of the
+    first paint's 2 s on petal); its completion times are the viewer's all the same."""
+    import os
+
+    from pysolver.studio.builds import Build
+
+    b = Build(_copy(small_build, tmp_path))
+    t = b.target()
+    assert b._viewer is None and b._viewer_bytes is None          # the viewer was not made
+    assert b.target() is t                                         # kept
+    v = b.viewer()
+    assert t["programmed"]["t_done"] == v["cells"]["t_done"]       # the same rule, rounded alike
+    assert len(t["programmed"]["t_done"]) == len(read_table(b.folder, "cells")["cell_id"])
+    p = b.folder / "time_landscape.csv"                           # a file it is made from moved
+    os.utime(p, ns=(p.stat().st_atime_ns, p.stat().st_mtime_ns + 10 ** 9))
+    assert b.target() is not t and b.target() == t
+
+
+def test_the_target_s_request_has_the_viewer_made_ahead(server):
+    """After the editor's data, the studio makes the morph's compressed bytes while the page
+    gets usable, so that its next request finds them made."""
+    st, _ = _request(server, "GET", "/api/build/0/target")
+    assert st == 200
+    b = server.builds[0]
+    _wait_for(lambda: b._prefetch is not None, "the viewer's thread")   # (after the reply)
+    b._prefetch.join(WAIT_S)
+    assert not b._prefetch.is_alive() and "gz" in b._viewer_bytes[2]
+
+
+def test_the_eta_at_a_run_s_start_counts_only_the_parts_the_run_renders():
+    """Issue #47: the ETA at a run's start took the build's render with every part rendered
+    (4 min said for a 118 s run whose parts were cached)."""
+    from pysolver.studio.jobs import RENDER_PART_S, expected_seconds
+
+    defaults = {"start": 4.0, "program": 3.0, "render": 40.0, "report": 10.0}
+    summ = {"timings_s": {"program": 2.0, "render": 108.0, "report": 11.0},
+            "stages": {"render": {"parts": 700, "rendered": 700, "cached": 0,
+                                  "timings_s": {"openscad": 96.0, "total": 108.0}}}}
+    # the build's own landscape: every part from the cache, the union and export left
+    assert expected_seconds(summ, defaults, 0.0) == {"start": 4.0, "program": 2.0,
+                                                     "render": 12.0, "report": 11.0}
+    assert expected_seconds(summ, defaults, 1.0)["render"] == pytest.approx(108.0)
+    assert expected_seconds(summ, defaults, 0.25)["render"] == pytest.approx(12.0 + 24.0)
+    # a build whose own render was all cached: its time, plus the changed parts at the default
+    summ["stages"]["render"].update(rendered=0, cached=700)
+    summ["timings_s"]["render"] = 12.0
+    assert expected_seconds(summ, defaults, 0.5)["render"] == pytest.approx(
+        12.0 + 350 * RENDER_PART_S)
+    # no render record (an older build): the build's time as it was
+    assert expected_seconds({"timings_s": {"render": 50.0}}, defaults, 1.0)["render"] == 50.0
+
+
+def test_a_run_s_changed_parts_are_none_for_its_own_landscape_and_all_after_refinement(
+        small_build):
+    from pysolver.studio.builds import Build
+
+    b = Build(small_build)
+    land = b.landscape()
+    assert b.changed_parts(land, refine=1) == b.changed_parts(land, refine=0) == 0.0
+    cells = read_table(small_build, "cells")
+    v = int(cells["vertex_a"][0])                        # a vertex of the first cell
+    edited = land.copy()
+    edited[v] += 5.0
+    moved = (cells["vertex_a"] == v) | (cells["vertex_b"] == v)
+    bases = set(cells["base_a"][moved]) | set(cells["base_b"][moved])
+    n_bases = len(set(cells["base_a"]) | set(cells["base_b"]))
+    assert 0 < len(bases) < n_bases
+    assert b.changed_parts(edited, refine=0) == pytest.approx(len(bases) / n_bases)
+    assert b.changed_parts(edited, refine=1) == 1.0    # the refinement moves every cell
+
+
+def test_a_run_starts_with_the_eta_of_what_it_will_run(small_build, monkeypatch):
+    import dataclasses
+
+    from pysolver.build import rebuild_options
+    from pysolver.studio import jobs
+    from pysolver.studio.builds import Build
+
+    summ, opts = rebuild_options(small_build)
+    summ = dict(summ, timings_s={"program": 2.0, "simulate": 30.0, "refine": 20.0,
+                                 "render": 108.0, "report": 11.0},
+                stages={"render": {"parts": 700, "rendered": 700,
+                                   "timings_s": {"openscad": 96.0}}})
+    opts = dataclasses.replace(opts, render=True, refine=1)
+    monkeypatch.setattr(jobs, "rebuild_options", lambda folder: (summ, opts))
+    monkeypatch.setattr(jobs.Job, "_run", lambda self, *a: None)   # nothing runs
+    b = Build(small_build)
+    land = b.landscape()
+    for landscape, render in ((land, 12.0), (land + 1.0, 108.0)):
+        job = jobs.Job()
+        job.start(b, 0, landscape, [])
+        state = job.snapshot()
+        assert "render" in state["plan"]
+        assert state["eta_s"] == pytest.approx(jobs.Job.DEFAULT_S["start"] + 2.0 + 30.0 + 20.0
+                                               + render + 11.0)
 
 
 # ------------------------------------------------------------------------------ rebuild
@@ -822,6 +941,13 @@ def test_a_stroke_changes_only_the_painted_region(server, small_build):
     V, c = _centre(small_build)
     with chrome() as d:
         _open(d, server)
+        # issue #47 item 6: the target came with its landscape's feasibility: none asked
+        # again at load (the first paint waits for one request less)
+        assert not d.execute_script("return studio.editor.previewRequests")
+        assert d.find_element("id", "feas").get_attribute("data-n-clamped") is not None
+        # the viewers' data came after, counted as they arrived against their JSON's size
+        size = sum(len(b.viewer_body(False)) for b in server.builds)
+        assert d.find_element("id", "viewers").get_attribute("data-received") == str(size)
         before = _land(d)
         _brush(d, "add", "10", "10", "0.5")
         _stroke(d, c)
@@ -1190,6 +1316,10 @@ def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, s
         assert names == ["regular", "regular", "regular-2"]
         assert d.execute_script("return studio.editor.build.name") == "regular-2"
         assert _files(small_build) == before                  # the original is untouched
+        # issue #47: the same landscape run again would find the variant's parts cached
+        from pysolver.studio.builds import Build
+        assert Build(small_build).built_before(painted) == var
+        assert Build(small_build).changed_parts(painted, refine=1) == 0.0
         assert np.allclose(read_table(var, "time_landscape")["time_s"], painted, rtol=1e-8)
         assert _land(d).tobytes() == read_table(var, "time_landscape")["time_s"].tobytes()
         rec = json.loads((var / "studio_landscape.json").read_text())

@@ -25,6 +25,7 @@ does, and captures each step:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import os
 import shutil
@@ -136,16 +137,21 @@ def drag_on_editor(driver, vertex: int, dx: int, dy: int) -> None:
         dx // 2, dy // 2).move_by_offset(dx - dx // 2, dy - dy // 2).release().perform()
 
 
-def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
+def studio_shots(build_dir, out_dir, *, width: int = 1100, warm: bool = True) -> dict:
     """Write the studio's screenshots (module docstring) of a copy of ``build_dir``.
+
+    ``warm``: the studio makes the first build's data while the browser starts, as
+    ``morphshell studio`` does (:meth:`StudioServer.warm`); without it the first page load
+    finds nothing made (a cold start, to measure).
 
     Returns
     -------
     dict
         ``files`` (paths written), ``usable_ms`` (page opened to editor and results shown,
         in the browser), ``ready_ms`` (to the morph viewer loaded too), ``preview_ms``
-        (round trip of the live feasibility after a stroke, in the browser) and ``run_s``
-        (the run, a build of a variant, as the studio timed it).
+        (round trip of the live feasibility after a stroke, in the browser), ``run_s``
+        (the run, a build of a variant, as the studio timed it) and ``eta_start_s`` (the
+        ETA the run started with).
     """
     build_dir = Path(build_dir)
     out_dir = Path(out_dir)
@@ -154,39 +160,54 @@ def studio_shots(build_dir, out_dir, *, width: int = 1100) -> dict:
     if not report.is_file():
         raise InputError(f"{report}: no report in this build",
                          fix=f"build it first: morphshell build <shape> --out {build_dir}")
-    # the copy lives beside the build, so that the render stage finds the same part cache
-    work = Path(tempfile.mkdtemp(prefix=".studio-shots-", dir=build_dir.resolve().parent))
-    copy = work / build_dir.resolve().name
-    shutil.copytree(build_dir, copy, symlinks=True)
-    srv = StudioServer(resolve_folders([copy]))
-    threading.Thread(target=srv.serve_forever, daemon=True).start()
-    profile = tempfile.mkdtemp(prefix="morphshell-shots-")
     files, out = [], {}
 
     def save(png, name):
         files.append(_save_small(png, out_dir / name, width))
 
-    try:
-        d = chromium_driver(1400, 1700, profile, extra=("--hide-scrollbars",))
-        try:
-            d.get(srv.url)
-            _wait(d, lambda d: d.find_element("tag name", "body").get_attribute("data-ready"),
-                  "the studio")
-            out["usable_ms"], out["ready_ms"] = d.execute_script(
-                "return [+document.body.getAttribute('data-usable'),"
-                " +document.body.getAttribute('data-ready-ms')]")
-            _shoot_editor(d, save, out)
-            _shoot_run(d, save, out)
-            _shoot_report(d, report, save)
-        finally:
-            d.quit()
-    finally:
-        srv.shutdown()
-        srv.server_close()
-        shutil.rmtree(profile, ignore_errors=True)
-        shutil.rmtree(work, ignore_errors=True)
+    with opened_studio(build_dir, warm=warm) as (d, _):
+        out["usable_ms"], out["ready_ms"] = d.execute_script(
+            "return [+document.body.getAttribute('data-usable'),"
+            " +document.body.getAttribute('data-ready-ms')]")
+        _shoot_editor(d, save, out)
+        _shoot_run(d, save, out)
+        _shoot_report(d, report, save)
     out["files"] = files
     return out
+
+
+@contextlib.contextmanager
+def opened_studio(build_dir, *, warm: bool = True):
+    """The studio on a copy of ``build_dir`` (``build/.studio-shots-*``: beside the build, so
+    that a run's render stage finds the same part cache), its page opened in a fresh
+    headless chromium (a new profile) and loaded (``data-ready``); yields ``(driver,
+    server)`` and removes the copy, the profile and the server after.  ``warm``: as
+    :func:`studio_shots`."""
+    build_dir = Path(build_dir)
+    work = Path(tempfile.mkdtemp(prefix=".studio-shots-", dir=build_dir.resolve().parent))
+    profile = tempfile.mkdtemp(prefix="morphshell-shots-")
+    try:
+        copy = work / build_dir.resolve().name
+        shutil.copytree(build_dir, copy, symlinks=True)
+        srv = StudioServer(resolve_folders([copy]))
+        threading.Thread(target=srv.serve_forever, daemon=True).start()
+        try:
+            if warm:
+                srv.warm()
+            d = chromium_driver(1400, 1700, profile, extra=("--hide-scrollbars",))
+            try:
+                d.get(srv.url)
+                _wait(d, lambda d: d.find_element("tag name", "body").get_attribute(
+                    "data-ready"), "the studio")
+                yield d, srv
+            finally:
+                d.quit()
+        finally:
+            srv.shutdown()
+            srv.server_close()
+    finally:
+        shutil.rmtree(profile, ignore_errors=True)
+        shutil.rmtree(work, ignore_errors=True)
 
 
 def _shoot_editor(d, save, out: dict) -> None:
@@ -227,6 +248,10 @@ def _shoot_run(d, save, out: dict) -> None:
     ``studio-ghost.png``)."""
     d.find_element("id", "variant").click()       # into a new build beside the original
     d.find_element("id", "run").click()
+    # the ETA the run started with (the server's answer to the click)
+    _wait(d, lambda d: d.execute_script("return !!(studio.job && studio.job.started)"),
+          "the run to start")
+    out["eta_start_s"] = d.execute_script("return studio.job.eta_s")
     # the bar with a stage, a percentage and an ETA (whichever stage is running then)
     _wait(d, lambda d: d.execute_script(
         "var j = studio.job; return !!(j && (j.state === 'done' || j.state === 'error' ||"
@@ -269,21 +294,24 @@ def main(argv=None) -> int:
                                  description=__doc__.split("\n")[0])
     ap.add_argument("build_dir")
     ap.add_argument("out_dir", nargs="?", default="docs/img")
+    ap.add_argument("--cold", action="store_true",
+                    help="no warm-up: the page's first requests make the build's data")
     a = ap.parse_args(argv)
     try:
-        res = studio_shots(a.build_dir, a.out_dir)
+        res = studio_shots(a.build_dir, a.out_dir, warm=not a.cold)
         for p in res["files"]:
             print(f"{p} ({p.stat().st_size // 1000} kB)")
         print(f"page usable (editor, results) after {res['usable_ms']} ms, viewer loaded after "
               f"{res['ready_ms']} ms; live feasibility after a stroke: {res['preview_ms']} ms; "
-              f"run into a variant: {res['run_s']} s")
+              f"run into a variant: {res['run_s']} s (ETA at its start: {res['eta_start_s']} s)")
     except InputError as e:
         print(f"studio-shots: error: {e}", file=sys.stderr)
         return 2
     return 0
 
 
-__all__ = ["studio_shots", "chromium_driver", "have_browser", "type_into", "drag_on_editor"]
+__all__ = ["studio_shots", "opened_studio", "chromium_driver", "have_browser", "type_into",
+           "drag_on_editor"]
 
 if __name__ == "__main__":
     sys.exit(main())

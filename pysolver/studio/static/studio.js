@@ -1,55 +1,21 @@
 /* morphshell studio: paint the time landscape on the target, build it again, and compare.
- * Talks only to the local server that served this page (same origin, JSON).  Its token is in
- * the session cookie the private page the studio opened obtained (POST /session, no URL);
- * on the printed URL's #token=..., it is dropped from the address bar at once, exchanged
- * for that cookie too, and sent in a header. */
+ * Talks only to the local server that served this page (same origin, JSON), through boot.js
+ * (the token, the calls, the first requests). */
 (function () {
   "use strict";
 
   // the server's limits (pysolver.params.Limits), sent with each build's target
   var MAX_TIME = 1000, MAX_RADIUS = 1000;
-  var studio = {viewers: [], builds: [], editor: null, token: null, job: null};
+  // (started: ms from the navigation to this file running, after three.js: the first paint's
+  // breakdown in docs/results.md)
+  var studio = {viewers: [], builds: [], editor: null, token: null, job: null,
+    started: Math.round(performance.now())};
   window.studio = studio;
 
   function $(id) { return document.getElementById(id); }
-  // On the printed URL the token arrives after # (never sent to a server); it is kept in this tab's
-  // sessionStorage (a reload keeps working) and dropped from the address bar and the
-  // history entry at once, so it is not left in the browser's history.
-  function tokenFromUrl() {
-    var m = /(?:^|[#&])token=([A-Za-z0-9_\-]+)/.exec(location.hash || "");
-    var token = m ? m[1] : null;
-    try {
-      if (token) sessionStorage.setItem("morphshell-token", token);
-      else token = sessionStorage.getItem("morphshell-token");
-    } catch (e) { /* storage disabled: the token lives in this page only */ }
-    if (m) history.replaceState(null, "", location.pathname + location.search);
-    return token;
-  }
-  function headers(json) {
-    var h = studio.token ? {"X-Morphshell-Token": studio.token} : {};
-    if (json) h["Content-Type"] = "application/json";
-    return h;
-  }
-  function api(path, body) {
-    var opt = body === undefined ? {headers: headers(false)} :
-      {method: "POST", body: JSON.stringify(body), headers: headers(true)};
-    return fetch(path, opt).then(function (r) {
-      return r.json().then(function (j) {
-        if (!r.ok) {
-          var e = new Error((j.error || ("HTTP " + r.status)) + (j.fix ? " (fix: " + j.fix + ")" : ""));
-          e.status = r.status;
-          throw e;
-        }
-        return j;
-      });
-    });
-  }
-  // the token as the session cookie (downloads need no token in their URL)
-  function session(token) {
-    if (!token) return Promise.resolve();
-    return fetch("/session", {method: "POST", body: "token=" + encodeURIComponent(token),
-      headers: {"Content-Type": "application/x-www-form-urlencoded"}}).then(function () {});
-  }
+  // the network side (token, JSON calls, session cookie) and the first requests, which went
+  // out while this file and three.js loaded: boot.js
+  var net = window.studioNet, api = net.api, headers = net.headers;
   function status(text, state) {
     var s = $("status");
     s.textContent = text;
@@ -102,10 +68,20 @@
     });
     var withFrames = studio.builds.filter(function (b) { return b.has_frames; });
     var width = withFrames.length > 1 ? 520 : 760;
+    // the data arrive progressively: until the first viewers are shown, how much has come
+    var got = {}, total = {};
+    function shown(id, k, n) {
+      got[id] = k; total[id] = n;
+      if (studio.viewers.length) return;
+      var sum = function (o) { return Object.keys(o).reduce(function (a, i) { return a + o[i]; }, 0); };
+      var a = sum(got), t = sum(total);
+      box.textContent = "loading the morph viewer: " + (a / 1e6).toFixed(1) +
+        (t ? " of " + (t / 1e6).toFixed(1) : "") + " MB";
+      box.setAttribute("data-received", String(a));
+    }
     return Promise.all(withFrames.map(function (b) {
-      return api("/api/build/" + b.id + "/viewer").then(function (data) {
-        return {b: b, data: data};
-      });
+      return net.apiRead("/api/build/" + b.id + "/viewer", function (k, n) { shown(b.id, k, n); })
+        .then(function (data) { return {b: b, data: data}; });
     })).then(function (list) {
       studio.viewers.forEach(function (v) { v.renderer.dispose(); });
       studio.viewers = [];
@@ -166,13 +142,14 @@
   // Load a build into the editor.  Until its target arrives every control that writes is
   // disabled (studio.loading), and a late answer for a build no longer selected is dropped:
   // the landscape on screen, the state edited and the build a Run goes to are always one.
-  // opts.keepCamera keeps the view; opts.state replaces the build's editing state.
+  // opts.keepCamera keeps the view; opts.state replaces the build's editing state;
+  // opts.target is the target's request, already sent (the first build's, by boot.js).
   Editor.prototype.load = function (build, opts) {
     var self = this, seq = (this.loadSeq = (this.loadSeq || 0) + 1);
     opts = opts || {};
     studio.loading = build.id;
     this.updateButtons();
-    return api("/api/build/" + build.id + "/target").then(function (d) {
+    return (opts.target || api("/api/build/" + build.id + "/target")).then(function (d) {
       if (seq !== self.loadSeq) return;      // another build was selected meanwhile
       self.build = build;
       self.target = d;
@@ -234,12 +211,25 @@
       self.fixScale(null);     // the build's own range, fixed while painting
       self.version = (self.version || 0) + 1;
       self.feas = d.feasibility;
+      // the target came with the feasibility of the build's own landscape: asked again only
+      // for a kept state edited away from it
+      if (sameLandscape(st.land, self.buildLand)) {
+        self.previewed = self.version; self.previewedFor = st;
+        self.lastPreview = Promise.resolve();
+        self.seq = (self.seq || 0) + 1;    // a reply still on its way is for another landscape
+        $("feas").setAttribute("data-seq", String(self.seq));
+      }
       self.listKeyframes();
       self.paint();
       self.updateButtons();
       return self.preview();
     });
   };
+  function sameLandscape(a, b) {
+    if (a.length !== b.length) return false;
+    for (var i = 0; i < a.length; i++) if (a[i] !== b[i]) return false;
+    return true;
+  }
 
   Editor.prototype.fit = function () {
     var bs = this.mesh.geometry.boundingSphere;
@@ -778,9 +768,10 @@
     ["shape_rms_pct", "final shape error (% of size)", -1, 1],
     ["refine_rounds", "refinement rounds", null, 0],
   ];
-  function loadResults() {
-    var b = studio.editor.build, box = $("results");
-    return api("/api/build/" + b.id + "/results").then(function (r) {
+  // the results of a build (default: the editor's); ``got``: its request, already sent
+  function loadResults(build, got) {
+    var b = build || studio.editor.build, box = $("results");
+    return (got || api("/api/build/" + b.id + "/results")).then(function (r) {
       box.innerHTML = "";
       var link = $("report-link");
       link.hidden = !r.report;
@@ -819,8 +810,8 @@
     }).catch(function (e) { box.textContent = e.message; box.setAttribute("data-state", "error"); });
   }
 
-  function loadParts() {
-    var b = studio.editor.build, box = $("parts");
+  function loadParts(build) {
+    var b = build || studio.editor.build, box = $("parts");
     return api("/api/build/" + b.id + "/parts").then(function (r) {
       box.innerHTML = "";
       if (!r.made_from.fresh) {
@@ -1068,7 +1059,7 @@
 
   // ---------------------------------------------------------------- start
   function init() {
-    studio.token = tokenFromUrl();
+    studio.token = net.token;
     var ed;
     studio.fields = {
       value: numberField("brush-value", "brush-error", {name: "value", changed: function () { ed && ed.brush(); },
@@ -1097,7 +1088,11 @@
       $("brush-value-label").textContent = m === "set" ? "time" : m === "smooth" ? "(no value)" : "seconds";
       ed && ed.brush();
     });
-    session(studio.token).then(function () { return api("/api/builds"); }).then(function (builds) {
+    // the session cookie (for downloads), the builds and the first build's data were asked
+    // for at once by boot.js: every api call carries the token in its header, so nothing
+    // waits for the cookie
+    var first = net.first;
+    first.builds.then(function (builds) {
       studio.builds = builds;
       var sel = $("edit-build");
       fillSelector();
@@ -1158,17 +1153,17 @@
         if (ed.dirty() && !(studio.job && studio.job.state === "running")) { e.preventDefault(); e.returnValue = ""; }
       });
       $("run").addEventListener("click", run);
-      // the editor and the results first (small): the page is usable while the morph
-      // viewer's data (megabytes, gzip-compressed) still loads
-      return ed.load(builds[0]).then(function () {
-        return Promise.all([loadResults(), loadParts(), api("/api/job").then(function (j) {
-          studio.job = j;
-          if (j.state === "running") poll();   // a run started before a reload: follow it
-        })]);
-      }).then(function () {
+      // the editor (target, landscape, feasibility), the results and the job at once
+      // (small): the page is usable then; the parts and the morph viewer's data (megabytes,
+      // gzip-compressed, made by the server while the editor loaded) come after
+      return Promise.all([ed.load(builds[0], {target: first.target}),
+        loadResults(builds[0], first.results), first.job.then(function (j) {
+        studio.job = j;
+        if (j.state === "running") poll();   // a run started before a reload: follow it
+      })]).then(function () {
         document.body.setAttribute("data-usable", String(Math.round(performance.now())));
         $("viewers").textContent = "loading the morph viewer ...";
-        return loadViewers();
+        return Promise.all([loadParts(), loadViewers(), first.session]);   // (downloads: the cookie)
       });
     }).then(function () {
       document.body.setAttribute("data-ready-ms", String(Math.round(performance.now())));
