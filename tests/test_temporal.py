@@ -23,6 +23,7 @@ from pysolver.params import MEMBRANE_MODEL_FILE, PROGRAMMING, UNIT_CELL
 from pysolver.refine import refine_design
 from pysolver.temporal import (
     PICTURE,
+    STAGE_FILE,
     closing_lengths,
     completion_time,
     membrane_factors,
@@ -233,6 +234,32 @@ def test_a_default_landscape_within_the_bar_is_kept_as_given(tmp_path, t_right, 
     if kept:
         assert s["n_clamped"] == 3 and s["achievable_range_s"]["suggested_map"][
             "fraction_clamped"] < s["fraction_clamped"]
+
+
+def test_a_mapped_landscape_is_programmed_as_stored(tmp_path):
+    """A rerun of a build on its own landscape gives the build's tables bit for bit.
+
+    The fit maps a shape's default landscape (50-160 s on the 30-cell patch, curved so that
+    the mapped times need more than 9 digits) and writes it to ``time_landscape.csv``, which
+    keeps 9 significant digits; a
+    rerun (the studio's Run: :func:`pysolver.build.rebuild`) programmes that file.  So the
+    build must programme the landscape as stored, not the unrounded map in memory (which
+    gave t* and thicknesses 1e-9 apart, and other part files).  Checked exactly: the
+    ``cells.csv`` text and ``temporal.json``'s programmed times and membrane factors."""
+    d = _write_patch(tmp_path / "build", lambda V: 50.0 + 110.0 * ((V[:, 0] - V[:, 0].min())
+                                                          / np.ptp(V[:, 0])) ** 1.3)
+    kw = {"material": StandIn(), "progress": False, "picture": False}
+    s = program_design(d, fit_landscape=True, **kw)
+    assert s["landscape_rescaled"] is not None                  # the map ran
+    rerun = tmp_path / "rerun"
+    rerun.mkdir()
+    for f in d.iterdir():                                       # as rebuild copies them
+        (rerun / f.name).write_bytes(f.read_bytes())
+    program_design(rerun, **kw)                                 # the landscape as given
+    assert (rerun / "cells.csv").read_text() == (d / "cells.csv").read_text()
+    first, again = (json.loads((x / STAGE_FILE).read_text()) for x in (d, rerun))
+    assert first["t_program_s"] == again["t_program_s"]
+    assert first["membrane_factor"] == again["membrane_factor"]
 
 
 def test_mostly_infeasible_landscape_raises_with_the_range(tmp_path):

@@ -658,10 +658,11 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     """Map a shape's default landscape linearly (order kept) onto the widest achievable range
     that clamps at most ``Programming.fit_clamped_fraction`` of the cells (else the one
     clamping fewest), when that clamps fewer than it does now; rewrite
-    ``time_landscape.csv`` and programme the cells again.  A landscape that already clamps
-    at most ``fit_clamped_fraction`` (and is at least ``min_span`` wide, s) is kept as given:
-    its times are the shape's, and a map would trade them for a few cells
-    (``Programming.fit_clamped_fraction``).
+    ``time_landscape.csv`` and programme the cells again from it as the file keeps it (9
+    significant digits: what a rerun of the folder programmes, bit for bit).  A landscape
+    that already clamps at most ``fit_clamped_fraction`` (and is at least ``min_span`` wide,
+    s) is kept as given: its times are the shape's, and a map would trade them for a few
+    cells (``Programming.fit_clamped_fraction``).
 
     Parameters
     ----------
@@ -669,7 +670,7 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
 
     Returns
     -------
-    land : (n_vertices,) float, s -- the landscape (mapped, or as it was)
+    land : (n_vertices,) float, s -- the landscape (mapped, as stored; or as it was)
     p : Programme -- for that landscape
     rescaled : dict or None -- ``from_s``, ``to_s``, ``min_span_s`` when mapped
     """
@@ -679,8 +680,10 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     if m is None or m["fraction_clamped"] >= p.frac or within_bar:
         return land, p, None
     t_old = (float(land.min()), float(land.max()))
-    land = _mapped_landscape(land, m)
-    write_landscape(design_dir, land)
+    write_landscape(design_dir, _mapped_landscape(land, m))
+    # programme the landscape as the file keeps it (9 significant digits), the input a rerun
+    # of this folder reads: the map in memory gave t* and thicknesses 1e-9 apart from a rerun's
+    land = tables.read_table(design_dir, "time_landscape")["time_s"]
     p = Programme.solve(cells, land, models, None, min_span)
     rescaled = {"from_s": list(t_old), "to_s": [float(land.min()), float(land.max())],
                 "min_span_s": m["min_span_s"]}
