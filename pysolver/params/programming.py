@@ -56,6 +56,15 @@ class Programming:
     membrane_contraction_min : float
         Smallest uniform contraction (current / flat size) of the stencil estimated from the
         cells' closing distances for the per-cell membrane factors.
+    robust : bool
+        Programme each cell's layers against the per-bracket thickness scatter
+        (:func:`pysolver.temporal.program.robust_layers`: the layer whose time is less
+        sensitive to its thickness times the cell, the other closes a little earlier).
+        Measured in ``docs/results.md`` (issue #45); off by default.
+    robust_grid : int
+        Steps of the grid on which :func:`pysolver.temporal.program.robust_layers` chooses
+        how much earlier the other layer closes (the expected error is smooth in it: 40 steps
+        of at most 4 sd).
     """
 
     max_clamped_fraction: float = 0.5
@@ -67,6 +76,8 @@ class Programming:
     refine_extra_rounds: int = 2
     membrane_factor_max_area: float = 1.0
     membrane_contraction_min: float = 0.5
+    robust: bool = False
+    robust_grid: int = 40
 
 
 PROGRAMMING = Programming()

@@ -102,7 +102,7 @@ def predicted_timing_sd(folder, material, thickness_sd: float):
     cells = read_table(folder, "cells")
     geom = tc.cell_geometry(folder)
     h = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
-    sd, _ = timing_sd(material, h, geom["b0"], geom["x"], geom["f_bracket"], thickness_sd)
+    sd, _, _ = timing_sd(material, h, geom["b0"], geom["x"], geom["f_bracket"], thickness_sd)
     return sd
 
 
