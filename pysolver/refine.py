@@ -20,7 +20,7 @@ import numpy as np
 from . import tables
 from .core.writes import atomic_write_text
 from .errors import InputError
-from .params import PROGRAMMING, REPORT, SIM, UNIT_CELL
+from .params import PROGRAMMING, REPORT, SIM, UNCERTAINTY, UNIT_CELL
 from .progress import say
 from .records import json_text
 from .simulator import (
@@ -31,6 +31,7 @@ from .simulator import (
     simulate_design,
 )
 from .temporal import (
+    PREDICTED_SD,
     REFINE_LOG,
     STAGE_FILE,
     closing_lengths,
@@ -38,6 +39,8 @@ from .temporal import (
     program_cells,
     time_limit,
     timing_errors,
+    timing_sd,
+    sd_list,
 )
 from .temporal.membrane_model import load_membrane_model
 
@@ -119,7 +122,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     best = rounds.keep_best()
     result = {"iterations": int(iterations), "rounds": k, "damping": damping,
               "history": rounds.hist, "best": best, "before": rounds.hist[0],
-              "after": rounds.hist[best], "note": NOTE}
+              "after": rounds.hist[best], "note": NOTE,
+              PREDICTED_SD: sd_list(rounds.predicted_sd(rounds.thick[best]))}
     atomic_write_text(design_dir / "sim" / REFINE_LOG,
                       json_text(result, indent=1, sort_keys=False))
     return result
@@ -207,6 +211,16 @@ class _Rounds:
         say("refine", self.folder.name, f"{k}/{max(k, asked)}: rms {h['rms_s']:.2f} s, "
             f"spearman {h['spearman']:.3f}, {h['n_never_due']} never complete "
             f"({h['seconds']:.0f} s)", self.progress, k=k, n=max(k, asked))
+
+    def predicted_sd(self, th):
+        """Each cell's completion-time sd (n,) s under the per-bracket thickness scatter for
+        the thicknesses ``th`` (n, 2) mm (:func:`pysolver.temporal.program.timing_sd`)."""
+        c = self.cells
+        res = program_cells(c["bracket_length_mm"], self.closing[:, 0], self.closing[:, 1],
+                            c["boundary"], self.t_star, material=self.mat, membrane=self.mem,
+                            factor=self.factor, robust=False)
+        return timing_sd(self.mat, th, c["bracket_length_mm"], res["x"], res["f_bracket"],
+                         UNCERTAINTY.thickness_sd)[0]
 
     def _write_thickness(self, th) -> None:
         tables.update_cells(self.folder, self.cells, thickness_top_mm=th[:, 0],

@@ -415,6 +415,15 @@ def test_refine_design_reduces_timing_error(tmp_path):
     err = timing_errors(t_star, completion_times(z["t"], z["collided"]), c["clamped"])
     assert err["rms_s"] == pytest.approx(res["after"]["rms_s"])
     assert json.loads((d / "sim" / "refine.json").read_text())["best"] == res["best"]
+    # each cell's predicted timing sd: the program stage's, then the refinement's for the
+    # thicknesses it kept; the report reads the later one
+    n = len(t_star)
+    prog = json.loads((d / "temporal.json").read_text())[tables.PREDICTED_SD]
+    assert len(prog) == n and len(res[tables.PREDICTED_SD]) == n
+    sd = tables.predicted_timing_sd(d, n)
+    assert sd == pytest.approx(np.array(res[tables.PREDICTED_SD], float), nan_ok=True)
+    assert np.isfinite(sd).sum() >= n // 2 and np.nanmin(sd) > 0
+    assert tables.predicted_timing_sd(d, n + 1) is None
 
 
 def _stuck_cell_case(tmp_path, margin_mm):

@@ -25,6 +25,8 @@ from .program import (
     time_ranges,
     timing_errors,
     timing_sd,
+    PREDICTED_SD,
+    sd_list,
 )
 
 __all__ = [
@@ -45,4 +47,6 @@ __all__ = [
     "time_ranges",
     "timing_errors",
     "timing_sd",
+    "PREDICTED_SD",
+    "sd_list",
 ]

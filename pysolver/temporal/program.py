@@ -73,7 +73,7 @@ from ..mechanics import bumper_clearance
 from ..params import PHYSICS_DEFAULT, PROGRAMMING, SEQUENCING, SIM, UNCERTAINTY, UNIT_CELL
 from ..params import tol as TOL
 from ..progress import say
-from ..tables import read_stencil
+from ..tables import PREDICTED_SD, read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
 from .plots import plot_feasibility
 
@@ -773,6 +773,19 @@ def _models(design_dir: Path, cells, mat, mem, correction: str, physics):
     return (mat, mem, factor, closing_lengths(design_dir, cells, physics)), finfo
 
 
+def sd_list(sd) -> list:
+    """Per-cell sds (s) as JSON: None where not finite."""
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(sd, float)]
+
+
+def _sd_stats(sd) -> dict:
+    sd = np.asarray(sd, float)
+    ok = np.isfinite(sd)
+    return {"mean": float(sd[ok].mean()) if ok.any() else None,
+            "max": float(sd[ok].max()) if ok.any() else None,
+            "thickness_sd_mm": UNCERTAINTY.thickness_sd}
+
+
 def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, progress: bool):
     """Map a shape's default landscape linearly (order kept) onto the widest achievable range
     that clamps at most ``Programming.fit_clamped_fraction`` of the cells (else the one
@@ -899,6 +912,8 @@ class Programme:
             "material_model": str(getattr(mat, "path", None) or type(mat).__name__),
             "refined_times": refined,
             "landscape_rescaled": rescaled,
+            "robust": bool(np.any(res["lead"] > 0)),
+            "timing_sd_predicted_s": _sd_stats(res["t_sd_predicted"]),
         }
 
     def write(self, design_dir: Path, cells: dict, summary: dict, factor) -> None:
@@ -913,7 +928,9 @@ class Programme:
                             t_max_s=np.where(fin, res["t_max"], np.nan),
                             clamped=res["clamped"])
         record = {"summary": summary, "membrane_factor": [float(v) for v in factor],
-                  "t_program_s": [float(v) for v in res["t_program"]]}
+                  "t_program_s": [float(v) for v in res["t_program"]],
+                  PREDICTED_SD: sd_list(res["t_sd_predicted"]),
+                  "robust_lead_s": [float(v) for v in res["lead"]]}
         atomic_write_text(design_dir / STAGE_FILE, json.dumps(record, indent=1) + "\n")
 
     def refuse(self, mat, design_dir: Path):
@@ -983,5 +1000,6 @@ __all__ = ["sequenced_span", "load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
            "program_cells", "program_design", "closing_lengths", "Programme", "timing_errors",
-           "time_limit", "REFINE_LOG",
+           "time_limit", "REFINE_LOG", "PREDICTED_SD", "sd_list", "later_layer_moments",
+           "layer_sensitivity", "robust_layers", "timing_sd",
            "PICTURE", "STAGE_FILE"]
