@@ -347,7 +347,8 @@ def timing_sd(material, h, b0, x, f_bracket, thickness_sd: float, dh: float = 0.
 
 
 def robust_layers(material, h, b0, x, f_bracket, t_program, layer_min,
-                  thickness_sd: float, grid: int = PROGRAMMING.robust_grid):
+                  thickness_sd: float, grid: int = PROGRAMMING.robust_grid,
+                  max_lead: float = PROGRAMMING.robust_max_lead_s):
     """Thicknesses that lower each cell's expected squared timing error under the
     per-bracket thickness scatter, its nominal completion time kept.
 
@@ -355,7 +356,7 @@ def robust_layers(material, h, b0, x, f_bracket, t_program, layer_min,
     can be the late one.  The layer whose time is less sensitive to its thickness (smaller
     ``|dt/dh|``, :func:`layer_sensitivity`) stays at ``t_program`` and times the cell; the
     other is programmed ``delta`` s earlier (a thinner bracket), ``delta`` chosen on a grid
-    of ``grid`` steps from 0 to ``min(room, 4 sqrt(s_1^2 + s_2^2))`` to minimise
+    of ``grid`` steps from 0 to ``min(room, 4 sqrt(s_1^2 + s_2^2), max_lead)`` to minimise
     ``E[(max(t_1, t_2) - t_program)^2]`` (:func:`later_layer_moments`, first order in the
     scatter; ``room``: down to the layer's earliest achievable time).  ``delta = 0`` is on
     the grid, so no cell is made worse by this model.
@@ -366,6 +367,8 @@ def robust_layers(material, h, b0, x, f_bracket, t_program, layer_min,
     b0, f_bracket, t_program : (n,) float, mm, N, s
     layer_min : (n, 2) float, s -- earliest completion time of each layer
     thickness_sd : float, mm
+    max_lead : float, s -- ``Programming.robust_max_lead_s``: the simulator's layers are not
+        independent, and a long lead costs more than the model gains
 
     Returns
     -------
@@ -382,7 +385,7 @@ def robust_layers(material, h, b0, x, f_bracket, t_program, layer_min,
     other = 1 - timer
     room = np.where(ok, np.maximum(t_program - layer_min[rows, other], 0.0), 0.0)
     sd = np.where(ok[:, None], sd, 0.0)
-    span = np.minimum(room, 4.0 * np.hypot(sd[:, 0], sd[:, 1]))
+    span = np.minimum(np.minimum(room, 4.0 * np.hypot(sd[:, 0], sd[:, 1])), max_lead)
     deltas = span[:, None] * np.linspace(0.0, 1.0, grid + 1)[None, :]       # (n, k)
     mu = np.zeros(deltas.shape + (2,))
     mu[rows, :, other] = -deltas
