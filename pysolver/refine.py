@@ -147,6 +147,7 @@ class _Rounds:
         self.closing = closing_lengths(folder, c, physics)  # as the simulator closes them
         self.t_star = c["t_star_s"].copy()
         self.factor = self._membrane_factor(len(self.t_star))
+        self.robust = self._robust()
         self.clamped = c["clamped"].astype(bool)
         self.lo = np.where(np.isfinite(c["t_min_s"]), c["t_min_s"], 0.0)
         self.hi = np.where(np.isfinite(c["t_max_s"]), c["t_max_s"], time_limit(mat))
@@ -165,6 +166,14 @@ class _Rounds:
         h = self.hist[0]
         say("refine", folder.name, f"before refinement rms {h['rms_s']:.2f} s, spearman "
             f"{h['spearman']:.3f}, {h['n_never_due']} never complete", progress)
+
+    def _robust(self) -> bool:
+        """Whether the program stage programmed the layers against the thickness scatter
+        (``temporal.json`` → ``summary.robust``): the rounds are programmed the same way."""
+        rec = self.folder / STAGE_FILE
+        if rec.is_file():
+            return bool(json.loads(rec.read_text()).get("summary", {}).get("robust", False))
+        return False
 
     def _membrane_factor(self, n: int):
         """The program stage's per-cell F_mem factor (``temporal.json``), or None."""
@@ -191,7 +200,7 @@ class _Rounds:
         res = program_cells(c["bracket_length_mm"], self.closing[:, 0], self.closing[:, 1],
                             c["boundary"], self.t_star,
                             material=self.mat, membrane=self.mem, t_request=self.t_req,
-                            factor=self.factor)
+                            factor=self.factor, robust=self.robust)
         self.cap, n_thinned = _thin_open_layers(self.cap, self.thick[-1], self.t_sim,
                                                 self.t_star, self.t_last, self.frames_path,
                                                 self.tol_mm)

@@ -676,7 +676,8 @@ def closing_lengths(design_dir, cells: dict, physics=None) -> np.ndarray:
 
 def program_design(design_dir, *, material=None, membrane=None, progress: bool = True,
                    correction: str = DEFAULT_CORRECTION, t_request=None,
-                   picture: bool = True, fit_landscape: bool = False, physics=None) -> dict:
+                   picture: bool = True, fit_landscape: bool = False, physics=None,
+                   robust=None) -> dict:
     """Set the bracket thicknesses of a design folder from its time landscape.
 
     Reads ``cells.csv`` and ``time_landscape.csv``; sets the temporal stage's columns of
@@ -692,8 +693,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     membrane : path-like or MembraneModel, optional
         Membrane model (default: the committed ``pysolver/data/membrane_model.json``).
     correction : {"boundary", "fem"}
-        Per-cell adaptation of ``F_mem`` (:data:`CORRECTIONS`); recorded in
-        ``temporal.json`` and reused by :func:`refine_design`.
+        Per-cell adaptation of ``F_mem`` (:data:`CORRECTIONS`); reused by :func:`refine_design`.
     t_request : (n_cells,) float, s, optional
         Program these times instead of ``t*`` (used by :func:`refine_design`).
     picture : bool
@@ -705,6 +705,8 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         instead of the paper's 0.6 cap; with ``clearance`` on, each layer is programmed to
         close at the printed bumpers' contact length
         (:func:`pysolver.mechanics.bumper_clearance`), as the simulator closes it.
+    robust : bool, optional
+        :func:`robust_layers` (default ``Programming.robust``); the refinement follows it.
     fit_landscape : bool
         Map the landscape (order kept) onto the achievable range when it clamps too many
         cells (:func:`_fit_landscape`) and rewrite ``time_landscape.csv``.  The build does
@@ -743,15 +745,13 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     mem = load_membrane_model(membrane)
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
-    models, finfo = _models(design_dir, cells, mat, mem, correction, physics)
+    models, finfo = _models(design_dir, cells, mat, mem, correction, physics, robust)
     min_span = sequenced_span(design_dir) if fit_landscape else 0.0
     p = Programme.solve(cells, land, models, t_request, min_span)
     rescaled = None
     if fit_landscape and t_request is None:
-        land, p, rescaled = _fit_landscape(design_dir, cells, land, p, models, min_span,
-                                           progress)
-    summary = p.summary(cells, mat, mem, finfo, refined=t_request is not None,
-                        rescaled=rescaled)
+        land, p, rescaled = _fit_landscape(design_dir, cells, land, p, models, min_span, progress)
+    summary = p.summary(cells, mat, mem, finfo, refined=t_request is not None, rescaled=rescaled)
     if picture and p.n:
         png = plot_feasibility(design_dir, land, p.t_star, cells, p.res, design_dir / PICTURE)
         summary["picture"] = png.name
@@ -765,15 +765,17 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     return summary
 
 
-def _models(design_dir: Path, cells, mat, mem, correction: str, physics):
+def _models(design_dir: Path, cells, mat, mem, correction: str, physics, robust=None):
     """What the cells are programmed with, for :meth:`Programme.solve`: ``(material,
-    membrane, factor, closing)`` -- the per-cell ``F_mem`` factor (:func:`membrane_factors`,
-    with the rim margin when ``physics.rim``) and the layers' closing lengths
-    (:func:`closing_lengths`); and the factor's record."""
+    membrane, factor, closing, robust)`` -- the per-cell ``F_mem`` factor
+    (:func:`membrane_factors`, with the rim margin when ``physics.rim``), the layers' closing
+    lengths (:func:`closing_lengths`) and whether the layers are programmed against the
+    thickness scatter (:func:`robust_layers`); and the factor's record."""
     physics = PHYSICS_DEFAULT if physics is None else physics
+    robust = PROGRAMMING.robust if robust is None else bool(robust)
     rim = (physics.rim_margin_mm, physics.rim_stretch) if physics.rim else None
     factor, finfo = membrane_factors(design_dir, cells, mem, correction, rim=rim)
-    return (mat, mem, factor, closing_lengths(design_dir, cells, physics)), finfo
+    return (mat, mem, factor, closing_lengths(design_dir, cells, physics), robust), finfo
 
 
 def sd_list(sd) -> list:
@@ -800,7 +802,7 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
 
     Parameters
     ----------
-    models : (material, membrane, factor, closing) -- as for :meth:`Programme.solve`
+    models : (material, membrane, factor, closing, robust) -- as for :meth:`Programme.solve`
 
     Returns
     -------
@@ -848,6 +850,7 @@ class Programme:
     frac : float -- ``k / n``
     ach : dict -- :func:`_achievable_summary`
     t_limit : float, s -- the material model's time range (:func:`time_limit`)
+    robust : bool -- layers programmed against the thickness scatter (:func:`robust_layers`)
     """
 
     t_star: np.ndarray
@@ -856,27 +859,30 @@ class Programme:
     frac: float
     ach: dict
     t_limit: float
+    robust: bool = False
 
     @classmethod
     def solve(cls, cells, land, models, t_request, min_span: float) -> Programme:
         """Programme the cells for the landscape ``land`` (s per vertex).
 
-        ``models`` = (material, membrane, factor, closing): the models and membrane factors
-        of :func:`program_cells`, and the layers' closing lengths (:func:`closing_lengths`,
-        (c, 2) mm); ``t_request`` and ``min_span`` as for :func:`program_cells` and
-        :func:`_achievable_summary`.
+        ``models`` = (material, membrane, factor, closing, robust): the models, membrane
+        factors and ``robust`` of :func:`program_cells`, and the layers' closing lengths
+        (:func:`closing_lengths`, (c, 2) mm); ``t_request`` and ``min_span`` as for
+        :func:`program_cells` and :func:`_achievable_summary`.
         """
-        mat, mem, factor, closing = models
+        mat, mem, factor, closing, robust = models
         t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
         res = program_cells(cells["bracket_length_mm"], closing[:, 0], closing[:, 1],
                             cells["boundary"], t_star,
-                            material=mat, membrane=mem, t_request=t_request, factor=factor)
+                            material=mat, membrane=mem, t_request=t_request, factor=factor,
+                            robust=robust)
         clamped = np.flatnonzero(res["clamped"])
         n = len(t_star)
         t_limit = time_limit(mat)
         ach = _achievable_summary(t_star, res["t_min"], res["t_max"], t_limit,
                                   min_span=min_span)
-        return cls(t_star, res, clamped, float(len(clamped) / n) if n else 0.0, ach, t_limit)
+        return cls(t_star, res, clamped, float(len(clamped) / n) if n else 0.0, ach, t_limit,
+                   bool(robust))
 
     @property
     def n(self) -> int:
@@ -915,7 +921,7 @@ class Programme:
             "material_model": str(getattr(mat, "path", None) or type(mat).__name__),
             "refined_times": refined,
             "landscape_rescaled": rescaled,
-            "robust": bool(np.any(res["lead"] > 0)),
+            "robust": self.robust,
             "timing_sd_predicted_s": _sd_stats(res["t_sd_predicted"]),
         }
 
