@@ -13,11 +13,15 @@ Usage::
 
     .venv/bin/python bench/bench_tolerance.py [--shape petal] [--samples 32]
                                               [--workers 1,2] [--out build/bench]
-                                              [--coupon] [--sensitivity N]
+                                              [--coupon] [--sensitivity N] [--resume]
 
 ``--coupon`` also simulates the coupon workflow (issue #45) and records P(cell on time) with
 and without it, P(order kept) and the per-print / per-bracket variance split; ``--workers
 2,2`` runs the same analysis twice (the rerun must be identical: ``max_figure_difference``).
+It also records P(no collision on the way) (with and without the coupon) and where the cells'
+timing error comes from (``timing_error_split``).  ``--resume`` keeps the results an earlier
+run of the same code stored (its wall time then measures only what was missing: for runs cut
+short on a shared machine, not for timings).
 """
 
 from __future__ import annotations
@@ -56,6 +60,7 @@ def main() -> int:
     ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
     ap.add_argument("--coupon", action="store_true")
     ap.add_argument("--sensitivity", type=int, default=None)
+    ap.add_argument("--resume", action="store_true")
     a = ap.parse_args()
     from pysolver.build import build
     from pysolver.core.writes import atomic_write_text
@@ -72,7 +77,7 @@ def main() -> int:
     summaries = {}
     for k, w in enumerate(int(x) for x in a.workers.split(",")):
         tol_dir = out / f"tolerance_{a.shape}_w{w}" if k == 0 else out / f"tolerance_{a.shape}_r{k}"
-        if tol_dir.exists():
+        if tol_dir.exists() and not a.resume:
             shutil.rmtree(tol_dir)  # a benchmark measures a run from scratch
         t0 = time.perf_counter()
         s = tolerance_analysis(design, samples=a.samples, workers=w, out=tol_dir,
@@ -97,7 +102,8 @@ def main() -> int:
            **{k: f.get(k) for k in ("p_on_time_cell_mean", "p_on_time_cell_mean_coupon",
                                     "p_order_kept", "p_order_kept_coupon", "order_pairs",
                                     "timing_variance_share", "p_all_cells_on_time",
-                                    "p_all_cells_on_time_coupon")},
+                                    "p_all_cells_on_time_coupon", "p_no_collision",
+                                    "p_no_collision_coupon", "timing_error_split")},
            "coupon_refused": (summaries[ws[-1]]["options"].get("coupon") or {}).get("refused")}
     if len(ws) >= 2:
         res["speedup"] = round(runs[str(ws[0])]["wall_s"] / runs[str(ws[-1])]["wall_s"], 3)

@@ -285,6 +285,8 @@ def _recorded_options(o: BuildOptions) -> dict:
     if o.params != UNIT_CELL:
         rec["params"] = o.params.to_dict()
     rec.update(o.given("dt"))
+    if o.robust_timing:
+        rec["robust_timing"] = True
     return rec
 
 
@@ -490,6 +492,7 @@ def rebuild_options(folder: Path, progress: bool = False):
     renderer = run.get("renderer") or old.get("stages", {}).get("render", {}).get("renderer")
     return old, BuildOptions(
         material=opts.get("material"), refine=int(opts.get("refine") or 0),
+        robust_timing=bool(opts.get("robust_timing", False)),
         t_end=opts.get("t_end"), dt=opts.get("dt"), renderer=renderer,
         render=bool(run.get("render", (folder / "stl").is_dir())),
         solver=run.get("solver") or "fast", progress=progress)

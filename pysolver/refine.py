@@ -22,7 +22,7 @@ from .core.progress import say
 from .core.records import json_text
 from .core.writes import atomic_write_text
 from .errors import InputError
-from .params import PROGRAMMING, REPORT, SIM, UNIT_CELL
+from .params import PROGRAMMING, REPORT, SIM, UNCERTAINTY, UNIT_CELL
 from .simulator import (
     completion_times,
     never_due,
@@ -31,13 +31,16 @@ from .simulator import (
     simulate_design,
 )
 from .temporal import (
+    PREDICTED_SD,
     REFINE_LOG,
     STAGE_FILE,
     closing_lengths,
     load_material,
     program_cells,
+    sd_list,
     time_limit,
     timing_errors,
+    timing_sd,
 )
 from .temporal.membrane_model import load_membrane_model
 
@@ -119,7 +122,8 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     best = rounds.keep_best()
     result = {"iterations": int(iterations), "rounds": k, "damping": damping,
               "history": rounds.hist, "best": best, "before": rounds.hist[0],
-              "after": rounds.hist[best], "note": NOTE}
+              "after": rounds.hist[best], "note": NOTE,
+              PREDICTED_SD: sd_list(rounds.predicted_sd(rounds.thick[best]))}
     atomic_write_text(design_dir / "sim" / REFINE_LOG,
                       json_text(result, indent=1, sort_keys=False))
     return result
@@ -143,6 +147,7 @@ class _Rounds:
         self.closing = closing_lengths(folder, c, physics)  # as the simulator closes them
         self.t_star = c["t_star_s"].copy()
         self.factor = self._membrane_factor(len(self.t_star))
+        self.robust = self._robust()
         self.clamped = c["clamped"].astype(bool)
         self.lo = np.where(np.isfinite(c["t_min_s"]), c["t_min_s"], 0.0)
         self.hi = np.where(np.isfinite(c["t_max_s"]), c["t_max_s"], time_limit(mat))
@@ -161,6 +166,14 @@ class _Rounds:
         h = self.hist[0]
         say("refine", folder.name, f"before refinement rms {h['rms_s']:.2f} s, spearman "
             f"{h['spearman']:.3f}, {h['n_never_due']} never complete", progress)
+
+    def _robust(self) -> bool:
+        """Whether the program stage programmed the layers against the thickness scatter
+        (``temporal.json`` → ``summary.robust``): the rounds are programmed the same way."""
+        rec = self.folder / STAGE_FILE
+        if rec.is_file():
+            return bool(json.loads(rec.read_text()).get("summary", {}).get("robust", False))
+        return False
 
     def _membrane_factor(self, n: int):
         """The program stage's per-cell F_mem factor (``temporal.json``), or None."""
@@ -187,7 +200,7 @@ class _Rounds:
         res = program_cells(c["bracket_length_mm"], self.closing[:, 0], self.closing[:, 1],
                             c["boundary"], self.t_star,
                             material=self.mat, membrane=self.mem, t_request=self.t_req,
-                            factor=self.factor)
+                            factor=self.factor, robust=self.robust)
         self.cap, n_thinned = _thin_open_layers(self.cap, self.thick[-1], self.t_sim,
                                                 self.t_star, self.t_last, self.frames_path,
                                                 self.tol_mm)
@@ -207,6 +220,16 @@ class _Rounds:
         say("refine", self.folder.name, f"{k}/{max(k, asked)}: rms {h['rms_s']:.2f} s, "
             f"spearman {h['spearman']:.3f}, {h['n_never_due']} never complete "
             f"({h['seconds']:.0f} s)", self.progress, k=k, n=max(k, asked))
+
+    def predicted_sd(self, th):
+        """Each cell's completion-time sd (n,) s under the per-bracket thickness scatter for
+        the thicknesses ``th`` (n, 2) mm (:func:`pysolver.temporal.program.timing_sd`)."""
+        c = self.cells
+        res = program_cells(c["bracket_length_mm"], self.closing[:, 0], self.closing[:, 1],
+                            c["boundary"], self.t_star, material=self.mat, membrane=self.mem,
+                            factor=self.factor, robust=False)
+        return timing_sd(self.mat, th, c["bracket_length_mm"], res["x"], res["f_bracket"],
+                         UNCERTAINTY.thickness_sd)[0]
 
     def _write_thickness(self, th) -> None:
         tables.update_cells(self.folder, self.cells, thickness_top_mm=th[:, 0],

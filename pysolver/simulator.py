@@ -20,6 +20,7 @@ from sim.report.mechtest import check_targets as check_mechtest_targets  # noqa:
 from sim.report.mechtest import write_mechtest
 from sim.report.plots import start_pyvista_probe
 from sim.report.scan import compare_scan
+from sim.report.verdict import BASE_COLLISION_TEXT
 from sim.viewer import ASSETS as VIEWER_ASSETS
 from sim.viewer import STATIC_DIR as VIEWER_DIR
 from sim.viewer import viewer_data
@@ -188,4 +189,4 @@ def mechtest(folder, tests=TESTS, *, axis_deg: float = 90.0, material=None,
 __all__ = ["check_sim_span", "mechtest", "simulate_and_check", "contact_if_needed", "viewer_assets",
            "morph_viewer", "build_parts", "simulate_design", "make_report", "print_verdict",
            "never_due", "open_layers", "completion_times", "read_completion_frames",
-           "parse_physics", "start_pyvista_probe", "compare_scan"]
+           "parse_physics", "start_pyvista_probe", "compare_scan", "BASE_COLLISION_TEXT"]

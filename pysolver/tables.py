@@ -573,6 +573,29 @@ def read_record(path) -> dict | None:
         return None
 
 
+PREDICTED_SD = "t_sd_predicted_s"
+"""Key of each cell's predicted completion-time sd under the per-bracket thickness scatter
+(s, None where a layer does not close) in ``temporal.json`` (program stage) and
+``sim/refine.json`` (the refinement, for the thicknesses it kept)."""
+
+
+def predicted_timing_sd(folder, n_cells: int):
+    """Each cell's predicted completion-time sd (n,) s, NaN where unknown, for the
+    thicknesses now in ``cells.csv``: the refinement's record when there is one (it writes
+    the thicknesses last) and it is not older than the program stage's, else the program
+    stage's; None when neither has it (a folder
+    programmed before the key existed) or its length is not ``n_cells``."""
+    folder = Path(folder)
+    paths = [folder / "sim" / "refine.json", folder / "temporal.json"]
+    if all(p.is_file() for p in paths) and paths[0].stat().st_mtime < paths[1].stat().st_mtime:
+        paths = paths[1:]  # programmed again after the refinement: its record is stale
+    for path in paths:
+        sd = (read_record(path) or {}).get(PREDICTED_SD)
+        if isinstance(sd, list) and len(sd) == n_cells:
+            return np.array([np.nan if v is None else v for v in sd], float)
+    return None
+
+
 def read_unit_cell(folder):
     """:func:`design_unit_cell` of a design folder's ``design.json`` (defaults without one)."""
     path = Path(folder) / "design.json"

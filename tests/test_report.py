@@ -220,7 +220,10 @@ def make_synthetic_design(folder, *, n=6, edge=12.0, sphere_r=60.0, contraction=
 @pytest.fixture(scope="module")
 def good(tmp_path_factory):
     d = tmp_path_factory.mktemp("good")
-    make_synthetic_design(d, mode="good")
+    syn = make_synthetic_design(d, mode="good")
+    # the program stage's record of each cell's predicted timing sd (the report's bars)
+    sd = np.linspace(1.0, 3.0, len(syn["t_star"])).tolist()
+    (d / "temporal.json").write_text(json.dumps({"t_sd_predicted_s": sd}))
     return d
 
 
@@ -263,6 +266,8 @@ def test_good_morph_passes_and_report_is_complete(good):
     assert not re.search(r'src="(?!data:)', page)
     js = json.loads((out / "report.json").read_text())
     assert js["verdict"] == "PASS" and js["files"]["animation"] == "morph.gif"
+    assert js["timing_sd_predicted_s"] == pytest.approx({"mean": 2.0, "max": 3.0})
+    assert "predicted completion sd of a print" in page
     # renders at the requested times (nearest frame) and the end
     assert js["render_frames"]["times_s"] == [0.0, 2.0, 30.0, 50.0, 80.0, 98.0]
     # GIF: at most 60 frames and 480 px

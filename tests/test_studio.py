@@ -427,6 +427,9 @@ def test_a_run_made_on_one_build_is_refused_by_another_of_the_same_name(small_bu
         # the landscape the editor loads carries the base of its own build
         st, out = _request(srv, "GET", "/api/build/0/target")
         assert st == 200 and json.loads(out)["landscape_sha256"] == _run_body(a)["base_sha256"]
+        prog = json.loads(out)["programmed"]  # each cell's predicted timing sd (issue #45)
+        assert len(prog["t_sd"]) == len(prog["t_star"]) and min(
+            v for v in prog["t_sd"] if v is not None) > 0
         st, out = _request(srv, "POST", "/api/build/0/run", body=_run_body(a))
         assert st == 200, out
         _wait_for(lambda: sent)

@@ -442,6 +442,15 @@ def test_refine_design_reduces_timing_error(tmp_path):
     err = timing_errors(t_star, completion_times(z["t"], z["collided"]), c["clamped"])
     assert err["rms_s"] == pytest.approx(res["after"]["rms_s"])
     assert json.loads((d / "sim" / "refine.json").read_text())["best"] == res["best"]
+    # each cell's predicted timing sd: the program stage's, then the refinement's for the
+    # thicknesses it kept; the report reads the later one
+    n = len(t_star)
+    prog = json.loads((d / "temporal.json").read_text())[tables.PREDICTED_SD]
+    assert len(prog) == n and len(res[tables.PREDICTED_SD]) == n
+    sd = tables.predicted_timing_sd(d, n)
+    assert sd == pytest.approx(np.array(res[tables.PREDICTED_SD], float), nan_ok=True)
+    assert np.isfinite(sd).sum() >= n // 2 and np.nanmin(sd) > 0
+    assert tables.predicted_timing_sd(d, n + 1) is None
 
 
 def _stuck_cell_case(tmp_path, margin_mm):
@@ -565,3 +574,31 @@ def test_petal_completion_follows_the_landscape(tmp_path):
     # closing more cells did not cost timing error (the round kept prefers fewer stuck cells)
     assert a["n_never_due"] <= b["n_never_due"]
     assert a["rms_incl_never_s"] <= b["rms_incl_never_s"]
+
+
+def test_robust_timing_is_recorded_and_followed_by_the_refinement(tmp_path):
+    """--robust-timing: the program stage records it and leads some layers (never more than
+    Programming.robust_max_lead_s); the refinement reads the record and programs its rounds
+    the same way (its kept thicknesses differ from a refinement of the default programme)."""
+    from pysolver.params import PROGRAMMING
+
+    mat = StandIn()
+    kept = {}
+    for robust in (False, True):
+        d = _write_patch(tmp_path / f"r{robust}", lambda V: 40.0 + 0.3 * (V[:, 0] - V[:, 0].min()))
+        s = program_design(d, material=mat, membrane=MEMBRANE, progress=False, picture=False,
+                           robust=robust)
+        rec = json.loads((d / "temporal.json").read_text())
+        lead = np.array(rec["robust_lead_s"])
+        assert s["robust"] is robust and rec["summary"]["robust"] is robust
+        if robust:
+            assert 0 < lead.max() <= PROGRAMMING.robust_max_lead_s + 1e-9
+        else:
+            assert not lead.any()
+        sim = _fake_simulator(mat)
+        sim(d)
+        refine_design(d, iterations=1, material=mat, membrane=MEMBRANE, progress=False,
+                      simulate=sim)
+        c = tables.read_table(d, "cells")
+        kept[robust] = np.c_[c["thickness_top_mm"], c["thickness_bottom_mm"]]
+    assert np.abs(kept[True] - kept[False]).max() > 1e-3

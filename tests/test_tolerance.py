@@ -451,3 +451,35 @@ def test_coupon_workflow_adds_its_runs_and_figures(design, cluster2, tmp_path):
     assert sorted(p.name for p in (tmp_path / "tol" / "samples").glob("coupon-*.json")) == [
         "coupon-00000.json"]
     assert all(c["t_sd_predicted_s"] is None or c["t_sd_predicted_s"] >= 0 for c in s["cells"])
+    assert f["p_no_collision"]["n"] == 1 and f["p_no_collision_coupon"]["n"] == 1
+    # no one-at-a-time thickness runs here: the split leaves that row out
+    assert list(f["timing_error_split"]) == ["nominal", "coupon", "samples"]
+
+
+def test_error_split_collision_free_and_variance_share_count_what_they_say():
+    """The maker's figures on hand-made results: each stage of the error split adds its own
+    squared error (a cell that never completes counts at t_end); a print is collision-free
+    only without the collision check's line and without diverging; the variance split is the
+    thickness runs' share of the samples' variance."""
+    from pysolver.simulator import BASE_COLLISION_TEXT
+    from pysolver.tolerance import coupon as cp
+
+    t_star = np.array([10.0, 20.0])
+    split = cp.error_split({"nominal": np.array([[10.0, np.nan]]),
+                            "thickness": np.array([[13.0, 20.0], [7.0, 41.0]])},
+                           t_star, np.array([False, True]), 10.0, 120.0)
+    assert split["nominal"]["mse_s2"] == pytest.approx(100.0 ** 2 / 2)
+    assert split["nominal"]["p_on_time"] == 0.5 and split["nominal"]["off_time_clamped_share"] == 1
+    assert split["thickness"]["mse_s2"] == pytest.approx((9 + 0 + 9 + 21 ** 2) / 4)
+    assert split["thickness"]["p_on_time"] == 0.75
+    assert split["thickness"]["added_mse_s2"] == pytest.approx(
+        split["thickness"]["mse_s2"] - split["nominal"]["mse_s2"])
+    hit = {"reasons": [f"FAIL collisions: 2 {BASE_COLLISION_TEXT}; first bases 1 and 9"],
+           "diverged": False}
+    clean = {"reasons": ["WARN timing: late"], "diverged": False}
+    broken = {"reasons": ["FAIL solver: diverged"], "diverged": True}
+    free = cp.collision_free([hit, clean, clean, broken])
+    assert (free["p"], free["n_free"], free["n_collided"], free["n_diverged"]) == (0.5, 2, 1, 1)
+    share = cp.variance_share([], total_var=40.0, bracket_var=10.0, bracket_runs=3)
+    assert share["per_bracket"] == pytest.approx(0.25) and share["per_print"] == pytest.approx(0.75)
+    assert cp.variance_share([], total_var=40.0, bracket_var=10.0, bracket_runs=1) is None

@@ -58,8 +58,8 @@ BUILD = Command(
     "build", "run the whole pipeline for a shape or a mesh file",
     "the whole pipeline: " + " -> ".join(s.name for s in STAGES), "pysolver.cli.commands:build",
     (opt("shape", help="built-in shape name (see 'shapes') or a mesh/stencil file"), "out",
-     *DESIGN_OPTIONS, "material", "seed", "refine", "program", "render", "simulate", "t_end",
-     "dt", "jobs", "renderer", "solver"))
+     *DESIGN_OPTIONS, "material", "seed", "refine", "program", "robust_timing", "render",
+     "simulate", "t_end", "dt", "jobs", "renderer", "solver"))
 """``morphshell build``: every stage of :data:`STAGES` that its options ask for."""
 
 TOOLS = (

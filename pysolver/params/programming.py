@@ -56,6 +56,22 @@ class Programming:
     membrane_contraction_min : float
         Smallest uniform contraction (current / flat size) of the stencil estimated from the
         cells' closing distances for the per-cell membrane factors.
+    robust : bool
+        Programme each cell's layers against the per-bracket thickness scatter
+        (:func:`pysolver.temporal.program.robust_layers`: the layer whose time is less
+        sensitive to its thickness times the cell, the other closes a little earlier).
+        Measured in ``docs/results.md`` (issue #45); off by default.
+    robust_max_lead_s : float, s
+        Most that :func:`pysolver.temporal.program.robust_layers` moves a cell's other layer
+        earlier.  The time model treats the two layers as independent; in the simulator a
+        layer closed long before the other changes when the other closes: on petal (one
+        refinement round) cells whose other layer led by more than 10 s missed their time by
+        13.2 s RMS (4.1-5.8 s as programmed by default), those led by 5-10 s by 3.0 s
+        (2.5 s), those by under 5 s by 4.4 s (4.2 s).
+    robust_grid : int
+        Steps of the grid on which :func:`pysolver.temporal.program.robust_layers` chooses
+        how much earlier the other layer closes (the expected error is smooth in it: 40 steps
+        of at most 4 sd).
     """
 
     max_clamped_fraction: float = 0.5
@@ -67,6 +83,9 @@ class Programming:
     refine_extra_rounds: int = 2
     membrane_factor_max_area: float = 1.0
     membrane_contraction_min: float = 0.5
+    robust: bool = False
+    robust_max_lead_s: float = 5.0
+    robust_grid: int = 40
 
 
 PROGRAMMING = Programming()

@@ -107,6 +107,12 @@ OPTIONS = {o.dest: o for o in (
         help="K rounds of closing the timing loop: correct t* from the simulation (default "
              f"{DEFAULT_REFINE}, as make's REFINE; 0 = off); up to "
              f"{PROGRAMMING.refine_extra_rounds} more while cells never close"),
+    opt("--robust-timing", action="store_true",
+        help="program each cell's layers against the per-bracket thickness scatter: the "
+             "layer less sensitive to its thickness times the cell, the other closes up to "
+             f"{PROGRAMMING.robust_max_lead_s:g} s earlier (lower predicted spread, slightly "
+             "larger nominal timing error: "
+             "docs/results.md)"),
     opt("--no-program", dest="program", action="store_false",
         help="keep uniform thickness"),
     opt("--no-render", dest="render", action="store_false", help="skip STL rendering"),
@@ -185,6 +191,9 @@ class BuildOptions:
         Bracket model file (default: the committed model).
     refine : int
         Rounds of timing correction from the simulation (0 = none).
+    robust_timing : bool
+        Program the layers against the per-bracket thickness scatter
+        (:func:`pysolver.temporal.program.robust_layers`).
     program, render, simulate : bool
         Run the temporal programming, the rendering, and the simulation and report.
     t_end, dt : float, s, optional
@@ -219,6 +228,7 @@ class BuildOptions:
     params: Any = None
     material: Any = None
     refine: int = DEFAULT_REFINE
+    robust_timing: bool = False
     program: bool = True
     render: bool = True
     simulate: bool = True
@@ -348,7 +358,7 @@ STAGES = (
           "bracket thicknesses from the time landscape (temporal programming)",
           reads=TABLES, writes=("cells.csv", "time_landscape.csv", "temporal.json",
                                 "temporal_feasibility.png"),
-          options=("material",) + PHYSICS_OPTIONS, needs=("program",)),
+          options=("material", "robust_timing") + PHYSICS_OPTIONS, needs=("program",)),
     Stage("simulate", "pysolver.stages.runners:simulate",
           "quasi-static morphing simulation (in a build, again with barrier contact when "
           "far parts pass through each other)",

@@ -46,7 +46,8 @@ def program(ctx: StageContext) -> dict:
     """Temporal programming (:func:`pysolver.temporal.program_design`)."""
     o = ctx.options
     return program_design(ctx.folder, material=o.material, progress=ctx.progress,
-                          fit_landscape=ctx.fit_landscape, **o.given("physics"))
+                          fit_landscape=ctx.fit_landscape, robust=o.robust_timing,
+                          **o.given("physics"))
 
 
 def simulate(ctx: StageContext) -> dict:

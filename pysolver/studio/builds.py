@@ -23,6 +23,7 @@ from ..simulator import build_parts, completion_times, morph_viewer
 from ..tables import (
     LANDSCAPE_SOURCE,
     TABLE_FILES,
+    predicted_timing_sd,
     read_record,
     read_stencil,
     read_table,
@@ -76,6 +77,11 @@ def _quietly(fn, *args) -> None:
 def _jsonable(a):
     """A float array as a list with None for non-finite values."""
     return [None if not np.isfinite(x) else round(float(x), 4) for x in np.asarray(a, float)]
+
+
+def _jsonable_or_none(a):
+    """:func:`_jsonable`, or None for None (a record the build does not have)."""
+    return None if a is None else _jsonable(a)
 
 
 class Build:
@@ -207,7 +213,8 @@ class Build:
                     "clamped": np.asarray(cells["clamped"], int).tolist(),
                     "h_top": _jsonable(cells["thickness_top_mm"]),
                     "h_bottom": _jsonable(cells["thickness_bottom_mm"]),
-                    "t_done": done},
+                    "t_done": done, "t_sd": _jsonable_or_none(
+                        predicted_timing_sd(self.folder, len(cells["cell_id"])))},
                 "feasibility": self._feas_json(ev),
                 "limits": {"max_time_s": LIMITS.max_landscape_s,
                            "max_radius_mm": LIMITS.studio_max_radius_mm},

@@ -12,6 +12,7 @@ energy of :mod:`pysolver.mechanics.energies` on the one membrane mesh of a flat 
 from .program import (
     CORRECTIONS,
     PICTURE,
+    PREDICTED_SD,
     REFINE_LOG,
     STAGE_FILE,
     bracket_target_force,
@@ -21,6 +22,7 @@ from .program import (
     membrane_factors,
     program_cells,
     program_design,
+    sd_list,
     solve_thickness,
     target_compressions,
     time_limit,
@@ -47,4 +49,6 @@ __all__ = [
     "time_ranges",
     "timing_errors",
     "timing_sd",
+    "PREDICTED_SD",
+    "sd_list",
 ]

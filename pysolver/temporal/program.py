@@ -56,6 +56,7 @@ is kept.
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,9 +71,9 @@ from ..errors import InputError
 from ..material import load_bracket_model
 from ..material.model import check_bracket_geometry
 from ..mechanics import bumper_clearance
-from ..params import PHYSICS_DEFAULT, PROGRAMMING, SEQUENCING, SIM, UNIT_CELL
+from ..params import PHYSICS_DEFAULT, PROGRAMMING, SEQUENCING, SIM, UNCERTAINTY, UNIT_CELL
 from ..params import tol as TOL
-from ..tables import read_stencil
+from ..tables import PREDICTED_SD, read_stencil
 from .membrane_model import cell_membrane_factors, load_membrane_model
 from .plots import plot_feasibility
 
@@ -255,14 +256,72 @@ def time_ranges(material, b0, x, f_bracket, t_max=None):
     return lmin.max(axis=1), lmax.min(axis=1), lmin, lmax
 
 
+def later_layer_moments(mu, sd):
+    """Mean and second moment of the later of two independent normal closing times (Clark,
+    1961): a cell completes when its later layer closes.
+
+    Parameters
+    ----------
+    mu, sd : (..., 2) float, s -- each layer's mean closing time (relative to any origin) and
+        its sd
+
+    Returns
+    -------
+    mean, second : (...,) float, s and s^2 -- ``E[max]`` and ``E[max^2]`` about the same
+        origin
+    """
+    from scipy.special import ndtr  # heavy: this scipy submodule loads only where it is used
+
+    mu, sd = np.asarray(mu, float), np.asarray(sd, float)
+    m1, m2, s1, s2 = mu[..., 0], mu[..., 1], sd[..., 0], sd[..., 1]
+    theta = np.sqrt(s1 ** 2 + s2 ** 2)
+    tie = theta <= TOL.time
+    th = np.where(tie, 1.0, theta)
+    a = (m1 - m2) / th
+    p1, pdf = ndtr(a), np.exp(-0.5 * a * a) / math.sqrt(2.0 * math.pi)
+    mean = m1 * p1 + m2 * (1.0 - p1) + th * pdf
+    second = (m1 ** 2 + s1 ** 2) * p1 + (m2 ** 2 + s2 ** 2) * (1.0 - p1) + (m1 + m2) * th * pdf
+    hard = np.maximum(m1, m2)
+    return np.where(tie, hard, mean), np.where(tie, hard ** 2, second)
+
+
+def layer_sensitivity(material, h, b0, x, f_bracket, dh: float = 0.005):
+    """Each layer's completion time and its sensitivity to the bracket thickness.
+
+    ``dt/dh`` is the central difference of :func:`completion_time` over ``+-dh`` mm (one-sided
+    at the thinnest printable bracket).
+
+    Parameters
+    ----------
+    h, x : (n, 2) float, mm
+    b0, f_bracket : (n,) float, mm, N
+
+    Returns
+    -------
+    t : (n, 2) float, s -- nominal completion time of each layer (``inf``: never)
+    dtdh : (n, 2) float, s/mm -- NaN where a layer does not close within the model's range at
+        ``h +- dh``
+    """
+    h = np.asarray(h, float)
+    bb = np.repeat(np.asarray(b0, float)[:, None], 2, 1)
+    ff = np.repeat(np.asarray(f_bracket, float)[:, None], 2, 1)
+    t = completion_time(material, h, bb, x, ff)
+    t_hi = completion_time(material, h + dh, bb, x, ff)
+    t_lo = completion_time(material, np.maximum(h - dh, UNIT_CELL.thickness_min), bb, x, ff)
+    step = h + dh - np.maximum(h - dh, UNIT_CELL.thickness_min)
+    with np.errstate(invalid="ignore"):
+        dtdh = np.where(np.isfinite(t_hi) & np.isfinite(t_lo), (t_hi - t_lo) / step, np.nan)
+    return t, dtdh
+
+
 def timing_sd(material, h, b0, x, f_bracket, thickness_sd: float, dh: float = 0.005):
     """Predicted sd (s) of each cell's completion time under the per-bracket thickness scatter.
 
-    The sensitivity ``dt/dh`` of each layer's completion time is the central difference of
-    :func:`completion_time` over ``+-dh`` mm; a layer's sd is ``|dt/dh| thickness_sd``
-    (first order), and the cell's is ``sqrt(sd_top^2 + sd_bottom^2) / sqrt(2)``, the sd of
-    the mean of two independently printed layers programmed for the same time (a first-order
-    stand-in for the later of the two).
+    A layer's closing time scatters by ``|dt/dh| thickness_sd`` (first order,
+    :func:`layer_sensitivity`); the cell completes with the later of its two independently
+    printed layers, whose sd (and mean lateness over the later nominal layer) are Clark's
+    (:func:`later_layer_moments`).  Two layers programmed for the same time with the same sd
+    ``s`` give ``0.83 s`` and close ``0.56 s`` late on average.
 
     Parameters
     ----------
@@ -275,17 +334,69 @@ def timing_sd(material, h, b0, x, f_bracket, thickness_sd: float, dh: float = 0.
     sd : (n,) float, s -- NaN where a layer does not close within the model's range at
         ``h +- dh``
     dtdh : (n, 2) float, s/mm
+    late : (n,) float, s -- expected completion minus the later layer's nominal time
+    """
+    t, dtdh = layer_sensitivity(material, h, b0, x, f_bracket, dh)
+    ok = np.all(np.isfinite(t) & np.isfinite(dtdh), axis=1)
+    origin = np.where(ok, np.max(np.where(np.isfinite(t), t, 0.0), axis=1), 0.0)
+    mu = np.where(ok[:, None], t - origin[:, None], 0.0)
+    mean, second = later_layer_moments(mu, np.where(ok[:, None], np.abs(dtdh), 0.0)
+                                       * thickness_sd)
+    sd = np.sqrt(np.maximum(second - mean ** 2, 0.0))
+    return np.where(ok, sd, np.nan), dtdh, np.where(ok, mean, np.nan)
+
+
+def robust_layers(material, h, b0, x, f_bracket, t_program, layer_min,
+                  thickness_sd: float, grid: int = PROGRAMMING.robust_grid,
+                  max_lead: float = PROGRAMMING.robust_max_lead_s):
+    """Thicknesses that lower each cell's expected squared timing error under the
+    per-bracket thickness scatter, its nominal completion time kept.
+
+    A cell completes with the later of its layers; programmed for the same time, each layer
+    can be the late one.  The layer whose time is less sensitive to its thickness (smaller
+    ``|dt/dh|``, :func:`layer_sensitivity`) stays at ``t_program`` and times the cell; the
+    other is programmed ``delta`` s earlier (a thinner bracket), ``delta`` chosen on a grid
+    of ``grid`` steps from 0 to ``min(room, 4 sqrt(s_1^2 + s_2^2), max_lead)`` to minimise
+    ``E[(max(t_1, t_2) - t_program)^2]`` (:func:`later_layer_moments`, first order in the
+    scatter; ``room``: down to the layer's earliest achievable time).  ``delta = 0`` is on
+    the grid, so no cell is made worse by this model.
+
+    Parameters
+    ----------
+    h, x : (n, 2) float, mm -- thicknesses solved for ``t_program``, target compressions
+    b0, f_bracket, t_program : (n,) float, mm, N, s
+    layer_min : (n, 2) float, s -- earliest completion time of each layer
+    thickness_sd : float, mm
+    max_lead : float, s -- ``Programming.robust_max_lead_s``: the simulator's layers are not
+        independent, and a long lead costs more than the model gains
+
+    Returns
+    -------
+    h : (n, 2) float, mm
+    lead : (n,) float, s -- ``delta`` of each cell (0: unchanged)
     """
     h = np.asarray(h, float)
-    bb = np.repeat(np.asarray(b0, float)[:, None], 2, 1)
-    ff = np.repeat(np.asarray(f_bracket, float)[:, None], 2, 1)
-    t_hi = completion_time(material, h + dh, bb, x, ff)
-    t_lo = completion_time(material, np.maximum(h - dh, UNIT_CELL.thickness_min), bb, x, ff)
-    step = h + dh - np.maximum(h - dh, UNIT_CELL.thickness_min)
-    with np.errstate(invalid="ignore"):
-        dtdh = np.where(np.isfinite(t_hi) & np.isfinite(t_lo), (t_hi - t_lo) / step, np.nan)
-    sd = np.sqrt(np.sum((dtdh * thickness_sd) ** 2, axis=1) / 2.0)
-    return sd, dtdh
+    t, dtdh = layer_sensitivity(material, h, b0, x, f_bracket)
+    sd = np.abs(dtdh) * thickness_sd
+    ok = np.all(np.isfinite(t) & np.isfinite(sd), axis=1) & (np.abs(t - t_program[:, None])
+                                                            .max(axis=1) <= 1.0)
+    timer = np.argmin(np.where(np.isfinite(sd), sd, np.inf), axis=1)
+    rows = np.arange(len(h))
+    other = 1 - timer
+    room = np.where(ok, np.maximum(t_program - layer_min[rows, other], 0.0), 0.0)
+    sd = np.where(ok[:, None], sd, 0.0)
+    span = np.minimum(np.minimum(room, 4.0 * np.hypot(sd[:, 0], sd[:, 1])), max_lead)
+    deltas = span[:, None] * np.linspace(0.0, 1.0, grid + 1)[None, :]       # (n, k)
+    mu = np.zeros(deltas.shape + (2,))
+    mu[rows, :, other] = -deltas
+    sdk = np.broadcast_to(sd[:, None, :], mu.shape)
+    _, second = later_layer_moments(mu, sdk)
+    best = deltas[rows, np.argmin(second, axis=1)]
+    h2, _ = solve_thickness(material, b0, x[rows, other], t_program - best, f_bracket)
+    out = h.copy()
+    move = best > 0
+    out[rows[move], other[move]] = h2[move]
+    return out, np.where(move, best, 0.0)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -294,7 +405,8 @@ def timing_sd(material, h, b0, x, f_bracket, thickness_sd: float, dh: float = 0.
 
 
 def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane,
-                  t_request=None, boundary_factor=None, factor=None) -> dict:
+                  t_request=None, boundary_factor=None, factor=None,
+                  robust: bool | None = None) -> dict:
     """Thicknesses, achievable ranges and clamping for a set of cells (no file I/O).
 
     Parameters
@@ -314,13 +426,18 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
     factor : (n,) float, optional
         Per-cell factor on ``F_mem`` replacing the boundary rule (see
         :func:`membrane_factors`).
+    robust : bool, optional
+        Layers programmed against the thickness scatter (:func:`robust_layers`; default
+        ``Programming.robust``).
 
     Returns
     -------
     dict of arrays: ``thickness`` (n, 2) mm (top, bottom), ``t_min``, ``t_max``,
     ``t_program`` (n,) s (the time the thicknesses are solved for), ``clamped`` (n,)
     bool, ``side`` (n,) int (-1 too early, +1 too late, 0 ok), ``x`` (n, 2) mm,
-    ``d1`` (n,) mm, ``f_cell``, ``f_bracket`` (n,) N.
+    ``d1`` (n,) mm, ``f_cell``, ``f_bracket`` (n,) N, ``t_sd_predicted`` (n,) s (the
+    completion time's sd under the per-bracket thickness scatter, :func:`timing_sd`),
+    ``lead`` (n,) s (how much earlier :func:`robust_layers` closes the other layer; 0).
     """
     t_star = np.asarray(t_star, float)
     if not np.all(np.isfinite(t_star)) or np.any(t_star < 0):
@@ -336,7 +453,7 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
                          fix="re-run the design stage (collision lengths must be shorter than "
                              "the flat bracket length).")
     f_cell, f_br = bracket_target_force(membrane, b0, d1, boundary, boundary_factor, factor)
-    t_lo, t_hi, _, _ = time_ranges(material, b0, x, f_br)
+    t_lo, t_hi, layer_min, _ = time_ranges(material, b0, x, f_br)
     want = t_star if t_request is None else np.asarray(t_request, float)
     lo_ok = np.where(np.isfinite(t_lo), t_lo, time_limit(material))
     t_prog = np.clip(want, lo_ok, np.maximum(lo_ok, t_hi))
@@ -345,9 +462,14 @@ def program_cells(b0, b1_top, b1_bottom, boundary, t_star, *, material, membrane
     bb = np.repeat(np.asarray(b0, float)[:, None], 2, 1)
     h, _ = solve_thickness(material, bb, x, np.repeat(t_prog[:, None], 2, 1),
                            np.repeat(f_br[:, None], 2, 1))
+    lead = np.zeros(len(t_prog))
+    sd_h = UNCERTAINTY.thickness_sd
+    if PROGRAMMING.robust if robust is None else robust:
+        h, lead = robust_layers(material, h, b0, x, f_br, t_prog, layer_min, sd_h)
     return {"thickness": h, "t_min": t_lo, "t_max": t_hi, "t_program": t_prog,
             "clamped": side != 0, "side": side, "x": x, "d1": d1, "f_cell": f_cell,
-            "f_bracket": f_br}
+            "f_bracket": f_br, "t_sd_predicted": timing_sd(material, h, b0, x, f_br, sd_h)[0],
+            "lead": lead}
 
 
 def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
@@ -554,7 +676,8 @@ def closing_lengths(design_dir, cells: dict, physics=None) -> np.ndarray:
 
 def program_design(design_dir, *, material=None, membrane=None, progress: bool = True,
                    correction: str = DEFAULT_CORRECTION, t_request=None,
-                   picture: bool = True, fit_landscape: bool = False, physics=None) -> dict:
+                   picture: bool = True, fit_landscape: bool = False, physics=None,
+                   robust=None) -> dict:
     """Set the bracket thicknesses of a design folder from its time landscape.
 
     Reads ``cells.csv`` and ``time_landscape.csv``; sets the temporal stage's columns of
@@ -570,8 +693,7 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     membrane : path-like or MembraneModel, optional
         Membrane model (default: the committed ``pysolver/data/membrane_model.json``).
     correction : {"boundary", "fem"}
-        Per-cell adaptation of ``F_mem`` (:data:`CORRECTIONS`); recorded in
-        ``temporal.json`` and reused by :func:`refine_design`.
+        Per-cell adaptation of ``F_mem`` (:data:`CORRECTIONS`); reused by :func:`refine_design`.
     t_request : (n_cells,) float, s, optional
         Program these times instead of ``t*`` (used by :func:`refine_design`).
     picture : bool
@@ -583,6 +705,8 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         instead of the paper's 0.6 cap; with ``clearance`` on, each layer is programmed to
         close at the printed bumpers' contact length
         (:func:`pysolver.mechanics.bumper_clearance`), as the simulator closes it.
+    robust : bool, optional
+        :func:`robust_layers` (default ``Programming.robust``); the refinement follows it.
     fit_landscape : bool
         Map the landscape (order kept) onto the achievable range when it clamps too many
         cells (:func:`_fit_landscape`) and rewrite ``time_landscape.csv``.  The build does
@@ -621,15 +745,13 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     mem = load_membrane_model(membrane)
     cells = tables.read_table(design_dir, "cells")
     land = tables.read_table(design_dir, "time_landscape")["time_s"]
-    models, finfo = _models(design_dir, cells, mat, mem, correction, physics)
+    models, finfo = _models(design_dir, cells, mat, mem, correction, physics, robust)
     min_span = sequenced_span(design_dir) if fit_landscape else 0.0
     p = Programme.solve(cells, land, models, t_request, min_span)
     rescaled = None
     if fit_landscape and t_request is None:
-        land, p, rescaled = _fit_landscape(design_dir, cells, land, p, models, min_span,
-                                           progress)
-    summary = p.summary(cells, mat, mem, finfo, refined=t_request is not None,
-                        rescaled=rescaled)
+        land, p, rescaled = _fit_landscape(design_dir, cells, land, p, models, min_span, progress)
+    summary = p.summary(cells, mat, mem, finfo, refined=t_request is not None, rescaled=rescaled)
     if picture and p.n:
         png = plot_feasibility(design_dir, land, p.t_star, cells, p.res, design_dir / PICTURE)
         summary["picture"] = png.name
@@ -643,15 +765,30 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     return summary
 
 
-def _models(design_dir: Path, cells, mat, mem, correction: str, physics):
+def _models(design_dir: Path, cells, mat, mem, correction: str, physics, robust=None):
     """What the cells are programmed with, for :meth:`Programme.solve`: ``(material,
-    membrane, factor, closing)`` -- the per-cell ``F_mem`` factor (:func:`membrane_factors`,
-    with the rim margin when ``physics.rim``) and the layers' closing lengths
-    (:func:`closing_lengths`); and the factor's record."""
+    membrane, factor, closing, robust)`` -- the per-cell ``F_mem`` factor
+    (:func:`membrane_factors`, with the rim margin when ``physics.rim``), the layers' closing
+    lengths (:func:`closing_lengths`) and whether the layers are programmed against the
+    thickness scatter (:func:`robust_layers`); and the factor's record."""
     physics = PHYSICS_DEFAULT if physics is None else physics
+    robust = PROGRAMMING.robust if robust is None else bool(robust)
     rim = (physics.rim_margin_mm, physics.rim_stretch) if physics.rim else None
     factor, finfo = membrane_factors(design_dir, cells, mem, correction, rim=rim)
-    return (mat, mem, factor, closing_lengths(design_dir, cells, physics)), finfo
+    return (mat, mem, factor, closing_lengths(design_dir, cells, physics), robust), finfo
+
+
+def sd_list(sd) -> list:
+    """Per-cell sds (s) as JSON: None where not finite."""
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(sd, float)]
+
+
+def _sd_stats(sd) -> dict:
+    sd = np.asarray(sd, float)
+    ok = np.isfinite(sd)
+    return {"mean": float(sd[ok].mean()) if ok.any() else None,
+            "max": float(sd[ok].max()) if ok.any() else None,
+            "thickness_sd_mm": UNCERTAINTY.thickness_sd}
 
 
 def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, progress: bool):
@@ -666,7 +803,7 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
 
     Parameters
     ----------
-    models : (material, membrane, factor, closing) -- as for :meth:`Programme.solve`
+    models : (material, membrane, factor, closing, robust) -- as for :meth:`Programme.solve`
 
     Returns
     -------
@@ -716,6 +853,7 @@ class Programme:
     frac : float -- ``k / n``
     ach : dict -- :func:`_achievable_summary`
     t_limit : float, s -- the material model's time range (:func:`time_limit`)
+    robust : bool -- layers programmed against the thickness scatter (:func:`robust_layers`)
     """
 
     t_star: np.ndarray
@@ -724,27 +862,30 @@ class Programme:
     frac: float
     ach: dict
     t_limit: float
+    robust: bool = False
 
     @classmethod
     def solve(cls, cells, land, models, t_request, min_span: float) -> Programme:
         """Programme the cells for the landscape ``land`` (s per vertex).
 
-        ``models`` = (material, membrane, factor, closing): the models and membrane factors
-        of :func:`program_cells`, and the layers' closing lengths (:func:`closing_lengths`,
-        (c, 2) mm); ``t_request`` and ``min_span`` as for :func:`program_cells` and
-        :func:`_achievable_summary`.
+        ``models`` = (material, membrane, factor, closing, robust): the models, membrane
+        factors and ``robust`` of :func:`program_cells`, and the layers' closing lengths
+        (:func:`closing_lengths`, (c, 2) mm); ``t_request`` and ``min_span`` as for
+        :func:`program_cells` and :func:`_achievable_summary`.
         """
-        mat, mem, factor, closing = models
+        mat, mem, factor, closing, robust = models
         t_star = cell_target_times(land, cells["vertex_a"], cells["vertex_b"])
         res = program_cells(cells["bracket_length_mm"], closing[:, 0], closing[:, 1],
                             cells["boundary"], t_star,
-                            material=mat, membrane=mem, t_request=t_request, factor=factor)
+                            material=mat, membrane=mem, t_request=t_request, factor=factor,
+                            robust=robust)
         clamped = np.flatnonzero(res["clamped"])
         n = len(t_star)
         t_limit = time_limit(mat)
         ach = _achievable_summary(t_star, res["t_min"], res["t_max"], t_limit,
                                   min_span=min_span)
-        return cls(t_star, res, clamped, float(len(clamped) / n) if n else 0.0, ach, t_limit)
+        return cls(t_star, res, clamped, float(len(clamped) / n) if n else 0.0, ach, t_limit,
+                   bool(robust))
 
     @property
     def n(self) -> int:
@@ -783,6 +924,8 @@ class Programme:
             "material_model": str(getattr(mat, "path", None) or type(mat).__name__),
             "refined_times": refined,
             "landscape_rescaled": rescaled,
+            "robust": self.robust,
+            "timing_sd_predicted_s": _sd_stats(res["t_sd_predicted"]),
         }
 
     def write(self, design_dir: Path, cells: dict, summary: dict, factor) -> None:
@@ -797,7 +940,9 @@ class Programme:
                             t_max_s=np.where(fin, res["t_max"], np.nan),
                             clamped=res["clamped"])
         record = {"summary": summary, "membrane_factor": [float(v) for v in factor],
-                  "t_program_s": [float(v) for v in res["t_program"]]}
+                  "t_program_s": [float(v) for v in res["t_program"]],
+                  PREDICTED_SD: sd_list(res["t_sd_predicted"]),
+                  "robust_lead_s": [float(v) for v in res["lead"]]}
         atomic_write_text(design_dir / STAGE_FILE, json.dumps(record, indent=1) + "\n")
 
     def refuse(self, mat, design_dir: Path):
@@ -867,5 +1012,6 @@ __all__ = ["sequenced_span", "load_material", "CORRECTIONS", "membrane_factors",
            "target_compressions",
            "bracket_target_force", "solve_thickness", "completion_time", "time_ranges",
            "program_cells", "program_design", "closing_lengths", "Programme", "timing_errors",
-           "time_limit", "REFINE_LOG",
+           "time_limit", "REFINE_LOG", "PREDICTED_SD", "sd_list", "later_layer_moments",
+           "layer_sensitivity", "robust_layers", "timing_sd",
            "PICTURE", "STAGE_FILE"]

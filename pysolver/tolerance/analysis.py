@@ -444,7 +444,7 @@ def aggregate(results: list, nominal: dict, t_star, time_tol_s: float, oat: dict
 
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # cells no sample completes
-        on_time = np.isfinite(T) & (np.abs(T - t_star) <= time_tol_s)
+        on_time = cp.on_time(T, t_star, time_tol_s)
         done = np.isfinite(T)
         q = (np.nanpercentile(T, [5, 50, 95], axis=0) if done.any()
              else np.full((3, n_cells), np.nan))
@@ -715,27 +715,52 @@ def _summary(results: dict, stats, perts, active, cells, n_bases: int, folder: P
 
 
 def _maker_figures(results: dict, perts, cells, agg: dict, options: dict) -> dict:
-    """P(on time) with the coupon, P(order kept) with and without it, and the per-print /
-    per-bracket split of the timing variance (:mod:`pysolver.tolerance.coupon`)."""
+    """P(on time) with the coupon, P(order kept) and P(no collision on the way) with and
+    without it, the per-print / per-bracket split of the timing variance and where a cell's
+    timing error comes from (:mod:`pysolver.tolerance.coupon`)."""
     t_star = np.asarray(cells["t_star_s"], float)
-    n = len(t_star)
+    n, t_end = len(t_star), float(options["t_end_s"])
     pairs = cp.neighbour_pairs(cells, t_star, TOLERANCE_RUN.order_separation_s)
 
-    def times(prefix):
-        return _arr([results[p.name] for p in perts if p.name.startswith(prefix)], "t_done",
-                    (n,))
+    def named(prefix):
+        return [results[p.name] for p in perts if p.name.startswith(prefix)]
 
-    T, Tc = times("sample-"), times("coupon-")
+    def times(prefix):
+        return _arr(named(prefix), "t_done", (n,))
+
+    T, Tc, Tb = times("sample-"), times("coupon-"), times("oat-thickness-")
     out = {"p_order_kept": cp.order_kept(T, pairs), "order_pairs": int(len(pairs)),
-           "timing_variance_share": cp.variance_share(agg["sensitivity"]),
-           "p_on_time_cell_mean_coupon": None, "p_order_kept_coupon": None}
+           "timing_variance_share": _variance_share(agg, T, Tb, t_end),
+           "p_no_collision": _with_ci(cp.collision_free(named("sample-"))),
+           "p_no_collision_coupon": _with_ci(cp.collision_free(named("coupon-"))),
+           "p_on_time_cell_mean_coupon": None, "p_order_kept_coupon": None,
+           "timing_error_split": cp.error_split(
+               {"nominal": times("nominal"), "thickness": Tb, "coupon": Tc, "samples": T},
+               t_star, np.asarray(cells["clamped"], bool), options["time_tol_s"], t_end)}
     if len(Tc):
-        with np.errstate(invalid="ignore"):
-            on = np.isfinite(Tc) & (np.abs(Tc - t_star) <= options["time_tol_s"])
+        on = cp.on_time(Tc, t_star, options["time_tol_s"])
         out.update(p_on_time_cell_mean_coupon=float(on.mean()),
                    p_all_cells_on_time_coupon=float(on.all(axis=1).mean()),
                    p_order_kept_coupon=cp.order_kept(Tc, pairs))
     return out
+
+
+def _variance_share(agg: dict, T, Tb, t_end: float):
+    """:func:`pysolver.tolerance.coupon.variance_share` from the samples' variance (mean over
+    cells, censored at ``t_end``) and the one-at-a-time thickness runs'."""
+    def mean_var(X):
+        return float(np.var(np.where(np.isfinite(X), X, t_end), axis=0).mean())
+
+    ok = len(T) >= 2 and len(Tb) >= 2
+    return cp.variance_share(agg["sensitivity"], mean_var(T) if ok else None,
+                             mean_var(Tb) if ok else None, len(Tb))
+
+
+def _with_ci(free: dict | None):
+    """:func:`pysolver.tolerance.coupon.collision_free` with its 95 % Wilson interval."""
+    if free is not None:
+        free["ci95"] = list(wilson(free["n_free"], free["n"]))
+    return free
 
 
 def _predicted_sd(agg: dict, folder: Path, options: dict, oat: dict, sizes: tuple) -> dict:

@@ -13,7 +13,8 @@ print closes it when the shipped model closed the nominal one
 requested times) are kept.  That shell, printed with the sample's own thickness scatter, is
 simulated like the sample.
 
-Also here: the figures a maker reads (:func:`order_kept`, :func:`variance_share`).
+Also here: the figures a maker reads (:func:`order_kept`, :func:`variance_share`,
+:func:`collision_free`, :func:`error_split`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from pysolver.design.pipeline import run_design
 from pysolver.errors import InputError
 from pysolver.material.model import CompliantBracketModel
 from pysolver.params import COUPON, TOLERANCE_RUN
+from pysolver.simulator import BASE_COLLISION_TEXT
 from pysolver.tables import read_table
 from pysolver.temporal import coupon as tc
 from pysolver.temporal.program import completion_time, solve_thickness, time_limit, timing_sd
@@ -100,7 +102,7 @@ def predicted_timing_sd(folder, material, thickness_sd: float):
     cells = read_table(folder, "cells")
     geom = tc.cell_geometry(folder)
     h = np.c_[cells["thickness_top_mm"], cells["thickness_bottom_mm"]].astype(float)
-    sd, _ = timing_sd(material, h, geom["b0"], geom["x"], geom["f_bracket"], thickness_sd)
+    sd, _, _ = timing_sd(material, h, geom["b0"], geom["x"], geom["f_bracket"], thickness_sd)
     return sd
 
 
@@ -150,16 +152,117 @@ def order_kept(T, pairs) -> float | None:
     return float(np.mean(a < b))
 
 
-def variance_share(sensitivity: list) -> dict | None:
-    """Shares of the one-at-a-time timing variance drawn once per print and once per bracket:
-    ``{"per_print": .., "per_bracket": ..}`` (None without a sensitivity run)."""
+def variance_share(sensitivity: list, total_var=None, bracket_var=None,
+                   bracket_runs: int = 0) -> dict | None:
+    """Shares of the timing variance drawn once per print and once per bracket.
+
+    With the Monte Carlo samples' own variance (``total_var``, mean over cells, s^2, all
+    factors drawn together) and the one-at-a-time thickness runs' (``bracket_var``, mean over
+    cells, s^2), the split is measured: per bracket = ``bracket_var / total_var``, per print =
+    the rest.  The thickness draws are independent per cell, so the mean over cells of the
+    thickness runs' variance is well estimated even from a few runs (its relative standard
+    error, ``sqrt(2 / (runs - 1) / cells)`` for independent cells, is given as
+    ``per_bracket_rel_se``); the per-print part, drawn once per sample, is estimated from all
+    the samples, not from the few one-at-a-time runs of each per-print factor.  Without them,
+    the shares of the summed one-at-a-time variances (``method`` says which).
+
+    Parameters
+    ----------
+    sensitivity : list of dict -- :func:`pysolver.tolerance.analysis.sensitivity_table`
+    total_var, bracket_var : float or None, s^2
+    bracket_runs : int -- one-at-a-time thickness runs behind ``bracket_var``
+
+    Returns
+    -------
+    dict or None -- ``per_print``, ``per_bracket``, ``method`` and, when measured,
+        ``total_var_s2``, ``per_bracket_var_s2``, ``per_bracket_runs``
+    """
+    if total_var and bracket_var is not None and bracket_runs >= 2:
+        pb = min(float(bracket_var) / float(total_var), 1.0)
+        return {"per_print": 1.0 - pb, "per_bracket": pb,
+                "method": "per bracket: one-at-a-time thickness runs over all samples' "
+                          "variance; per print: the rest",
+                "total_var_s2": float(total_var), "per_bracket_var_s2": float(bracket_var),
+                "per_bracket_runs": int(bracket_runs)}
     if not sensitivity:
         return None
     pp = sum(r["timing_share"] for r in sensitivity if r["factor"] in PER_PRINT)
     pb = sum(r["timing_share"] for r in sensitivity if r["factor"] not in PER_PRINT)
-    return {"per_print": float(pp), "per_bracket": float(pb)}
+    return {"per_print": float(pp), "per_bracket": float(pb),
+            "method": "shares of the summed one-at-a-time variances"}
+
+
+def collision_free(results: list) -> dict | None:
+    """P(no collision on the way): the fraction of simulated prints in which no two
+    non-neighbouring bases collide at any frame (the simulation check's collision line,
+    :data:`pysolver.simulator.BASE_COLLISION_TEXT`).  A diverged simulation counts as not
+    collision-free (unknown).
+
+    Returns
+    -------
+    dict or None -- ``p``, ``n``, ``n_free``, ``n_collided``, ``n_diverged``
+    """
+    if not results:
+        return None
+    hit = [any(BASE_COLLISION_TEXT in line for line in r["reasons"]) or bool(r["diverged"])
+           for r in results]
+    k = len(hit) - sum(hit)
+    return {"p": k / len(hit), "n": len(hit), "n_free": int(k),
+            "n_collided": int(sum(hit) - sum(bool(r["diverged"]) for r in results)),
+            "n_diverged": int(sum(bool(r["diverged"]) for r in results))}
+
+
+def on_time(T, t_star, tol: float):
+    """(S, n) bool: each completion time of ``T`` (s, NaN = never) within ``tol`` s of its
+    cell's ``t_star`` (n,) s."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(T) & (np.abs(T - t_star) <= tol)
+
+
+def error_split(runs: dict, t_star, clamped, tol: float, t_end: float) -> dict:
+    """Where a cell's timing error comes from, measured step by step with the simulator.
+
+    Each stage adds one source to the one before: the ``nominal`` run (the programming's own
+    error: clamped cells never reach their time, the rest is the time model's miss), the
+    one-at-a-time ``thickness`` runs (+ the per-bracket scatter, every per-print factor
+    nominal: what a perfect coupon would leave), the ``coupon`` runs (+ the per-print
+    factors as the coupon's fit leaves them) and the plain ``samples`` (+ the per-print
+    factors uncorrected).  For each: P(cell within ``tol``), the mean squared error (a cell
+    that never completes counts at ``t_end``: a lower bound) and its increase over the stage
+    before; and the share of off-time (print, cell) pairs that are clamped cells.
+
+    Parameters
+    ----------
+    runs : dict of str -> (S, n) float, s (NaN = never) -- keys among ``nominal``,
+        ``thickness``, ``coupon``, ``samples``, in that order
+    t_star : (n,) float, s
+    clamped : (n,) bool
+    tol, t_end : float, s
+
+    Returns
+    -------
+    dict -- per stage: ``runs``, ``p_on_time``, ``mse_s2``, ``added_mse_s2``,
+        ``off_time_clamped_share``
+    """
+    t_star = np.asarray(t_star, float)
+    clamped = np.asarray(clamped, bool)
+    out, before = {}, 0.0
+    for name in ("nominal", "thickness", "coupon", "samples"):
+        T = runs.get(name)
+        if T is None or not len(T):
+            continue
+        T = np.asarray(T, float)
+        on = on_time(T, t_star, tol)
+        mse = float(np.mean((np.where(np.isfinite(T), T, t_end) - t_star) ** 2))
+        off = ~on
+        out[name] = {"runs": int(len(T)), "p_on_time": float(on.mean()), "mse_s2": mse,
+                     "added_mse_s2": mse - before,
+                     "off_time_clamped_share": float((off & clamped).sum() / off.sum())
+                     if off.any() else 0.0}
+        before = mse
+    return out
 
 
 __all__ = ["COUPON_STREAM", "coupon_setup", "simulated_coupon", "reprogrammed_thickness",
            "shell_geometry", "predicted_timing_sd", "coupon_fit", "neighbour_pairs",
-           "order_kept", "variance_share"]
+           "order_kept", "variance_share", "collision_free", "error_split", "on_time"]

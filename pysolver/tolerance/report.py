@@ -135,7 +135,8 @@ def _table(header, rows):
 def write_report(out, summary: dict, design_dir, results: list, nominal: dict) -> None:
     """Write the pictures and ``report.html`` of a tolerance analysis into ``out``."""
     _pictures(out, summary, design_dir, results, nominal)
-    parts = _head(summary, design_dir) + _sensitivity(summary) + _least_reliable(summary)
+    parts = (_head(summary, design_dir) + _error_split(summary) + _sensitivity(summary)
+             + _least_reliable(summary))
     atomic_write_text(out / "report.html", "\n".join(parts) + "\n")
 
 
@@ -196,6 +197,9 @@ def _head(summary: dict, design_dir) -> list:
                  f"{_f(fig.get('p_on_time_cell_mean_coupon'))}"),
                 ("P(order kept), neighbours >= 15 s apart: without / with the coupon",
                  f"{_f(fig.get('p_order_kept'))} / {_f(fig.get('p_order_kept_coupon'))}"),
+                ("P(no collision on the way): without / with the coupon",
+                 " / ".join(_f((fig.get(k) or {}).get("p"))
+                            for k in ("p_no_collision", "p_no_collision_coupon"))),
                 ("timing variance share: per print / per bracket",
                  " / ".join(_f((fig.get("timing_variance_share") or {}).get(k))
                             for k in ("per_print", "per_bracket"))),
@@ -212,6 +216,28 @@ def _head(summary: dict, design_dir) -> list:
                 ("diverged samples", fig["diverged"])]),
             "<h2>Pictures</h2><img src='tolerance_shell.png' alt='shell'>"
             "<img src='tolerance_timing.png' alt='timing'>"]
+
+
+STAGES = {"nominal": "nominal print (programming error; clamped cells)",
+          "thickness": "+ per-bracket thickness scatter (a perfect coupon)",
+          "coupon": "+ per-print factors, corrected by the coupon's fit",
+          "samples": "+ per-print factors, uncorrected (no coupon)"}
+
+
+def _error_split(summary: dict) -> list:
+    """Where a cell's timing error comes from
+    (:func:`pysolver.tolerance.coupon.error_split`)."""
+    split = summary["figures"].get("timing_error_split") or {}
+    if not split:
+        return []
+    return ["<h2>Where the timing error comes from</h2><p class='note'>Each row adds one "
+            "source to the row above, all simulated. Squared error of a cell that never "
+            "completes counted at the end of the simulation (a lower bound).</p>",
+            _table(["runs", "simulations", "P(cell on time)", "mean squared error (s^2)",
+                    "added (s^2)", "off-time cells that are clamped"],
+                   [(STAGES[k], r["runs"], _f(r["p_on_time"]), _f(r["mse_s2"]),
+                     _f(r["added_mse_s2"]), f"{100 * r['off_time_clamped_share']:.0f} %")
+                    for k, r in split.items()])]
 
 
 def _sensitivity(summary: dict) -> list:

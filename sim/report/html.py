@@ -20,7 +20,7 @@ from string import Template
 
 import numpy as np
 
-from pysolver.params import MECHTEST, UNIT_CELL
+from pysolver.params import MECHTEST, UNCERTAINTY, UNIT_CELL
 
 from ..viewer import asset_text, viewer_json
 
@@ -114,7 +114,7 @@ def page(r: dict, folder, name: str, viewer=None) -> str:
     m = r["metrics"]
     sections = [_verdict(r), fill("section_viewer", viewer=_viewer(viewer)),
                 _shape(m, r["thresholds"], r["files"], folder),
-                _timing(m, r["thresholds"], r["files"], folder),
+                _timing(m, r["thresholds"], r["files"], folder, r.get("timing_sd_predicted_s")),
                 _collisions(m, r["thresholds"], r["files"], folder),
                 _solver(m, r["thresholds"], r["files"], folder), _bears(r.get("bears")),
                 _renders(r, folder), _flat_pictures(r["files"], folder),
@@ -166,7 +166,17 @@ def _shape(m: dict, th: dict, fl: dict, folder) -> Markup:
     return fill("section_shape", table=table(rows), figures=pics)
 
 
-def _timing(m: dict, th: dict, fl: dict, folder) -> Markup:
+def _predicted_sd_row(pred: dict | None) -> list:
+    """The table row of the cells' predicted timing sd under the thickness scatter
+    (``report.json`` → ``timing_sd_predicted_s``; none when the design has no record)."""
+    if not pred:
+        return []
+    return [(f"predicted completion sd of a print, bracket thickness sd "
+             f"{UNCERTAINTY.thickness_sd:g} mm: mean / max over cells (bars in the plot)",
+             f"{_f(pred['mean'])} / {_f(pred['max'])} s")]
+
+
+def _timing(m: dict, th: dict, fl: dict, folder, pred: dict | None = None) -> Markup:
     tm = m["timing"]
     never = ", ".join(map(str, tm["never_due_cells"][:20])) or "none"
     rows = [("completed cells", f"{tm['n_completed']} / {tm['n_cells']}"),
@@ -179,6 +189,7 @@ def _timing(m: dict, th: dict, fl: dict, folder) -> Markup:
             ("mean error (bias), programmable cells", f"{_f(tm['bias_s'], '{:+.3g}')} s"),
             ("max |error|, programmable cells", f"{_f(tm['max_abs_s'])} s"),
             ("Spearman rank correlation, programmable cells", _f(tm["spearman"])),
+            *_predicted_sd_row(pred),
             ("limits", f"WARN RMS > {th['timing_rms_warn_s']} s, Spearman < "
                        f"{th['spearman_warn']}, any never-completed cell; FAIL > "
                        f"{100 * th['incomplete_fail_fraction']:g} % never completed")]

@@ -466,12 +466,13 @@ def save_gif(images, path, *, frame_ms=120, hold_ms=1200):
 # 2D plots
 # --------------------------------------------------------------------------------------------
 
-def plot_timing(path, t_star, t_done, t_end, *, clamped=None):
+def plot_timing(path, t_star, t_done, t_end, *, clamped=None, sd=None):
     """Simulated completion vs programmed t* of every unit cell.
 
     Cells the temporal stage could program are dots, clamped ones (t* outside what
     0.30-0.65 mm brackets reach) open squares; never-completed cells are red crosses
-    drawn on the t_end line.
+    drawn on the t_end line.  With ``sd`` (c,) s, each completed cell carries a bar of
+    +-1 predicted sd under the per-bracket thickness scatter.
     """
     t_star = np.asarray(t_star, float)
     t_done = np.asarray(t_done, float)
@@ -481,6 +482,11 @@ def plot_timing(path, t_star, t_done, t_end, *, clamped=None):
     hi = max(np.nanmax(t_star) if t_star.size else 1, t_end) * 1.05
     ax.plot([0, hi], [0, hi], color="0.5", lw=1, ls="--", label="simulated = programmed")
     ok = done & ~cl
+    if sd is not None:
+        bar = done & np.isfinite(np.asarray(sd, float))
+        ax.errorbar(t_star[bar], t_done[bar], yerr=np.asarray(sd, float)[bar], fmt="none",
+                    ecolor="0.6", elinewidth=0.7, alpha=0.6,
+                    label="+-1 sd predicted for a print (bracket thickness scatter)")
     ax.scatter(t_star[ok], t_done[ok], s=12, alpha=0.7,
                label=f"programmable, completed ({ok.sum()})")
     if (done & cl).any():

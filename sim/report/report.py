@@ -35,7 +35,7 @@ from pysolver.core.records import finite, json_text
 from pysolver.core.staging import atomic_dir
 from pysolver.errors import InputError, MorphshellError
 from pysolver.params import PHYSICS_DEFAULT, PICTURES, SCAN_AGREEMENT, ReportThresholds
-from pysolver.tables import read_table, tables_sha256
+from pysolver.tables import predicted_timing_sd, read_table, tables_sha256
 
 from ..model.mechtest import bearing, dried_shell, recorded_material
 from ..viewer import frame_alignments, viewer_data
@@ -130,7 +130,8 @@ def make_report(design_dir, *, times=(0, 3, 30, 50, 80), thresholds=None, out_di
             "render_frames": {"frames": files.get("render_frames", []),
                               "times_s": [float(t[f]) for f in files.get("render_frames", [])]},
             "provenance": extra["provenance"], "stls": extra["stls"], "bears": bears,
-            "fabrication": extra["fabrication"]})
+            "fabrication": extra["fabrication"],
+            "timing_sd_predicted_s": _predicted_sd(folder, len(check.t_done))})
         (tmp / "report.json").write_text(json_text(result))
         (tmp / "index.html").write_text(page(result, tmp, folder.resolve().name,
                                              extra["viewer"]), encoding="utf-8")
@@ -203,6 +204,16 @@ def _notes(metrics: dict, frames: dict) -> list[str]:
     return notes
 
 
+def _predicted_sd(folder: Path, n_cells: int) -> dict | None:
+    """Mean and max over cells of the predicted completion-time sd under the per-bracket
+    thickness scatter (:func:`pysolver.tables.predicted_timing_sd`), or None."""
+    sd = predicted_timing_sd(folder, n_cells)
+    if sd is None or not np.isfinite(sd).any():
+        return None
+    ok = sd[np.isfinite(sd)]
+    return {"mean": float(ok.mean()), "max": float(ok.max())}
+
+
 def _plots(tmp: Path, sd: SimData, check: Check, th: ReportThresholds) -> dict:
     """The 2D plots of the report folder; returns ``{key: file name}``."""
     fr, n_ok = sd.frames, check.n_valid
@@ -211,7 +222,8 @@ def _plots(tmp: Path, sd: SimData, check: Check, th: ReportThresholds) -> dict:
     mc = check.membrane_base
     files = {
         "timing": rp.plot_timing(tmp / "timing.png", sd.cells["t_star_s"], check.t_done,
-                                 t_last, clamped=sd.cells.get("clamped")).name,
+                                 t_last, clamped=sd.cells.get("clamped"),
+                                 sd=predicted_timing_sd(sd.folder, len(check.t_done))).name,
         "clearance": rp.plot_clearance(
             tmp / "collisions.png", t, check.base_base.min_clearance,
             mc.min_clearance if mc is not None else None, th.collision_depth_mm,

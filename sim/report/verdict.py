@@ -259,13 +259,18 @@ def _timing(m: dict, th: ReportThresholds) -> list:
     return out
 
 
+BASE_COLLISION_TEXT = "pair(s) of non-neighbouring bases collide"
+"""The words of the collision check's FAIL line (read back by the tolerance analysis's
+P(no collision on the way), :func:`pysolver.tolerance.coupon.collision_free`)."""
+
+
 def _collisions(m: dict, th: ReportThresholds) -> list:
     out = []
     bc = m["collisions"]["base_base"]
     if bc["count"]:
         f = bc["first"]
         out.append(("FAIL", "collisions",
-                    f"{bc['count']} pair(s) of non-neighbouring bases collide; first bases "
+                    f"{bc['count']} {BASE_COLLISION_TEXT}; first bases "
                     f"{f['pair'][0]} and {f['pair'][1]} at t = {f['time_s']:g} s, depth "
                     f"{f['depth_mm']:.2f} mm (max {bc['max_depth_mm']:.2f} mm)"))
     mc = m["collisions"].get("membrane_base")
@@ -330,4 +335,4 @@ def base_base_collisions(design_dir, thresholds=None) -> dict:
                            sd.cell_pairs, t=sd.t[:n_ok], tol=th.collision_depth_mm).summary()
 
 
-__all__ = ["Check", "check_morph", "decide", "base_base_collisions"]
+__all__ = ["Check", "check_morph", "decide", "base_base_collisions", "BASE_COLLISION_TEXT"]

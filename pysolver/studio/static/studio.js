@@ -728,6 +728,7 @@
     el("b", {text: "cell " + c}, tip);
     el("div", {text: "requested t* " + fmt(f.t_star[c], 1) + " s: " + side + " (reachable " +
       fmt(f.t_min[c], 1) + "-" + fmt(f.t_max[c], 1) + " s)"}, tip);
+    if (pr.t_sd && pr.t_sd[c] !== null) el("div", {text: "predicted sd of a print (bracket thickness scatter): " + fmt(pr.t_sd[c], 1) + " s"}, tip);
     el("div", {text: "as built: t* " + fmt(pr.t_star[c], 1) + " s, simulated completion " +
       (pr.t_done ? (pr.t_done[c] === null ? "never" : fmt(pr.t_done[c], 1) + " s") : "not simulated") +
       ", h top " + fmt(pr.h_top[c], 3) + " / bottom " + fmt(pr.h_bottom[c], 3) + " mm, " +
