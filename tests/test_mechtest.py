@@ -377,12 +377,12 @@ def test_what_it_bears_degrades_on_odd_frames_but_not_on_bugs(monkeypatch):
         rep.what_it_bears("nowhere")
 
 
-def _bench():
+def _bench(name: str = "bench_mechtest"):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "bench" / "bench_mechtest.py"
-    spec = importlib.util.spec_from_file_location("bench_mechtest", path)
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -418,3 +418,34 @@ def test_bench_converts_with_the_testers_a0_b0():
     xs, ys = b.to_tester("stretch", x, y, {"a0_mm": 2.4, "b0_mm": 60.0}, st)
     np.testing.assert_allclose(xs, x, rtol=1e-12)
     np.testing.assert_allclose(ys, y / 2, rtol=1e-12)
+
+
+def test_slope_bench_reads_past_a_seating_toe_and_takes_the_rig_off():
+    """``bench/mechtest_slopes.py``: on a curve with a seating toe (quadratic to 2 %, then a
+    line of slope 0.1 MPa/%) the steepest 2 % window is the line's (1e-9), where the 0-2 %
+    slope reads half of it; on a curve without a toe the two agree.  The dry law with the
+    rig's compliance ``c`` off has the stiffness ``c1 / (1 - 4 c c1)`` (1e-12), each ``c_k``
+    scaled by ``s^k``, and the wet law (t > 0) is left as fitted."""
+    b = _bench("mechtest_slopes")
+    x = np.linspace(0, 12, 1201)
+    y = np.where(x < 2, 0.025 * x**2, 0.1 * x - 0.1)
+    slope, start = b.toe_free_slope(x, y, upto=12.0)
+    assert slope == pytest.approx(0.1, rel=1e-9) and start >= 2.0
+    assert initial_slope(x, y, "bend") == pytest.approx(0.05, rel=0.01)
+    line = 0.03 * x
+    assert b.toe_free_slope(x, line, 12.0)[0] == pytest.approx(initial_slope(x, line, "stretch"),
+                                                              rel=1e-9)
+
+    class Law:
+        def coefficients(self, h, b_, t, eta=0.0):
+            return np.tile([4.0, -0.5, 0.1, -0.01], (len(h), 1)) * (1.0 if t == 0 else 0.1)
+
+    c = 0.03
+    rig = b.RigOff(Law(), c)
+    got = rig.coefficients(np.ones(2), np.ones(2), 0.0)
+    s = 1 / (1 - 4 * c * 4.0)
+    assert got[0, 0] == pytest.approx(4.0 / (1 - 4 * c * 4.0), rel=1e-12)
+    np.testing.assert_allclose(got[1], np.array([4.0, -0.5, 0.1, -0.01]) * s ** np.arange(1, 5),
+                               rtol=1e-12)
+    np.testing.assert_allclose(rig.coefficients(np.ones(2), np.ones(2), 5.0),
+                               Law().coefficients(np.ones(2), None, 5.0), rtol=0)

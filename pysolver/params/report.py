@@ -144,7 +144,8 @@ class ScanAgreement:
 
     Source: ``bench/bench_printed.py`` on the printed spiral of the paper's authors (their
     stencil and thicknesses, scored by ``morphshell compare-scan``; ``docs/physics.md``).
-    The authors' simulator scores 1.58 mm mean by the same procedure.
+    The authors' simulator scores 1.58 mm mean by the same procedure.  One shell was
+    measured: the promise names it and says nothing of other shapes.
 
     Attributes
     ----------
@@ -168,12 +169,12 @@ class ScanAgreement:
 
     def promise(self) -> str:
         """One sentence for the report."""
-        return (f"What this check can promise: on a printed shell of this kind ({self.shell}, "
+        return (f"What this check can promise: measured on one printed shell ({self.shell}, "
                 f"{self.span_mm:g} mm, {self.n_bases} bases), the default simulation placed "
                 f"the dried shell's marker dots within {self.mean_mm:g} mm mean "
                 f"({100 * self.mean_mm / self.span_mm:.1f} % of its span), "
-                f"{self.median_mm:g} mm median and {self.max_mm:g} mm at most of its 3D scan "
-                "(docs/physics.md).")
+                f"{self.median_mm:g} mm median and {self.max_mm:g} mm at most of its 3D scan; "
+                "no other shape was measured (docs/physics.md).")
 
 
 SCAN_AGREEMENT = ScanAgreement()
