@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class StencilSearch:
-    """Settings of the stencil generation (:mod:`pysolver.design.remesh`,
-    :mod:`pysolver.design.stencil_opt`, :mod:`pysolver.design.count_search`) and of the
+    """Settings of the stencil generation (:mod:`pysolver.design.stencil.remesh`,
+    :mod:`pysolver.design.stencil.optimise`, :mod:`pysolver.design.stencil.count_search`) and of the
     layout checks (:mod:`pysolver.design.checks`).
 
     Source: morphshell's (the reference remeshes by hand in its GUI, ``pipeline.md`` §2.2),
@@ -28,7 +28,8 @@ class StencilSearch:
     lloyd_iterations: int = 40
     """int: Weighted Lloyd iterations of the CVT in the conformal plane."""
     lloyd_softness: float = 0.05
-    """float: Softness of the Lloyd iterations' Voronoi owners (:func:`pysolver.design.remesh.
+    """float: Softness of the Lloyd iterations' Voronoi owners
+    (:func:`pysolver.design.stencil.remesh.
     _soft_owners`): each quadrature point is shared among its four nearest generators with
     weights ``exp(-(d^2 - d_1^2) / (softness d_4^2))``. Runs: ``docs/results.md``, "How the
     stencil settings were chosen"."""
@@ -72,11 +73,11 @@ class StencilSearch:
     ``opt_min_angle_deg``-``opt_max_angle_deg``."""
     opt_clearance_weight: float = 200.0
     """float: Weight of the squared log shortfall of a base centre's clearance; the hard limit is
-    :func:`~pysolver.design.stencil_opt.accept_step`'s. Runs: ``docs/results.md``, "How the
+    :func:`~pysolver.design.stencil.optimise.accept_step`'s. Runs: ``docs/results.md``, "How the
     stencil settings were chosen"."""
     opt_clearance_slack: float = 0.02
     """float: Log shortfall of the clearance (2 %) a round may leave and still be kept (a hard
-    limit of :func:`pysolver.design.stencil_opt.accept_step`)."""
+    limit of :func:`pysolver.design.stencil.optimise.accept_step`)."""
     opt_backtracks: int = 6
     """int: Halvings of a round's step back toward its start tried when the L-BFGS point breaks a
     hard limit or does not improve the exact objective: a soft penalty's overshoot never costs
@@ -106,7 +107,7 @@ class StencilSearch:
     opt_tiny: float = 1e-30
     """float: Floor of the arguments of the barrier's and penalties' logarithms, and the guard
     added under the square root of the half fold's tangent in
-    :func:`~pysolver.design.stencil_opt.layout_logs` (the optimiser's is
+    :func:`~pysolver.design.stencil.optimise.layout_logs` (the optimiser's is
     ``opt_fold_floor_deg``)."""
     opt_fold_floor_deg: float = 0.1
     """float, deg: The half fold's tangent in the stencil objective is ``sqrt(tan^2 t + tan^2(f /
@@ -144,7 +145,8 @@ class StencilSearch:
     opt_barrier: float = 1e-3
     """float: Weight of the log barrier that keeps flat triangles positively oriented."""
     opt_timing_weight: float = 200.0
-    """float: Weight of the timing misfit (:func:`pysolver.design.stencil_opt.timing_misfit`) in
+    """float: Weight of the timing misfit (:func:`pysolver.design.stencil.optimise.timing_misfit`)
+    in
     the stencil optimisation, when a time landscape is known (0 = off)."""
     timing_fastest: tuple = (6.47, -2.916, 0.767, 0.615)
     """tuple of float: ``(c, a, e, k)`` of the estimate ``log t ~ c + a log b0 + e log x + k
@@ -168,7 +170,8 @@ class StencilSearch:
     seeds: int = 2
     """int: CVT seeds tried at every vertex count the search visits, when none is given: the
     secant steers on their mean log 3D scaling and the pick takes the best of them
-    (:mod:`pysolver.design.count_search`). Runs: ``docs/results.md``, "How the stencil settings
+    (:mod:`pysolver.design.stencil.count_search`). Runs: ``docs/results.md``, "How the stencil
+    settings
     were chosen"."""
     count_start: float = 1.5
     """float: First vertex count of the search over the paper's estimate ``0.38 A / 7^2``
@@ -198,15 +201,15 @@ class StencilSearch:
     opt_pin_weight: float = 10000.0
     """float: Weight (per log^2) of the penalty that holds the exact 3D scaling at 1 when the
     chosen stencil is optimised once more for its longest flat cell per unit of scaling
-    (:func:`pysolver.design.count_search.remesh_surface`; Runs: ``docs/results.md``, "How the
+    (:func:`pysolver.design.stencil.search.remesh_surface`; Runs: ``docs/results.md``, "How the
     stencil settings were chosen"."""
     opt_slide_rim: bool = True
     """bool: The rim vertices slide along the curve the CVT put them on
-    (:class:`pysolver.design.stencil_opt.RimCurve`) in each candidate's optimisation. Runs:
+    (:class:`pysolver.design.stencil.optimise.RimCurve`) in each candidate's optimisation. Runs:
     ``docs/results.md``, "How the stencil settings were chosen"."""
     polish_tolerance: float = 0.02
     """float: The polish "held" the scaling at 1 when the stencil kept is within this (log) of it:
-    the stencil is then at full size (:func:`pysolver.design.count_search.full_size`). Runs:
+    the stencil is then at full size (:func:`pysolver.design.stencil.candidates.full_size`). Runs:
     ``docs/results.md``, "How the stencil settings were chosen"."""
     hopeless_log_scale: float = 0.35
     """float: A candidate whose stencil, before optimisation, is off the size asked for by more
@@ -229,7 +232,8 @@ class StencilSearch:
     the stencil settings were chosen"."""
     remove_flaps: bool = True
     """bool: Merge the two triangles of a rim vertex that has only two (a flap:
-    :func:`pysolver.design.remesh.remove_flaps`). Runs: ``docs/results.md``, "How the stencil
+    :func:`pysolver.design.stencil.remesh.remove_flaps`). Runs: ``docs/results.md``, "How the
+    stencil
     settings were chosen"."""
     flap_min_angle_deg: float = 30.0
     """float, deg: A flap is kept where the merged triangle would have a smaller angle (its inner
@@ -238,7 +242,7 @@ class StencilSearch:
     """tuple of float: With a time landscape the user gave (``--time``, ``--time-file``), relative
     vertex counts below the chosen one also tried: larger cells are faster, and a landscape
     that asks for early times may clamp fewer cells on them
-    (:func:`pysolver.design.stencil_opt.estimated_clamping`). Runs: ``docs/results.md``, "How
+    (:func:`pysolver.design.stencil.optimise.estimated_clamping`). Runs: ``docs/results.md``, "How
     the stencil settings were chosen"."""
     trade_min_scale3d: float = 0.95
     """float: Smallest 3D scaling a traded stencil may have (the shell at least this fraction of
@@ -247,7 +251,7 @@ class StencilSearch:
     """float: Smallest drop of the estimated clamped fraction that pays for the smaller shell."""
     timing_grading: float = 0.25
     """float: With a landscape the user gave, the stencil's 3D spacing follows ``(t /
-    t_mean)^(-timing_grading)`` besides ``grading`` (:func:`pysolver.design.remesh.
+    t_mean)^(-timing_grading)`` besides ``grading`` (:func:`pysolver.design.stencil.remesh.
     time_spacing_log`): smaller, slower cells where the landscape asks for late times. Runs:
     ``docs/results.md``, "How the stencil settings were chosen"."""
     near_limit_fraction: float = 0.95
@@ -259,7 +263,8 @@ class StencilSearch:
     stencil settings were chosen"."""
     rim_scale_sharpness: float = 100.0
     """float, 1 / log: Sharpness of the log-sum-exp that smooths the bound's two extremes when
-    :func:`~pysolver.design.feasibility.rim_log_scale` chooses the rim's log-scale: smooth and
+    :func:`~pysolver.design.stencil.feasibility.rim_log_scale` chooses the rim's log-scale: smooth
+    and
     strictly convex (with ``rim_scale_ridge``), so that its minimiser, unlike the linear
     programme's vertex, does not move with the last bits. Runs: ``docs/results.md``, "How the
     stencil settings were chosen"."""

@@ -23,7 +23,7 @@ of the dense piecewise linear map) inside each of a few outer rounds and lifted 
 each.
 
 The functions here state the rules once, autograd-friendly.  The optimiser evaluates them
-with the hand-written forward and reverse passes of :mod:`.objective_grad` (0.7 ms per
+with the hand-written forward and reverse passes of :mod:`.objective` (0.7 ms per
 evaluation on petal's 132-vertex stencil; autograd's differentiation of these functions,
 ``StencilObjective.linearised(..., autodiff=True)``, took 4.7 ms, its cost being per
 operation), which ``tests/test_stencil.py`` checks against autograd to 1e-9 and against
@@ -40,11 +40,11 @@ from autograd import value_and_grad
 from autograd.scipy.special import logsumexp
 from scipy.optimize import minimize
 
-from ..geometry import face_adjacency, unit_cells
-from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
-from ..params import tol as TOL
-from . import objective_grad as og
-from .time_landscape import cell_target_times
+from ...geometry import face_adjacency, unit_cells
+from ...params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from ...params import tol as TOL
+from ..time_landscape import cell_target_times
+from . import objective as og
 
 
 def opposite_vertices(F, cells=None):
@@ -391,7 +391,7 @@ class StencilObjective:
 
     Parameters
     ----------
-    domain : pysolver.design.remesh.FlatDomain
+    domain : pysolver.design.stencil.remesh.FlatDomain
     P : (n, 2) float, mm
         The starting flat stencil (its angles and clearances set the penalties' floors).
     F : (m, 3) int
@@ -514,7 +514,7 @@ class StencilObjective:
         lift linearised at ``P0`` (the Jacobian of the dense piecewise linear map), and the
         penalties and the orientation barrier.
 
-        The gradient is the hand-written reverse pass of :mod:`.objective_grad`;
+        The gradient is the hand-written reverse pass of :mod:`.objective`;
         ``autodiff`` differentiates this module's functions by autograd instead (about five
         times slower: the check of the hand pass in ``tests/test_stencil.py``)."""
         st, F = self.settings, self.F
@@ -564,7 +564,7 @@ class StencilObjective:
         return fun
 
     def _by_hand(self, P0, X0, J, Pfix, T, k2: int, clearance_weight: float, excess):
-        """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective_grad`
+        """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective`
         (``excess``: the smoothed log 3D scaling's and log longest flat cell's over the exact
         ones at ``P0``, :meth:`main_terms`, :meth:`timing`)."""
         pin_excess, cap_excess = excess
@@ -768,7 +768,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
     Parameters
     ----------
-    domain : pysolver.design.remesh.FlatDomain
+    domain : pysolver.design.stencil.remesh.FlatDomain
         Dense target and its conformal plane (``lift``, ``lift_jacobian``).
     P : (n, 2) float, mm
         Stencil vertices in the conformal plane; rim vertices stay (or slide, ``rim``).

@@ -1,12 +1,12 @@
 """The stencil objective's value and gradient by hand: numpy forward and reverse passes.
 
-:class:`pysolver.design.stencil_opt.StencilObjective` minimises, round after round, the
+:class:`pysolver.design.stencil.optimise.StencilObjective` minimises, round after round, the
 longest flat cell of the layout rules plus penalties, over the flat stencil vertices.
 autograd differentiated that composition at about 20 us per operation each way (190
 operations, 4.7 ms per evaluation on petal's 132-vertex stencil, most of the design stage);
 no library differentiates numpy code without that per-operation cost, so the passes are
 written out here, once, in the same order as the autograd-friendly functions of
-:mod:`pysolver.design.stencil_opt` that state the rules.  ``tests/test_stencil.py`` checks
+:mod:`pysolver.design.stencil.optimise` that state the rules.  ``tests/test_stencil.py`` checks
 value and gradient against autograd's differentiation of those functions (1e-9 relative)
 and against finite differences.
 
@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..params import UnitCell
-from ..params import tol as TOL
+from ...params import UnitCell
+from ...params import tol as TOL
 
 _NEXT, _PREV = [1, 2, 0], [2, 0, 1]
 
@@ -114,7 +114,7 @@ class CellGeometry:
 
 class Scalings:
     """Logs of the 3D scaling, the flat scaling and the longest flat centroid distance
-    (:func:`pysolver.design.stencil_opt.layout_logs`) from a :class:`CellGeometry`, with
+    (:func:`pysolver.design.stencil.optimise.layout_logs`) from a :class:`CellGeometry`, with
     their backward pass into it."""
 
     def __init__(self, geo: CellGeometry, params: UnitCell, sharpness, like=None):
@@ -151,7 +151,7 @@ class Scalings:
 
 def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: UnitCell,
            settings):
-    """The timing misfit (:func:`pysolver.design.stencil_opt.timing_misfit`) at the smoothed
+    """The timing misfit (:func:`pysolver.design.stencil.optimise.timing_misfit`) at the smoothed
     scalings, and its backward pass.
 
     Parameters
@@ -173,7 +173,7 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
     b0_raw, x_raw = L - params.bracket_offset, L - C
     b0 = np.maximum(b0_raw, tiny)
     xm = settings.timing_compression_floor
-    x = xm * np.logaddexp(0.0, x_raw / xm)  # (smooth floor: stencil_opt.log_time_range)
+    x = xm * np.logaddexp(0.0, x_raw / xm)  # (smooth floor: optimise.log_time_range)
     lb0, lx = np.log(b0), np.log(x)
     fast, slow = settings.timing_fastest, settings.timing_slowest
     lo = fast[0] + fast[1] * lb0 + fast[2] * lx + fast[3] * boundary
@@ -201,7 +201,7 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
 
 class FlatTriangles:
     """Signed areas, squared edge lengths, corner cosines and angles and centre clearances
-    of the flat triangles (:func:`pysolver.design.stencil_opt._flat_triangles`), with the
+    of the flat triangles (:func:`pysolver.design.stencil.optimise._flat_triangles`), with the
     backward pass into the flat positions.
 
     Attributes
