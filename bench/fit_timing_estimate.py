@@ -2,7 +2,7 @@
 
 The count search and the stencil optimisation steer each cell's achievable completion
 times toward the landscape by a closed-form estimate (``StencilSearch.timing_fastest`` /
-``timing_slowest``, :func:`pysolver.design.stencil.optimise.log_time_range`)::
+``timing_slowest``, :func:`pysolver.design.stencil.objective.log_time_range`)::
 
     log t ~ c + a log b0 + e log x + k [boundary]
 
@@ -46,7 +46,8 @@ sys.path.insert(0, str(ROOT))
 from pysolver import tables  # noqa: E402
 from pysolver.design import run_design  # noqa: E402
 from pysolver.design.layout import build_layout  # noqa: E402
-from pysolver.design.stencil.optimise import layout_timing_terms, log_time_terms  # noqa: E402
+from pysolver.design.stencil.objective import log_time_terms  # noqa: E402
+from pysolver.design.stencil.optimise import layout_timing_terms  # noqa: E402
 from pysolver.params import STENCIL  # noqa: E402
 from pysolver.temporal import program_design  # noqa: E402
 

@@ -11,6 +11,7 @@ import autograd.numpy as anp
 import igl
 import numpy as np
 import pytest
+import stencil_oracle as oracle
 from _shared import QUICK_SEARCH, quick_stencil_search, shared_file
 from autograd import grad
 
@@ -19,6 +20,7 @@ from pysolver.design.flatten import cetm
 from pysolver.design.layout import build_layout
 from pysolver.design.mesh_input import load_input
 from pysolver.design.stencil import candidates, optimise, remesh, search
+from pysolver.design.stencil import objective as og
 from pysolver.design.stencil.candidates import Candidate
 from pysolver.design.stencil.count_search import CountSearch
 from pysolver.errors import InputError
@@ -75,13 +77,18 @@ def test_layout_logs_are_the_scaling_rules(dome_domain):
     fa, fb = cells.faces[:, 0], cells.faces[:, 1]
     lay = build_layout(X, P, F, UNIT_CELL, enforce_gap=False)
     # with the flat layout given (no re-flattening), both rules in closed form: exact maxima
-    log_s3, log_s2, log_d = optimise.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
-                                                    UNIT_CELL, sharpness=None)
+    log_s3, log_s2, log_d = oracle.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
+                                               UNIT_CELL, sharpness=None)
     assert np.exp(log_s3) == pytest.approx(lay.scale3d, rel=1e-8)
     assert np.exp(log_s2 + log_d) == pytest.approx(lay.central_length.max(), rel=1e-8)
     # smoothed maxima over-estimate by at most log(cells) / sharpness
-    sm = optimise.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, sharpness=60.0)
+    sm = oracle.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, sharpness=60.0)
     assert 0 <= sm[0] - log_s3 <= np.log(len(fa)) / 60 + 1e-12
+    # the optimiser's own forward pass (the hand-written one) gives the same logs
+    geo = og.CellGeometry(P, X, F, fa, fb, o[:, 0], o[:, 1], STENCIL.opt_tiny)
+    for sharp, want in ((None, (log_s3, log_s2, log_d)), (60.0, sm)):
+        got = og.Scalings(geo, UNIT_CELL, sharp)
+        np.testing.assert_allclose([got.log_s3, got.log_s2, got.log_d], want, rtol=1e-12)
 
 
 def _assert_gradient_matches_fd(f, P, seed: int, rel: float, eps: float = 1e-6):
@@ -106,7 +113,7 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
 
     def f(Q):  # the optimiser's inner objective: linearised lift, no barrier
         Xq = X + anp.einsum("nij,nj->ni", J, Q - P)
-        a, b, c = optimise.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
+        a, b, c = oracle.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
         return a + b + c
 
     _assert_gradient_matches_fd(f, P, seed=0, rel=1e-5)
@@ -117,9 +124,9 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
                          ids=["timing", "pinned", "plain", "pinned-timing-rim-held"])
 def test_hand_gradient_is_autograds(dome_domain, pin, timed, slide):
     """The optimiser's hand-written passes (``pysolver.design.stencil.objective``) give the
-    value and gradient autograd takes of the module's functions, at a point where the
-    angle, clearance and timing penalties are active; and central differences agree with
-    that gradient."""
+    value (to 1e-12) and gradient (to 1e-9) autograd takes of the oracle's statement of the
+    rules (``tests/stencil_oracle.py``), at a point where the angle, clearance and timing
+    penalties are active; and central differences agree with that gradient (1e-4)."""
     P, F = dome_domain.stencil(50, seed=3)
     z = dome_domain.lift(P)[:, 2]
     t = 30.0 + 2.0 * (z - z.min()) if timed else None
@@ -131,7 +138,7 @@ def test_hand_gradient_is_autograds(dome_domain, pin, timed, slide):
     x = x0 + 1.0 * np.random.default_rng(4).standard_normal(len(x0))
     w = 10 * dome_domain.settings.opt_clearance_weight
     hand = prob.linearised(P, w)
-    auto = prob.linearised(P, w, autodiff=True)
+    auto = oracle.linearised(prob, P, w)
     fh, gh = hand(x)
     assert fh > prob.linearised(P, 0.0)(x)[0] + 1.0  # base centres short of clearance
     fa, ga = auto(x)
@@ -153,10 +160,10 @@ def test_optimisation_shortens_the_longest_cell(dome_domain):
     after = candidates.stencil_figures(dome_domain.lift(Q), F)
     assert info["rounds"] >= 1
     assert after["max_cell_length_mm"] < before["max_cell_length_mm"] - 0.2
-    A = optimise._signed_areas(Q, F)
+    A = og.signed_areas(Q, F)
     assert np.all(A > 0)  # no flat triangle flipped
     lay = build_layout(dome_domain.lift(Q), Q, F, UNIT_CELL, enforce_gap=False)
-    clear = optimise.centroid_edge_distances(lay.UV, F)
+    clear = og.FlatTriangles(lay.UV, F).clearance
     assert clear.min() >= 2.3 - 0.05  # base centres keep clear of their triangle's edges
     bnd = np.asarray(igl.boundary_loop(F))
     assert len(bnd) and np.array_equal(Q[bnd], P[bnd])  # the rim stays where it was
@@ -193,7 +200,7 @@ def test_rim_vertices_slide_along_their_curve(dome_domain):
     _, d = optimise.RimCurve(C).project(Q[bnd])
     assert d.max() <= 1e-6
     assert np.linalg.norm(Q[bnd] - P[bnd], axis=1).max() > 0.1  # mm, in the plane
-    assert np.all(optimise._signed_areas(Q, F) > 0)
+    assert np.all(og.signed_areas(Q, F) > 0)
     fixed = candidates.stencil_figures(dome_domain.lift(Q0), F)["max_cell_length_mm"]
     slid = candidates.stencil_figures(dome_domain.lift(Q), F)["max_cell_length_mm"]
     assert slid <= fixed + 0.02
@@ -268,7 +275,7 @@ def test_accept_step_backtracks_to_an_oriented_improving_point(dome_domain):
     Pn[free] = P[free] + 40.0 * np.random.default_rng(0).standard_normal((len(free), 2))
     step, Q = optimise.accept_step(prob, P, Pn, np.inf, short0)
     assert step["kept"] and step["step"] < 1.0
-    assert np.all(optimise._signed_areas(Q, F) > 0)
+    assert np.all(og.signed_areas(Q, F) > 0)
     assert np.allclose(Q, P + step["step"] * (Pn - P))
     # nothing on the segment lowers the objective: refused, with the reason
     step, Q = optimise.accept_step(prob, P, P, f0, short0)
@@ -445,10 +452,15 @@ def test_timing_misfit_restates_the_cells_of_the_layout(dome_domain):
     b0 = UNIT_CELL.bracket_length(lay.central_length)
     x = b0 - collision_lengths(bracket_nodes(lay.V, lay.UV, lay.F, UNIT_CELL,
                                              ff=lay.ff, rotvec=lay.rotvec)[0], lay.cells).mean(1)
-    log_s3, log_s2, _ = optimise.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
-                                                UNIT_CELL, sharpness=None)
-    got = optimise.timing_misfit(P, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, log_s3,
-                                    log_s2, UNIT_CELL, STENCIL)
+    log_s3, log_s2, _ = oracle.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
+                                           UNIT_CELL, sharpness=None)
+    got = oracle.timing_misfit(P, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, log_s3,
+                               log_s2, UNIT_CELL, STENCIL)
+    # the optimiser's forward pass, at the same (exact) scalings, is the oracle's
+    geo = og.CellGeometry(P, X, F, fa, fb, o[:, 0], o[:, 1], STENCIL.opt_tiny)
+    hand, _ = og.timing(geo, og.Scalings(geo, UNIT_CELL, None), bnd, log_ts, UNIT_CELL,
+                        STENCIL)
+    assert hand == pytest.approx(float(got), rel=1e-12)
 
     def est(m):
         return m[0] + m[1] * np.log(b0) + m[2] * np.log(x) + m[3] * bnd
@@ -458,7 +470,7 @@ def test_timing_misfit_restates_the_cells_of_the_layout(dome_domain):
     # the flat length is the layout's; the contact length is restated as s3 D / cos(t) -
     # (l - b), which the bracket nodes' own distances (off the cell axis) undercut by up to
     # 0.03 mm, so x and the misfit agree to a few per cent
-    cos_t, _, D, d = optimise._cell_geometry(P, X, F, fa, fb, o[:, 0], o[:, 1])
+    cos_t, _, D, d = oracle.cell_geometry(P, X, F, fa, fb, o[:, 0], o[:, 1])
     L = np.exp(log_s2) * d
     np.testing.assert_allclose(L, lay.central_length, rtol=1e-7)
     x_opt = L - np.exp(log_s3) * D / cos_t
@@ -475,9 +487,9 @@ def test_timing_misfit_gradient_matches_finite_differences(dome_domain):
 
     def f(Q):
         Xq = X + anp.einsum("nij,nj->ni", J, Q - P)
-        a, b, _ = optimise.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
-        return optimise.timing_misfit(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, a, b,
-                                         UNIT_CELL, STENCIL)
+        a, b, _ = oracle.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
+        return oracle.timing_misfit(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, a, b,
+                                    UNIT_CELL, STENCIL)
 
     assert f(P) > 0
     _assert_gradient_matches_fd(f, P, seed=1, rel=1e-4)
@@ -491,16 +503,16 @@ def test_optimisation_suits_the_cells_to_the_time_landscape(dome_domain):
 
     def misfit(Q):
         X, cells, o, fa, fb, bnd, log_ts = _timing_terms(dome_domain, Q, F, t)
-        a, b, _ = optimise.layout_logs(Q, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, None)
-        return float(optimise.timing_misfit(Q, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts,
-                                               a, b, UNIT_CELL, STENCIL))
+        a, b, _ = oracle.layout_logs(Q, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, None)
+        return float(oracle.timing_misfit(Q, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts,
+                                          a, b, UNIT_CELL, STENCIL))
 
     Q0, _ = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, off, t_vertex=t)
     Q1, info = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
                                             t_vertex=t)
     assert info["rounds"] >= 1
     assert misfit(Q1) < 0.7 * misfit(Q0), (misfit(P), misfit(Q0), misfit(Q1))
-    assert np.all(optimise._signed_areas(Q1, F) > 0)
+    assert np.all(og.signed_areas(Q1, F) > 0)
     # the cap: the trade stays printable, within 0.1 mm of the count search's margin (the
     # cap is exact at each round's start and smooth within it; measured 9.27 mm, cap 9.2)
     lay = build_layout(dome_domain.lift(Q1), Q1, F, UNIT_CELL, enforce_gap=False)
@@ -540,7 +552,7 @@ def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome
     assert after["scale3d"] == pytest.approx(held, abs=0.005)
     assert (after["max_cell_length_mm"] / after["scale3d"]
             < before["max_cell_length_mm"] / before["scale3d"] - 0.2)
-    assert np.all(optimise._signed_areas(Q, F) > 0)
+    assert np.all(og.signed_areas(Q, F) > 0)
 
 
 def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
@@ -548,7 +560,7 @@ def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
     central = np.full(3, 4.0 + UNIT_CELL.bracket_offset)
     contact = central - 1.0
     bnd = np.zeros(3)
-    lo, hi = optimise.log_time_range(central, contact, bnd, UNIT_CELL, STENCIL)
+    lo, hi = og.log_time_range(central, contact, bnd, UNIT_CELL, STENCIL)
     c, a, e = STENCIL.timing_fastest[:3]
     # log x = 0, but for the compression's smooth floor: x_f log(1 + exp(1 mm / x_f))
     xf = STENCIL.timing_compression_floor
@@ -585,7 +597,7 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
     lay = build_layout(V, UV, F, tables.read_unit_cell(folder))
     cells = tables.read_table(folder, "cells")
     np.testing.assert_allclose(lay.central_length, cells["central_length_mm"], atol=1e-6)
-    lo, hi = optimise.log_time_range(*optimise.layout_timing_terms(lay))
+    lo, hi = og.log_time_range(*optimise.layout_timing_terms(lay))
     for est, t, bias in ((lo, cells["t_min_s"], (-0.2, 0.16)),
                          (hi, cells["t_max_s"], (-0.3, 0.05))):
         ok = (t > 0.5) & (t < 119.5)  # (at the ends of the bracket model's range: bounds)

@@ -107,7 +107,7 @@ class StencilSearch:
     opt_tiny: float = 1e-30
     """float: Floor of the arguments of the barrier's and penalties' logarithms, and the guard
     added under the square root of the half fold's tangent in
-    :func:`~pysolver.design.stencil.optimise.layout_logs` (the optimiser's is
+    :class:`~pysolver.design.stencil.objective.Scalings` (the optimiser's is
     ``opt_fold_floor_deg``)."""
     opt_fold_floor_deg: float = 0.1
     """float, deg: The half fold's tangent in the stencil objective is ``sqrt(tan^2 t + tan^2(f /
@@ -145,7 +145,7 @@ class StencilSearch:
     opt_barrier: float = 1e-3
     """float: Weight of the log barrier that keeps flat triangles positively oriented."""
     opt_timing_weight: float = 200.0
-    """float: Weight of the timing misfit (:func:`pysolver.design.stencil.optimise.timing_misfit`)
+    """float: Weight of the timing misfit (:func:`pysolver.design.stencil.objective.timing`)
     in
     the stencil optimisation, when a time landscape is known (0 = off)."""
     timing_fastest: tuple = (6.47, -2.916, 0.767, 0.615)
