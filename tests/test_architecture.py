@@ -301,8 +301,9 @@ def test_the_stencil_search_is_a_package_with_one_front():
     imports only those steps of the design stage, and no module outside it imports one of its
     modules (only the package, whose ``__init__`` names the entry points)."""
     inside = {m for m in MODULES if _in_stencil(m)}
-    assert {f"{STENCIL_PKG}.{m}" for m in ("remesh", "optimise", "objective", "count_search",
-                                            "feasibility", "alternatives")} <= inside
+    assert {f"{STENCIL_PKG}.{m}" for m in ("remesh", "optimise", "objective", "candidates",
+                                            "count_search", "search", "feasibility",
+                                            "alternatives")} <= inside
     down = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
             if _in_stencil(a) and group(b) == "design" and not _in_stencil(b)
             and b not in STENCIL_USES]

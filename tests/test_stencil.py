@@ -282,6 +282,30 @@ def test_accept_step_backtracks_to_an_oriented_improving_point(dome_domain):
     assert not step["kept"] and Q is None and "does not fall" in step["why"]
 
 
+def test_candidate_and_the_printing_rules():
+    """A candidate is its (vertices, seed, inset) whatever the number types it was made with,
+    ordered as that tuple (the search's ties); "prints with the margin" is at least
+    ``margin`` below the limit, inclusive, and never for a failed layout; the module's
+    examples run."""
+    import doctest
+
+    a = Candidate(np.int64(96), np.int32(1), 0)
+    assert a == Candidate(96, 1, 0.0) and hash(a) == hash(Candidate(96, 1, 0.0))
+    assert type(a.vertices) is int and type(a.inset_mm) is float
+    assert sorted([Candidate(96, 2, 0.0), Candidate(96, 1, 4.0), Candidate(80, 5, 0.0)]) == [
+        Candidate(80, 5, 0.0), Candidate(96, 1, 4.0), Candidate(96, 2, 0.0)]
+    lim, m = UNIT_CELL.max_cell_length, STENCIL.margin
+    assert candidates.prints({"scale3d": 1.0, "max_cell_length_mm": lim - m}, UNIT_CELL, m)
+    assert not candidates.prints({"scale3d": 1.0, "max_cell_length_mm": lim - m + 1e-9},
+                                 UNIT_CELL, m)
+    assert candidates.prints({"scale3d": 1.0, "max_cell_length_mm": lim}, UNIT_CELL)
+    assert not candidates.prints({"scale3d": None, "max_cell_length_mm": None}, UNIT_CELL)
+    assert [candidates.tier({"scale3d": 1.0, "max_cell_length_mm": L}, UNIT_CELL, m)
+            for L in (lim - m, lim, lim + 0.01)] == [0, 1, 2]
+    res = doctest.testmod(candidates)
+    assert res.attempted >= 3 and res.failed == 0
+
+
 def _k(n):
     """The candidate of ``n`` vertices, seed 0, no rim inset."""
     return Candidate(n, 0, 0.0)
