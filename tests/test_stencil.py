@@ -14,6 +14,7 @@ import pytest
 import stencil_oracle as oracle
 from _shared import QUICK_SEARCH, quick_stencil_search, shared_file
 from autograd import grad
+from scipy.special import logsumexp
 
 from pysolver.design import run_design, surfaces
 from pysolver.design.flatten import cetm
@@ -89,6 +90,10 @@ def test_layout_logs_are_the_scaling_rules(dome_domain):
     for sharp, want in ((None, (log_s3, log_s2, log_d)), (60.0, sm)):
         got = og.Scalings(geo, UNIT_CELL, sharp)
         np.testing.assert_allclose([got.log_s3, got.log_s2, got.log_d], want, rtol=1e-12)
+    # the exact checks' smoothed values (scipy's log-sum-exp) are the gradient pass's to the
+    # last bits
+    checked = og.Scalings(geo, UNIT_CELL, 60.0, lse=logsumexp)
+    np.testing.assert_allclose([checked.log_s3, checked.log_s2, checked.log_d], sm, rtol=1e-12)
 
 
 def _assert_gradient_matches_fd(f, P, seed: int, rel: float, eps: float = 1e-6):

@@ -38,10 +38,14 @@ def _scatter(idx, values, n: int):
     return np.stack([np.bincount(i, v[:, j], minlength=n) for j in range(v.shape[1])], axis=1)
 
 
-def smax(v, sharpness):
+def smax(v, sharpness, lse=None):
     """Log of the smoothed maximum of positive ``v`` (c,) (log-sum-exp of ``sharpness log v``
     over ``sharpness``; None: the exact maximum) and its gradient (c,) in ``v`` (at an
-    exact maximum reached by several entries, shared evenly among them, as autograd does)."""
+    exact maximum reached by several entries, shared evenly among them, as autograd does).
+
+    ``lse``, optional: the log-sum-exp to take the value with instead of this function's own
+    (the exact checks between rounds take scipy's, whose last bit differs from this one's in
+    about 0.5 % of cases; the stencils chosen depend on those checks, so they keep it)."""
     lv = np.log(v)
     if sharpness is None:
         top = lv.max()
@@ -51,7 +55,8 @@ def smax(v, sharpness):
     top = z.max()
     e = np.exp(z - top)
     total = e.sum()
-    return float((top + np.log(total)) / sharpness), e / total / v
+    value = top + np.log(total) if lse is None else lse(z)
+    return float(value / sharpness), e / total / v
 
 
 class CellGeometry:
@@ -136,6 +141,8 @@ class Scalings:
         at most ``log(c) / sharpness``); None takes the exact maxima (not smooth).
     like : Scalings, optional
         Scalings of the same geometry whose per-cell 3D rule is reused.
+    lse : callable, optional
+        The log-sum-exp of the smoothed maxima' values (:func:`smax`).
 
     Attributes
     ----------
@@ -144,19 +151,19 @@ class Scalings:
         ``log(max_c d_c)``; ``log_s2 + log_d`` is the log of the longest flat cell, mm.
     """
 
-    def __init__(self, geo: CellGeometry, params: UnitCell, sharpness, like=None):
+    def __init__(self, geo: CellGeometry, params: UnitCell, sharpness, like=None, lse=None):
         self.geo, self.h = geo, params.layer_h
         if like is None:  # (the per-cell 3D rules; ``like``: Scalings of the same geometry)
             self.K = 2.0 * (params.base_r + params.min_bumper + self.h * geo.tan_t)
             self.r3 = self.K * geo.cos_t / geo.D
         else:
             self.K, self.r3 = like.K, like.r3
-        self.log_s3, self.w3 = smax(self.r3, sharpness)
+        self.log_s3, self.w3 = smax(self.r3, sharpness, lse)
         self.s3 = np.exp(self.log_s3)
         num = self.s3 * geo.D / (2.0 * geo.cos_t) + self.h * geo.tan_t + params.min_gap / 2.0
         self.r2 = 2.0 * num / geo.d
-        self.log_s2, self.w2 = smax(self.r2, sharpness)
-        self.log_d, self.wd = smax(geo.d, sharpness)
+        self.log_s2, self.w2 = smax(self.r2, sharpness, lse)
+        self.log_d, self.wd = smax(geo.d, sharpness, lse)
 
     def backward(self, g_s3: float, g_s2: float, g_d: float) -> None:
         """Add the gradients of ``log_s3``, ``log_s2``, ``log_d`` to the geometry's."""

@@ -35,6 +35,7 @@ from __future__ import annotations
 import igl
 import numpy as np
 from scipy.optimize import minimize
+from scipy.special import logsumexp
 
 from ...geometry import face_adjacency, unit_cells
 from ...params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
@@ -238,9 +239,12 @@ class StencilObjective:
         return og.CellGeometry(Q, X, self.F, self.fa, self.fb, self.o1, self.o2,
                                self.fold_floor)
 
-    def scalings(self, geo: og.CellGeometry):
-        """The smoothed (``opt_sharpness``) and the exact :class:`~.objective.Scalings`."""
-        sm = og.Scalings(geo, self.params, self.settings.opt_sharpness)
+    def scalings(self, geo: og.CellGeometry, checked: bool = False):
+        """The smoothed (``opt_sharpness``) and the exact :class:`~.objective.Scalings`;
+        ``checked``: the smoothed values as the exact checks take them (scipy's log-sum-exp,
+        :func:`~.objective.smax`), for :meth:`exact` and each round's start."""
+        sm = og.Scalings(geo, self.params, self.settings.opt_sharpness,
+                         lse=logsumexp if checked else None)
         return sm, og.Scalings(geo, self.params, None, like=sm)
 
     def main_terms(self, sm: og.Scalings, log_pinned: float):
@@ -296,7 +300,7 @@ class StencilObjective:
         """The objective without its penalties and barrier, on the exact lift of ``Q``, and
         the clearance shortfall (:meth:`shortfall`)."""
         geo = self.geometry(Q, self.domain.lift(Q))
-        sm, ex = self.scalings(geo)
+        sm, ex = self.scalings(geo, checked=True)
         main = self.main_terms(sm, ex.log_s3 - self.pin_log)[0]
         return (float(main + self.timing(geo, sm, ex.log_s2 + ex.log_d)[0]),
                 self.shortfall(Q, ex.log_s2))
@@ -317,7 +321,7 @@ class StencilObjective:
                 self.rim.project(P0[self.slides])[0])
         pin_excess = cap_excess = 0.0  # (see :meth:`main_terms`, :meth:`timing`)
         if self.w_t > 0 or self.pin > 0:
-            sm0, ex0 = self.scalings(self.geometry(P0, X0))
+            sm0, ex0 = self.scalings(self.geometry(P0, X0), checked=True)
             pin_excess = float(sm0.log_s3 - ex0.log_s3) + self.pin_log  # (and the scaling held)
             cap_excess = float(sm0.log_s2 + sm0.log_d - ex0.log_s2 - ex0.log_d)
         return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight, (pin_excess, cap_excess))
