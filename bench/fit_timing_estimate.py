@@ -2,7 +2,7 @@
 
 The count search and the stencil optimisation steer each cell's achievable completion
 times toward the landscape by a closed-form estimate (``StencilSearch.timing_fastest`` /
-``timing_slowest``, :func:`pysolver.design.stencil_opt.log_time_range`)::
+``timing_slowest``, :func:`pysolver.design.stencil.objective.log_time_range`)::
 
     log t ~ c + a log b0 + e log x + k [boundary]
 
@@ -10,7 +10,7 @@ This script designs and programmes the built-in shapes (the project's own, at se
 sizes: no shape of ``../shared``), reads each cell's fastest and slowest time from
 ``cells.csv`` (``t_min_s``, ``t_max_s``: thinnest and thickest bracket, from the material
 and membrane models) and fits the four coefficients of each on the terms the optimiser
-states (:func:`pysolver.design.stencil_opt.layout_timing_terms` of the stencil's layout).
+states (:func:`pysolver.design.stencil.optimise.layout_timing_terms` of the stencil's layout).
 Programming searches times within the bracket model's range (0-120 s), so a time at its
 end is only a bound: the fit is the censored normal (Tobit) maximum likelihood, with
 times under 0.5 s or over 119.5 s censored.  (Leaving them out, as a plain least squares
@@ -46,7 +46,8 @@ sys.path.insert(0, str(ROOT))
 from pysolver import tables  # noqa: E402
 from pysolver.design import run_design  # noqa: E402
 from pysolver.design.layout import build_layout  # noqa: E402
-from pysolver.design.stencil_opt import layout_timing_terms, log_time_terms  # noqa: E402
+from pysolver.design.stencil.objective import log_time_terms  # noqa: E402
+from pysolver.design.stencil.optimise import layout_timing_terms  # noqa: E402
 from pysolver.params import STENCIL  # noqa: E402
 from pysolver.temporal import program_design  # noqa: E402
 

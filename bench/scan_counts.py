@@ -26,11 +26,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pysolver.design import unit_cell_options  # noqa: E402
-from pysolver.design.count_search import CountSearch  # noqa: E402
 from pysolver.design.flatten import cetm  # noqa: E402
 from pysolver.design.layout import build_layout  # noqa: E402
 from pysolver.design.mesh_input import load_input  # noqa: E402
-from pysolver.design.remesh import needs_dense, resample_dense  # noqa: E402
+from pysolver.design.stencil.count_search import CountSearch  # noqa: E402
+from pysolver.design.stencil.remesh import needs_dense, resample_dense  # noqa: E402
 from pysolver.params import STENCIL  # noqa: E402
 
 

@@ -16,6 +16,10 @@ them (``docs/for-contributors.md``, ``docs/design-folder.md``).  These tests kee
   front ends (the build and its stage runners, the refinement, studio, tolerance analysis,
   sweep, the command line) reach the simulator through it, and no design-side package
   (design, temporal, render, material, fitting, mechanics, core) imports ``sim`` at all;
+* the stencil search (:mod:`pysolver.design.stencil`) is a package inside the design stage:
+  its modules import, of the rest of the design stage, only the steps below it (flattening,
+  layout, time landscape), and every other module reaches it through the names its
+  ``__init__`` exports, never through one of its modules;
 * the offline fitting tools (:mod:`pysolver.fitting`: material fit and report, membrane-model
   fit) sit above every runtime stage: only the command line imports them;
 * project modules are imported at module level: an import inside a function hides an edge
@@ -323,6 +327,34 @@ def test_runtime_does_not_import_the_offline_fits():
     bad = [f"{a}:{line} ({group(a)}) imports {b}" for a, b, line, _, _ in IMPORTS
            if group(b) == "fitting" and group(a) != "fitting" and a not in LAZY_ALLOWED]
     assert not bad, "\n".join(bad)
+
+
+STENCIL_PKG = "pysolver.design.stencil"
+# what the stencil search may use of the rest of the design stage: the steps below it
+STENCIL_USES = {"pysolver.design", "pysolver.design.flatten", "pysolver.design.layout",
+                "pysolver.design.time_landscape"}
+
+
+def _in_stencil(mod: str) -> bool:
+    return mod == STENCIL_PKG or mod.startswith(STENCIL_PKG + ".")
+
+
+def test_the_stencil_search_is_a_package_with_one_front():
+    """The stencil search sits between the design stage's lower steps and its pipeline: it
+    imports only those steps of the design stage, and no module outside it imports one of its
+    modules (only the package, whose ``__init__`` names the entry points)."""
+    inside = {m for m in MODULES if _in_stencil(m)}
+    assert {f"{STENCIL_PKG}.{m}" for m in ("remesh", "optimise", "objective", "candidates",
+                                            "count_search", "search", "feasibility",
+                                            "alternatives")} <= inside
+    down = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
+            if _in_stencil(a) and group(b) == "design" and not _in_stencil(b)
+            and b not in STENCIL_USES]
+    assert not down, "the stencil search imports the design stage above it:\n" + "\n".join(down)
+    through = [f"{a}:{line} imports {b}" for a, b, line, _, _ in IMPORTS
+               if not _in_stencil(a) and b.startswith(STENCIL_PKG + ".")]
+    assert not through, ("import the stencil search's entry points from pysolver.design.stencil, "
+                         "not its modules:\n" + "\n".join(through))
 
 
 def test_layer_table_knows_every_module():

@@ -71,7 +71,7 @@ def test_paths_named_in_the_docs_exist():
 
 
 def test_source_files_named_in_the_docs_exist():
-    """A bare source file name (``alignment_hole.scad``, ``stencil_opt.py``) is a file of the
+    """A bare source file name (``alignment_hole.scad``, ``count_search.py``) is a file of the
     project somewhere."""
     have = {f.name for top in ("pysolver", "sim", "scad", "tests", "bench")
             for f in (REPO / top).rglob("*") if f.is_file()}

@@ -1,5 +1,5 @@
 """The measured bound on the longest flat cell of any conformal stencil of a target
-(:mod:`pysolver.design.feasibility`), against closed forms on a plate and a cylinder."""
+(:mod:`pysolver.design.stencil.feasibility`), against closed forms on a plate and a cylinder."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ import trimesh
 from _shared import shared_file
 
 from pysolver.design import surfaces
-from pysolver.design.feasibility import (
+from pysolver.design.flatten import cetm
+from pysolver.design.stencil.feasibility import (
     cell_scale_curvature,
     conformal_bound,
     describe_bound,
@@ -22,8 +23,7 @@ from pysolver.design.feasibility import (
     target_bound,
     worst_cell_curvature,
 )
-from pysolver.design.flatten import cetm
-from pysolver.design.remesh import resample_dense
+from pysolver.design.stencil.remesh import resample_dense
 from pysolver.params import STENCIL, UNIT_CELL
 
 P = UNIT_CELL

@@ -2,8 +2,8 @@
 
 Exact symmetries of the problem, as properties: the order of a mesh's vertices and faces
 (:func:`pysolver.geometry.canonical_order`), the frame of its conformal layout
-(:func:`pysolver.design.remesh.flat_frame`) and a rigid motion of the target
-(:class:`pysolver.design.remesh.FlatDomain`'s stencils).  The whole design stage under
+(:func:`pysolver.design.stencil.remesh.flat_frame`) and a rigid motion of the target
+(:class:`pysolver.design.stencil.remesh.FlatDomain`'s stencils).  The whole design stage under
 relabelling and rigid motions is in ``tests/test_stability.py``.
 """
 
@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from pysolver.design import run_design, surfaces
 from pysolver.design.flatten import cetm
-from pysolver.design.remesh import FlatDomain, flat_frame
+from pysolver.design.stencil.remesh import FlatDomain, flat_frame
 from pysolver.geometry import canonical_order, signed_areas_2d
 from pysolver.params import STENCIL
 

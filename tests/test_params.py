@@ -33,11 +33,18 @@ INSTANCES = {k: v for k, v in vars(params).items()
 
 def _beside_values(cls) -> dict[str, str]:
     """field name -> the string right after the field in the class body (its description
-    beside its value), read with ``ast``."""
-    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
-    return {a.target.id: b.value.value for a, b in zip(body, body[1:], strict=False)
-            if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr)
-            and isinstance(b.value, ast.Constant) and isinstance(b.value.value, str)}
+    beside its value), read with ``ast``; a class made of topic classes (a dataclass that
+    inherits settings dataclasses, as ``StencilSearch``) has its fields beside their values
+    in those."""
+    out = {}
+    for c in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(c):
+            continue
+        body = ast.parse(textwrap.dedent(inspect.getsource(c))).body[0].body
+        out.update({a.target.id: b.value.value for a, b in zip(body, body[1:], strict=False)
+                    if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr)
+                    and isinstance(b.value, ast.Constant) and isinstance(b.value.value, str)})
+    return out
 
 
 def _documented(cls) -> dict[str, str]:

@@ -11,13 +11,19 @@ import autograd.numpy as anp
 import igl
 import numpy as np
 import pytest
+import stencil_oracle as oracle
 from _shared import QUICK_SEARCH, quick_stencil_search, shared_file
 from autograd import grad
+from scipy.special import logsumexp
 
-from pysolver.design import count_search, remesh, run_design, stencil_opt, surfaces
+from pysolver.design import run_design, surfaces
 from pysolver.design.flatten import cetm
 from pysolver.design.layout import build_layout
 from pysolver.design.mesh_input import load_input
+from pysolver.design.stencil import candidates, optimise, remesh, search
+from pysolver.design.stencil import objective as og
+from pysolver.design.stencil.candidates import Candidate
+from pysolver.design.stencil.count_search import CountSearch
 from pysolver.errors import InputError
 from pysolver.geometry import face_adjacency, face_centroids, signed_areas_2d, unit_cells
 from pysolver.params import MODEL_FITS, STENCIL, UNIT_CELL
@@ -33,7 +39,7 @@ def test_opposite_vertices_give_the_centroid_distance(dome_domain):
     P, F = dome_domain.stencil(60, seed=0)
     X = dome_domain.lift(P)
     cells = unit_cells(F, face_adjacency(F))
-    o = stencil_opt.opposite_vertices(F, cells)
+    o = optimise.opposite_vertices(F, cells)
     C = face_centroids(X, F)
     want = np.linalg.norm(C[cells.faces[:, 0]] - C[cells.faces[:, 1]], axis=1)
     got = np.linalg.norm(X[o[:, 0]] - X[o[:, 1]], axis=1) / 3
@@ -50,11 +56,11 @@ def test_relaxed_stencil_is_regular_on_the_target(dome_domain):
     relaxed, plain, merged = [], [], []
     for seed in range(3):
         P, F = dom.stencil(70, seed=seed)
-        relaxed.append(count_search.stencil_figures(dom.lift(P), F))
+        relaxed.append(candidates.stencil_figures(dom.lift(P), F))
         P0, F0 = dom0.stencil(70, seed=seed)
-        plain.append(count_search.stencil_figures(dom0.lift(P0), F0)["edge_spread"])
+        plain.append(candidates.stencil_figures(dom0.lift(P0), F0)["edge_spread"])
         P1, F1 = dome_domain.stencil(70, seed=seed)
-        merged.append(count_search.stencil_figures(dome_domain.lift(P1), F1))
+        merged.append(candidates.stencil_figures(dome_domain.lift(P1), F1))
     spread = [r["edge_spread"] for r in relaxed]
     assert max(spread) <= 1.40, spread  # 95th / 5th percentile of 3D edge length
     assert min(r["min_angle_deg"] for r in relaxed) >= 35.0
@@ -68,17 +74,26 @@ def test_layout_logs_are_the_scaling_rules(dome_domain):
     P, F = dome_domain.stencil(60, seed=1)
     X = dome_domain.lift(P)
     cells = unit_cells(F, face_adjacency(F))
-    o = stencil_opt.opposite_vertices(F, cells)
+    o = optimise.opposite_vertices(F, cells)
     fa, fb = cells.faces[:, 0], cells.faces[:, 1]
     lay = build_layout(X, P, F, UNIT_CELL, enforce_gap=False)
     # with the flat layout given (no re-flattening), both rules in closed form: exact maxima
-    log_s3, log_s2, log_d = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
-                                                    UNIT_CELL, sharpness=None)
+    log_s3, log_s2, log_d = oracle.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
+                                               UNIT_CELL, sharpness=None)
     assert np.exp(log_s3) == pytest.approx(lay.scale3d, rel=1e-8)
     assert np.exp(log_s2 + log_d) == pytest.approx(lay.central_length.max(), rel=1e-8)
     # smoothed maxima over-estimate by at most log(cells) / sharpness
-    sm = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, sharpness=60.0)
+    sm = oracle.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, sharpness=60.0)
     assert 0 <= sm[0] - log_s3 <= np.log(len(fa)) / 60 + 1e-12
+    # the optimiser's own forward pass (the hand-written one) gives the same logs
+    geo = og.CellGeometry(P, X, F, fa, fb, o[:, 0], o[:, 1], STENCIL.opt_tiny)
+    for sharp, want in ((None, (log_s3, log_s2, log_d)), (60.0, sm)):
+        got = og.Scalings(geo, UNIT_CELL, sharp)
+        np.testing.assert_allclose([got.log_s3, got.log_s2, got.log_d], want, rtol=1e-12)
+    # the exact checks' smoothed values (scipy's log-sum-exp) are the gradient pass's to the
+    # last bits
+    checked = og.Scalings(geo, UNIT_CELL, 60.0, lse=logsumexp)
+    np.testing.assert_allclose([checked.log_s3, checked.log_s2, checked.log_d], sm, rtol=1e-12)
 
 
 def _assert_gradient_matches_fd(f, P, seed: int, rel: float, eps: float = 1e-6):
@@ -98,12 +113,12 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
     X = dome_domain.lift(P)
     J = dome_domain.lift_jacobian(P)
     cells = unit_cells(F, face_adjacency(F))
-    o = stencil_opt.opposite_vertices(F, cells)
+    o = optimise.opposite_vertices(F, cells)
     fa, fb = cells.faces[:, 0], cells.faces[:, 1]
 
     def f(Q):  # the optimiser's inner objective: linearised lift, no barrier
         Xq = X + anp.einsum("nij,nj->ni", J, Q - P)
-        a, b, c = stencil_opt.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
+        a, b, c = oracle.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
         return a + b + c
 
     _assert_gradient_matches_fd(f, P, seed=0, rel=1e-5)
@@ -113,22 +128,22 @@ def test_objective_gradient_matches_finite_differences(dome_domain):
                                               (False, False, True), (True, True, False)],
                          ids=["timing", "pinned", "plain", "pinned-timing-rim-held"])
 def test_hand_gradient_is_autograds(dome_domain, pin, timed, slide):
-    """The optimiser's hand-written passes (``pysolver.design.objective_grad``) give the
-    value and gradient autograd takes of the module's functions, at a point where the
-    angle, clearance and timing penalties are active; and central differences agree with
-    that gradient."""
+    """The optimiser's hand-written passes (``pysolver.design.stencil.objective``) give the
+    value (to 1e-12) and gradient (to 1e-9) autograd takes of the oracle's statement of the
+    rules (``tests/stencil_oracle.py``), at a point where the angle, clearance and timing
+    penalties are active; and central differences agree with that gradient (1e-4)."""
     P, F = dome_domain.stencil(50, seed=3)
     z = dome_domain.lift(P)[:, 2]
     t = 30.0 + 2.0 * (z - z.min()) if timed else None
     rim = dome_domain.boundary_polygon(0.0) if slide else None
-    prob = stencil_opt.StencilObjective(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+    prob = optimise.StencilObjective(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
                                         t_vertex=t, pin=pin, rim=rim)
     assert (prob.rim is not None and len(prob.slides) > 0) == slide
     x0 = prob.start(P)
     x = x0 + 1.0 * np.random.default_rng(4).standard_normal(len(x0))
     w = 10 * dome_domain.settings.opt_clearance_weight
     hand = prob.linearised(P, w)
-    auto = prob.linearised(P, w, autodiff=True)
+    auto = oracle.linearised(prob, P, w)
     fh, gh = hand(x)
     assert fh > prob.linearised(P, 0.0)(x)[0] + 1.0  # base centres short of clearance
     fa, ga = auto(x)
@@ -145,15 +160,15 @@ def test_hand_gradient_is_autograds(dome_domain, pin, timed, slide):
 
 def test_optimisation_shortens_the_longest_cell(dome_domain):
     P, F = dome_domain.stencil(70, seed=0)
-    before = count_search.stencil_figures(dome_domain.lift(P), F)
-    Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
-    after = count_search.stencil_figures(dome_domain.lift(Q), F)
+    before = candidates.stencil_figures(dome_domain.lift(P), F)
+    Q, info = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
+    after = candidates.stencil_figures(dome_domain.lift(Q), F)
     assert info["rounds"] >= 1
     assert after["max_cell_length_mm"] < before["max_cell_length_mm"] - 0.2
-    A = stencil_opt._signed_areas(Q, F)
+    A = og.signed_areas(Q, F)
     assert np.all(A > 0)  # no flat triangle flipped
     lay = build_layout(dome_domain.lift(Q), Q, F, UNIT_CELL, enforce_gap=False)
-    clear = stencil_opt.centroid_edge_distances(lay.UV, F)
+    clear = og.FlatTriangles(lay.UV, F).clearance
     assert clear.min() >= 2.3 - 0.05  # base centres keep clear of their triangle's edges
     bnd = np.asarray(igl.boundary_loop(F))
     assert len(bnd) and np.array_equal(Q[bnd], P[bnd])  # the rim stays where it was
@@ -161,7 +176,7 @@ def test_optimisation_shortens_the_longest_cell(dome_domain):
 
 def test_rim_curve_is_parametrised_by_arc_length():
     # a 2 x 1 rectangle: arc length 6 mm, corners at 0, 2, 3, 5
-    rim = stencil_opt.RimCurve(np.array([[0, 0], [2, 0], [2, 1], [0, 1.0]]))
+    rim = optimise.RimCurve(np.array([[0, 0], [2, 0], [2, 1], [0, 1.0]]))
     assert rim.total == pytest.approx(6.0, abs=1e-12)
     s = np.array([0.5, 2.25, 4.0, 5.5, 6.5])
     P = rim.point(s)
@@ -182,17 +197,17 @@ def test_rim_vertices_slide_along_their_curve(dome_domain):
     held (fixed rim points made each count's longest cell depend on where they fell)."""
     P, F = dome_domain.stencil(70, seed=0)
     C = dome_domain.boundary_polygon(0.0)
-    Q0, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
-    Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+    Q0, _ = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
+    Q, info = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
                                            rim=C)
     assert info["rounds"] >= 1
     bnd = np.asarray(igl.boundary_loop(F))
-    _, d = stencil_opt.RimCurve(C).project(Q[bnd])
+    _, d = optimise.RimCurve(C).project(Q[bnd])
     assert d.max() <= 1e-6
     assert np.linalg.norm(Q[bnd] - P[bnd], axis=1).max() > 0.1  # mm, in the plane
-    assert np.all(stencil_opt._signed_areas(Q, F) > 0)
-    fixed = count_search.stencil_figures(dome_domain.lift(Q0), F)["max_cell_length_mm"]
-    slid = count_search.stencil_figures(dome_domain.lift(Q), F)["max_cell_length_mm"]
+    assert np.all(og.signed_areas(Q, F) > 0)
+    fixed = candidates.stencil_figures(dome_domain.lift(Q0), F)["max_cell_length_mm"]
+    slid = candidates.stencil_figures(dome_domain.lift(Q), F)["max_cell_length_mm"]
     assert slid <= fixed + 0.02
 
 
@@ -204,19 +219,19 @@ def test_an_improving_round_is_kept_when_the_step_overshoots_a_soft_penalty():
     soft = replace(STENCIL, grading=0.0, opt_clearance_weight=0.01, opt_stiffen=1.0)
     dom = remesh.FlatDomain(s.V, s.F, soft)
     P, F = dom.stencil(70, seed=0)
-    before = count_search.stencil_figures(dom.lift(P), F)
-    start, _ = stencil_opt.StencilObjective(dom, P, F, UNIT_CELL, soft).exact(P)
-    Q, info = stencil_opt.optimize_stencil(dom, P, F, UNIT_CELL, soft)
+    before = candidates.stencil_figures(dom.lift(P), F)
+    start, _ = optimise.StencilObjective(dom, P, F, UNIT_CELL, soft).exact(P)
+    Q, info = optimise.optimize_stencil(dom, P, F, UNIT_CELL, soft)
     h = info["history"]
     assert info["rounds"] == len(h) == soft.opt_rounds and all(r["kept"] for r in h)
     assert h[0]["step"] < 1.0 and "of the step" in h[0]["why"]    # the full step overshot
     assert all(r["clearance_shortfall"] <= soft.opt_clearance_slack for r in h)
     assert h[-1]["objective"] < h[0]["start"] == pytest.approx(start, abs=1e-6)
-    after = count_search.stencil_figures(dom.lift(Q), F)
+    after = candidates.stencil_figures(dom.lift(Q), F)
     assert after["max_cell_length_mm"] < before["max_cell_length_mm"] - 0.2
     # no halving allowed: the round is solved again with a stiffer penalty, and kept
     stiff = replace(soft, opt_backtracks=0, opt_stiffen=100.0)
-    _, info = stencil_opt.optimize_stencil(dom, P, F, UNIT_CELL, stiff)
+    _, info = optimise.optimize_stencil(dom, P, F, UNIT_CELL, stiff)
     r = info["history"][0]
     assert r["kept"] and r["stiffened"] and r["step"] == 1.0
     assert r["clearance_shortfall"] <= stiff.opt_clearance_slack
@@ -244,11 +259,11 @@ def test_proximal_rounds_do_not_hang_on_last_bits(landscape, s3_rtol, cell_atol)
         dom = remesh.FlatDomain(V, s.F, STENCIL)
         P, F = dom.stencil(60, seed=0)
         t = s.time(dom.lift(P)) if landscape else None
-        Q, info = stencil_opt.optimize_stencil(dom, P, F, UNIT_CELL, STENCIL, t_vertex=t,
+        Q, info = optimise.optimize_stencil(dom, P, F, UNIT_CELL, STENCIL, t_vertex=t,
                                                rim=dom.boundary_polygon(0.0))
         assert info["rounds"] == STENCIL.opt_rounds
         assert all(h["lbfgs_converged"] for h in info["history"])
-        figs.append(count_search.stencil_figures(dom.lift(Q), F))
+        figs.append(candidates.stencil_figures(dom.lift(Q), F))
     s3 = [f["scale3d"] for f in figs]
     cell = [f["max_cell_length_mm"] for f in figs]
     assert max(s3) / min(s3) - 1 <= s3_rtol, s3
@@ -257,19 +272,48 @@ def test_proximal_rounds_do_not_hang_on_last_bits(landscape, s3_rtol, cell_atol)
 
 def test_accept_step_backtracks_to_an_oriented_improving_point(dome_domain):
     P, F = dome_domain.stencil(40, seed=0)
-    prob = stencil_opt.StencilObjective(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
+    prob = optimise.StencilObjective(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
     f0, short0 = prob.exact(P)
     free = prob.free
     # a step that turns triangles over: the full step is refused, a short one is not
     Pn = P.copy()
     Pn[free] = P[free] + 40.0 * np.random.default_rng(0).standard_normal((len(free), 2))
-    step, Q = stencil_opt.accept_step(prob, P, Pn, np.inf, short0)
+    step, Q = optimise.accept_step(prob, P, Pn, np.inf, short0)
     assert step["kept"] and step["step"] < 1.0
-    assert np.all(stencil_opt._signed_areas(Q, F) > 0)
+    assert np.all(og.signed_areas(Q, F) > 0)
     assert np.allclose(Q, P + step["step"] * (Pn - P))
     # nothing on the segment lowers the objective: refused, with the reason
-    step, Q = stencil_opt.accept_step(prob, P, P, f0, short0)
+    step, Q = optimise.accept_step(prob, P, P, f0, short0)
     assert not step["kept"] and Q is None and "does not fall" in step["why"]
+
+
+def test_candidate_and_the_printing_rules():
+    """A candidate is its (vertices, seed, inset) whatever the number types it was made with,
+    ordered as that tuple (the search's ties); "prints with the margin" is at least
+    ``margin`` below the limit, inclusive, and never for a failed layout; the module's
+    examples run."""
+    import doctest
+
+    a = Candidate(np.int64(96), np.int32(1), 0)
+    assert a == Candidate(96, 1, 0.0) and hash(a) == hash(Candidate(96, 1, 0.0))
+    assert type(a.vertices) is int and type(a.inset_mm) is float
+    assert sorted([Candidate(96, 2, 0.0), Candidate(96, 1, 4.0), Candidate(80, 5, 0.0)]) == [
+        Candidate(80, 5, 0.0), Candidate(96, 1, 4.0), Candidate(96, 2, 0.0)]
+    lim, m = UNIT_CELL.max_cell_length, STENCIL.margin
+    assert candidates.prints({"scale3d": 1.0, "max_cell_length_mm": lim - m}, UNIT_CELL, m)
+    assert not candidates.prints({"scale3d": 1.0, "max_cell_length_mm": lim - m + 1e-9},
+                                 UNIT_CELL, m)
+    assert candidates.prints({"scale3d": 1.0, "max_cell_length_mm": lim}, UNIT_CELL)
+    assert not candidates.prints({"scale3d": None, "max_cell_length_mm": None}, UNIT_CELL)
+    assert [candidates.tier({"scale3d": 1.0, "max_cell_length_mm": L}, UNIT_CELL, m)
+            for L in (lim - m, lim, lim + 0.01)] == [0, 1, 2]
+    res = doctest.testmod(candidates)
+    assert res.attempted >= 3 and res.failed == 0
+
+
+def _k(n):
+    """The candidate of ``n`` vertices, seed 0, no rim inset."""
+    return Candidate(n, 0, 0.0)
 
 
 def test_pick_keeps_the_size_before_the_margin():
@@ -277,19 +321,19 @@ def test_pick_keeps_the_size_before_the_margin():
     small = {"scale3d": 0.70, "max_cell_length_mm": 8.0}   # prints with the margin, 30 % small
     tight = {"scale3d": 0.99, "max_cell_length_mm": 9.4}   # prints, at size, inside the margin
     far = {"scale3d": 0.90, "max_cell_length_mm": 7.0}
-    tried = {(60, 0, 0.0): small, (130, 0, 0.0): tight, (100, 0, 0.0): far}
-    assert count_search._pick(tried, P, 0.3, STENCIL) == (130, 0, 0.0)
-    assert count_search._pick(tried, P, 0.3) == (100, 0, 0.0)  # (without the size rule)
-    assert not count_search.at_size(small) and count_search.at_size(tight)
-    assert not count_search.at_size({"scale3d": 1.06, "max_cell_length_mm": 8.0})
-    off = {k: v for k, v in tried.items() if k != (130, 0, 0.0)}
-    assert count_search._pick(off, P, 0.3, STENCIL) == (100, 0, 0.0)  # nothing at size
+    tried = {_k(60): small, _k(130): tight, _k(100): far}
+    assert candidates.pick(tried, P, 0.3, STENCIL) == _k(130)
+    assert candidates.pick(tried, P, 0.3) == _k(100)  # (without the size rule)
+    assert not candidates.at_size(small) and candidates.at_size(tight)
+    assert not candidates.at_size({"scale3d": 1.06, "max_cell_length_mm": 8.0})
+    off = {k: v for k, v in tried.items() if k != _k(130)}
+    assert candidates.pick(off, P, 0.3, STENCIL) == _k(100)  # nothing at size
 
 
 def test_size_refusal_names_measured_alternatives():
     """A target that prints only far under its size is refused; the fix names a smaller
     --size and --min-bumper 0.1, each searched again."""
-    from pysolver.design.alternatives import size_refusal
+    from pysolver.design.stencil.alternatives import size_refusal
 
     info = {"requested": 60, "seed": 0, "scale3d": 0.70, "max_cell_length_mm": 8.2,
             "at_size": False,
@@ -331,7 +375,7 @@ def test_count_search_picks_a_printable_neighbour():
     s = surfaces.builtin("dome")
     lim = 8.8  # tight enough that some counts fail (unoptimised stencils: 8.3-9.0 mm)
     params = replace(UNIT_CELL, max_cell_length=lim)
-    V2, F2, info = count_search.remesh_surface(s.V, s.F, params=params, seed=0, optimize=False,
+    V2, F2, info = search.remesh_surface(s.V, s.F, params=params, seed=0, optimize=False,
                                          settings=replace(STENCIL, candidates=(0.8, 0.9, 1.1)))
     cands = info["candidates"]
     assert info["max_cell_length_mm"] <= lim
@@ -353,19 +397,19 @@ def test_pick_prefers_size_among_printable_and_never_a_failed_layout():
     ok = {"scale3d": 1.2, "max_cell_length_mm": 8.0}
     near = {"scale3d": 1.01, "max_cell_length_mm": 9.4}  # printable, but inside the margin
     failed = {"scale3d": None, "max_cell_length_mm": None, "error": "flipped"}
-    assert count_search._pick({(1, 0, 0.0): ok, (2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) \
-        == (1, 0, 0.0)
-    assert count_search._pick({(2, 0, 0.0): near, (3, 0, 0.0): failed}, P, 0.3) == (2, 0, 0.0)
+    assert candidates.pick({_k(1): ok, _k(2): near, _k(3): failed}, P, 0.3) \
+        == _k(1)
+    assert candidates.pick({_k(2): near, _k(3): failed}, P, 0.3) == _k(2)
     long_ = {"scale3d": 1.0, "max_cell_length_mm": 9.9}
     longer = {"scale3d": 1.0, "max_cell_length_mm": 10.5}
-    assert count_search._pick({(4, 0, 0.0): longer, (5, 0, 0.0): long_}, P, 0.3) == (5, 0, 0.0)
+    assert candidates.pick({_k(4): longer, _k(5): long_}, P, 0.3) == _k(5)
     # nothing prints: the shortest longest cell per unit of scaling, at size first
     small = {"scale3d": 0.950, "max_cell_length_mm": 9.70}  # (10.21 mm per unit)
     large = {"scale3d": 1.009, "max_cell_length_mm": 9.72}  # (9.63 mm per unit)
     tiny = {"scale3d": 1.10, "max_cell_length_mm": 9.9}     # (9.00 mm per unit, not at size)
-    assert count_search._pick({(6, 0, 0.0): small, (7, 0, 0.0): large, (8, 0, 0.0): tiny}, P,
-                              0.3, STENCIL) == (7, 0, 0.0)
-    assert count_search._pick({(3, 0, 0.0): failed}, P, 0.3) is None
+    assert candidates.pick({_k(6): small, _k(7): large, _k(8): tiny}, P,
+                              0.3, STENCIL) == _k(7)
+    assert candidates.pick({_k(3): failed}, P, 0.3) is None
 
 
 def test_paper_cover_designs_printable_from_its_target(tmp_path):
@@ -419,7 +463,7 @@ def test_stencil_whose_bases_reach_across_edges_is_named():
 def _timing_terms(dom, P, F, t_vertex, settings=STENCIL):
     X = dom.lift(P)
     cells = unit_cells(F, face_adjacency(F))
-    o = stencil_opt.opposite_vertices(F, cells)
+    o = optimise.opposite_vertices(F, cells)
     fa, fb = cells.faces[:, 0], cells.faces[:, 1]
     rim = np.any(face_adjacency(F) < 0, axis=1)
     bnd = (rim[fa] | rim[fb]).astype(float)
@@ -437,10 +481,15 @@ def test_timing_misfit_restates_the_cells_of_the_layout(dome_domain):
     b0 = UNIT_CELL.bracket_length(lay.central_length)
     x = b0 - collision_lengths(bracket_nodes(lay.V, lay.UV, lay.F, UNIT_CELL,
                                              ff=lay.ff, rotvec=lay.rotvec)[0], lay.cells).mean(1)
-    log_s3, log_s2, _ = stencil_opt.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
-                                                UNIT_CELL, sharpness=None)
-    got = stencil_opt.timing_misfit(P, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, log_s3,
-                                    log_s2, UNIT_CELL, STENCIL)
+    log_s3, log_s2, _ = oracle.layout_logs(P, X, F, fa, fb, o[:, 0], o[:, 1],
+                                           UNIT_CELL, sharpness=None)
+    got = oracle.timing_misfit(P, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, log_s3,
+                               log_s2, UNIT_CELL, STENCIL)
+    # the optimiser's forward pass, at the same (exact) scalings, is the oracle's
+    geo = og.CellGeometry(P, X, F, fa, fb, o[:, 0], o[:, 1], STENCIL.opt_tiny)
+    hand, _ = og.timing(geo, og.Scalings(geo, UNIT_CELL, None), bnd, log_ts, UNIT_CELL,
+                        STENCIL)
+    assert hand == pytest.approx(float(got), rel=1e-12)
 
     def est(m):
         return m[0] + m[1] * np.log(b0) + m[2] * np.log(x) + m[3] * bnd
@@ -450,7 +499,7 @@ def test_timing_misfit_restates_the_cells_of_the_layout(dome_domain):
     # the flat length is the layout's; the contact length is restated as s3 D / cos(t) -
     # (l - b), which the bracket nodes' own distances (off the cell axis) undercut by up to
     # 0.03 mm, so x and the misfit agree to a few per cent
-    cos_t, _, D, d = stencil_opt._cell_geometry(P, X, F, fa, fb, o[:, 0], o[:, 1])
+    cos_t, _, D, d = oracle.cell_geometry(P, X, F, fa, fb, o[:, 0], o[:, 1])
     L = np.exp(log_s2) * d
     np.testing.assert_allclose(L, lay.central_length, rtol=1e-7)
     x_opt = L - np.exp(log_s3) * D / cos_t
@@ -467,9 +516,9 @@ def test_timing_misfit_gradient_matches_finite_differences(dome_domain):
 
     def f(Q):
         Xq = X + anp.einsum("nij,nj->ni", J, Q - P)
-        a, b, _ = stencil_opt.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
-        return stencil_opt.timing_misfit(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, a, b,
-                                         UNIT_CELL, STENCIL)
+        a, b, _ = oracle.layout_logs(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, 60.0)
+        return oracle.timing_misfit(Q, Xq, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts, a, b,
+                                    UNIT_CELL, STENCIL)
 
     assert f(P) > 0
     _assert_gradient_matches_fd(f, P, seed=1, rel=1e-4)
@@ -483,16 +532,16 @@ def test_optimisation_suits_the_cells_to_the_time_landscape(dome_domain):
 
     def misfit(Q):
         X, cells, o, fa, fb, bnd, log_ts = _timing_terms(dome_domain, Q, F, t)
-        a, b, _ = stencil_opt.layout_logs(Q, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, None)
-        return float(stencil_opt.timing_misfit(Q, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts,
-                                               a, b, UNIT_CELL, STENCIL))
+        a, b, _ = oracle.layout_logs(Q, X, F, fa, fb, o[:, 0], o[:, 1], UNIT_CELL, None)
+        return float(oracle.timing_misfit(Q, X, F, fa, fb, o[:, 0], o[:, 1], bnd, log_ts,
+                                          a, b, UNIT_CELL, STENCIL))
 
-    Q0, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, off, t_vertex=t)
-    Q1, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+    Q0, _ = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, off, t_vertex=t)
+    Q1, info = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
                                             t_vertex=t)
     assert info["rounds"] >= 1
     assert misfit(Q1) < 0.7 * misfit(Q0), (misfit(P), misfit(Q0), misfit(Q1))
-    assert np.all(stencil_opt._signed_areas(Q1, F) > 0)
+    assert np.all(og.signed_areas(Q1, F) > 0)
     # the cap: the trade stays printable, within 0.1 mm of the count search's margin (the
     # cap is exact at each round's start and smooth within it; measured 9.27 mm, cap 9.2)
     lay = build_layout(dome_domain.lift(Q1), Q1, F, UNIT_CELL, enforce_gap=False)
@@ -502,8 +551,8 @@ def test_optimisation_suits_the_cells_to_the_time_landscape(dome_domain):
 def test_constant_landscape_leaves_the_optimisation_as_it_was(dome_domain):
     # programming picks the achievable constant itself, so the timing term stays out
     P, F = dome_domain.stencil(40, seed=3)
-    Q0, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
-    Q1, _ = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+    Q0, _ = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings)
+    Q1, _ = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
                                          t_vertex=np.full(len(P), 60.0))
     assert np.array_equal(Q0, Q1)
 
@@ -513,8 +562,8 @@ def test_constant_landscape_through_the_search_is_no_landscape():
     # (the optimisation at the smaller budget: its subject is the landscape, not the result)
     s = surfaces.builtin("dome")
     kw = dict(vertices=50, seed=0, settings=replace(STENCIL, **QUICK_SEARCH))
-    V0, F0, _ = count_search.remesh_surface(s.V, s.F, **kw)
-    V1, F1, _ = count_search.remesh_surface(s.V, s.F, time=np.full(len(s.V), 60.0), **kw)
+    V0, F0, _ = search.remesh_surface(s.V, s.F, **kw)
+    V1, F1, _ = search.remesh_surface(s.V, s.F, time=np.full(len(s.V), 60.0), **kw)
     assert np.array_equal(F0, F1) and np.array_equal(V0, V1)
 
 
@@ -524,15 +573,15 @@ def test_pinned_optimisation_holds_the_size_and_shortens_the_cell_per_scale(dome
     """The count search's last pass: the 3D scaling held at 1 (to 0.5 %), the longest flat
     cell per unit of scaling shorter than before."""
     P, F = dome_domain.stencil(n, seed=0)
-    before = count_search.stencil_figures(dome_domain.lift(P), F)
-    Q, info = stencil_opt.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
+    before = candidates.stencil_figures(dome_domain.lift(P), F)
+    Q, info = optimise.optimize_stencil(dome_domain, P, F, UNIT_CELL, dome_domain.settings,
                                            pin=True, pin_scale3d=held)
-    after = count_search.stencil_figures(dome_domain.lift(Q), F)
+    after = candidates.stencil_figures(dome_domain.lift(Q), F)
     assert info["rounds"] >= 1
     assert after["scale3d"] == pytest.approx(held, abs=0.005)
     assert (after["max_cell_length_mm"] / after["scale3d"]
             < before["max_cell_length_mm"] / before["scale3d"] - 0.2)
-    assert np.all(stencil_opt._signed_areas(Q, F) > 0)
+    assert np.all(og.signed_areas(Q, F) > 0)
 
 
 def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
@@ -540,7 +589,7 @@ def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
     central = np.full(3, 4.0 + UNIT_CELL.bracket_offset)
     contact = central - 1.0
     bnd = np.zeros(3)
-    lo, hi = stencil_opt.log_time_range(central, contact, bnd, UNIT_CELL, STENCIL)
+    lo, hi = og.log_time_range(central, contact, bnd, UNIT_CELL, STENCIL)
     c, a, e = STENCIL.timing_fastest[:3]
     # log x = 0, but for the compression's smooth floor: x_f log(1 + exp(1 mm / x_f))
     xf = STENCIL.timing_compression_floor
@@ -548,7 +597,7 @@ def test_estimated_clamping_counts_the_times_out_of_the_estimated_range():
     assert 0 < log_x < 1e-4
     assert lo[0] == pytest.approx(c + a * np.log(4.0) + e * log_x)
     t_in, t_early, t_late = np.exp(0.5 * (lo[0] + hi[0])), np.exp(lo[0]) / 2, np.exp(hi[0]) * 2
-    f = stencil_opt.estimated_clamping(central, contact, bnd, [t_in, t_early, t_late])
+    f = optimise.estimated_clamping(central, contact, bnd, [t_in, t_early, t_late])
     assert f == pytest.approx(2 / 3)
 
 
@@ -577,7 +626,7 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
     lay = build_layout(V, UV, F, tables.read_unit_cell(folder))
     cells = tables.read_table(folder, "cells")
     np.testing.assert_allclose(lay.central_length, cells["central_length_mm"], atol=1e-6)
-    lo, hi = stencil_opt.log_time_range(*stencil_opt.layout_timing_terms(lay))
+    lo, hi = og.log_time_range(*optimise.layout_timing_terms(lay))
     for est, t, bias in ((lo, cells["t_min_s"], (-0.2, 0.16)),
                          (hi, cells["t_max_s"], (-0.3, 0.05))):
         ok = (t > 0.5) & (t < 119.5)  # (at the ends of the bracket model's range: bounds)
@@ -587,34 +636,45 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
         assert mad <= 0.3, mad
 
 
+class _Tried(CountSearch):
+    """A count search over made-up candidates: ``trial`` takes the figures of count ``n`` from
+    ``cands`` (no stencil is made), meshes are named ``"V<n>"``."""
+
+    def __init__(self, tried: dict, settings=STENCIL, cands=None, area=1.0):
+        self.settings, self.params, self.progress = settings, UNIT_CELL, None
+        self.tried, self.cands, self.area, self.centres = dict(tried), cands or {}, area, {}
+        self.meshes = {k: (f"V{k.vertices}", f"F{k.vertices}", None) for k in tried}
+
+    def trial(self, n, sd, inset, given=False):
+        k = Candidate(n, sd, inset)
+        self.tried[k], self.meshes[k] = self.cands[n], (f"V{n}", f"F{n}", None)
+        return n
+
+
 def test_trade_takes_fewer_vertices_only_for_a_real_gain_at_a_kept_size():
     S = replace(STENCIL, trade_counts=(0.9, 0.8), trade_min_scale3d=0.93, trade_gain=0.03)
     chosen = {"scale3d": 1.0, "max_cell_length_mm": 8.4, "clamped_estimate": 0.14}
-    candidates = {90: {"scale3d": 0.95, "max_cell_length_mm": 8.9, "clamped_estimate": 0.07},
-                  80: {"scale3d": 0.90, "max_cell_length_mm": 9.1, "clamped_estimate": 0.03}}
+    cands = {90: {"scale3d": 0.95, "max_cell_length_mm": 8.9, "clamped_estimate": 0.07},
+             80: {"scale3d": 0.90, "max_cell_length_mm": 9.1, "clamped_estimate": 0.03}}
+    first = Candidate(100, 0, 1.0)
 
     def run(cands, chosen=chosen):
-        tried = {(100, 0, 1.0): chosen}
-        meshes = {(100, 0, 1.0): ("V100", "F100", None)}
-
-        def trial(n, sd, inset):
-            tried[(n, sd, inset)] = cands[n]
-            meshes[(n, sd, inset)] = (f"V{n}", f"F{n}", None)
         info = {}
-        best, V2, F2, ch = count_search._trade((100, 0, 1.0), "V100", "F100", chosen, trial, tried,
-                                         meshes, UNIT_CELL, S, info, None)
+        best, V2, F2, ch = _Tried({first: chosen}, S, cands).trade(first, "V100", "F100",
+                                                                    chosen, info)
         return best, V2, ch, info["trade"]
 
     # 80 clamps least but shrinks the shell below 0.93: 90 is taken
-    best, V2, ch, rec = run(candidates)
-    assert best == (90, 0, 1.0) and V2 == "V90" and rec["taken"] and rec["to_vertices"] == 90
+    best, V2, ch, rec = run(cands)
+    assert best == Candidate(90, 0, 1.0) and V2 == "V90" and rec["taken"]
+    assert rec["to_vertices"] == 90 and [r[0] for r in rec["tried"]] == [80, 90]
     # a gain under trade_gain keeps the chosen stencil
-    small = {**candidates, 90: dict(candidates[90], clamped_estimate=0.12)}
+    small = {**cands, 90: dict(cands[90], clamped_estimate=0.12)}
     best, V2, ch, rec = run(small)
-    assert best == (100, 0, 1.0) and V2 == "V100" and not rec["taken"]
-    # an unprintable (beyond limit - margin) candidate is never taken
-    long_ = {**candidates, 90: dict(candidates[90], max_cell_length_mm=9.3)}
-    assert run(long_)[0] == (100, 0, 1.0)
+    assert best == first and V2 == "V100" and not rec["taken"]
+    # a candidate that does not print with the margin (beyond limit - margin) is never taken
+    long_ = {**cands, 90: dict(cands[90], max_cell_length_mm=9.3)}
+    assert run(long_)[0] == first
 
 
 # --------------------------------------------------------------------------------------
@@ -633,7 +693,7 @@ def test_narrow_strip_falls_back_to_the_rim_and_a_wide_one_keeps_the_inset():
     # 25 mm wide: a 4 mm inset leaves about 60 % of the area, so the stencil that reaches the
     # rim is searched too and, printable, taken
     V, F = _bent_strip(25.0)
-    V2, F2, info = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    V2, F2, info = search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     rim = info["rim"]
     assert rim["inset_region_covered"] < STENCIL.min_area_covered
     assert rim["inset_area_covered"] < rim["inset_region_covered"]  # (chords cut corners)
@@ -642,11 +702,11 @@ def test_narrow_strip_falls_back_to_the_rim_and_a_wide_one_keeps_the_inset():
     assert rim["area_covered"] > STENCIL.min_area_covered
     assert "prints" in rim["why"]
     # deterministic: the same input gives the same stencil
-    V3, F3, again = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    V3, F3, again = search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     assert np.array_equal(F2, F3) and np.array_equal(V2, V3) and again["rim"] == rim
     # 60 mm wide: the inset stencil covers enough; no fallback is searched
     V, F = _bent_strip(60.0)
-    _, _, info = count_search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
+    _, _, info = search.remesh_surface(V, F, seed=0, optimize=False, dense=False)
     assert info["rim_inset_mm"] > 0 and info["rim"]["fallback"] is None
     assert info["rim"]["inset_region_covered"] >= STENCIL.min_area_covered
     assert all(c[2] > 0 for c in info["candidates"])
@@ -657,7 +717,7 @@ def test_inset_region_cover_is_the_offset_rectangle():
     is the 32 x 52 mm rectangle: the region covers 32 * 52 / (40 * 60) = 0.6933 of it, to
     the quadrature's resolution (four points per triangle of about 1 mm), and every
     relabelling and rigid motion of the target gives the same figure."""
-    from pysolver.design.remesh import FlatDomain
+    from pysolver.design.stencil.remesh import FlatDomain
 
     P, F = surfaces._dense(np.array([[0, 0], [60.0, 0], [60.0, 40.0], [0, 40.0]]))
     V = np.c_[P, np.zeros(len(P))]
@@ -680,14 +740,13 @@ def test_rim_fallback_never_trades_printability():
     square = (np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float),
               np.array([[0, 1, 2], [0, 2, 3]]))
     half = (square[0] * np.sqrt(0.5), square[1])  # covers half the target's area (1 mm^2)
-    inset, rim = (100, 0, 4.0), (120, 0, 0.0)
+    inset, rim = Candidate(100, 0, 4.0), Candidate(120, 0, 0.0)
 
     def choose(L_inset, L_rim):
-        tried = {inset: {"scale3d": 1.0, "max_cell_length_mm": L_inset},
-                 rim: {"scale3d": 1.0, "max_cell_length_mm": L_rim}}
-        meshes = {inset: half, rim: square}
-        return count_search._rim_fallback(inset, tried, meshes, 1.0, UNIT_CELL, STENCIL,
-                                          lambda: None)
+        search = _Tried({inset: {"scale3d": 1.0, "max_cell_length_mm": L_inset},
+                         rim: {"scale3d": 1.0, "max_cell_length_mm": L_rim}})
+        search.meshes = {inset: half, rim: square}
+        return search.rim_fallback(inset, None, None, [0], [100])
 
     best, info = choose(8.7, 9.0)
     assert best == rim and info["fallback"]["taken"] and info["fallback"]["area_covered"] == 1.0
@@ -738,7 +797,7 @@ def test_time_graded_search_falls_back_when_the_grading_is_unprintable():
     t = np.interp(s.V[:, 2], (s.V[:, 2].min(), s.V[:, 2].max()), (30.0, 80.0))
     # a grading far too steep for 9.5 mm cells: redone without, and printable (the
     # optimisation at the smaller budget: the subject is the fallback)
-    _, _, info = count_search.remesh_surface(s.V, s.F, time=t, user_times=True, seed=0,
+    _, _, info = search.remesh_surface(s.V, s.F, time=t, user_times=True, seed=0,
                                        settings=replace(STENCIL, timing_grading=3.0,
                                                         **QUICK_SEARCH))
     tg = info["timing_grading"]
@@ -838,7 +897,7 @@ def test_stencils_have_no_flaps_where_they_can_merge():
 def test_an_unknown_rim_scale_is_refused_naming_the_choices():
     s = surfaces.builtin("dome")
     with pytest.raises(InputError, match="rim_scale") as e:
-        count_search.remesh_surface(s.V, s.F, settings=replace(STENCIL, rim_scale="loose"))
+        search.remesh_surface(s.V, s.F, settings=replace(STENCIL, rim_scale="loose"))
     assert '"auto", "kept" or "free"' in e.value.fix
 
 
@@ -848,31 +907,34 @@ def test_free_rim_search_is_taken_only_when_it_prints_or_ranks_higher(monkeypatc
     (a stencil 3 % under the size asked for is not taken unasked, issue #42); a failed
     free search leaves the kept result (whose refusal names measured alternatives)."""
     class Search:
+        dom = None
+
         def say(self, line):
             pass
 
     def fig(s3, L):  # (a polished stencil: at size means at full size)
-        return {"scale3d": s3, "max_cell_length_mm": L, "at_size": count_search.full_size(
+        return {"scale3d": s3, "max_cell_length_mm": L, "at_size": candidates.full_size(
             {"scale3d": s3, "max_cell_length_mm": L})}
 
     def result(V, c, n):
-        return V, "F", {"after_optimisation": c, "vertices": n, **c}
+        return search._Pass(V, "F", {"after_optimisation": c, "vertices": n, **c}, Search())
 
-    call = {"params": UNIT_CELL}
+    req = search._Request(None, None, None, None, 0, None, UNIT_CELL, "cvt", False, True,
+                          False, None)
     kept = fig(1.0, 9.72)
 
-    def fails(**kw):
+    def fails(req, settings):
         raise InputError("CETM did not converge", fix="remesh")
-    monkeypatch.setattr(count_search, "remesh_surface", fails)
-    V, _, info = count_search._free_rim(call, STENCIL, result("kept", kept, 182), Search())
+    monkeypatch.setattr(search, "_ungraded_if_needed", fails)
+    V, _, info = search._free_rim(req, STENCIL, result("kept", kept, 182))
     assert V == "kept" and "failed" in info["rim_scale"]["why"]
     for free, taken in [(fig(0.995, 9.38), True),   # prints at full size
                         (fig(0.969, 9.38), False),  # prints, but 3 % under the size
                         (fig(0.80, 9.0), False),    # prints, but 20 % under the size
                         (fig(1.0, 9.6), True),      # neither prints: 9.6 < 9.72 per unit
                         (fig(0.96, 9.6), False)]:   # neither prints: 10.0 > 9.72 per unit
-        monkeypatch.setattr(count_search, "remesh_surface",
-                            lambda free=free, **kw: result("free", free, 184))
-        V, _, info = count_search._free_rim(call, STENCIL, result("kept", kept, 182), Search())
+        monkeypatch.setattr(search, "_ungraded_if_needed", lambda req, settings, free=free: (
+            result("free", free, 184), settings, None))
+        V, _, info = search._free_rim(req, STENCIL, result("kept", kept, 182))
         assert (V == "free") == taken, free
         assert info["rim_scale"]["scale"] == ("free" if taken else "kept")

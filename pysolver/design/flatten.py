@@ -4,7 +4,7 @@ CETM (conformal equivalence of triangle meshes, Springborn, Schroeder & Pinkall 
 find per-vertex log scale factors ``u`` so that the metric ``l_ij exp((u_i + u_j)/2)``
 is flat (angle sum 2 pi at every interior vertex), with ``u = 0`` on the boundary
 (Dirichlet: boundary edge lengths kept), or the boundary values given (``u_boundary``: the
-rim's scale free, :func:`pysolver.design.feasibility.rim_log_scale`).  The energy
+rim's scale free, :func:`pysolver.design.stencil.feasibility.rim_log_scale`).  The energy
 
     E(u) = sum_faces [ sum_k (alpha_k lam_k + 2 Lob(alpha_k)) - pi/2 sum_k lam_k ]
            + sum_i Theta_i u_i,       lam_k = 2 log(l_k) + u_a + u_b,

@@ -28,15 +28,13 @@ from ..errors import InputError
 from ..geometry import signed_areas_2d
 from ..params import LIMITS, UNIT_CELL, UnitCell, check_unit_cell
 from . import surfaces
-from .alternatives import printable_alternatives, size_refusal
 from .cellnodes import bracket_nodes, collision_lengths, write_model_file
 from .checks import check_layout
-from .count_search import remesh_surface
 from .flatten import compare_flattenings, distortion_metrics
 from .layout import Layout, build_layout
 from .mesh_input import load_input, size_factor
 from .plots import write_design_plots
-from .remesh import surface_area
+from .stencil import printable_alternatives, remesh_surface, size_refusal, surface_area
 from .thickness_file import cell_thicknesses, read_thickness_file
 from .time_landscape import (
     DesignLandscape,

@@ -11,8 +11,10 @@ module                                     settings
 =========================================  ==================================================
 :mod:`~pysolver.params.unit_cell`          :class:`UnitCell` (the printed cell, printable
                                            thickness range), :class:`SupportFrame`, layers
-:mod:`~pysolver.params.stencil`            :class:`StencilSearch`: stencil search,
-                                           optimisation and layout checks
+:mod:`~pysolver.params.stencil`            :class:`StencilSearch`, by topic:
+                                           :class:`StencilRemesh`, :class:`StencilOptimiser`,
+                                           :class:`TimingEstimate`,
+                                           :class:`CountSearchSettings`, :class:`LayoutChecks`
 :mod:`~pysolver.params.landscape`          :class:`Sequencing`: the automatic time landscape
 :mod:`~pysolver.params.programming`        :class:`Programming`: thickness solve, refinement;
                                            :class:`Coupon`: the timing coupon
@@ -60,7 +62,16 @@ from .simulation import (
     PhysicsOptions,
     SimConstants,
 )
-from .stencil import REFERENCE_MIN_BUMPER_MM, STENCIL, StencilSearch
+from .stencil import (
+    REFERENCE_MIN_BUMPER_MM,
+    STENCIL,
+    CountSearchSettings,
+    LayoutChecks,
+    StencilOptimiser,
+    StencilRemesh,
+    StencilSearch,
+    TimingEstimate,
+)
 from .tolerances import Tolerances, tol
 from .uncertainty import TOLERANCE_RUN, UNCERTAINTY, ToleranceRun, Uncertainty
 from .unit_cell import (
@@ -76,7 +87,8 @@ from .unit_cell import (
 __all__ = [
     "UnitCell", "UNIT_CELL", "SupportFrame", "SUPPORT_FRAME", "LAYERS", "layer_sign",
     "check_unit_cell",
-    "StencilSearch", "STENCIL", "REFERENCE_MIN_BUMPER_MM",
+    "StencilSearch", "STENCIL", "REFERENCE_MIN_BUMPER_MM", "StencilRemesh", "StencilOptimiser",
+    "TimingEstimate", "CountSearchSettings", "LayoutChecks",
     "Sequencing", "SEQUENCING",
     "Programming", "PROGRAMMING", "DEFAULT_REFINE", "Coupon", "COUPON",
     "SimConstants", "SIM", "NewtonSettings", "NEWTON", "PhysicsOptions", "PHYSICS_OFF",

@@ -1,25 +1,32 @@
-"""The stencil objective's value and gradient by hand: numpy forward and reverse passes.
+"""The stencil objective, written once: numpy forward passes and their reverse passes.
 
-:class:`pysolver.design.stencil_opt.StencilObjective` minimises, round after round, the
-longest flat cell of the layout rules plus penalties, over the flat stencil vertices.
-autograd differentiated that composition at about 20 us per operation each way (190
-operations, 4.7 ms per evaluation on petal's 132-vertex stencil, most of the design stage);
-no library differentiates numpy code without that per-operation cost, so the passes are
-written out here, once, in the same order as the autograd-friendly functions of
-:mod:`pysolver.design.stencil_opt` that state the rules.  ``tests/test_stencil.py`` checks
-value and gradient against autograd's differentiation of those functions (1e-9 relative)
-and against finite differences.
+:class:`pysolver.design.stencil.optimise.StencilObjective` minimises, round after round, the
+longest flat cell after the layout rules (:mod:`pysolver.design.layout`: the 3D rule, then
+the 2D rule) plus penalties, over the flat stencil vertices.  Every term it evaluates, for
+the optimiser's gradient or for the exact checks between rounds, is computed by the classes
+and functions here:
 
-Every function is one vectorised pass over the cells or the triangles; the backward
-functions accumulate into the gradient arrays they are given.
+* :class:`CellGeometry` -- per cell, the half fold's cosine and tangent and the target and
+  flat centroid distances;
+* :class:`Scalings` -- the logs of the 3D scaling, the flat scaling and the longest flat
+  centroid distance, smoothed (log-sum-exp) or exact;
+* :func:`timing` -- the timing misfit, with the achievable times of :func:`log_time_range`;
+* :class:`FlatTriangles` -- signed areas, corner angles and centre clearances.
+
+Each forward pass keeps what its ``backward`` needs; the backward functions accumulate into
+the gradient arrays they are given.  autograd differentiated the same composition at about
+20 us per operation each way (4.7 ms per evaluation on petal's 132-vertex stencil against
+0.7 ms here), so the passes are written out by hand; ``tests/stencil_oracle.py`` states the
+rules again with autograd, and ``tests/test_stencil.py`` checks value and gradient against
+it (1e-12 and 1e-9 relative) and against finite differences.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..params import UnitCell
-from ..params import tol as TOL
+from ...params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from ...params import tol as TOL
 
 _NEXT, _PREV = [1, 2, 0], [2, 0, 1]
 
@@ -31,10 +38,14 @@ def _scatter(idx, values, n: int):
     return np.stack([np.bincount(i, v[:, j], minlength=n) for j in range(v.shape[1])], axis=1)
 
 
-def smax(v, sharpness):
+def smax(v, sharpness, lse=None):
     """Log of the smoothed maximum of positive ``v`` (c,) (log-sum-exp of ``sharpness log v``
     over ``sharpness``; None: the exact maximum) and its gradient (c,) in ``v`` (at an
-    exact maximum reached by several entries, shared evenly among them, as autograd does)."""
+    exact maximum reached by several entries, shared evenly among them, as autograd does).
+
+    ``lse``, optional: the log-sum-exp to take the value with instead of this function's own
+    (the exact checks between rounds take scipy's, whose last bit differs from this one's in
+    about 0.5 % of cases; the stencils chosen depend on those checks, so they keep it)."""
     lv = np.log(v)
     if sharpness is None:
         top = lv.max()
@@ -44,7 +55,8 @@ def smax(v, sharpness):
     top = z.max()
     e = np.exp(z - top)
     total = e.sum()
-    return float((top + np.log(total)) / sharpness), e / total / v
+    value = top + np.log(total) if lse is None else lse(z)
+    return float(value / sharpness), e / total / v
 
 
 class CellGeometry:
@@ -113,23 +125,45 @@ class CellGeometry:
 
 
 class Scalings:
-    """Logs of the 3D scaling, the flat scaling and the longest flat centroid distance
-    (:func:`pysolver.design.stencil_opt.layout_logs`) from a :class:`CellGeometry`, with
-    their backward pass into it."""
+    """Logs of the 3D scaling, the flat scaling and the longest flat centroid distance from a
+    :class:`CellGeometry`, with their backward pass into it.
 
-    def __init__(self, geo: CellGeometry, params: UnitCell, sharpness, like=None):
+    The 3D rule scales the target by ``s3 = max_c (base_r + layer_h tan t_c + min_bumper)
+    2 cos t_c / D_c``; the 2D rule the flat layout by ``s2 = max_c (s3 D_c / (2 cos t_c) +
+    layer_h tan t_c + min_gap / 2) / (d_c / 2)``; the longest flat cell is ``s2 max_c d_c``.
+
+    Parameters
+    ----------
+    geo : CellGeometry
+    params : UnitCell
+    sharpness : float or None
+        Log-sum-exp sharpness on the log quantities (a max over c cells is over-estimated by
+        at most ``log(c) / sharpness``); None takes the exact maxima (not smooth).
+    like : Scalings, optional
+        Scalings of the same geometry whose per-cell 3D rule is reused.
+    lse : callable, optional
+        The log-sum-exp of the smoothed maxima' values (:func:`smax`).
+
+    Attributes
+    ----------
+    log_s3, log_s2, log_d : float
+        ``log(s3)`` (the shell's size over the target's), ``log(s2)`` (mm per unit of Q),
+        ``log(max_c d_c)``; ``log_s2 + log_d`` is the log of the longest flat cell, mm.
+    """
+
+    def __init__(self, geo: CellGeometry, params: UnitCell, sharpness, like=None, lse=None):
         self.geo, self.h = geo, params.layer_h
         if like is None:  # (the per-cell 3D rules; ``like``: Scalings of the same geometry)
             self.K = 2.0 * (params.base_r + params.min_bumper + self.h * geo.tan_t)
             self.r3 = self.K * geo.cos_t / geo.D
         else:
             self.K, self.r3 = like.K, like.r3
-        self.log_s3, self.w3 = smax(self.r3, sharpness)
+        self.log_s3, self.w3 = smax(self.r3, sharpness, lse)
         self.s3 = np.exp(self.log_s3)
         num = self.s3 * geo.D / (2.0 * geo.cos_t) + self.h * geo.tan_t + params.min_gap / 2.0
         self.r2 = 2.0 * num / geo.d
-        self.log_s2, self.w2 = smax(self.r2, sharpness)
-        self.log_d, self.wd = smax(geo.d, sharpness)
+        self.log_s2, self.w2 = smax(self.r2, sharpness, lse)
+        self.log_d, self.wd = smax(geo.d, sharpness, lse)
 
     def backward(self, g_s3: float, g_s2: float, g_d: float) -> None:
         """Add the gradients of ``log_s3``, ``log_s2``, ``log_d`` to the geometry's."""
@@ -149,10 +183,76 @@ class Scalings:
         geo.g_d += g_d * self.wd
 
 
+def time_terms(central, contact, params: UnitCell = UNIT_CELL,
+               settings: StencilSearch = STENCIL):
+    """Each cell's bracket length ``b0 = central - bracket_offset`` (floored at
+    ``settings.opt_tiny``) and its compression ``x = central - contact``, floored smoothly
+    (softplus) at ``settings.timing_compression_floor``.
+
+    Parameters
+    ----------
+    central, contact : (c,) float, mm
+        Flat central length of each cell and its length at bumper contact.
+    params : UnitCell
+    settings : StencilSearch
+
+    Returns
+    -------
+    b0, x : (c,) float, mm
+    """
+    xm = settings.timing_compression_floor
+    return (np.maximum(central - params.bracket_offset, settings.opt_tiny),
+            xm * np.logaddexp(0.0, (central - contact) / xm))
+
+
+def log_time_terms(central, contact, params: UnitCell = UNIT_CELL,
+                   settings: StencilSearch = STENCIL):
+    """The logs of :func:`time_terms`: ``log_b0, log_x`` (c,) float."""
+    b0, x = time_terms(central, contact, params, settings)
+    return np.log(b0), np.log(x)
+
+
+def log_time_range(central, contact, boundary, params: UnitCell = UNIT_CELL,
+                   settings: StencilSearch = STENCIL):
+    """Estimated log of the fastest and slowest completion time of each cell.
+
+    ``log t ~ c + a log b0 + e log x + k [boundary]`` (:func:`time_terms`) with the
+    coefficients ``settings.timing_fastest`` / ``timing_slowest`` (thinnest / thickest
+    bracket).
+
+    Parameters
+    ----------
+    central, contact : (c,) float, mm
+        Flat central length of each cell and its length at bumper contact.
+    boundary : (c,) float
+        1 for cells with a base on the stencil's rim, else 0.
+    params : UnitCell
+    settings : StencilSearch
+
+    Returns
+    -------
+    lo, hi : (c,) float
+        Log of the times (s).
+    """
+    return _log_range(*log_time_terms(central, contact, params, settings), boundary, settings)
+
+
+def _log_range(lb0, lx, boundary, settings):
+    fast, slow = settings.timing_fastest, settings.timing_slowest
+    return (fast[0] + fast[1] * lb0 + fast[2] * lx + fast[3] * boundary,
+            slow[0] + slow[1] * lb0 + slow[2] * lx + slow[3] * boundary)
+
+
 def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: UnitCell,
            settings):
-    """The timing misfit (:func:`pysolver.design.stencil_opt.timing_misfit`) at the smoothed
-    scalings, and its backward pass.
+    """The timing misfit at the smoothed scalings, and its backward pass.
+
+    The fastest and slowest times a cell can reach follow :func:`log_time_range`: the
+    bracket length and compression (flat central length ``s2 d`` minus the contact length
+    ``s3 D / cos t``).  A cell whose requested time ``t*`` falls outside that range is
+    clamped; the misfit is the mean over cells of the squared distance (in log time) from
+    ``log t*`` to the range narrowed by ``settings.timing_margin`` at both ends (the
+    estimate's own error is about 0.22).
 
     Parameters
     ----------
@@ -169,15 +269,10 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
     s2, s3 = np.exp(sharp.log_s2), sharp.s3
     L = s2 * geo.d
     C = s3 * geo.D / geo.cos_t
-    tiny = settings.opt_tiny
-    b0_raw, x_raw = L - params.bracket_offset, L - C
-    b0 = np.maximum(b0_raw, tiny)
-    xm = settings.timing_compression_floor
-    x = xm * np.logaddexp(0.0, x_raw / xm)  # (smooth floor: stencil_opt.log_time_range)
-    lb0, lx = np.log(b0), np.log(x)
+    tiny, xm = settings.opt_tiny, settings.timing_compression_floor
+    b0, x = time_terms(L, C, params, settings)
+    lo, hi = _log_range(np.log(b0), np.log(x), boundary, settings)
     fast, slow = settings.timing_fastest, settings.timing_slowest
-    lo = fast[0] + fast[1] * lb0 + fast[2] * lx + fast[3] * boundary
-    hi = slow[0] + slow[1] * lb0 + slow[2] * lx + slow[3] * boundary
     m = settings.timing_margin
     early = np.maximum(lo - log_t_star + m, 0.0)
     late = np.maximum(log_t_star - hi + m, 0.0)
@@ -188,8 +283,9 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
         g_lo, g_hi = k * early, -k * late
         g_lb0 = fast[1] * g_lo + slow[1] * g_hi
         g_lx = fast[2] * g_lo + slow[2] * g_hi
+        x_raw = L - C
         g_x = g_lx / x * np.exp(-np.logaddexp(0.0, -x_raw / xm))  # (x's slope: a sigmoid)
-        g_L = np.where(b0_raw > tiny, g_lb0 / b0, 0.0) + g_x
+        g_L = np.where(L - params.bracket_offset > tiny, g_lb0 / b0, 0.0) + g_x
         g_C = -g_x
         geo.g_d += g_L * s2
         geo.g_D += g_C * s3 / geo.cos_t
@@ -199,10 +295,26 @@ def timing(geo: CellGeometry, sharp: Scalings, boundary, log_t_star, params: Uni
     return value, backward
 
 
+def _edges(Q, F):
+    """(m, 3, 2) float: edge k of each flat triangle, from corner k to corner k + 1."""
+    T = Q[F]
+    return T[:, _NEXT] - T
+
+
+def _area(E):
+    """(m,) float: signed areas (positive: counter-clockwise) from the edges ``E``."""
+    return 0.5 * (E[:, 2, 0] * E[:, 0, 1] - E[:, 0, 0] * E[:, 2, 1])
+
+
+def signed_areas(Q, F):
+    """(m,) float: the signed areas of the flat triangles ``F`` (m, 3) of ``Q`` (n, 2), in
+    Q's units squared (positive: counter-clockwise), as :class:`FlatTriangles` has them."""
+    return _area(_edges(Q, F))
+
+
 class FlatTriangles:
     """Signed areas, squared edge lengths, corner cosines and angles and centre clearances
-    of the flat triangles (:func:`pysolver.design.stencil_opt._flat_triangles`), with the
-    backward pass into the flat positions.
+    of the flat triangles, with the backward pass into the flat positions.
 
     Attributes
     ----------
@@ -215,11 +327,10 @@ class FlatTriangles:
 
     def __init__(self, Q, F):
         self.F, self.n = F, len(Q)
-        T = Q[F]
-        self.E = T[:, _NEXT] - T
+        self.E = _edges(Q, F)
         self.L2 = np.sum(self.E**2, axis=2)
         E = self.E
-        self.A = 0.5 * (E[:, 2, 0] * E[:, 0, 1] - E[:, 0, 0] * E[:, 2, 1])
+        self.A = _area(E)
         self.dot = -np.sum(E * E[:, _PREV], axis=2)
         self.den = np.sqrt(self.L2 * self.L2[:, _PREV])
         cos = self.dot / self.den
@@ -253,4 +364,5 @@ class FlatTriangles:
         gQ += _scatter(self.F, g_T, self.n)
 
 
-__all__ = ["smax", "CellGeometry", "Scalings", "timing", "FlatTriangles"]
+__all__ = ["smax", "CellGeometry", "Scalings", "time_terms", "log_time_terms", "log_time_range",
+           "timing", "signed_areas", "FlatTriangles"]

@@ -35,9 +35,9 @@ free, :func:`pysolver.design.flatten.cetm`):
    that turns in plane in water and locks with its cells closed at one end) is dropped and
    its two triangles merged, where the merged triangle neither folds nor has an angle under
    ``StencilSearch.flap_min_angle_deg`` (:func:`remove_flaps`).
-5. **Optimisation** (:mod:`pysolver.design.stencil_opt`): the interior vertices move in the plane,
-   and the rim vertices slide along the curve of step 1
-   (:class:`~pysolver.design.stencil_opt.RimCurve`), to minimise the longest flat cell after
+5. **Optimisation** (:mod:`pysolver.design.stencil.optimise`): the interior vertices move in
+   the plane, and the rim vertices slide along the curve of step 1
+   (:class:`~pysolver.design.stencil.optimise.RimCurve`), to minimise the longest flat cell after
    both scaling rules and, given the time landscape, to suit each cell's speed to its
    requested time.
 6. **Lift**: every flat point is mapped to 3D through its dense flat triangle.
@@ -47,7 +47,7 @@ remeshing in 3D) is kept for comparison; at the stencil's coarse resolution its 
 much less regular.
 
 The vertex-count search that chooses among these stencils is
-:mod:`pysolver.design.count_search`.
+:mod:`pysolver.design.stencil.count_search`.
 """
 
 from __future__ import annotations
@@ -59,10 +59,10 @@ from matplotlib.path import Path as PolygonPath
 from scipy.spatial import cKDTree
 from shapely.geometry import LinearRing, Polygon
 
-from ..errors import InputError
-from ..geometry import face_adjacency, face_normals, signed_areas_2d
-from ..params import STENCIL, StencilSearch
-from .flatten import cetm
+from ...errors import InputError
+from ...geometry import face_adjacency, face_normals, signed_areas_2d
+from ...params import STENCIL, StencilSearch
+from ..flatten import cetm
 
 PAPER_CELL_LENGTH = 7.0  # mm, l_avg of the vertex-count estimate (Supplementary Note 1)
 
@@ -254,7 +254,7 @@ class FlatDomain:
     settings : StencilSearch
     time : (n,) float, s, optional -- the landscape the spacing follows
     rim_log_scale : (n,) float, optional
-        The flattening's boundary log-scale (:func:`pysolver.design.feasibility.
+        The flattening's boundary log-scale (:func:`pysolver.design.stencil.feasibility.
         rim_log_scale`, harmonic; its rim values are the Dirichlet data); default 0, the
         rim's lengths kept.
     """

@@ -39,9 +39,9 @@ from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 from scipy.special import logsumexp
 
-from ..geometry import face_normals
-from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
-from .flatten import cetm
+from ...geometry import face_normals
+from ...params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from ..flatten import cetm
 from .remesh import needs_dense, resample_dense
 
 

@@ -16,35 +16,33 @@ the three maxima smoothed by log-sum-exp, penalties that keep flat corners withi
 and every base centre clear of its triangle's edges, and a log barrier that keeps every flat
 triangle positively oriented.  Given a time landscape that varies, a fourth term moves each
 cell's achievable completion times (estimated from its bracket length and compression,
-:func:`timing_misfit`) toward its requested time: the paper's cover carrying the
+:func:`~.objective.timing`) toward its requested time: the paper's cover carrying the
 reference's landscape clamps 8.7 % of its cells (``bench/bench_design_cover.py``).  The
 target positions are the exact lift of the flat points, linearised per vertex (the Jacobian
 of the dense piecewise linear map) inside each of a few outer rounds and lifted again after
 each.
 
-The functions here state the rules once, autograd-friendly.  The optimiser evaluates them
-with the hand-written forward and reverse passes of :mod:`.objective_grad` (0.7 ms per
-evaluation on petal's 132-vertex stencil; autograd's differentiation of these functions,
-``StencilObjective.linearised(..., autodiff=True)``, took 4.7 ms, its cost being per
-operation), which ``tests/test_stencil.py`` checks against autograd to 1e-9 and against
-finite differences.  The rules themselves are checked against
-:func:`pysolver.design.layout.build_layout` by ``tests/test_stencil.py``.
+The objective and its gradient are written once, in :mod:`.objective` (numpy forward and
+reverse passes, 0.7 ms per evaluation on petal's 132-vertex stencil); this module holds the
+optimiser around them: the free and sliding variables, the rounds, the step acceptance.
+``tests/stencil_oracle.py`` states the rules again with autograd, as the tests' oracle, and
+the rules themselves are checked against :func:`pysolver.design.layout.build_layout` by
+``tests/test_stencil.py``.
 """
 
 from __future__ import annotations
 
-import autograd.numpy as anp
 import igl
 import numpy as np
-from autograd import value_and_grad
-from autograd.scipy.special import logsumexp
 from scipy.optimize import minimize
+from scipy.special import logsumexp
 
-from ..geometry import face_adjacency, unit_cells
-from ..params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
-from ..params import tol as TOL
-from . import objective_grad as og
-from .time_landscape import cell_target_times
+from ...geometry import face_adjacency, unit_cells
+from ...params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
+from ...params import tol as TOL
+from ..time_landscape import cell_target_times
+from . import objective as og
+from .objective import log_time_range
 
 
 def opposite_vertices(F, cells=None):
@@ -67,191 +65,9 @@ def opposite_vertices(F, cells=None):
     return np.c_[F[cells.faces[:, 0], cells.slots[:, 0]], F[cells.faces[:, 1], cells.slots[:, 1]]]
 
 
-def _flat_triangles(Q, F):
-    """Signed areas, squared edge lengths and corner cosines of the flat triangles, from one
-    gather of ``Q`` (autograd-friendly; the objective's cost is autograd's per-operation
-    overhead, so every flat term shares these few operations).
-
-    Returns
-    -------
-    A : (m,) float
-        Signed areas (positive: counter-clockwise), in the units of Q squared.
-    L2 : (m, 3) float
-        Squared length of edge k, from corner k to corner k + 1.
-    cos : (m, 3) float
-        Cosine of the corner angle at corner k.
-    """
-    T = Q[F]                                              # (m, 3, 2)
-    E = T[:, [1, 2, 0]] - T                               # edge k: corner k -> k + 1
-    L2 = anp.sum(E * E, axis=2)
-    A = _area(E)
-    # corner k lies between edge k and edge k - 1 reversed
-    cos = -anp.sum(E * E[:, [2, 0, 1]], axis=2) / anp.sqrt(L2 * L2[:, [2, 0, 1]])
-    return A, L2, cos
-
-
-def _area(E):
-    """(m,) signed areas from the edges ``E`` (m, 3, 2) of :func:`_flat_triangles`."""
-    return 0.5 * (E[:, 2, 0] * E[:, 0, 1] - E[:, 0, 0] * E[:, 2, 1])
-
-
-def _corner_angles(cos):
-    return anp.arccos(anp.clip(cos, -1.0 + TOL.exact, 1.0 - TOL.exact))
-
-
-def _clearances(A, L2):
-    return 2.0 * A[:, None] / (3.0 * anp.sqrt(L2))
-
-
-def centroid_edge_distances(Q, F):
-    """(m, 3) float: distance from each flat triangle's centroid to its three edges
-    (``2 A / (3 |e|)``, edge k from corner k to k + 1), in the units of Q."""
-    A, L2, _ = _flat_triangles(Q, F)
-    return _clearances(A, L2)
-
-
-def _np(x):
-    return np.asarray(x, dtype=float)
-
-
-def _angles_np(Q, F):
-    return _np(flat_corner_angles(np.asarray(Q, float), F))
-
-
-def _signed_areas(Q, F):
-    T = Q[F]
-    return _area(T[:, [1, 2, 0]] - T)
-
-
-def flat_corner_angles(Q, F):
-    """(m, 3) float, rad: the flat triangles' corner angles (autograd-friendly; numpy
-    version: :func:`pysolver.design.flatten.corner_angles`)."""
-    return _corner_angles(_flat_triangles(Q, F)[2])
-
-
-def _cell_geometry(Q, X, F, fa, fb, o1, o2, tiny: float = STENCIL.opt_tiny):
-    """Per-cell half-fold cosine and tangent, target and flat centroid distances
-    (autograd-friendly).
-
-    Returns
-    -------
-    cos_t, tan_t : (c,) float
-        Of the half fold angle on the target.
-    D : (c,) float, mm
-        Target centroid distance.
-    d : (c,) float
-        Flat centroid distance, in the units of Q.
-    """
-    N = anp.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
-    N = N / anp.sqrt(anp.sum(N * N, axis=1, keepdims=True))
-    # (the layout refuses folds over 178 deg; -0.99 keeps tan finite before that)
-    cphi = anp.clip(anp.sum(N[fa] * N[fb], axis=1), -0.99, 1.0)
-    cos_t = anp.sqrt((1.0 + cphi) / 2.0)
-    tan_t = anp.sqrt(anp.maximum(1.0 - cphi, 0.0) / (1.0 + cphi) + tiny)
-    D = anp.sqrt(anp.sum((X[o1] - X[o2]) ** 2, axis=1)) / 3.0
-    d = anp.sqrt(anp.sum((Q[o1] - Q[o2]) ** 2, axis=1)) / 3.0
-    return cos_t, tan_t, D, d
-
-
-def layout_logs(Q, X, F, fa, fb, o1, o2, params: UnitCell, sharpness: float | None):
-    """Smoothed logs of the 3D scaling and of the longest flat cell after both scaling rules.
-
-    Parameters
-    ----------
-    Q : (n, 2) float
-        Flat stencil vertices (any scale).
-    X : (n, 3) float, mm
-        Target stencil vertices.
-    F : (m, 3) int
-    fa, fb : (c,) int
-        The two bases of each cell.
-    o1, o2 : (c,) int
-        Vertices opposite each cell's edge (:func:`opposite_vertices`).
-    params : UnitCell
-    sharpness : float or None
-        Log-sum-exp sharpness on log quantities (a max over c cells is over-estimated by
-        at most ``log(c) / sharpness``); None takes the exact maxima (not smooth).
-
-    Returns
-    -------
-    log_s3 : float
-        ``~ log(s3)``, the 3D scaling (the shell's size over the target's).
-    log_s2 : float
-        ``~ log(s2)``, the flat scaling (mm per unit of Q).
-    log_dmax : float
-        ``~ log(max_c d_c)``; ``log_s2 + log_dmax`` is the log of the longest flat cell, mm.
-    """
-    return _scaling_logs(_cell_geometry(Q, X, F, fa, fb, o1, o2), params, sharpness)
-
-
-def _scaling_logs(geometry, params: UnitCell, sharpness: float | None):
-    """:func:`layout_logs` from the cells' ``geometry`` (:func:`_cell_geometry`)."""
-    cos_t, tan_t, D, d = geometry
-
-    def smax(v):  # log of the (smoothed) maximum of positive v
-        return anp.max(anp.log(v)) if sharpness is None else \
-            logsumexp(sharpness * anp.log(v)) / sharpness
-
-    r3 = (params.base_r + params.layer_h * tan_t + params.min_bumper) * 2.0 * cos_t / D
-    log_s3 = smax(r3)
-    r2 = (anp.exp(log_s3) * D / (2.0 * cos_t) + params.layer_h * tan_t
-          + params.min_gap / 2.0) / (d / 2.0)
-    return log_s3, smax(r2), smax(d)
-
-
-def log_time_terms(central, contact, params: UnitCell = UNIT_CELL,
-                   settings: StencilSearch = STENCIL):
-    """The logs of each cell's bracket length ``b0 = central - bracket_offset`` and of its
-    compression ``x = central - contact``, floored smoothly (softplus) at
-    ``settings.timing_compression_floor``: the terms of :func:`log_time_range`
-    (autograd-friendly).
-
-    Parameters
-    ----------
-    central, contact : (c,) float, mm
-
-    Returns
-    -------
-    log_b0, log_x : (c,) float
-    """
-    log_b0 = anp.log(anp.maximum(central - params.bracket_offset, settings.opt_tiny))
-    xm = settings.timing_compression_floor
-    return log_b0, anp.log(xm * anp.logaddexp(0.0, (central - contact) / xm))
-
-
-def log_time_range(central, contact, boundary, params: UnitCell = UNIT_CELL,
-                   settings: StencilSearch = STENCIL):
-    """Estimated log of the fastest and slowest completion time of each cell (autograd-friendly).
-
-    ``log t ~ c + a log b0 + e log x + k [boundary]`` with the coefficients
-    ``settings.timing_fastest`` / ``timing_slowest`` (thinnest / thickest bracket); the
-    bracket length is ``b0 = central - bracket_offset`` and the compression
-    ``x = central - contact``, floored smoothly (softplus) at
-    ``settings.timing_compression_floor``.
-
-    Parameters
-    ----------
-    central, contact : (c,) float, mm
-        Flat central length of each cell and its length at bumper contact.
-    boundary : (c,) float
-        1 for cells with a base on the stencil's rim, else 0.
-
-    Returns
-    -------
-    lo, hi : (c,) float
-        Log of the times (s).
-    """
-    log_b0, log_x = log_time_terms(central, contact, params, settings)
-
-    def estimate(m):
-        return m[0] + m[1] * log_b0 + m[2] * log_x + m[3] * boundary
-
-    return estimate(settings.timing_fastest), estimate(settings.timing_slowest)
-
-
 def layout_timing_terms(lay):
-    """What :func:`log_time_range` reads of a laid-out stencil, as the optimiser states it
-    (:func:`timing_misfit`).
+    """What :func:`~.objective.log_time_range` reads of a laid-out stencil, as the optimiser
+    states it (:func:`~.objective.timing`).
 
     Parameters
     ----------
@@ -272,7 +88,8 @@ def layout_timing_terms(lay):
 
 def estimated_clamping(central, contact, boundary, t_star, params: UnitCell = UNIT_CELL,
                        settings: StencilSearch = STENCIL) -> float:
-    """Fraction of cells whose time ``t_star`` (s) lies outside :func:`log_time_range`.
+    """Fraction of cells whose time ``t_star`` (s) lies outside
+    :func:`~.objective.log_time_range`.
 
     Only a guide for the vertex-count search (the estimate's error is about 0.22 in log
     time); temporal programming computes each cell's range from the material and membrane
@@ -284,48 +101,6 @@ def estimated_clamping(central, contact, boundary, t_star, params: UnitCell = UN
                             np.asarray(boundary, float), params, settings)
     log_t = np.log(np.maximum(np.asarray(t_star, float), settings.opt_tiny))
     return float(np.mean((log_t < lo) | (log_t > hi)))
-
-
-def timing_misfit(Q, X, F, fa, fb, o1, o2, boundary, log_t_star, log_s3, log_s2,
-                  params: UnitCell, settings: StencilSearch):
-    """How far the cells' achievable times miss the time landscape (autograd-friendly).
-
-    The fastest and slowest times a cell can reach (thinnest and thickest bracket) follow,
-    closely, ``log t ~ c + a log b0 + e log x + k [boundary cell]``
-    (``settings.timing_fastest``, ``settings.timing_slowest``): ``b0`` is the cell's bracket
-    length and ``x`` its compression (flat central length minus the contact length
-    ``s3 D / cos t``), both mm.  A cell whose requested time ``t*`` falls outside that
-    range is clamped; the misfit is the mean over cells of the squared distance (in log
-    time) from ``log t*`` to the range narrowed by ``settings.timing_margin`` at both ends
-    (the estimate's own error is about 0.22).
-
-    Parameters
-    ----------
-    boundary : (c,) float
-        1 for cells with a base on the stencil's rim, else 0.
-    log_t_star : (c,) float
-        Log of each cell's requested time (s).
-    log_s3, log_s2 : float
-        The scalings (:func:`layout_logs`).
-
-    Returns
-    -------
-    float
-    """
-    return _misfit(_cell_geometry(Q, X, F, fa, fb, o1, o2), boundary, log_t_star, log_s3,
-                   log_s2, params, settings)
-
-
-def _misfit(geometry, boundary, log_t_star, log_s3, log_s2, params: UnitCell,
-            settings: StencilSearch):
-    """:func:`timing_misfit` from the cells' ``geometry`` (:func:`_cell_geometry`)."""
-    cos_t, _, D, d = geometry
-    L = anp.exp(log_s2) * d
-    lo, hi = log_time_range(L, anp.exp(log_s3) * D / cos_t, boundary, params, settings)
-    m = settings.timing_margin
-    early = anp.maximum(lo - log_t_star + m, 0.0)
-    late = anp.maximum(log_t_star - hi + m, 0.0)
-    return anp.mean(early**2 + late**2)
 
 
 class RimCurve:
@@ -391,7 +166,7 @@ class StencilObjective:
 
     Parameters
     ----------
-    domain : pysolver.design.remesh.FlatDomain
+    domain : pysolver.design.stencil.remesh.FlatDomain
     P : (n, 2) float, mm
         The starting flat stencil (its angles and clearances set the penalties' floors).
     F : (m, 3) int
@@ -445,79 +220,99 @@ class StencilObjective:
         order = np.r_[self.free, np.flatnonzero(self.fixed)]
         self.perm = np.empty(len(P), dtype=np.int64)
         self.perm[order] = np.arange(len(P))
-        self.A0 = _signed_areas(P, F)
+        flat = og.FlatTriangles(P, F)
+        self.A0 = flat.A
         # flat corners within [floor, cap] (or no worse than at the start): each base's printed
         # disc and bracket roots must stay inside its triangle's neighbourhood, which the
         # membrane meshes of the simulator and of the per-cell correction assume
-        start = _angles_np(P, F)
+        start = flat.angles
         self.floor = np.minimum(np.radians(settings.opt_min_angle_deg), start)
         self.cap = np.maximum(np.radians(settings.opt_max_angle_deg), start)
         # and every base centre (flat centroid) at least opt_centroid_edge_mm from its
         # triangle's edges once scaled (or no nearer than at the start)
-        log_s2 = float(self._logs(self._geometry(P, domain.lift(P)), None)[1])
+        log_s2 = og.Scalings(self.geometry(P, domain.lift(P)), params, None).log_s2
         self.log_clear = np.minimum(np.log(settings.opt_centroid_edge_mm),
-                                    log_s2 + np.log(_np(centroid_edge_distances(P, F))))
+                                    log_s2 + np.log(flat.clearance))
 
-    def _geometry(self, Q, X):
-        return _cell_geometry(Q, X, self.F, self.fa, self.fb, self.o1, self.o2,
-                              self.fold_floor)
+    def geometry(self, Q, X) -> og.CellGeometry:
+        """The cells' geometry at flat points ``Q`` (n, 2) and target points ``X`` (n, 3) mm."""
+        return og.CellGeometry(Q, X, self.F, self.fa, self.fb, self.o1, self.o2,
+                               self.fold_floor)
 
-    def _logs(self, geometry, sharpness):
-        return _scaling_logs(geometry, self.params, sharpness)
+    def scalings(self, geo: og.CellGeometry, checked: bool = False):
+        """The smoothed (``opt_sharpness``) and the exact :class:`~.objective.Scalings`;
+        ``checked``: the smoothed values as the exact checks take them (scipy's log-sum-exp,
+        :func:`~.objective.smax`), for :meth:`exact` and each round's start."""
+        sm = og.Scalings(geo, self.params, self.settings.opt_sharpness,
+                         lse=logsumexp if checked else None)
+        return sm, og.Scalings(geo, self.params, None, like=sm)
 
-    def main_terms(self, log_s3, log_s2, log_d, log_pinned):
+    def main_terms(self, sm: og.Scalings, log_pinned: float):
         """Pinned: the longest flat cell per unit of 3D scaling, with the 3D scaling (log,
         ``log_pinned``: the exact one, or within a round the smoothed one less its excess at
         the round's start, as the timing cap's; either less the log of ``pin_scale3d``) held
-        at 1 (or ``pin_scale3d``) (the shell keeps its target's
-        size, so the count search can trade vertices for flat length); else the longest flat
-        cell (+ the optional 3D scaling weight)."""
-        if self.pin > 0:
-            return log_s2 + log_d - log_s3 + self.pin * log_pinned ** 2
-        return log_s2 + log_d + self.settings.opt_s3_weight * log_s3
+        at 1 (or ``pin_scale3d``) (the shell keeps its target's size, so the count search can
+        trade vertices for flat length); else the longest flat cell (+ the optional 3D
+        scaling weight); at the smoothed scalings ``sm``.
 
-    def timing(self, geometry, log_s3, log_s2, log_longest):
+        Returns
+        -------
+        value : float
+        g_s3, g_pinned : float -- its derivatives in ``sm.log_s3`` and in ``log_pinned``
+            (its derivatives in ``sm.log_s2`` and ``sm.log_d`` are 1)
+        """
+        if self.pin > 0:
+            return (sm.log_s2 + sm.log_d - sm.log_s3 + self.pin * log_pinned ** 2, -1.0,
+                    2.0 * self.pin * log_pinned)
+        w = self.settings.opt_s3_weight
+        return sm.log_s2 + sm.log_d + w * sm.log_s3, w, 0.0
+
+    def timing(self, geo: og.CellGeometry, sm: og.Scalings, log_longest: float):
         """The timing misfit at the smoothed scalings (they over-estimate s2 by 6-7 %, so
         every flat length, which the margin absorbs; at the exact, non-smooth ones L-BFGS
         stalls and the count search lost its footing, measured on cover and dome), and a
         penalty that keeps the longest flat cell (log, ``log_longest``) under the limit less
         the search's margin: the exact one, or within a round the smoothed one less its
         excess at the round's start (exact there; the exact maximum has a kink wherever two
-        cells tie, at which the cover's first rounds stopped, or not, with the last bits)."""
+        cells tie, at which the cover's first rounds stopped, or not, with the last bits).
+
+        Returns
+        -------
+        value : float
+        backward : callable or None -- the misfit's (:func:`~.objective.timing`)
+        g_longest : float -- the derivative in ``log_longest``
+        """
         if self.w_t <= 0:
-            return 0.0
-        over = anp.maximum(log_longest - self.log_cap, 0.0)
-        return (self.w_t * _misfit(geometry, self.bnd, self.log_ts, log_s3, log_s2,
-                                   self.params, self.settings)
-                + self.settings.opt_cap_weight * over**2)
+            return 0.0, None, 0.0
+        mis, back = og.timing(geo, sm, self.bnd, self.log_ts, self.params, self.settings)
+        over = max(log_longest - self.log_cap, 0.0)
+        cap = self.settings.opt_cap_weight
+        return self.w_t * mis + cap * over**2, back, 2.0 * cap * over
 
     def shortfall(self, Q, log_s2_exact) -> float:
         """Worst log shortfall of a base centre's clearance (0 when every one is clear)."""
         short = np.max(self.log_clear - log_s2_exact
-                       - np.log(np.maximum(_np(centroid_edge_distances(Q, self.F)),
+                       - np.log(np.maximum(og.FlatTriangles(Q, self.F).clearance,
                                            self.settings.opt_tiny)))
         return max(float(short), 0.0)
 
     def exact(self, Q):
         """The objective without its penalties and barrier, on the exact lift of ``Q``, and
         the clearance shortfall (:meth:`shortfall`)."""
-        g = self._geometry(Q, self.domain.lift(Q))
-        a, b, c = self._logs(g, self.settings.opt_sharpness)
-        ex = self._logs(g, None)
-        return (float(self.main_terms(a, b, c, ex[0] - self.pin_log)
-                      + self.timing(g, a, b, ex[1] + ex[2])),
-                self.shortfall(Q, float(ex[1])))
+        geo = self.geometry(Q, self.domain.lift(Q))
+        sm, ex = self.scalings(geo, checked=True)
+        main = self.main_terms(sm, ex.log_s3 - self.pin_log)[0]
+        return (float(main + self.timing(geo, sm, ex.log_s2 + ex.log_d)[0]),
+                self.shortfall(Q, ex.log_s2))
 
-    def linearised(self, P0, clearance_weight: float, autodiff: bool = False):
+    def linearised(self, P0, clearance_weight: float):
         """``fun(x) -> (f, g)`` over :meth:`start`'s variables ``x`` (the free vertices'
         coordinates, then with a rim one arc-length step per fixed vertex), with the
         lift linearised at ``P0`` (the Jacobian of the dense piecewise linear map), and the
         penalties and the orientation barrier.
 
-        The gradient is the hand-written reverse pass of :mod:`.objective_grad`;
-        ``autodiff`` differentiates this module's functions by autograd instead (about five
-        times slower: the check of the hand pass in ``tests/test_stencil.py``)."""
-        st, F = self.settings, self.F
+        The gradient is the hand-written reverse pass of :mod:`.objective` (checked against
+        autograd's differentiation of ``tests/stencil_oracle.py``)."""
         X0, J = self.domain.lift(P0), self.domain.lift_jacobian(P0)
         Pfix, k2 = P0[self.fixed], 2 * len(self.free)
         T = np.zeros_like(Pfix)  # rim tangents of the sliding rows (0: fixed)
@@ -526,49 +321,17 @@ class StencilObjective:
                 self.rim.project(P0[self.slides])[0])
         pin_excess = cap_excess = 0.0  # (see :meth:`main_terms`, :meth:`timing`)
         if self.w_t > 0 or self.pin > 0:
-            geo0 = self._geometry(P0, X0)
-            sm0, ex0 = self._logs(geo0, st.opt_sharpness), self._logs(geo0, None)
-            pin_excess = float(sm0[0] - ex0[0]) + self.pin_log  # (and the scaling held)
-            cap_excess = float(sm0[1] + sm0[2] - ex0[1] - ex0[2])
-        if not autodiff:
-            return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight,
-                                 (pin_excess, cap_excess))
-
-        def objective(x):
-            if self.rim is not None:
-                Qfix = Pfix + T * anp.reshape(x[k2:], (-1, 1))
-                Q = anp.concatenate([anp.reshape(x[:k2], (-1, 2)), Qfix])[self.perm]
-            else:
-                Q = anp.concatenate([anp.reshape(x, (-1, 2)), Pfix])[self.perm]
-            geo = self._geometry(Q, X0 + anp.einsum("nij,nj->ni", J, Q - P0))
-            A, L2, cos = _flat_triangles(Q, F)
-            log_s3, log_s2, log_d = self._logs(geo, st.opt_sharpness)
-            ang = _corner_angles(cos)
-            bad = anp.maximum(self.floor - ang, 0.0) + anp.maximum(ang - self.cap, 0.0)
-            # the clearance takes the exact flat scaling (the smoothed one over-estimates it)
-            ex = self._logs(geo, None)
-            near = anp.maximum(self.log_clear - ex[1] - anp.log(anp.maximum(
-                _clearances(A, L2), st.opt_tiny)), 0.0)
-            return (self.main_terms(log_s3, log_s2, log_d, log_s3 - pin_excess)
-                    + self.timing(geo, log_s3, log_s2, log_s2 + log_d - cap_excess)
-                    + st.opt_angle_weight * anp.sum(bad**2)
-                    + clearance_weight * anp.sum(near**2)
-                    - st.opt_barrier * anp.sum(anp.log(anp.maximum(A / self.A0,
-                                                                   st.opt_tiny))))
-
-        fg = value_and_grad(objective)
-
-        def fun(x):
-            f, g = fg(x)
-            return float(f), np.asarray(g, dtype=float)
-        return fun
+            sm0, ex0 = self.scalings(self.geometry(P0, X0), checked=True)
+            pin_excess = float(sm0.log_s3 - ex0.log_s3) + self.pin_log  # (and the scaling held)
+            cap_excess = float(sm0.log_s2 + sm0.log_d - ex0.log_s2 - ex0.log_d)
+        return self._by_hand(P0, X0, J, Pfix, T, k2, clearance_weight, (pin_excess, cap_excess))
 
     def _by_hand(self, P0, X0, J, Pfix, T, k2: int, clearance_weight: float, excess):
-        """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective_grad`
+        """:meth:`linearised`'s ``fun`` with the passes of :mod:`.objective`
         (``excess``: the smoothed log 3D scaling's and log longest flat cell's over the exact
         ones at ``P0``, :meth:`main_terms`, :meth:`timing`)."""
         pin_excess, cap_excess = excess
-        st, F, params = self.settings, self.F, self.params
+        st, F = self.settings, self.F
         fixed_rows = np.flatnonzero(self.fixed)
 
         def fun(x):
@@ -577,27 +340,17 @@ class StencilObjective:
             Q[fixed_rows] = Pfix + (T * np.reshape(x[k2:], (-1, 1)) if self.rim is not None
                                     else 0.0)
             X = X0 + np.einsum("nij,nj->ni", J, Q - P0)
-            geo = og.CellGeometry(Q, X, F, self.fa, self.fb, self.o1, self.o2, self.fold_floor)
-            sm = og.Scalings(geo, params, st.opt_sharpness)
-            ex = og.Scalings(geo, params, None, like=sm)
+            geo = self.geometry(Q, X)
+            sm, ex = self.scalings(geo)
             flat = og.FlatTriangles(Q, F)
             # the objective, term by term, with each term's gradient in the logs
-            g_sm = [0.0, 1.0, 1.0]  # (log s3, log s2, log d), smoothed
+            f, g3, g_pinned = self.main_terms(sm, sm.log_s3 - pin_excess)
+            g_sm = [g3 + g_pinned, 1.0, 1.0]  # (log s3, log s2, log d), smoothed
             g_ex = [0.0, 0.0, 0.0]  # exact
-            if self.pin > 0:
-                pinned = sm.log_s3 - pin_excess
-                f = sm.log_s2 + sm.log_d - sm.log_s3 + self.pin * pinned**2
-                g_sm[0] = -1.0 + 2.0 * self.pin * pinned
-            else:
-                f = sm.log_s2 + sm.log_d + st.opt_s3_weight * sm.log_s3
-                g_sm[0] = st.opt_s3_weight
-            back_t = None
-            if self.w_t > 0:
-                mis, back_t = og.timing(geo, sm, self.bnd, self.log_ts, params, st)
-                over = max(sm.log_s2 + sm.log_d - cap_excess - self.log_cap, 0.0)
-                f += self.w_t * mis + st.opt_cap_weight * over**2
-                g_sm[1] += 2.0 * st.opt_cap_weight * over
-                g_sm[2] += 2.0 * st.opt_cap_weight * over
+            t, back_t, g_longest = self.timing(geo, sm, sm.log_s2 + sm.log_d - cap_excess)
+            f += t
+            g_sm[1] += g_longest
+            g_sm[2] += g_longest
             ang = flat.angles
             low, high = self.floor - ang, ang - self.cap
             bad = np.maximum(low, 0.0) + np.maximum(high, 0.0)
@@ -730,7 +483,7 @@ def accept_step(problem: StencilObjective, P0, Pn, current: float, short_now: fl
     for k in range(st.opt_backtracks + 1):
         a = 0.5**k
         Q = problem.along(P0, Pn, a)
-        if not np.all(_signed_areas(Q, problem.F) > 0):
+        if not np.all(og.signed_areas(Q, problem.F) > 0):
             first = first or {"why": "a flat triangle turns over"}
             continue
         new, short = problem.exact(Q)
@@ -753,7 +506,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
     corner angles outside ``opt_min_angle_deg``-``opt_max_angle_deg`` and on base centres
     nearer than ``opt_centroid_edge_mm`` to their triangle's edges, and a log barrier on flat
     orientation; with a time landscape, ``opt_timing_weight`` times the cells' timing misfit
-    (:func:`timing_misfit`).  Shortening the longest flat cells lowers the 3D scaling at a
+    (:func:`~.objective.timing`).  Shortening the longest flat cells lowers the 3D scaling at a
     given vertex count (the count search restores it with more vertices); a negative
     ``opt_s3_weight`` credits that back (:class:`pysolver.params.StencilSearch`).  With
     ``pin`` the objective is the longest flat cell per unit of 3D scaling, ``log lmax - log
@@ -769,7 +522,7 @@ def optimize_stencil(domain, P, F, params: UnitCell = UNIT_CELL,
 
     Parameters
     ----------
-    domain : pysolver.design.remesh.FlatDomain
+    domain : pysolver.design.stencil.remesh.FlatDomain
         Dense target and its conformal plane (``lift``, ``lift_jacobian``).
     P : (n, 2) float, mm
         Stencil vertices in the conformal plane; rim vertices stay (or slide, ``rim``).
@@ -866,6 +619,5 @@ def _rounded(step: dict) -> dict:
     return {k: round(v, 6) if isinstance(v, float) else v for k, v in step.items()}
 
 
-__all__ = ["opposite_vertices", "log_time_terms", "log_time_range", "layout_timing_terms",
-           "estimated_clamping", "flat_corner_angles", "centroid_edge_distances", "layout_logs",
-           "timing_misfit", "StencilObjective", "accept_step", "optimize_stencil"]
+__all__ = ["opposite_vertices", "layout_timing_terms", "estimated_clamping", "RimCurve",
+           "StencilObjective", "accept_step", "optimize_stencil"]

@@ -14,21 +14,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import InputError
-from ..params import REFERENCE_MIN_BUMPER_MM, STENCIL, StencilSearch, UnitCell
-from ..params import tol as TOL
-from .count_search import at_size, stencil_figures
+from ...errors import InputError
+from ...params import REFERENCE_MIN_BUMPER_MM, STENCIL, StencilSearch, UnitCell
+from ...params import tol as TOL
+from .candidates import at_size, prints, stencil_figures
 from .feasibility import describe_bound, target_bound
 
 
 def _describe(info: dict) -> str:
     return (f"N={info['requested']} seed={info['seed']}, 3D scaling {info['scale3d']:.3f}, "
             f"longest flat cell {info['max_cell_length_mm']:.2f} mm")
-
-
-def _printable(info: dict, params: UnitCell) -> bool:
-    return info.get("max_cell_length_mm") is not None \
-        and info["max_cell_length_mm"] <= params.max_cell_length
 
 
 def smaller_size(remesh_info: dict, params: UnitCell, settings: StencilSearch = STENCIL):
@@ -49,7 +44,7 @@ def try_smaller_size(search, extent_mm: float, factor: float, params: UnitCell):
     ----------
     search : callable
         ``search(factor, params) -> info`` runs the count search on the target scaled by
-        ``factor`` (:func:`pysolver.design.count_search.remesh_surface`'s info).
+        ``factor`` (:func:`pysolver.design.stencil.search.remesh_surface`'s info).
     extent_mm : float, mm
         The target's largest bounding-box extent at the size asked for.
     factor : float
@@ -65,7 +60,7 @@ def try_smaller_size(search, extent_mm: float, factor: float, params: UnitCell):
         info = search(size / extent_mm, params)
     except InputError as e:
         return f"--size {size:.0f} was tried and cannot be laid out ({e.problem})", False
-    ok = _printable(info, params) and info.get("at_size", False)
+    ok = prints(info, params) and info.get("at_size", False)
     return (f"--size {size:.0f} (tried: " + ("prints, " if ok else "does not print, ")
             + _describe(info) + ")"), ok
 
@@ -83,7 +78,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=Non
     V : (n, 3) float, mm
     F : (m, 3) int
     remesh_info : dict
-        :func:`pysolver.design.count_search.remesh_surface`'s info (``candidates``).
+        :func:`pysolver.design.stencil.search.remesh_surface`'s info (``candidates``).
     params : UnitCell
     search : callable, optional
         See :func:`try_smaller_size`.
@@ -91,7 +86,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=Non
         The target's largest extent (with ``search``).
     target : (V, F), optional
         The target surface: the fix then starts with its measured bound
-        (:func:`pysolver.design.feasibility.target_bound`).
+        (:func:`pysolver.design.stencil.feasibility.target_bound`).
     u_boundary : (n,) float, optional
         The stencil's boundary log-scale, when its rim's scale is free.
 
@@ -106,7 +101,7 @@ def printable_alternatives(V, F, remesh_info: dict, params: UnitCell, search=Non
     if params.min_bumper > low + TOL.rel:
         alt = stencil_figures(V, F, replace(params, min_bumper=low), u_boundary=u_boundary)
         if alt["max_cell_length_mm"] is not None:
-            ok = alt["max_cell_length_mm"] <= params.max_cell_length
+            ok = prints(alt, params)
             lines.append(f"--min-bumper {low:g} (the reference's) gives a longest cell of "
                          f"{alt['max_cell_length_mm']:.2f} mm on this stencil"
                          + (" (printable)" if ok else ""))
@@ -152,7 +147,7 @@ def size_refusal(remesh_info: dict, params: UnitCell, search, extent_mm: float,
     if params.min_bumper > low + TOL.rel:
         try:
             info = search(1.0, replace(params, min_bumper=low))
-            ok = _printable(info, params) and at_size(info, settings)
+            ok = prints(info, params) and at_size(info, settings)
             lines.append(f"--min-bumper {low:g} (tried: "
                          + ("prints at this size, " if ok else "does not print at this size, ")
                          + _describe(info) + ")")
