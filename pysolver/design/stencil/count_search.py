@@ -17,7 +17,15 @@ cell decides it), as much as two rungs of the count's ladder.  We chose *several
 count* over one start with a converged objective because the scatter is not the optimiser's
 (each start's rounds converge) but the starts' own: different triangulations of the same
 surface are different local optima, and the count that a single start's scaling points to
-moved with them (petal, relabelled: 172 to 233 bases).
+moved with them (petal, relabelled: 172 to 233 bases).  Each start is itself a function of its
+input, not of the machine: its rounds, and the polish's, run to a tight projected gradient
+(``StencilSearch.opt_timing_gtol``; the polish's pinned rounds too), so that two CPU code paths
+end a round at the same point and the next round does not set off toward another minimum (the
+cover's candidates agree to six digits with and without AVX2).  What is not yet a function of
+the geometry is the dense resampling of a coarse or sliver-ridden user mesh
+(:func:`~pysolver.design.stencil.remesh.resample_dense`, pymeshlab's isotropic remeshing): a
+1e-7 jitter of its input gives another dense mesh, and the stencils drawn on it differ by a
+few per cent (``docs/results.md``, "One surface, one shell").
 
 1. **Secant steps** on the mean log 3D scaling over the seeds (about ``sqrt(N)``) toward 1,
    from the paper's estimate ``0.38 A / 7^2`` times ``StencilSearch.count_start``, every
