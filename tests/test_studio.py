@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import http.client
 import json
+import os
 import shutil
 import socket
 import threading
@@ -1378,3 +1379,22 @@ def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, s
               == "shown" and "painted in the editor" in d.find_element(
                   "css selector", "#compare h4").text, "the painted region's comparison")
         assert d.find_element("id", "compare").get_attribute("data-region") == str(mine.sum())
+
+
+def test_the_target_is_made_again_when_the_refinement_record_changes(small_build, tmp_path):
+    """The target's per-cell sd comes from sim/refine.json (the refinement writes it after
+    cells.csv): a target kept from before it was written would show the old sds."""
+    from pysolver.studio.builds import Build
+    from pysolver.tables import PREDICTED_SD
+
+    b = Build(_copy(small_build, tmp_path))
+    t = b.target()
+    rec_path = b.folder / "sim" / "refine.json"
+    rec = json.loads(rec_path.read_text())
+    n = len(rec[PREDICTED_SD])
+    rec[PREDICTED_SD] = [7.25] * n
+    rec_path.write_text(json.dumps(rec))
+    tmp = b.folder / "temporal.json"   # the refinement's record is the later one
+    os.utime(rec_path, ns=(tmp.stat().st_atime_ns, tmp.stat().st_mtime_ns + 10 ** 9))
+    assert t["programmed"]["t_sd"] != [7.25] * n
+    assert b.target()["programmed"]["t_sd"] == [7.25] * n

@@ -50,8 +50,9 @@ class Stale(MorphshellError):
 
 
 _TARGET_FILES = ("stencil.obj", "time_landscape.csv", "cells.csv", STAGE_FILE, "sim/frames.npz",
-                 LANDSCAPE_SOURCE)
-"""The files :meth:`Build.target` is made from."""
+                 "sim/refine.json", LANDSCAPE_SOURCE)
+"""The files :meth:`Build.target` is made from (``sim/refine.json``: the cells' predicted
+timing sd, :func:`pysolver.tables.predicted_timing_sd`)."""
 
 
 def _stamps(folder: Path, names) -> tuple:
