@@ -1398,3 +1398,25 @@ def test_the_target_is_made_again_when_the_refinement_record_changes(small_build
     os.utime(rec_path, ns=(tmp.stat().st_atime_ns, tmp.stat().st_mtime_ns + 10 ** 9))
     assert t["programmed"]["t_sd"] != [7.25] * n
     assert b.target()["programmed"]["t_sd"] == [7.25] * n
+
+
+def test_a_stage_expected_to_take_no_time_moves_the_bar_without_dividing_by_zero():
+    """expected_seconds can expect 0 s of render (every part from the cache, and the build's
+    render time all of it OpenSCAD's): the progress update divided by it, and the
+    ZeroDivisionError in the reading loop marked the job failed while its child ran on."""
+    from pysolver.studio.jobs import Job, expected_seconds
+
+    defaults = {"start": 4.0, "program": 3.0, "render": 40.0, "report": 10.0}
+    summ = {"timings_s": {"program": 2.0, "render": 96.0, "report": 11.0},
+            "stages": {"render": {"parts": 700, "rendered": 700, "cached": 0,
+                                  "timings_s": {"openscad": 96.0, "total": 96.0}}}}
+    expect = expected_seconds(summ, defaults, 0.0)
+    assert expect["render"] == 0.0
+    job = Job()
+    plan = ["start", "program", "render", "report"]
+    job.state.update(state="running", progress=0.0, log=[])
+    job._progress(plan, expect, (9.0, {"start": 4.0, "program": 2.0}), "render", 0.0, 0.5,
+                  "[render] regular: 350/700")
+    s = job.snapshot()
+    assert s["state"] == "running" and s["stage"] == "render"
+    assert s["progress"] == pytest.approx(9.0 / sum(expect[k] for k in plan), abs=1e-3)

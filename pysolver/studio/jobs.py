@@ -152,8 +152,10 @@ class Job:
             if stage is not None:
                 spent = now - t_stage
                 # within a stage: its own count when it prints one, else the time it has
-                # taken of the time it took in the build (never past 95 % on time alone)
-                f = max(frac, min(spent / expect[stage], 0.95))
+                # taken of the time it took in the build (never past 95 % on time alone); a
+                # stage expected to take no time (a render whose parts all come from the
+                # cache, its fixed work rounded away) moves on its own count only
+                f = max(frac, min(spent / expect[stage], 0.95)) if expect[stage] > 0 else frac
                 p = (done_s + f * expect[stage]) / total
                 self.state["progress"] = round(max(self.state["progress"], min(p, 0.999)), 4)
                 self.state["stage"] = stage
