@@ -1420,3 +1420,34 @@ def test_a_stage_expected_to_take_no_time_moves_the_bar_without_dividing_by_zero
     s = job.snapshot()
     assert s["state"] == "running" and s["stage"] == "render"
     assert s["progress"] == pytest.approx(9.0 / sum(expect[k] for k in plan), abs=1e-3)
+
+
+def test_a_job_that_fails_while_its_child_runs_stops_the_child(monkeypatch):
+    """An unforeseen error in the loop reading a Run's progress (a bug) marks the job failed:
+    its child, which would go on building behind a job that says it stopped (and a second
+    Run could start beside it), is stopped too."""
+    import subprocess
+
+    from pysolver.core.child import python_argv
+    from pysolver.studio import jobs
+
+    started = []
+
+    class Recorded(subprocess.Popen):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            started.append(self)
+
+    def broken(raw):
+        raise RuntimeError("a bug in the progress reader")
+
+    monkeypatch.setattr(jobs, "python_argv", lambda module: python_argv(
+        code="import sys, time\nsys.stdin.read()\nprint('{}', flush=True)\ntime.sleep(600)\n"))
+    monkeypatch.setattr(jobs, "progress_event", broken)
+    monkeypatch.setattr(jobs.subprocess, "Popen", Recorded)
+    job = jobs.Job()
+    job.state.update(state="running", log=[])
+    job._run(None, "{}", ["start"], {"start": 4.0})
+    s = job.snapshot()
+    assert s["state"] == "error" and "a bug in the progress reader" in s["error"]
+    assert len(started) == 1 and started[0].poll() is not None   # stopped, not left running

@@ -87,12 +87,12 @@ class Job:
         stage, t_stage, frac = "start", time.time(), 0.0
         tail: list[str] = []
         t0 = time.time()
+        proc, ticker, timed_out = None, threading.Event(), threading.Event()
         try:
             proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
             drain = threading.Thread(target=_keep_tail, args=(proc.stderr, tail), daemon=True)
             drain.start()
-            ticker, timed_out = threading.Event(), threading.Event()
 
             def tick():   # the bar moves between progress lines too (time / expected time)
                 while not ticker.wait(0.5):
@@ -140,7 +140,12 @@ class Job:
             self._set(state="done", progress=1.0, eta_s=0.0, message="done", stage=None,
                       seconds=round(time.time() - t0, 1))
         except Exception as e:  # noqa: BLE001 - reported to the browser, not raised
+            if proc is not None and proc.poll() is None:   # no child left building behind
+                proc.kill()                                 # a job that says it failed
+                proc.wait()
             self._set(state="error", error=str(e), message="failed", eta_s=None)
+        finally:
+            ticker.set()
 
     def _progress(self, plan, expect, done, stage, t_stage, frac, line):
         done_s, actual = done
