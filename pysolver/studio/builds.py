@@ -154,9 +154,10 @@ class Build:
         with self.lock:
             if self._prefetch is not None and self._prefetch.is_alive():
                 return
-            self._prefetch = threading.Thread(target=_quietly, args=(self.viewer_body, True),
-                                              daemon=True, name=f"viewer-{self.folder.name}")
-            self._prefetch.start()
+            t = threading.Thread(target=_quietly, args=(self.viewer_body, True), daemon=True,
+                                 name=f"viewer-{self.folder.name}")
+            t.start()   # published started: whoever sees it may join it
+            self._prefetch = t
 
     def warm(self) -> None:
         """Make what the page asks for, in the order it asks: the target (the editor's data
