@@ -20,13 +20,14 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pysolver.core.records import json_text  # noqa: E402
+from pysolver.core.writes import atomic_write_text  # noqa: E402
 from pysolver.studio.shots import have_browser, opened_studio  # noqa: E402
 
 TIMINGS = """
@@ -69,7 +70,7 @@ def main() -> int:
               f"viewer {q.get('/api/build/0/viewer')} (start, first byte, end; ms)", flush=True)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "first_paint.json").write_text(json.dumps(
+    atomic_write_text(out / "first_paint.json", json_text(
         {"build": str(build), "warm": not a.cold, "loads": loads}, indent=1))
     return 0
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import tables
+from .core.inputs import read_input
 from .core.progress import say
 from .core.records import json_text
 from .core.writes import atomic_write_text
@@ -129,6 +130,30 @@ def refine_design(design_dir, *, iterations: int = 1, material=None, membrane=No
     return result
 
 
+def program_record(folder) -> dict:
+    """The program stage's record (``temporal.json``) of the design folder ``folder`` as a
+    dict; ``{}`` when the stage wrote none (a folder programmed elsewhere).
+
+    Raises
+    ------
+    InputError
+        The file is there but unreadable, not JSON or not a JSON object.
+    """
+    path = Path(folder) / STAGE_FILE
+    if not path.is_file():
+        return {}
+    data = read_input(path, "program record")   # InputError: unreadable
+    try:
+        rec = json.loads(data)
+    except ValueError:   # not UTF-8 or not JSON
+        rec = None
+    if not isinstance(rec, dict):
+        raise InputError(f"{path} is damaged (not a JSON object)",
+                         fix="run the program stage again: morphshell program "
+                             f"{Path(folder)}")
+    return rec
+
+
 class _Rounds:
     """The state of one refinement: the cells, the rounds so far and their thicknesses.
 
@@ -170,19 +195,20 @@ class _Rounds:
     def _robust(self) -> bool:
         """Whether the program stage programmed the layers against the thickness scatter
         (``temporal.json`` → ``summary.robust``): the rounds are programmed the same way."""
-        rec = self.folder / STAGE_FILE
-        if rec.is_file():
-            return bool(json.loads(rec.read_text()).get("summary", {}).get("robust", False))
-        return False
+        summary = program_record(self.folder).get("summary", {})
+        return bool(isinstance(summary, dict) and summary.get("robust", False))
 
     def _membrane_factor(self, n: int):
         """The program stage's per-cell F_mem factor (``temporal.json``), or None."""
-        rec = self.folder / STAGE_FILE
-        if rec.is_file():
-            f = json.loads(rec.read_text()).get("membrane_factor")
-            if f is not None and len(f) == n:
-                return np.asarray(f, float)
-        return None
+        f = program_record(self.folder).get("membrane_factor")
+        if not isinstance(f, list) or len(f) != n:
+            return None
+        factor = tables.record_numbers(f, n)
+        if factor is None:
+            raise InputError(f"{self.folder / STAGE_FILE}: membrane_factor has an entry that "
+                             "is not a number", fix="run the program stage again: morphshell "
+                                                    f"program {self.folder}")
+        return factor
 
     def _simulated(self):
         """Completion times (s, NaN = never) and frame times (s) of the frames now in the

@@ -590,10 +590,22 @@ def predicted_timing_sd(folder, n_cells: int):
     if all(p.is_file() for p in paths) and paths[0].stat().st_mtime < paths[1].stat().st_mtime:
         paths = paths[1:]  # programmed again after the refinement: its record is stale
     for path in paths:
-        sd = (read_record(path) or {}).get(PREDICTED_SD)
-        if isinstance(sd, list) and len(sd) == n_cells:
-            return np.array([np.nan if v is None else v for v in sd], float)
+        sd = record_numbers((read_record(path) or {}).get(PREDICTED_SD), n_cells)
+        if sd is not None:
+            return sd
     return None
+
+
+def record_numbers(values, n: int):
+    """A per-cell list read from a JSON record as a float array (n,), ``null`` as NaN (how
+    :func:`pysolver.core.records.json_text` writes a non-finite number); None when
+    ``values`` is not a list of ``n`` entries that are each a number or ``null`` (a record
+    is read, never trusted: a string, a bool or a nested list is not taken for a number)."""
+    if not isinstance(values, list) or len(values) != n or any(
+            v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)))
+            for v in values):
+        return None
+    return np.array([np.nan if v is None else v for v in values], float)
 
 
 def read_unit_cell(folder):
@@ -834,4 +846,5 @@ __all__ = ["SCHEMAS", "FILENAMES", "write_table", "read_table", "read_bases", "r
            "read_stencil", "Design", "read_design", "check_design", "round_sig9",
            "design_unit_cell", "read_unit_cell", "read_record", "MODEL_FILE", "MODEL_ARRAYS",
            "write_model", "read_model", "model_inputs_hash", "check_thickness", "TABLE_FILES",
-           "tables_sha256", "PARTS_RECORD", "LANDSCAPE_SOURCE"]
+           "tables_sha256", "PARTS_RECORD", "LANDSCAPE_SOURCE", "PREDICTED_SD",
+           "predicted_timing_sd", "record_numbers"]

@@ -23,6 +23,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pysolver.cli import main
@@ -320,3 +321,40 @@ def test_unknown_keys_inside_keyframes_and_edits_are_refused():
         parse_keyframes({"keyframes": [{"vertex": 1, "time": 30, "colour": 1}]}, 4)
     with pytest.raises(InputError, match=r"unknown key\(s\) \['__proto__'\]"):
         parse_landscape({"landscape": [30.0] * 4, "__proto__": {}}, 4)
+
+
+@pytest.mark.parametrize("bad", [["1.0", 2.0], [True, 2.0], [[1.0], 2.0], "1,2", [1.0]])
+def test_a_records_per_cell_list_is_read_never_trusted(bad):
+    """A per-cell list in a record (temporal.json, sim/refine.json) is taken only when it is
+    a list of n numbers or nulls: a string, a bool, a nested list or a wrong length is no
+    sd (None), never a number (np.array would turn "1.0" into 1.0, True into 1.0)."""
+    from pysolver.tables import record_numbers
+    assert record_numbers(bad, 2) is None
+    got = record_numbers([0.5, None], 2)
+    assert got[0] == 0.5 and np.isnan(got[1])
+
+
+def test_predicted_timing_sd_skips_a_bad_record(tmp_path):
+    """A refine record with a bad sd list falls back to the program stage's."""
+    import json
+
+    from pysolver.tables import PREDICTED_SD, predicted_timing_sd
+    (tmp_path / "sim").mkdir()
+    (tmp_path / "temporal.json").write_text(json.dumps({PREDICTED_SD: [1.5, None]}))
+    (tmp_path / "sim" / "refine.json").write_text(json.dumps({PREDICTED_SD: ["x", 2.0]}))
+    sd = predicted_timing_sd(tmp_path, 2)
+    assert sd[0] == 1.5 and np.isnan(sd[1])
+    (tmp_path / "temporal.json").write_text(json.dumps({PREDICTED_SD: [False, 1.0]}))
+    assert predicted_timing_sd(tmp_path, 2) is None
+
+
+@pytest.mark.parametrize("text", ["not json", "[1, 2]", "\xff"])
+def test_a_damaged_program_record_is_named_for_the_refinement(tmp_path, text):
+    """refine reads temporal.json (membrane factors, robust): a damaged one is bad input
+    (InputError, exit 2) naming the file and the fix, not an internal error."""
+    from pysolver.refine import program_record
+    assert program_record(tmp_path) == {}
+    (tmp_path / "temporal.json").write_text(text, encoding="latin-1")
+    with pytest.raises(InputError, match="temporal.json.*damaged") as e:
+        program_record(tmp_path)
+    assert "program" in e.value.fix

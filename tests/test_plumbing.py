@@ -111,7 +111,7 @@ def test_the_studio_reads_the_progress_events(capsys):
     """The studio's progress bar reads structured events (issue #46 item 4): the JSON lines
     :func:`pysolver.core.progress.emit_events` writes beside the text lines (the build's stage
     starts and the ``k/n`` counts of the stages), never the text itself
-    (:func:`pysolver.studio.server.progress_event`); anything else on the stream is not an
+    (:func:`pysolver.studio.jobs.progress_event`); anything else on the stream is not an
     event."""
     import io
 

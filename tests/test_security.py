@@ -483,6 +483,23 @@ def test_the_studio_page_drops_the_token_from_its_address():
     assert 'history.replaceState(null, "", location.pathname + location.search)' in body
 
 
+
+def test_the_studio_page_puts_no_text_of_a_build_into_its_html():
+    """A file name in a build's stl/ is any name the file system allows (``<img src=x
+    onerror=...>.stl``: the parts list shows every ``*.stl`` of a fresh build): the page sets
+    text with textContent, and innerHTML only to clear an element, so no name, message or
+    figure of a build is ever parsed as HTML (script in the page would hold its token)."""
+    import re
+
+    from pysolver.studio.server import STATIC_DIR
+
+    for name in ("boot.js", "studio.js"):
+        js = (STATIC_DIR / name).read_text()
+        sets = re.findall(r"\.(?:innerHTML|outerHTML)\s*=\s*([^;]*);", js)
+        assert all(v.strip() == '""' for v in sets), (name, [v for v in sets if v != '""'])
+        assert not re.search(r"insertAdjacentHTML|document\.write", js), name
+
+
 # ------------------------------------------------------------------------------ full disk
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import http.client
 import json
+import os
 import shutil
 import socket
 import threading
@@ -1378,3 +1379,75 @@ def test_a_run_into_a_variant_shows_its_verdict_and_keeps_the_original(server, s
               == "shown" and "painted in the editor" in d.find_element(
                   "css selector", "#compare h4").text, "the painted region's comparison")
         assert d.find_element("id", "compare").get_attribute("data-region") == str(mine.sum())
+
+
+def test_the_target_is_made_again_when_the_refinement_record_changes(small_build, tmp_path):
+    """The target's per-cell sd comes from sim/refine.json (the refinement writes it after
+    cells.csv): a target kept from before it was written would show the old sds."""
+    from pysolver.studio.builds import Build
+    from pysolver.tables import PREDICTED_SD
+
+    b = Build(_copy(small_build, tmp_path))
+    t = b.target()
+    rec_path = b.folder / "sim" / "refine.json"
+    rec = json.loads(rec_path.read_text())
+    n = len(rec[PREDICTED_SD])
+    rec[PREDICTED_SD] = [7.25] * n
+    rec_path.write_text(json.dumps(rec))
+    tmp = b.folder / "temporal.json"   # the refinement's record is the later one
+    os.utime(rec_path, ns=(tmp.stat().st_atime_ns, tmp.stat().st_mtime_ns + 10 ** 9))
+    assert t["programmed"]["t_sd"] != [7.25] * n
+    assert b.target()["programmed"]["t_sd"] == [7.25] * n
+
+
+def test_a_stage_expected_to_take_no_time_moves_the_bar_without_dividing_by_zero():
+    """expected_seconds can expect 0 s of render (every part from the cache, and the build's
+    render time all of it OpenSCAD's): the progress update divided by it, and the
+    ZeroDivisionError in the reading loop marked the job failed while its child ran on."""
+    from pysolver.studio.jobs import Job, expected_seconds
+
+    defaults = {"start": 4.0, "program": 3.0, "render": 40.0, "report": 10.0}
+    summ = {"timings_s": {"program": 2.0, "render": 96.0, "report": 11.0},
+            "stages": {"render": {"parts": 700, "rendered": 700, "cached": 0,
+                                  "timings_s": {"openscad": 96.0, "total": 96.0}}}}
+    expect = expected_seconds(summ, defaults, 0.0)
+    assert expect["render"] == 0.0
+    job = Job()
+    plan = ["start", "program", "render", "report"]
+    job.state.update(state="running", progress=0.0, log=[])
+    job._progress(plan, expect, (9.0, {"start": 4.0, "program": 2.0}), "render", 0.0, 0.5,
+                  "[render] regular: 350/700")
+    s = job.snapshot()
+    assert s["state"] == "running" and s["stage"] == "render"
+    assert s["progress"] == pytest.approx(9.0 / sum(expect[k] for k in plan), abs=1e-3)
+
+
+def test_a_job_that_fails_while_its_child_runs_stops_the_child(monkeypatch):
+    """An unforeseen error in the loop reading a Run's progress (a bug) marks the job failed:
+    its child, which would go on building behind a job that says it stopped (and a second
+    Run could start beside it), is stopped too."""
+    import subprocess
+
+    from pysolver.core.child import python_argv
+    from pysolver.studio import jobs
+
+    started = []
+
+    class Recorded(subprocess.Popen):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            started.append(self)
+
+    def broken(raw):
+        raise RuntimeError("a bug in the progress reader")
+
+    monkeypatch.setattr(jobs, "python_argv", lambda module: python_argv(
+        code="import sys, time\nsys.stdin.read()\nprint('{}', flush=True)\ntime.sleep(600)\n"))
+    monkeypatch.setattr(jobs, "progress_event", broken)
+    monkeypatch.setattr(jobs.subprocess, "Popen", Recorded)
+    job = jobs.Job()
+    job.state.update(state="running", log=[])
+    job._run(None, "{}", ["start"], {"start": 4.0})
+    s = job.snapshot()
+    assert s["state"] == "error" and "a bug in the progress reader" in s["error"]
+    assert len(started) == 1 and started[0].poll() is not None   # stopped, not left running

@@ -87,12 +87,12 @@ class Job:
         stage, t_stage, frac = "start", time.time(), 0.0
         tail: list[str] = []
         t0 = time.time()
+        proc, ticker, timed_out = None, threading.Event(), threading.Event()
         try:
             proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
             drain = threading.Thread(target=_keep_tail, args=(proc.stderr, tail), daemon=True)
             drain.start()
-            ticker, timed_out = threading.Event(), threading.Event()
 
             def tick():   # the bar moves between progress lines too (time / expected time)
                 while not ticker.wait(0.5):
@@ -140,7 +140,12 @@ class Job:
             self._set(state="done", progress=1.0, eta_s=0.0, message="done", stage=None,
                       seconds=round(time.time() - t0, 1))
         except Exception as e:  # noqa: BLE001 - reported to the browser, not raised
+            if proc is not None and proc.poll() is None:   # no child left building behind
+                proc.kill()                                 # a job that says it failed
+                proc.wait()
             self._set(state="error", error=str(e), message="failed", eta_s=None)
+        finally:
+            ticker.set()
 
     def _progress(self, plan, expect, done, stage, t_stage, frac, line):
         done_s, actual = done
@@ -152,8 +157,10 @@ class Job:
             if stage is not None:
                 spent = now - t_stage
                 # within a stage: its own count when it prints one, else the time it has
-                # taken of the time it took in the build (never past 95 % on time alone)
-                f = max(frac, min(spent / expect[stage], 0.95))
+                # taken of the time it took in the build (never past 95 % on time alone); a
+                # stage expected to take no time (a render whose parts all come from the
+                # cache, its fixed work rounded away) moves on its own count only
+                f = max(frac, min(spent / expect[stage], 0.95)) if expect[stage] > 0 else frac
                 p = (done_s + f * expect[stage]) / total
                 self.state["progress"] = round(max(self.state["progress"], min(p, 0.999)), 4)
                 self.state["stage"] = stage

@@ -841,7 +841,7 @@
 
   function previewPart(b, name) {
     var box = $("part-view");
-    box.innerHTML = "loading " + name + " ...";
+    box.textContent = "loading " + name + " ...";
     return fetch("/api/build/" + b.id + "/stl/" + name, {headers: headers(false)}).then(function (r) {
       if (!r.ok) return r.json().then(function (j) { throw new Error(j.error); });
       return r.arrayBuffer();
