@@ -517,6 +517,8 @@ def test_a_studio_run_on_a_full_disk_names_it(monkeypatch, capsys):
     monkeypatch.setattr("sys.stdin", io.StringIO(json.dumps(
         {"folder": "x", "landscape": [1.0], "source": {}})))
     assert rerun.main() == 2
+    from pysolver.core import progress
+    assert progress._EVENTS is None   # (in-process, the run leaves no event stream behind)
     err = capsys.readouterr().err
     assert "Traceback" not in err and "internal error" not in err
     assert "error: no space left on the device (the disk is full) (/full/disk/cells.csv)" in err

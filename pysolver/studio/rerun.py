@@ -25,6 +25,13 @@ from ..errors import EXIT_BAD_INPUT, EXIT_INTERNAL, MorphshellError, environment
 def main() -> int:
     emit_events(sys.stdout)   # the studio reads the progress as JSON lines on stdout
     try:
+        return _run()
+    finally:
+        emit_events(None)     # (called in-process, it must not leave its stream behind)
+
+
+def _run() -> int:
+    try:
         req = json.loads(sys.stdin.read())
         summary = rebuild(req["folder"], req["landscape"], source=req.get("source"),
                           out=req.get("out"))
