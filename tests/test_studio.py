@@ -208,6 +208,21 @@ def test_every_api_call_needs_the_token(server):
     assert _request(server, "GET", "/api/build/0/report" + q, token=False)[0] == 403
 
 
+def test_a_build_s_report_runs_sandboxed(server):
+    """A report comes from a build folder, maybe someone else's: served with a sandbox policy,
+    its scripts run in an origin of their own (no session, no reading the studio's pages)."""
+    from pysolver.studio.server import TOKEN_HEADER
+
+    c = http.client.HTTPConnection("127.0.0.1", server.server_address[1], timeout=60)
+    c.request("GET", "/api/build/0/report", headers={TOKEN_HEADER: server.token})
+    r = c.getresponse()
+    r.read()
+    c.close()
+    assert r.status == 200
+    policy = [p.strip() for p in (r.getheader("Content-Security-Policy") or "").split(";")]
+    assert "sandbox allow-scripts" in policy   # (no allow-same-origin)
+
+
 def test_the_session_cookie_opens_the_api_from_the_studios_origin_only(server):
     """Issue #43 (history): the session cookie ``POST /session`` sets is a token like the
     header; without it, or with a wrong one, 403; a state-changing request with it still

@@ -319,7 +319,11 @@ class Handler(BaseHTTPRequestHandler):
                 p = b.folder / "report" / "index.html"
                 if not p.is_file():
                     raise _NotFound("this build has no report yet")
-                return self._send(HTTPStatus.OK, p.read_bytes(), _TYPES[".html"])
+                # (a report comes from a build folder, maybe someone else's: its scripts run
+                # in an origin of their own, which can neither read the studio's pages nor
+                # send its session)
+                return self._send(HTTPStatus.OK, p.read_bytes(), _TYPES[".html"], extra=[
+                    ("Content-Security-Policy", "sandbox allow-scripts")])
             if len(parts) == 5 and what == "stl":
                 p = b.stl(parts[4])
                 return self._send(HTTPStatus.OK, p.read_bytes(), "model/stl", extra=[
