@@ -171,8 +171,9 @@ class _Rounds:
         c = self.cells
         self.closing = closing_lengths(folder, c, physics)  # as the simulator closes them
         self.t_star = c["t_star_s"].copy()
-        self.factor = self._membrane_factor(len(self.t_star))
-        self.robust = self._robust()
+        record = program_record(folder)   # (read once: both settings come from it)
+        self.factor = self._membrane_factor(record, len(self.t_star))
+        self.robust = self._robust(record)
         self.clamped = c["clamped"].astype(bool)
         self.lo = np.where(np.isfinite(c["t_min_s"]), c["t_min_s"], 0.0)
         self.hi = np.where(np.isfinite(c["t_max_s"]), c["t_max_s"], time_limit(mat))
@@ -192,15 +193,18 @@ class _Rounds:
         say("refine", folder.name, f"before refinement rms {h['rms_s']:.2f} s, spearman "
             f"{h['spearman']:.3f}, {h['n_never_due']} never complete", progress)
 
-    def _robust(self) -> bool:
+    @staticmethod
+    def _robust(record: dict) -> bool:
         """Whether the program stage programmed the layers against the thickness scatter
-        (``temporal.json`` → ``summary.robust``): the rounds are programmed the same way."""
-        summary = program_record(self.folder).get("summary", {})
+        (its ``record``, ``temporal.json`` → ``summary.robust``): the rounds are programmed
+        the same way."""
+        summary = record.get("summary", {})
         return bool(isinstance(summary, dict) and summary.get("robust", False))
 
-    def _membrane_factor(self, n: int):
-        """The program stage's per-cell F_mem factor (``temporal.json``), or None."""
-        f = program_record(self.folder).get("membrane_factor")
+    def _membrane_factor(self, record: dict, n: int):
+        """The program stage's per-cell F_mem factor (its ``record``, ``temporal.json``), or
+        None."""
+        f = record.get("membrane_factor")
         if not isinstance(f, list) or len(f) != n:
             return None
         factor = tables.record_numbers(f, n)
