@@ -21,7 +21,8 @@ from scipy.spatial.transform import Rotation
 
 from pysolver.design import run_design, surfaces
 from pysolver.design.flatten import cetm
-from pysolver.design.stencil.remesh import FlatDomain, flat_frame
+from pysolver.design.stencil.remesh import (FlatDomain, flat_frame, remove_ears,
+                                            resample_dense, surface_area)
 from pysolver.geometry import canonical_order, signed_areas_2d
 from pysolver.params import STENCIL
 
@@ -115,6 +116,30 @@ def test_a_stencil_moves_with_its_target(dome):
         Q, H = b.stencil(n, seed=seed, inset=inset)
         assert np.array_equal(G, H)
         assert np.abs(P - Q).max() < 1e-6
+
+
+def test_the_dense_resampling_is_a_continuous_function_of_the_surface(dome):
+    """A coarse target's dense resampling (midpoint subdivision) keeps its surface (the same
+    area, to round-off), moves with it rigidly (within 1e-9 mm), and a jitter of 1e-7 of its
+    size moves no dense point by more than the largest input point moved: the same mesh, no
+    split, collapse or flip decided by a threshold."""
+    V, F = dome
+    c = V[F].mean(axis=1)
+    F = F[np.linalg.norm(c[:, :2] - c[:, :2].mean(axis=0), axis=1) < 15.0]  # a coarse cap
+    used = np.unique(F)
+    V, F = V[used], np.searchsorted(used, F)
+    Vd, Fd = resample_dense(V, F, STENCIL.dense_faces)
+    Ve, Fe = remove_ears(V, F)  # (triangles hanging by one edge are dropped first)
+    passes = round(np.log(STENCIL.dense_faces / len(Fe)) / np.log(4.0))
+    assert passes >= 1 and len(Fd) == 4**passes * len(Fe)
+    assert surface_area(Vd, Fd) == pytest.approx(surface_area(Ve, Fe), rel=1e-12)
+    R = Rotation.from_rotvec([0.4, -1.1, 0.8]).as_matrix()
+    Vr, Fr = resample_dense(V @ R.T + [7.0, 1.0, -3.0], F, STENCIL.dense_faces)
+    assert np.array_equal(Fr, Fd) and np.abs(Vr - (Vd @ R.T + [7.0, 1.0, -3.0])).max() < 1e-9
+    dV = 1e-7 * np.ptp(V, axis=0).max() * np.random.default_rng(3).standard_normal(V.shape)
+    Vj, Fj = resample_dense(V + dV, F, STENCIL.dense_faces)
+    assert np.array_equal(Fj, Fd)
+    assert np.abs(Vj - Vd).max() <= np.abs(dV).max() * (1 + 1e-9)
 
 
 # -- the whole design stage ------------------------------------------------------------------

@@ -29,15 +29,22 @@ class StencilRemesh:
     """
 
     dense_faces: int = 6000
-    """int: User meshes are resampled to about this many well-shaped faces before flattening."""
+    """int: A user mesh that needs it (``dense_min_angle_deg``, ``dense_min_faces``) is
+    subdivided at its edges' midpoints to about this many faces (log scale) before flattening."""
     dense_min_angle_deg: float = 15.0
     """float, deg: An input mesh whose smallest triangle angle is below this is resampled (dense
-    remeshing) before flattening."""
+    subdivision) before flattening."""
     dense_min_faces: int = 2000
     """int: An input mesh with fewer faces than this is resampled before flattening."""
     remesh_surface_dist: float = 0.05
     """float: Largest distance of the isotropic remeshing's surface from the input, relative to
     the target edge length."""
+    frame_tie_rtol: float = 1e-5
+    """float: Directions of the flat layout's frame whose third moments agree within this
+    (relative) are a tie, a symmetry of the shape: the CVT's starts are tried in each
+    (:func:`pysolver.design.stencil.remesh.frame_angles`).  Far above the last bits (the
+    mirror-symmetric peer stand's two directions: 8e-14 apart) and under what a jitter of
+    1e-7 of the size moves, far below a shape's real asymmetry (the petal's: 6e-4)."""
     min_boundary_points: int = 6
     """int: Fewest points on the stencil's rim."""
     lloyd_iterations: int = 40
