@@ -38,6 +38,21 @@ class Programming:
         width fraction keeps the allowance from buying a few seconds of width with cells.
         0.10 is the project's timing bar for a programmed shell (at most 10 % clamped; the
         reference's cover with its own landscape: 9.5 %).
+    fit_order_spearman : float
+        A shape's own landscape that clamps at most ``fit_clamped_fraction`` is still
+        stretched (order kept, about the middle of its cells' times) when its order would
+        not survive a print's own timing scatter: when its cells' times spread (sd over
+        cells) less than ``k`` times the RMS over cells of the completion-time sd that the
+        per-bracket thickness scatter gives them (:func:`pysolver.temporal.cell_time.timing_sd`).
+        ``k`` is the spread over noise at which two jointly normal variables have the rank
+        correlation ``fit_order_spearman``: ``r = 2 sin(pi rho_s / 6)``,
+        ``k = r / sqrt(1 - r^2)`` (2.17 for 0.9).  The stretch is the narrowest that reaches
+        ``k`` (:func:`pysolver.temporal.program._spreading_map`).  0.9 is the project's
+        timing-order bar (issue #42: Spearman >= 0.9).  On dome, whose 44-68 s landscape
+        every cell reaches once a cell is timed by its slower layer, the cells' times spread
+        5.8 s against 6.3 s of print scatter (Spearman 0.61 simulated as given): stretched
+        onto 28-82 s; spiral (12.4 s against 6.1 s) onto 34-81 s instead of 35-79 s; petal
+        (15.6 s against 5.2 s) kept.
     bisection_steps : int
         Bisection steps of the thickness and completion-time solves (50 halvings of the
         0.30-0.65 mm range or the model's 120 s: 3e-16 mm and 1e-13 s, the
@@ -77,6 +92,7 @@ class Programming:
     max_clamped_fraction: float = 0.5
     fit_clamped_fraction: float = 0.10
     fit_width_fraction: float = 0.9
+    fit_order_spearman: float = 0.9
     bisection_steps: int = 50
     refine_damping: float = 0.8
     refine_open_layer_mm: float = 0.1

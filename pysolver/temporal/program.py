@@ -35,10 +35,15 @@ that this happens at ``t*`` (SI eq. 15)::
 Feasibility.  Thickness is printable in ``[0.30, 0.65]`` mm.  The thinnest bracket
 gives the earliest completion time ``t_min`` of a layer, the thickest the latest
 ``t_max`` (found by bisection in time on the bracket model, within the model's time
-range, 0-120 s); a cell's achievable range is the intersection of its two layers'
-ranges.  A cell whose ``t*`` is outside is **clamped**: both layers are programmed
-for the nearest achievable time, the cell is flagged in ``cells.csv`` (``clamped``)
-and listed in the summary.  If more than half of the cells are clamped the
+range, 0-120 s).  A cell completes when its later layer closes, so its achievable range
+runs from the later of its layers' earliest times to the later of their latest times
+(:func:`~pysolver.temporal.cell_time.time_ranges`): a layer that cannot be as slow as
+``t*`` gets its thickest bracket, closes early and waits at its bumpers while the other
+layer times the cell.  (The paper's intersection of the two ranges clamped strongly folded
+rim cells, whose little-compressed layer closes within 13-68 s even at 0.65 mm: 17 of the
+petal's 21 clamped cells at a755258.)  A cell whose ``t*`` is outside is **clamped**: both layers
+are programmed for the nearest achievable time, the cell is flagged in ``cells.csv``
+(``clamped``) and listed in the summary.  If more than half of the cells are clamped the
 landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
@@ -509,7 +514,9 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     significant digits: what a rerun of the folder programmes, bit for bit).  A landscape
     that already clamps at most ``fit_clamped_fraction`` (and is at least ``min_span`` wide,
     s) is kept as given: its times are the shape's, and a map would trade them for a few
-    cells (``Programming.fit_clamped_fraction``).
+    cells (``Programming.fit_clamped_fraction``) -- unless its order would not survive a
+    print's timing scatter (:func:`_order_shows`): then it is mapped when the map clamps at
+    most ``fit_clamped_fraction``.
 
     Parameters
     ----------
@@ -524,7 +531,11 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     m = p.ach.get("suggested_map")
     within_bar = (p.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact
                   and np.ptp(land) >= min_span - TOL.time)
-    if m is None or m["fraction_clamped"] >= p.frac or within_bar:
+    if within_bar and not _order_shows(p):
+        m = _spreading_map(cells, land, p, models, min_span)
+    elif m is None or m["fraction_clamped"] >= p.frac or within_bar:
+        return land, p, None
+    if m is None:
         return land, p, None
     t_old = (float(land.min()), float(land.max()))
     write_landscape(design_dir, _mapped_landscape(land, m))
@@ -540,6 +551,51 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
             f"{SEQUENCING.min_separation_s:g} s apart) " if min_span else "")
          + f"({100 * p.frac:.0f} % of cells clamped)", progress)
     return land, p, rescaled
+
+
+def _spreading_map(cells, land, p, models, min_span: float, rounds: int = 3):
+    """The narrowest map (order kept, about the middle of the cells' times) under which the
+    order of a landscape shows through a print's timing scatter (:func:`_order_shows`), as a
+    map of :func:`_achievable_summary`; None when no such map clamps at most
+    ``Programming.fit_clamped_fraction``.
+
+    The times are stretched by ``f = k sd / sd(t*)`` about the middle of ``[min t*, max
+    t*]`` (shifted to stay within 0 s and the model's time range); ``sd`` (the RMS predicted
+    sd) is that of the stretched programme, so ``f`` is re-estimated ``rounds`` times."""
+    t0, t1 = float(p.t_star.min()), float(p.t_star.max())
+    mid, spread, q, m = 0.5 * (t0 + t1), float(np.std(p.t_star)), p, None
+    if spread <= 0.0:
+        return None
+    for _ in range(rounds):
+        f = max(1.0, _order_spread(q) / spread)
+        a, b = mid + f * (t0 - mid), mid + f * (t1 - mid)
+        shift = max(0.0, -a) - max(0.0, b - p.t_limit)
+        m = {"t0": t0, "t1": t1, "a": a + shift, "b": b + shift, "min_span_s": min_span}
+        q = Programme.solve(cells, _mapped_landscape(land, m), models, None, min_span)
+    ok = q.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact
+    return dict(m, fraction_clamped=q.frac) if ok else None
+
+
+def _order_spread(p) -> float:
+    """The sd over cells (s) that the programme ``p``'s times need for their order to show
+    through a print's timing scatter (:func:`_order_shows`)."""
+    sd = np.asarray(p.res["t_sd_predicted"], float)
+    sd = sd[np.isfinite(sd)]
+    if not sd.size:
+        return 0.0
+    r = 2.0 * np.sin(np.pi * PROGRAMMING.fit_order_spearman / 6.0)
+    return float(r / np.sqrt(1.0 - r * r) * np.sqrt(np.mean(sd ** 2)))
+
+
+def _order_shows(p) -> bool:
+    """Whether the order of a programme's times would survive a print's timing scatter: the
+    sd over cells of ``t*`` is at least ``k`` times the RMS over cells of each cell's
+    predicted completion-time sd under the per-bracket thickness scatter
+    (:func:`~pysolver.temporal.cell_time.timing_sd`), ``k`` the spread over noise at which
+    two jointly normal variables have the rank correlation ``Programming.fit_order_spearman``
+    (``r = 2 sin(pi rho_s / 6)``, ``k = r / sqrt(1 - r^2)``).  True when no cell has a
+    finite predicted sd."""
+    return bool(np.std(p.t_star) >= _order_spread(p) - TOL.time)
 
 
 def _mapped_landscape(land, m: dict) -> np.ndarray:
