@@ -515,8 +515,8 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     that already clamps at most ``fit_clamped_fraction`` (and is at least ``min_span`` wide,
     s) is kept as given: its times are the shape's, and a map would trade them for a few
     cells (``Programming.fit_clamped_fraction``) -- unless its order would not survive a
-    print's timing scatter (:func:`_order_shows`): then it is mapped when the map clamps at
-    most ``fit_clamped_fraction``.
+    print's timing scatter (:func:`_order_shows`): then it is stretched about its middle,
+    just enough (:func:`_spreading_map`), when that clamps at most ``fit_clamped_fraction``.
 
     Parameters
     ----------
@@ -553,7 +553,7 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     return land, p, rescaled
 
 
-def _spreading_map(cells, land, p, models, min_span: float, rounds: int = 3):
+def _spreading_map(cells, land, p, models, min_span: float):
     """The narrowest map (order kept, about the middle of the cells' times) under which the
     order of a landscape shows through a print's timing scatter (:func:`_order_shows`), as a
     map of :func:`_achievable_summary`; None when no such map clamps at most
@@ -561,12 +561,13 @@ def _spreading_map(cells, land, p, models, min_span: float, rounds: int = 3):
 
     The times are stretched by ``f = k sd / sd(t*)`` about the middle of ``[min t*, max
     t*]`` (shifted to stay within 0 s and the model's time range); ``sd`` (the RMS predicted
-    sd) is that of the stretched programme, so ``f`` is re-estimated ``rounds`` times."""
+    sd) is that of the stretched programme, so ``f`` is re-estimated
+    ``Programming.fit_order_rounds`` times."""
     t0, t1 = float(p.t_star.min()), float(p.t_star.max())
     mid, spread, q, m = 0.5 * (t0 + t1), float(np.std(p.t_star)), p, None
     if spread <= 0.0:
         return None
-    for _ in range(rounds):
+    for _ in range(PROGRAMMING.fit_order_rounds):
         f = max(1.0, _order_spread(q) / spread)
         a, b = mid + f * (t0 - mid), mid + f * (t1 - mid)
         shift = max(0.0, -a) - max(0.0, b - p.t_limit)
