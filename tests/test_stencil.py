@@ -646,8 +646,13 @@ def _both_layers_latest(folder, cells):
     the printed bumpers' closing lengths)."""
     import json
 
-    from pysolver.temporal import (bracket_target_force, closing_lengths, load_material,
-                                   target_compressions, time_ranges)
+    from pysolver.temporal import (
+        bracket_target_force,
+        closing_lengths,
+        load_material,
+        target_compressions,
+        time_ranges,
+    )
     from pysolver.temporal.membrane_model import load_membrane_model
     factor = json.loads((folder / "temporal.json").read_text())["membrane_factor"]
     b0, closing = cells["bracket_length_mm"], closing_lengths(folder, cells)
