@@ -36,6 +36,13 @@ class Programming:
         with these rules, at 6ab95a1, 31-65 s, 9.2 %, Spearman 0.925) and the spiral's onto
         a constant; it kept the cells' count, not the order the landscape asks for.  The
         width fraction keeps the allowance from buying a few seconds of width with cells.
+        That map is now the refusal's suggestion (and the fit's when every map clamps more
+        than ``fit_clamped_fraction``): once a cell
+        is timed by its slower layer, the late end of the achievable times opened and the
+        widest map stretched weave's 30-85 s onto 40-119 s (timing RMS 1.1 -> 3.3 s); the fit
+        takes the map that moves the cells' times least among those that clamp at most
+        ``fit_clamped_fraction`` and keep the order visible (``fit_order_spearman``;
+        :func:`pysolver.temporal.program._nearest_map`): weave 39-83 s.
         0.10 is the project's timing bar for a programmed shell (at most 10 % clamped; the
         reference's cover with its own landscape: 9.5 %).
     fit_order_spearman : float

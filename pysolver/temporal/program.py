@@ -228,20 +228,37 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
     k = int(np.argmax(frac))
     out["best_constant"] = [float(grid[k]), float(frac[k])]
     t0, t1 = float(np.min(t_star)), float(np.max(t_star))
-    u = (t_star - t0) / (t1 - t0) if t1 > t0 else np.zeros_like(t_star)
     span = float(min_span) if t1 > t0 and grid[-1] >= min_span else 0.0
+    a, b, clamped = _order_keeping_map(_map_table(t_star, lo_all, t_hi, grid, span))
+    out["suggested_map"] = {"t0": t0, "t1": t1, "a": a, "b": b,
+                            "fraction_clamped": clamped, "min_span_s": span}
+    return out
+
+
+def _map_table(t_star, t_lo, t_hi, grid, span: float):
+    """Every order-keeping map of the cells' times ``[min t*, max t*]`` onto ``[a, b]``, ``a``
+    and ``b`` on ``grid`` (s) and ``b >= a + span``, with the fraction of cells it clamps.
+
+    Parameters
+    ----------
+    t_star, t_lo, t_hi : (n,) float, s -- the cells' times and achievable ranges (``t_lo``
+        ``inf`` where a cell cannot finish)
+
+    Returns
+    -------
+    (k, 3) float -- ``a`` s, ``b`` s, fraction clamped (rounded to 9 digits)
+    """
+    t0, t1 = float(np.min(t_star)), float(np.max(t_star))
+    u = (t_star - t0) / (t1 - t0) if t1 > t0 else np.zeros_like(t_star)
     maps = []  # (a, b, fraction clamped) of every map on the grid
     for a in grid:
         bs = grid[grid >= a + span - TOL.time]
         if not len(bs):
             break
         tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
-        bad = ((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
+        bad = ((tt < t_lo - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
         maps.append(np.c_[np.full(len(bs), a), bs, np.round(bad, 9)])
-    a, b, clamped = _order_keeping_map(np.vstack(maps))
-    out["suggested_map"] = {"t0": t0, "t1": t1, "a": a, "b": b,
-                            "fraction_clamped": clamped, "min_span_s": span}
-    return out
+    return np.vstack(maps)
 
 
 def _order_keeping_map(maps):
@@ -507,9 +524,10 @@ def _sd_stats(sd) -> dict:
 
 
 def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, progress: bool):
-    """Map a shape's default landscape linearly (order kept) onto the widest achievable range
-    that clamps at most ``Programming.fit_clamped_fraction`` of the cells (else the one
-    clamping fewest), when that clamps fewer than it does now; rewrite
+    """Map a shape's default landscape linearly (order kept) by the map that moves the cells'
+    times least among those that clamp at most ``Programming.fit_clamped_fraction`` of the
+    cells and keep its order visible (:func:`_nearest_map`; when every map clamps more, the
+    one clamping fewest), when that clamps fewer than it does now; rewrite
     ``time_landscape.csv`` and programme the cells again from it as the file keeps it (9
     significant digits: what a rerun of the folder programmes, bit for bit).  A landscape
     that already clamps at most ``fit_clamped_fraction`` (and is at least ``min_span`` wide,
@@ -535,6 +553,8 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
         m = _spreading_map(cells, land, p, models, min_span)
     elif m is None or m["fraction_clamped"] >= p.frac or within_bar:
         return land, p, None
+    else:
+        m = _nearest_map(cells, land, p, models, m) or m
     if m is None:
         return land, p, None
     t_old = (float(land.min()), float(land.max()))
@@ -575,6 +595,43 @@ def _spreading_map(cells, land, p, models, min_span: float):
         q = Programme.solve(cells, _mapped_landscape(land, m), models, None, min_span)
     ok = q.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact
     return dict(m, fraction_clamped=q.frac) if ok else None
+
+
+def _nearest_map(cells, land, p, models, suggested: dict):
+    """The order-keeping map of a landscape that clamps too many cells which changes the
+    cells' times least (RMS over cells) among the maps that clamp at most
+    ``Programming.fit_clamped_fraction`` and under which its order shows through a print's
+    timing scatter (:func:`_order_shows`); None when no map clamps so few.
+
+    The maps are ``suggested``'s (:func:`_achievable_summary`: its ``t0``, ``t1``,
+    ``min_span_s``, the 1 s grid).  The order test needs the programme of a map (the
+    predicted sd moves with the times): the nearest map wide enough for the sd of the
+    programme last solved is taken, solved, and the test repeated, at most
+    ``Programming.fit_order_rounds`` more times.
+    """
+    t0, t1, span = suggested["t0"], suggested["t1"], suggested["min_span_s"]
+    if t1 <= t0:
+        return None
+    lo = np.where(np.isfinite(p.res["t_min"]), p.res["t_min"], np.inf)
+    maps = _map_table(p.t_star, lo, p.res["t_max"], np.arange(0.0, p.t_limit + 0.5, 1.0), span)
+    maps = maps[maps[:, 2] <= PROGRAMMING.fit_clamped_fraction + TOL.exact]
+    if not len(maps):
+        return None
+    a, b = maps[:, 0], maps[:, 1]
+    u = (p.t_star - t0) / (t1 - t0)
+    moved = (a - t0)[:, None] + u[None, :] * ((b - a) - (t1 - t0))[:, None]    # (k, n) s
+    order = np.lexsort((a, -(b - a), np.sqrt(np.mean(moved ** 2, axis=1))))
+    wide = (b - a)[order] * np.std(u)                                # each map's t* sd, s
+    q, m = p, None
+    for _ in range(PROGRAMMING.fit_order_rounds + 1):
+        fits = np.flatnonzero(wide >= _order_spread(q) - TOL.time)
+        i = order[fits[0] if len(fits) else int(np.argmax(wide))]
+        m = {"t0": t0, "t1": t1, "a": float(a[i]), "b": float(b[i]), "min_span_s": span,
+             "fraction_clamped": float(maps[i, 2])}
+        q = Programme.solve(cells, _mapped_landscape(land, m), models, None, span)
+        if _order_shows(q):
+            break
+    return m
 
 
 def _order_spread(p) -> float:
