@@ -614,7 +614,11 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
     printed bumpers' clearance was programmed, fail the slowest's bound on these designs:
     medians +0.28 (dome) and +0.44 (petal) against 0.05; their fastest, +0.14 and -0.01,
     stays within its band.  A few long rim cells close early at any thickness, 2.5 in log t
-    under the slowest estimate on petal: hence the robust statistics.)"""
+    under the slowest estimate on petal: hence the robust statistics.)  The slowest estimate
+    is of the latest time *both* layers reach (one compression per cell, the intersection of
+    the layers' ranges); programming now reaches later times with the slower layer alone
+    (:func:`pysolver.temporal.cell_time.time_ranges`), so it is compared with the earlier of
+    the layers' latest times, and stays a conservative bound for the optimiser."""
     from _shared import designed
 
     from pysolver import tables
@@ -628,12 +632,34 @@ def test_timing_estimates_restate_temporal_programming(name, tmp_path, tmp_path_
     np.testing.assert_allclose(lay.central_length, cells["central_length_mm"], atol=1e-6)
     lo, hi = og.log_time_range(*optimise.layout_timing_terms(lay))
     for est, t, bias in ((lo, cells["t_min_s"], (-0.2, 0.16)),
-                         (hi, cells["t_max_s"], (-0.3, 0.05))):
+                         (hi, _both_layers_latest(folder, cells), (-0.3, 0.05))):
         ok = (t > 0.5) & (t < 119.5)  # (at the ends of the bracket model's range: bounds)
         r = np.log(t[ok]) - est[ok]
         med, mad = np.median(r), 1.4826 * np.median(np.abs(r - np.median(r)))
         assert ok.sum() > 0.5 * len(t) and bias[0] <= med <= bias[1], (ok.sum(), med)
         assert mad <= 0.3, mad
+
+
+def _both_layers_latest(folder, cells):
+    """The latest time (s) that both layers of each cell reach with their thickest
+    brackets, as the program stage of ``folder`` programmes them (its membrane factors and
+    the printed bumpers' closing lengths)."""
+    import json
+
+    from pysolver.temporal import (
+        bracket_target_force,
+        closing_lengths,
+        load_material,
+        target_compressions,
+        time_ranges,
+    )
+    from pysolver.temporal.membrane_model import load_membrane_model
+    factor = json.loads((folder / "temporal.json").read_text())["membrane_factor"]
+    b0, closing = cells["bracket_length_mm"], closing_lengths(folder, cells)
+    x, d1 = target_compressions(b0, closing[:, 0], closing[:, 1])
+    _, fb = bracket_target_force(load_membrane_model(), b0, d1, cells["boundary"],
+                                 factor=np.asarray(factor, float))
+    return time_ranges(load_material(None), b0, x, fb)[3].min(axis=1)
 
 
 class _Tried(CountSearch):

@@ -35,10 +35,15 @@ that this happens at ``t*`` (SI eq. 15)::
 Feasibility.  Thickness is printable in ``[0.30, 0.65]`` mm.  The thinnest bracket
 gives the earliest completion time ``t_min`` of a layer, the thickest the latest
 ``t_max`` (found by bisection in time on the bracket model, within the model's time
-range, 0-120 s); a cell's achievable range is the intersection of its two layers'
-ranges.  A cell whose ``t*`` is outside is **clamped**: both layers are programmed
-for the nearest achievable time, the cell is flagged in ``cells.csv`` (``clamped``)
-and listed in the summary.  If more than half of the cells are clamped the
+range, 0-120 s).  A cell completes when its later layer closes, so its achievable range
+runs from the later of its layers' earliest times to the later of their latest times
+(:func:`~pysolver.temporal.cell_time.time_ranges`): a layer that cannot be as slow as
+``t*`` gets its thickest bracket, closes early and waits at its bumpers while the other
+layer times the cell.  (The paper's intersection of the two ranges clamped strongly folded
+rim cells, whose little-compressed layer closes within 13-68 s even at 0.65 mm: 17 of the
+petal's 21 clamped cells at a755258.)  A cell whose ``t*`` is outside is **clamped**: both layers
+are programmed for the nearest achievable time, the cell is flagged in ``cells.csv``
+(``clamped``) and listed in the summary.  If more than half of the cells are clamped the
 landscape is refused with the achievable range in the message.
 
 Completion.  A cell is complete when all 4 of its bracket springs are at their bumpers,
@@ -223,20 +228,37 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
     k = int(np.argmax(frac))
     out["best_constant"] = [float(grid[k]), float(frac[k])]
     t0, t1 = float(np.min(t_star)), float(np.max(t_star))
-    u = (t_star - t0) / (t1 - t0) if t1 > t0 else np.zeros_like(t_star)
     span = float(min_span) if t1 > t0 and grid[-1] >= min_span else 0.0
+    a, b, clamped = _order_keeping_map(_map_table(t_star, lo_all, t_hi, grid, span))
+    out["suggested_map"] = {"t0": t0, "t1": t1, "a": a, "b": b,
+                            "fraction_clamped": clamped, "min_span_s": span}
+    return out
+
+
+def _map_table(t_star, t_lo, t_hi, grid, span: float):
+    """Every order-keeping map of the cells' times ``[min t*, max t*]`` onto ``[a, b]``, ``a``
+    and ``b`` on ``grid`` (s) and ``b >= a + span``, with the fraction of cells it clamps.
+
+    Parameters
+    ----------
+    t_star, t_lo, t_hi : (n,) float, s -- the cells' times and achievable ranges (``t_lo``
+        ``inf`` where a cell cannot finish)
+
+    Returns
+    -------
+    (k, 3) float -- ``a`` s, ``b`` s, fraction clamped (rounded to 9 digits)
+    """
+    t0, t1 = float(np.min(t_star)), float(np.max(t_star))
+    u = (t_star - t0) / (t1 - t0) if t1 > t0 else np.zeros_like(t_star)
     maps = []  # (a, b, fraction clamped) of every map on the grid
     for a in grid:
         bs = grid[grid >= a + span - TOL.time]
         if not len(bs):
             break
         tt = a + u[None, :] * (bs - a)[:, None]                       # (nb, n)
-        bad = ((tt < lo_all - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
+        bad = ((tt < t_lo - TOL.time) | (tt > t_hi + TOL.time)).mean(axis=1)
         maps.append(np.c_[np.full(len(bs), a), bs, np.round(bad, 9)])
-    a, b, clamped = _order_keeping_map(np.vstack(maps))
-    out["suggested_map"] = {"t0": t0, "t1": t1, "a": a, "b": b,
-                            "fraction_clamped": clamped, "min_span_s": span}
-    return out
+    return np.vstack(maps)
 
 
 def _order_keeping_map(maps):
@@ -502,14 +524,17 @@ def _sd_stats(sd) -> dict:
 
 
 def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, progress: bool):
-    """Map a shape's default landscape linearly (order kept) onto the widest achievable range
-    that clamps at most ``Programming.fit_clamped_fraction`` of the cells (else the one
-    clamping fewest), when that clamps fewer than it does now; rewrite
+    """Map a shape's default landscape linearly (order kept) by the map that moves the cells'
+    times least among those that clamp at most ``Programming.fit_clamped_fraction`` of the
+    cells and keep its order visible (:func:`_nearest_map`; when every map clamps more, the
+    one clamping fewest), when that clamps fewer than it does now; rewrite
     ``time_landscape.csv`` and programme the cells again from it as the file keeps it (9
     significant digits: what a rerun of the folder programmes, bit for bit).  A landscape
     that already clamps at most ``fit_clamped_fraction`` (and is at least ``min_span`` wide,
     s) is kept as given: its times are the shape's, and a map would trade them for a few
-    cells (``Programming.fit_clamped_fraction``).
+    cells (``Programming.fit_clamped_fraction``) -- unless its order would not survive a
+    print's timing scatter (:func:`_order_shows`): then it is stretched about its middle,
+    just enough (:func:`_spreading_map`), when that clamps at most ``fit_clamped_fraction``.
 
     Parameters
     ----------
@@ -524,7 +549,13 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     m = p.ach.get("suggested_map")
     within_bar = (p.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact
                   and np.ptp(land) >= min_span - TOL.time)
-    if m is None or m["fraction_clamped"] >= p.frac or within_bar:
+    if within_bar and not _order_shows(p):
+        m = _spreading_map(cells, land, p, models, min_span)
+    elif m is None or m["fraction_clamped"] >= p.frac or within_bar:
+        return land, p, None
+    else:
+        m = _nearest_map(cells, land, p, models, m) or m
+    if m is None:
         return land, p, None
     t_old = (float(land.min()), float(land.max()))
     write_landscape(design_dir, _mapped_landscape(land, m))
@@ -540,6 +571,89 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
             f"{SEQUENCING.min_separation_s:g} s apart) " if min_span else "")
          + f"({100 * p.frac:.0f} % of cells clamped)", progress)
     return land, p, rescaled
+
+
+def _spreading_map(cells, land, p, models, min_span: float):
+    """The narrowest map (order kept, about the middle of the cells' times) under which the
+    order of a landscape shows through a print's timing scatter (:func:`_order_shows`), as a
+    map of :func:`_achievable_summary`; None when no such map clamps at most
+    ``Programming.fit_clamped_fraction``.
+
+    The times are stretched by ``f = k sd / sd(t*)`` about the middle of ``[min t*, max
+    t*]`` (shifted to stay within 0 s and the model's time range); ``sd`` (the RMS predicted
+    sd) is that of the stretched programme, so ``f`` is re-estimated
+    ``Programming.fit_order_rounds`` times."""
+    t0, t1 = float(p.t_star.min()), float(p.t_star.max())
+    mid, spread, q, m = 0.5 * (t0 + t1), float(np.std(p.t_star)), p, None
+    if spread <= 0.0:
+        return None
+    for _ in range(PROGRAMMING.fit_order_rounds):
+        f = max(1.0, _order_spread(q) / spread)
+        a, b = mid + f * (t0 - mid), mid + f * (t1 - mid)
+        shift = max(0.0, -a) - max(0.0, b - p.t_limit)
+        m = {"t0": t0, "t1": t1, "a": a + shift, "b": b + shift, "min_span_s": min_span}
+        q = Programme.solve(cells, _mapped_landscape(land, m), models, None, min_span)
+    ok = q.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact
+    return dict(m, fraction_clamped=q.frac) if ok else None
+
+
+def _nearest_map(cells, land, p, models, suggested: dict):
+    """The order-keeping map of a landscape that clamps too many cells which changes the
+    cells' times least (RMS over cells) among the maps that clamp at most
+    ``Programming.fit_clamped_fraction`` and under which its order shows through a print's
+    timing scatter (:func:`_order_shows`); None when no map clamps so few.
+
+    The maps are ``suggested``'s (:func:`_achievable_summary`: its ``t0``, ``t1``,
+    ``min_span_s``, the 1 s grid).  The order test needs the programme of a map (the
+    predicted sd moves with the times): the nearest map wide enough for the sd of the
+    programme last solved is taken, solved, and the test repeated, at most
+    ``Programming.fit_order_rounds`` more times.
+    """
+    t0, t1, span = suggested["t0"], suggested["t1"], suggested["min_span_s"]
+    if t1 <= t0:
+        return None
+    lo = np.where(np.isfinite(p.res["t_min"]), p.res["t_min"], np.inf)
+    maps = _map_table(p.t_star, lo, p.res["t_max"], np.arange(0.0, p.t_limit + 0.5, 1.0), span)
+    maps = maps[maps[:, 2] <= PROGRAMMING.fit_clamped_fraction + TOL.exact]
+    if not len(maps):
+        return None
+    a, b = maps[:, 0], maps[:, 1]
+    u = (p.t_star - t0) / (t1 - t0)
+    moved = (a - t0)[:, None] + u[None, :] * ((b - a) - (t1 - t0))[:, None]    # (k, n) s
+    order = np.lexsort((a, -(b - a), np.sqrt(np.mean(moved ** 2, axis=1))))
+    wide = (b - a)[order] * np.std(u)                                # each map's t* sd, s
+    q, m = p, None
+    for _ in range(PROGRAMMING.fit_order_rounds + 1):
+        fits = np.flatnonzero(wide >= _order_spread(q) - TOL.time)
+        i = order[fits[0] if len(fits) else int(np.argmax(wide))]
+        m = {"t0": t0, "t1": t1, "a": float(a[i]), "b": float(b[i]), "min_span_s": span,
+             "fraction_clamped": float(maps[i, 2])}
+        q = Programme.solve(cells, _mapped_landscape(land, m), models, None, span)
+        if _order_shows(q):
+            break
+    return m
+
+
+def _order_spread(p) -> float:
+    """The sd over cells (s) that the programme ``p``'s times need for their order to show
+    through a print's timing scatter (:func:`_order_shows`)."""
+    sd = np.asarray(p.res["t_sd_predicted"], float)
+    sd = sd[np.isfinite(sd)]
+    if not sd.size:
+        return 0.0
+    r = 2.0 * np.sin(np.pi * PROGRAMMING.fit_order_spearman / 6.0)
+    return float(r / np.sqrt(1.0 - r * r) * np.sqrt(np.mean(sd ** 2)))
+
+
+def _order_shows(p) -> bool:
+    """Whether the order of a programme's times would survive a print's timing scatter: the
+    sd over cells of ``t*`` is at least ``k`` times the RMS over cells of each cell's
+    predicted completion-time sd under the per-bracket thickness scatter
+    (:func:`~pysolver.temporal.cell_time.timing_sd`), ``k`` the spread over noise at which
+    two jointly normal variables have the rank correlation ``Programming.fit_order_spearman``
+    (``r = 2 sin(pi rho_s / 6)``, ``k = r / sqrt(1 - r^2)``).  True when no cell has a
+    finite predicted sd."""
+    return bool(np.std(p.t_star) >= _order_spread(p) - TOL.time)
 
 
 def _mapped_landscape(land, m: dict) -> np.ndarray:
