@@ -21,8 +21,13 @@ from scipy.spatial.transform import Rotation
 
 from pysolver.design import run_design, surfaces
 from pysolver.design.flatten import cetm
-from pysolver.design.stencil.remesh import (FlatDomain, flat_frame, remove_ears,
-                                            resample_dense, surface_area)
+from pysolver.design.stencil.remesh import (
+    FlatDomain,
+    flat_frame,
+    remove_ears,
+    resample_dense,
+    surface_area,
+)
 from pysolver.geometry import canonical_order, signed_areas_2d
 from pysolver.params import STENCIL
 

@@ -39,12 +39,6 @@ class StencilRemesh:
     remesh_surface_dist: float = 0.05
     """float: Largest distance of the isotropic remeshing's surface from the input, relative to
     the target edge length."""
-    frame_tie_rtol: float = 1e-5
-    """float: Directions of the flat layout's frame whose third moments agree within this
-    (relative) are a tie, a symmetry of the shape: the CVT's starts are tried in each
-    (:func:`pysolver.design.stencil.remesh.frame_angles`).  Far above the last bits (the
-    mirror-symmetric peer stand's two directions: 8e-14 apart) and under what a jitter of
-    1e-7 of the size moves, far below a shape's real asymmetry (the petal's: 6e-4)."""
     min_boundary_points: int = 6
     """int: Fewest points on the stencil's rim."""
     lloyd_iterations: int = 40

@@ -21,9 +21,10 @@ moved with them (petal, relabelled: 172 to 233 bases).  Each start is itself a f
 input, not of the machine: its rounds, and the polish's, run to a tight projected gradient
 (``StencilSearch.opt_timing_gtol``; the polish's pinned rounds too), so that two CPU code paths
 end a round at the same point and the next round does not set off toward another minimum (the
-cover's candidates agree to six digits with and without AVX2).  So is the dense resampling of a coarse
-or sliver-ridden user mesh (:func:`~pysolver.design.stencil.remesh.resample_dense`, midpoint subdivision:
-its points are fixed linear combinations of the input's).
+cover's candidates agree to six digits with and without AVX2).  So is the dense
+resampling of a coarse or sliver-ridden user mesh
+(:func:`~pysolver.design.stencil.remesh.resample_dense`, a midpoint subdivision: its points
+are fixed linear combinations of the input's).
 
 1. **Secant steps** on the mean log 3D scaling over the seeds (about ``sqrt(N)``) toward 1,
    from the paper's estimate ``0.38 A / 7^2`` times ``StencilSearch.count_start``, every
@@ -128,12 +129,6 @@ class CountSearch:
         if not len(self.insets):
             raise InputError("settings.rim_insets is empty",
                              fix="give at least one inset (0 = none)")
-
-    @property
-    def frames(self) -> int:
-        """The frames the target's shape sets (:attr:`FlatDomain.turns`: two for a mirror
-        symmetry): the starts of a count are the seeds in each."""
-        return 1 if self.dom is None else len(self.dom.turns)
 
     def say(self, line: str) -> None:
         if self.progress is not None:

@@ -226,8 +226,6 @@ def resample_dense(V, F, faces: int = STENCIL.dense_faces):
     Examples
     --------
     >>> import numpy as np
-    >>> V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.]])
-    >>> F = np.array([[0, 1, 2], [1, 3, 2]])
     >>> a = np.pi / 3 * np.arange(6)  # a hexagon of unit radius in six triangles
     >>> V = np.r_[[[0, 0, 0]], np.c_[np.cos(a), np.sin(a), 0 * a], [[1, 1, 0]]]
     >>> F = np.r_[[[0, i, i % 6 + 1] for i in range(1, 7)], [[1, 7, 2]]]  # and an ear
@@ -302,11 +300,7 @@ class FlatDomain:
         self.settings = settings
         self.rim_u = None if rim_log_scale is None else np.asarray(rim_log_scale, float)
         UV, self.u, _ = cetm(self.V, self.F, u_boundary=self.rim_u)
-        c, angles = frame_angles(UV, self.F, tie_rtol=settings.frame_tie_rtol)
-        self.UV = flat_frame(UV, self.F, angle=angles[0])
-        # the other frames the shape sets (mirror images under a symmetry), as turns of
-        # this one (rad): each start of the CVT is tried in each (:meth:`stencil`)
-        self.turns = [a - angles[0] for a in angles]
+        self.UV = flat_frame(UV, self.F)
         # log of the relative 3D spacing the time landscape asks for (0 without one)
         self.w = (np.zeros(len(self.V)) if time is None
                   else time_spacing_log(time, settings.timing_grading))
@@ -394,16 +388,13 @@ class FlatDomain:
         area = float(wq.sum() if inside is None else wq[inside].sum())
         return edge_for_count(area, self.perimeter if rim_length is None else rim_length, n)
 
-    def boundary_polygon(self, inset_mm: float = 0.0, turn: float = 0.0) -> np.ndarray:
+    def boundary_polygon(self, inset_mm: float = 0.0) -> np.ndarray:
         """(r, 2) float: the flat boundary, or the curve ``inset_mm`` inside it (the boundary
         log-scale is 0, or of mean 0 with a free rim scale, so flat and 3D distances agree
-        there, on average), closed (last = first), started on the x axis of the frame turned
-        by ``turn`` (rad, one of :attr:`turns`)."""
-        T = _turn(turn)
-        back = (lambda P: P @ T) if turn else (lambda P: P)  # (frame 0 to the last bit)
-        C = _start_on_axis(self.UV[self.loop] @ T.T if turn else self.UV[self.loop])
+        there, on average), closed (last = first)."""
+        C = _start_on_axis(self.UV[self.loop])
         if inset_mm <= 0:
-            return back(C)
+            return C
         poly = Polygon(C).buffer(-float(inset_mm), join_style="round", quad_segs=8)
         if poly.is_empty or poly.geom_type != "Polygon":
             raise RimInsetError(f"an inset of {inset_mm:.2f} mm from the rim splits or empties "
@@ -416,7 +407,7 @@ class FlatDomain:
         seg = np.linalg.norm(np.diff(R, axis=0), axis=1)
         s = np.r_[0.0, np.cumsum(seg)]
         t = np.linspace(0.0, s[-1], max(4 * len(self.loop), 200))
-        return back(np.c_[np.interp(t, s, R[:, 0]), np.interp(t, s, R[:, 1])])
+        return np.c_[np.interp(t, s, R[:, 0]), np.interp(t, s, R[:, 1])]
 
     def region_covered(self, inset_mm: float) -> float:
         """Fraction of the target's 3D area inside the curve ``inset_mm`` (mm) from its rim
@@ -431,8 +422,7 @@ class FlatDomain:
 
     def cvt(self, n: int, seed: int = 0, inset: float = 0.0):
         """Flat points of a weighted CVT with ``n`` points, boundary first, the boundary
-        ``inset`` mm inside the target's rim; start ``seed``: random draws
-        ``seed // len(turns)`` in the frame ``turns[seed % len(turns)]``.
+        ``inset`` mm inside the target's rim.
 
         Returns
         -------
@@ -440,8 +430,7 @@ class FlatDomain:
         n_boundary : int
         """
         st = self.settings
-        turn = self.turns[seed % len(self.turns)]
-        C = self.boundary_polygon(inset, turn)
+        C = self.boundary_polygon(inset)
         X = self.lift(C)
         length = float(np.sum(np.linalg.norm(np.diff(X, axis=0), axis=1)))
         inside = PolygonPath(C).contains_points(self.quad)
@@ -457,7 +446,7 @@ class FlatDomain:
         if len(quad) < ni:
             raise InputError(f"the target is too small for {n} stencil vertices",
                              fix="use fewer vertices (--vertices) or a larger target")
-        Y = _seed_points(B, self, ni, seed // len(self.turns), turn)
+        Y = _seed_points(B, self, ni, seed)
         for _ in range(st.lloyd_iterations):
             owner, share = _soft_owners(np.vstack([B, Y]), quad, st.lloyd_softness)
             owner = owner - nb
@@ -531,71 +520,24 @@ def quadrature_points(UV, F) -> np.ndarray:
     return np.concatenate(q + [m.mean(axis=1)])
 
 
-def frame_angles(UV, F, orders=range(2, 7), tie_rtol: float = STENCIL.frame_tie_rtol):
-    """The centroid of a flat layout and the angles of the frames its shape sets.
-
-    The x axis of a frame lies along ``arg(m_k) / k + 2 pi j / k``, ``m_k = integral z^k dA``
-    the complex area moment of the order k in ``orders`` that is the most pronounced
-    (``|m_k| / integral |z|^k dA``, 2 for an elongated shape, 3 for a trefoil), toward the
-    j for which the area reaches furthest (the largest third moment of x).  Directions whose
-    third moments tie with the largest (within ``tie_rtol`` of it) are all returned: a
-    shape with a mirror symmetry has two such directions, mirror images of each other, and
-    which of them came first would be decided by the last bits of the layout (the peer
-    stand: 8e-14 apart).  When all k tie the shape has a k-fold rotational symmetry, whose
-    frames are congruent: one is returned.  A shape with no pronounced moment (a disk)
-    keeps the solver's angle, 0, which is then a symmetry.
-
-    Parameters
-    ----------
-    UV : (n, 2) float, mm
-    F : (m, 3) int
-    orders : iterable of int
-    tie_rtol : float -- relative tolerance of a tie (``StencilRemesh.frame_tie_rtol``)
-
-    Returns
-    -------
-    c : (2,) float, mm -- the layout's centroid
-    angles : list of float, rad -- the frames' x axes, the first the one of largest third
-        moment (ties in the order of j)
-    """
-    UV = np.asarray(UV, float)
-    F = np.asarray(F, dtype=np.int64)
-    Q = quadrature_points(UV, F)
-    A = np.tile(np.abs(signed_areas_2d(UV, F)), 4)
-    c = A @ Q / A.sum()
-    z = (Q - c) @ np.array([1.0, 1.0j])
-    best, angles = 0.0, [0.0]
-    for k in orders:
-        mk = A @ z**k
-        rel = abs(mk) / max(float(A @ np.abs(z) ** k), 1e-300)
-        if rel > best:
-            best = rel
-            ks = np.angle(mk) / k + 2 * np.pi * np.arange(k) / k
-            third = np.array([float(A @ np.real(z * np.exp(-1j * a)) ** 3) for a in ks])
-            top = third.max()
-            tied = np.flatnonzero(third >= top - tie_rtol * max(abs(top), 1e-300))
-            first = int(np.argmax(third))
-            angles = ([float(ks[first])] if len(tied) == k
-                      else [float(ks[first])] + [float(ks[j]) for j in tied if j != first])
-    return c, angles
-
-
-def flat_frame(UV, F, orders=range(2, 7), angle=None) -> np.ndarray:
+def flat_frame(UV, F, orders=range(2, 7)) -> np.ndarray:
     """A flat layout moved into a frame given by its shape alone.
 
     A conformal flattening is unique up to a rigid motion of the plane, which the solver
     fixes by whichever triangle it lays out first: a matter of labelling.  The stencil is
     seeded in the plane, so the plane's frame is set here from the layout's area: its
-    centroid at the origin, and its x axis along the first of :func:`frame_angles` (or
-    ``angle``, rad, one of them).
+    centroid at the origin, and its x axis along the angle ``arg(m_k) / k`` of the complex
+    area moment ``m_k = integral z^k dA`` of the order k in ``orders`` that is the most
+    pronounced (``|m_k| / integral |z|^k dA``, 2 for an elongated shape, 3 for a trefoil),
+    of the k directions so given the one toward which the area reaches furthest (the
+    largest third moment of x).  A shape with no such moment (a disk) keeps the solver's
+    angle, which is then a symmetry.
 
     Parameters
     ----------
     UV : (n, 2) float, mm
     F : (m, 3) int
     orders : iterable of int
-    angle : float, rad, optional -- the frame's x axis in the layout (default: the first of
-        :func:`frame_angles`)
 
     Returns
     -------
@@ -612,16 +554,21 @@ def flat_frame(UV, F, orders=range(2, 7), angle=None) -> np.ndarray:
     True
     """
     UV = np.asarray(UV, float)
-    c, angles = frame_angles(UV, F, orders)
-    a = angles[0] if angle is None else float(angle)
-    R = np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
+    F = np.asarray(F, dtype=np.int64)
+    Q = quadrature_points(UV, F)
+    A = np.tile(np.abs(signed_areas_2d(UV, F)), 4)
+    c = A @ Q / A.sum()
+    z = (Q - c) @ np.array([1.0, 1.0j])
+    best, angle = 0.0, 0.0
+    for k in orders:
+        mk = A @ z**k
+        rel = abs(mk) / max(float(A @ np.abs(z) ** k), 1e-300)
+        if rel > best:
+            best, angle = rel, float(np.angle(mk)) / k
+            ks = [angle + 2 * np.pi * j / k for j in range(k)]
+            angle = max(ks, key=lambda a: float(A @ np.real(z * np.exp(-1j * a)) ** 3))
+    R = np.array([[np.cos(angle), np.sin(angle)], [-np.sin(angle), np.cos(angle)]])
     return (UV - c) @ R.T
-
-
-def _turn(angle: float) -> np.ndarray:
-    """(2, 2) float: the rotation taking a point to the frame turned by ``angle`` (rad):
-    ``P @ R.T`` in it, ``Q @ R`` back."""
-    return np.array([[np.cos(angle), np.sin(angle)], [-np.sin(angle), np.cos(angle)]])
 
 
 def _start_on_axis(C) -> np.ndarray:
@@ -663,7 +610,7 @@ def _soft_owners(G, Q, softness: float, k: int = 4):
     return owner, share / share.sum(axis=1, keepdims=True)
 
 
-def _seed_points(B, dom, n: int, seed: int, turn: float = 0.0) -> np.ndarray:
+def _seed_points(B, dom, n: int, seed: int) -> np.ndarray:
     """``n`` starting points of the CVT inside the polygon ``B`` (r, 2), drawn by position,
     not by label: uniform draws in the bounding box of the domain ``dom``
     (:class:`FlatDomain`, in its :func:`flat_frame`), each kept with probability the CVT's
@@ -671,23 +618,19 @@ def _seed_points(B, dom, n: int, seed: int, turn: float = 0.0) -> np.ndarray:
     dense triangle, so continuous), over its largest value.  The same surface so gives the
     same points whatever the order of its triangles, and a surface moved by its last bits
     gives the same draws, kept or not as before but where a draw is within the last bits of
-    its threshold.  ``turn`` (rad): the draws are uniform in the bounding box of the frame
-    turned by it (one of :attr:`FlatDomain.turns`).
+    its threshold.
 
     Returns
     -------
     Y : (n, 2) float, mm
     """
     rng = np.random.default_rng(seed)
-    R = _turn(turn)
-    lo, hi = (dom.UV @ R.T).min(axis=0), (dom.UV @ R.T).max(axis=0)
+    lo, hi = dom.UV.min(axis=0), dom.UV.max(axis=0)
     inside = PolygonPath(B)
     top = float(np.exp(-4 * dom.log_spacing_at_vertices().min()))
     out, got = [], 0
     while got < n:
         X = lo + (hi - lo) * rng.random((max(4 * n, 256), 2))
-        if turn:
-            X = X @ R
         u = rng.random(len(X))
         keep = inside.contains_points(X)
         X, u = X[keep], u[keep]
@@ -730,4 +673,4 @@ def edge_for_count(area: float, perimeter: float, n: int) -> float:
 __all__ = ["surface_area", "time_spacing_log", "estimate_vertices", "remove_ears",
            "remove_flaps", "isotropic_remesh", "needs_dense", "resample_dense",
            "triangulate_flat",
-           "FlatDomain", "edge_for_count", "flat_frame", "frame_angles"]
+           "FlatDomain", "edge_for_count", "flat_frame"]

@@ -86,10 +86,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     vertices : int, optional
         Vertex count N; otherwise searched (:mod:`pysolver.design.stencil.count_search`).
     seed : int, optional
-        Start of the CVT: random draws ``seed // f`` in the frame ``seed % f`` of the ``f``
-        frames the target's shape sets (:func:`~pysolver.design.stencil.remesh.frame_angles`:
-        one, or two for a mirror symmetry); otherwise ``settings.seeds`` draws are tried in
-        each frame.
+        Seed of the CVT initialisation; otherwise ``settings.seeds`` seeds are tried.
     target_bases : int, optional
         Start of the search (about 2 N); default ``count_start`` x the paper's estimate.
     params : UnitCell
@@ -181,7 +178,7 @@ def _one_pass(req: _Request, settings: StencilSearch) -> _Pass:
                          optimize=req.optimize, graded=graded, progress=req.progress)
     seeds = ([int(req.seed)] if req.seed is not None
              else [0] if req.method == "pymeshlab"  # (it has no seed)
-             else list(range(settings.seeds * search.frames)))
+             else list(range(settings.seeds)))
     best, rim = search.search(req.vertices, seeds, (
         int(req.target_bases / 2) if req.target_bases
         else round(settings.count_start * estimate_vertices(A))))
