@@ -7,10 +7,12 @@ times toward the landscape by a closed-form estimate (``StencilSearch.timing_fas
     log t ~ c + a log b0 + e log x + k [boundary]
 
 This script designs and programmes the built-in shapes (the project's own, at several
-sizes: no shape of ``../shared``), reads each cell's fastest and slowest time from
-``cells.csv`` (``t_min_s``, ``t_max_s``: thinnest and thickest bracket, from the material
-and membrane models) and fits the four coefficients of each on the terms the optimiser
-states (:func:`pysolver.design.stencil.optimise.layout_timing_terms` of the stencil's layout).
+sizes: no shape of ``../shared``), reads each cell's fastest time from ``cells.csv``
+(``t_min_s``: thinnest brackets) and computes its slowest as the latest time both layers
+reach at their thickest brackets (:func:`pysolver.temporal.both_layers_latest`; ``t_max_s``
+is the later layer's, which may wait at its bumpers past that) and fits the four
+coefficients of each on the terms the optimiser states
+(:func:`pysolver.design.stencil.optimise.layout_timing_terms` of the stencil's layout).
 Programming searches times within the bracket model's range (0-120 s), so a time at its
 end is only a bound: the fit is the censored normal (Tobit) maximum likelihood, with
 times under 0.5 s or over 119.5 s censored.  (Leaving them out, as a plain least squares
@@ -49,7 +51,7 @@ from pysolver.design.layout import build_layout  # noqa: E402
 from pysolver.design.stencil.objective import log_time_terms  # noqa: E402
 from pysolver.design.stencil.optimise import layout_timing_terms  # noqa: E402
 from pysolver.params import STENCIL  # noqa: E402
-from pysolver.temporal import program_design  # noqa: E402
+from pysolver.temporal import both_layers_latest, closing_lengths, program_design  # noqa: E402
 
 SHAPES = ("petal", "petal:size=1.3", "saddle", "saddle:size=1.4", "dome",
           "dome:size=0.7", "weave", "weave:large", "spiral", "spiral:size=0.8")
@@ -71,8 +73,13 @@ def design_terms(design_dir: Path) -> dict:
         raise SystemExit(f"{design_dir}: the stencil's layout by the scaling rules is not "
                          "its cells' table")
     log_b0, log_x = log_time_terms(central, contact, params)
+    record = json.loads((design_dir / "temporal.json").read_text())
+    factor = tables.record_numbers(record.get("membrane_factor"), len(central))
+    if factor is None:
+        raise SystemExit(f"{design_dir}: temporal.json has no per-cell membrane_factor")
+    t_max = both_layers_latest(cells, factor, closing_lengths(design_dir, cells))
     return {"X": np.column_stack([np.ones_like(central), log_b0, log_x, boundary]),
-            "t_min": cells["t_min_s"], "t_max": cells["t_max_s"]}
+            "t_min": cells["t_min_s"], "t_max": t_max}
 
 
 def fit(designs: dict, key: str):

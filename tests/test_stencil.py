@@ -646,20 +646,10 @@ def _both_layers_latest(folder, cells):
     the printed bumpers' closing lengths)."""
     import json
 
-    from pysolver.temporal import (
-        bracket_target_force,
-        closing_lengths,
-        load_material,
-        target_compressions,
-        time_ranges,
-    )
-    from pysolver.temporal.membrane_model import load_membrane_model
+    from pysolver.temporal import both_layers_latest, closing_lengths
+
     factor = json.loads((folder / "temporal.json").read_text())["membrane_factor"]
-    b0, closing = cells["bracket_length_mm"], closing_lengths(folder, cells)
-    x, d1 = target_compressions(b0, closing[:, 0], closing[:, 1])
-    _, fb = bracket_target_force(load_membrane_model(), b0, d1, cells["boundary"],
-                                 factor=np.asarray(factor, float))
-    return time_ranges(load_material(None), b0, x, fb)[3].min(axis=1)
+    return both_layers_latest(cells, factor, closing_lengths(folder, cells))
 
 
 class _Tried(CountSearch):

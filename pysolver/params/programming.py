@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..errors import InputError
+
 
 @dataclass(frozen=True)
 class Programming:
@@ -57,14 +59,14 @@ class Programming:
         ``k`` (:func:`pysolver.temporal.program._spreading_map`).  0.9 is the project's
         timing-order bar (issue #42: Spearman >= 0.9).  On dome, whose 44-68 s landscape
         every cell reaches once a cell is timed by its slower layer, the cells' times spread
-        5.8 s against 6.3 s of print scatter (Spearman 0.61 simulated as given): stretched
-        onto 28-82 s; spiral (12.4 s against 6.1 s) onto 34-81 s instead of 35-79 s; petal
-        (15.6 s against 5.2 s) kept.
+        5.8 s against 6.3 s of print scatter (Spearman 0.61 simulated as given): its
+        landscape stretched from 44-68 s onto 27-87 s; spiral (12.4 s against 6.1 s) from
+        35-80 s onto 34-81 s; petal (15.6 s against 5.2 s) kept.  Strictly between 0 and 1.
     fit_order_rounds : int
         Times the stretch of ``fit_order_spearman`` is re-estimated on the stretched
         programme (the predicted sd moves with the times): on dome the stretch went 2.333,
         2.480, 2.488, 2.4884 and its order test 0.941, 0.997, 1.000 of the target; spiral's
-        1.068, 1.065, 1.065.
+        1.068, 1.065, 1.065.  At least 1.
     bisection_steps : int
         Bisection steps of the thickness and completion-time solves (50 halvings of the
         0.30-0.65 mm range or the model's 120 s: 3e-16 mm and 1e-13 s, the
@@ -115,6 +117,15 @@ class Programming:
     robust: bool = False
     robust_max_lead_s: float = 5.0
     robust_grid: int = 40
+
+    def __post_init__(self):
+        if not 0.0 < self.fit_order_spearman < 1.0:
+            raise InputError(f"Programming.fit_order_spearman = {self.fit_order_spearman!r}: "
+                             "a rank correlation strictly between 0 and 1",
+                             fix="give a value in (0, 1), e.g. the project's 0.9")
+        if int(self.fit_order_rounds) < 1:
+            raise InputError(f"Programming.fit_order_rounds = {self.fit_order_rounds!r}: at "
+                             "least one round", fix="give an integer >= 1, e.g. 3")
 
 
 PROGRAMMING = Programming()

@@ -32,8 +32,9 @@ class StencilRemesh:
     """int: A user mesh that needs it (``dense_min_angle_deg``, ``dense_min_faces``) is
     subdivided at its edges' midpoints to about this many faces (log scale) before flattening."""
     dense_min_angle_deg: float = 15.0
-    """float, deg: An input mesh whose smallest triangle angle is below this is resampled (dense
-    subdivision) before flattening."""
+    """float, deg: An input mesh whose smallest triangle angle is below this is resampled
+    before flattening (its ears dropped, and subdivided when it has fewer faces than about
+    ``dense_faces``: subdivision keeps its slivers' angles)."""
     dense_min_faces: int = 2000
     """int: An input mesh with fewer faces than this is resampled before flattening."""
     remesh_surface_dist: float = 0.05

@@ -277,8 +277,10 @@ class StageContext:
         build's summary (timing, progress line); None outside a build.
     fit_landscape : bool
         The program stage maps the landscape onto the achievable times when it clamps
-        more than ``Programming.fit_clamped_fraction`` of the cells (a shape's own
-        landscape in a build; a user's landscape is only checked).
+        more than ``Programming.fit_clamped_fraction`` of the cells, or stretches it when
+        its order would not survive a print's timing scatter
+        (``Programming.fit_order_spearman``; a shape's own landscape in a build; a user's
+        landscape is only checked).
     physics : PhysicsOptions, optional
         Physics the build switched on along the way (contact), for the later stages.
     """

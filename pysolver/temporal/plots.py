@@ -16,7 +16,7 @@ def plot_feasibility(design_dir, t_vertex, t_star, cells: dict, res: dict, png) 
 
     Left: the landscape (s) interpolated on the flat stencil, base outlines, and the
     cells whose ``t*`` is out of reach (too early: thinnest bracket still too stiff;
-    too late: thickest bracket already yields earlier).  Right: every cell's
+    too late: even the slower layer's thickest bracket yields earlier).  Right: every cell's
     achievable range (grey bar) and ``t*`` (dot), sorted by ``t*``.
 
     Parameters

@@ -382,6 +382,32 @@ def membrane_factors(design_dir, cells, membrane, correction: str = DEFAULT_CORR
     return f, info
 
 
+def both_layers_latest(cells: dict, factor, closing, material=None) -> np.ndarray:
+    """The latest completion time (s) that *both* layers of each cell reach, each at its
+    thickest bracket: the time the design stage's closed-form estimate
+    (``StencilSearch.timing_slowest``) was fitted to.  ``cells.csv``'s ``t_max_s`` is the
+    later layer's latest time instead (:func:`~pysolver.temporal.cell_time.time_ranges`).
+
+    Parameters
+    ----------
+    cells : dict of arrays -- ``cells.csv``
+    factor : (n,) float -- the per-cell F_mem factor the program stage used
+        (``temporal.json`` → ``membrane_factor``)
+    closing : (n, 2) float, mm -- :func:`closing_lengths`
+    material : path-like or None -- the bracket material (default: the project's)
+
+    Returns
+    -------
+    (n,) float, s
+    """
+    b0 = np.asarray(cells["bracket_length_mm"], float)
+    closing = np.asarray(closing, float)
+    x, d1 = target_compressions(b0, closing[:, 0], closing[:, 1])
+    _, fb = bracket_target_force(load_membrane_model(), b0, d1, cells["boundary"],
+                                 factor=np.asarray(factor, float))
+    return time_ranges(load_material(material), b0, x, fb)[3].min(axis=1)
+
+
 def closing_lengths(design_dir, cells: dict, physics=None) -> np.ndarray:
     """Bracket length at which every cell's layers close, as the simulator closes them.
 
@@ -441,7 +467,8 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         :func:`robust_layers` (default ``Programming.robust``); the refinement follows it.
     fit_landscape : bool
         Map the landscape (order kept) onto the achievable range when it clamps too many
-        cells (:func:`_fit_landscape`) and rewrite ``time_landscape.csv``.  The build does
+        cells, or stretch it about its middle when its order would not survive a print's
+        timing scatter (:func:`_fit_landscape`), and rewrite ``time_landscape.csv``.  The build does
         this for a shape's *default* landscape only (the built-in landscapes give the order
         in which regions finish; the achievable seconds depend on the material model); a
         landscape the user gave is never changed, only checked.  An automatic sequencing
@@ -546,6 +573,8 @@ def _fit_landscape(design_dir: Path, cells, land, p, models, min_span: float, pr
     p : Programme -- for that landscape
     rescaled : dict or None -- ``from_s``, ``to_s``, ``min_span_s`` when mapped
     """
+    if not len(p.t_star):
+        return land, p, None  # (no cell: nothing to fit)
     m = p.ach.get("suggested_map")
     within_bar = (p.frac <= PROGRAMMING.fit_clamped_fraction + TOL.exact
                   and np.ptp(land) >= min_span - TOL.time)
@@ -607,7 +636,9 @@ def _nearest_map(cells, land, p, models, suggested: dict):
     ``min_span_s``, the 1 s grid).  The order test needs the programme of a map (the
     predicted sd moves with the times): the nearest map wide enough for the sd of the
     programme last solved is taken, solved, and the test repeated, at most
-    ``Programming.fit_order_rounds`` more times.
+    ``Programming.fit_order_rounds`` more times; when no map is wide enough, or the rounds
+    run out, the last map taken is returned (the widest of those that clamp so few when none
+    is wide enough), whose order may then not show.
     """
     t0, t1, span = suggested["t0"], suggested["t1"], suggested["min_span_s"]
     if t1 <= t0:
