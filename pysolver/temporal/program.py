@@ -466,9 +466,8 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
     robust : bool, optional
         :func:`robust_layers` (default ``Programming.robust``); the refinement follows it.
     fit_landscape : bool
-        Map the landscape (order kept) onto the achievable range when it clamps too many
-        cells, or stretch it about its middle when its order would not survive a print's
-        timing scatter (:func:`_fit_landscape`), and rewrite ``time_landscape.csv``.  The build does
+        Map the landscape (order kept) when it clamps too many cells or its order would not
+        show through a print's scatter (:func:`_fit_landscape`); rewrite the landscape file.  The build does
         this for a shape's *default* landscape only (the built-in landscapes give the order
         in which regions finish; the achievable seconds depend on the material model); a
         landscape the user gave is never changed, only checked.  An automatic sequencing
