@@ -202,7 +202,7 @@ def needs_dense(V, F, settings: StencilSearch = STENCIL) -> bool:
 
 
 def resample_dense(V, F, faces: int = STENCIL.dense_faces):
-    """Resample a user mesh to at least about ``faces`` triangles by midpoint subdivision.
+    """Resample a user mesh to about ``faces`` triangles by midpoint subdivision.
 
     Each pass splits every triangle into four at its edges' midpoints (``igl.upsample``), as
     many passes as bring the face count nearest ``faces`` on a log scale (none for a mesh
@@ -239,7 +239,8 @@ def resample_dense(V, F, faces: int = STENCIL.dense_faces):
     """
     F = np.asarray(F, dtype=np.int64)
     if F.ndim != 2 or F.shape[1] != 3 or not len(F) or int(faces) < 1:
-        raise InputError(f"resample_dense: {F.shape} faces toward {faces}",
+        raise InputError(f"resample_dense: faces of shape {F.shape} toward {faces} faces; "
+                         "needs (m, 3) triangles, m >= 1",
                          fix="give a triangle mesh with at least one face, and faces >= 1")
     V, F = remove_ears(np.asarray(V, float), F)
     # passes nearest on a log scale, in integers (a float log can land on the half either
