@@ -467,11 +467,10 @@ def program_design(design_dir, *, material=None, membrane=None, progress: bool =
         :func:`robust_layers` (default ``Programming.robust``); the refinement follows it.
     fit_landscape : bool
         Map the landscape (order kept) when it clamps too many cells or its order would not
-        show through a print's scatter (:func:`_fit_landscape`); rewrite the landscape file.  The build does
-        this for a shape's *default* landscape only (the built-in landscapes give the order
-        in which regions finish; the achievable seconds depend on the material model); a
-        landscape the user gave is never changed, only checked.  An automatic sequencing
-        landscape keeps its parts apart (:func:`sequenced_span`).
+        show through a print's scatter (:func:`_fit_landscape`); rewrite the landscape file.
+        Only a shape's *default* landscape (it gives the order in which regions finish; the
+        seconds depend on the material model); a user's is never changed, only checked.
+        An automatic sequencing landscape keeps its parts apart (:func:`sequenced_span`).
 
     Returns
     -------
