@@ -221,7 +221,7 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
     if lo.max() <= hi.min():
         out["common"] = [float(lo.max()), float(hi.min())]
     out["earliest"], out["latest"] = float(lo.min()), float(hi.max())
-    grid = np.arange(0.0, t_limit + 0.5 * step, step)
+    grid = _end_grid(t_limit, step)
     lo_all = np.where(fin, t_lo, np.inf)
     cover = ((grid[:, None] >= lo_all - TOL.time) & (grid[:, None] <= t_hi + TOL.time))
     frac = cover.mean(axis=1)
@@ -233,6 +233,13 @@ def _achievable_summary(t_star, t_lo, t_hi, t_limit, step: float = 1.0,
     out["suggested_map"] = {"t0": t0, "t1": t1, "a": a, "b": b,
                             "fraction_clamped": clamped, "min_span_s": span}
     return out
+
+
+def _end_grid(t_limit: float, step: float = 1.0) -> np.ndarray:
+    """(k,) float, s: the candidate ends ``a``, ``b`` of a landscape's map, ``0`` to
+    ``t_limit`` every ``step`` s (the grid :func:`_achievable_summary` and
+    :func:`_nearest_map` share)."""
+    return np.arange(0.0, t_limit + 0.5 * step, step)
 
 
 def _map_table(t_star, t_lo, t_hi, grid, span: float):
@@ -631,7 +638,7 @@ def _nearest_map(cells, land, p, models, suggested: dict):
     timing scatter (:func:`_order_shows`); None when no map clamps so few.
 
     The maps are ``suggested``'s (:func:`_achievable_summary`: its ``t0``, ``t1``,
-    ``min_span_s``, the 1 s grid).  The order test needs the programme of a map (the
+    ``min_span_s``, :func:`_end_grid`).  The order test needs the programme of a map (the
     predicted sd moves with the times): the nearest map wide enough for the sd of the
     programme last solved is taken, solved, and the test repeated, at most
     ``Programming.fit_order_rounds`` more times; when no map is wide enough, or the rounds
@@ -642,7 +649,7 @@ def _nearest_map(cells, land, p, models, suggested: dict):
     if t1 <= t0:
         return None
     lo = np.where(np.isfinite(p.res["t_min"]), p.res["t_min"], np.inf)
-    maps = _map_table(p.t_star, lo, p.res["t_max"], np.arange(0.0, p.t_limit + 0.5, 1.0), span)
+    maps = _map_table(p.t_star, lo, p.res["t_max"], _end_grid(p.t_limit), span)
     maps = maps[maps[:, 2] <= PROGRAMMING.fit_clamped_fraction + TOL.exact]
     if not len(maps):
         return None
