@@ -265,6 +265,81 @@ def canonical_order(V, F, values=None):
     return V[order], G, (None if values is None else np.asarray(values)[order]), order
 
 
+def canonical_pose(V, F, rel: float = TOL.pose_rel):
+    """The rigid motion that moves a surface into a frame given by its shape alone.
+
+    Where a surface lies in space is no more part of it than its labelling: the stencil
+    search (:func:`pysolver.design.stencil.search.remesh_surface`) is run in this frame, so
+    that the same surface moved rigidly is the same problem to the last bits of its
+    coordinates, read in the same :func:`canonical_order`.  The frame is the surface's own:
+    its area centroid at the origin, its principal axes of inertia along x, y, z (largest
+    second moment first), each pointing where the area reaches further (positive third
+    moment); the axis whose third moment is smallest is set by the right hand instead.  A
+    surface with two equal principal moments (a surface of revolution) or two axes without a
+    third moment (two mirror planes) has no such frame; it keeps the one it was given
+    (``decided`` is False), as it would under any choice among its symmetries.  Written here
+    because what a library offers (``trimesh``'s principal inertia) leaves the signs to the
+    eigensolver.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm
+    F : (m, 3) int
+    rel : float
+        :attr:`pysolver.params.Tolerances.pose_rel`.
+
+    Returns
+    -------
+    R : (3, 3) float -- a rotation (det +1) whose columns are the axes; identity if undecided
+    c : (3,) float, mm -- the area centroid; zero if undecided
+    decided : bool
+
+    The surface in the frame is ``(V - c) @ R``, and a point ``X`` of the frame is ``X @ R.T
+    + c`` in the surface's.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from scipy.spatial.transform import Rotation
+    >>> V = np.array([[0., 0, 0], [6, 0, 0], [0, 2, 0], [0, 0, 1]])
+    >>> F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> R, c, ok = canonical_pose(V, F)
+    >>> Q = Rotation.from_rotvec([0.3, -1.2, 2.0]).as_matrix()
+    >>> R2, c2, _ = canonical_pose(V @ Q.T + 5.0, F)
+    >>> ok, bool(np.allclose((V - c) @ R, (V @ Q.T + 5.0 - c2) @ R2))
+    (True, True)
+    """
+    V = np.asarray(V, float)
+    T = V[np.asarray(F, dtype=np.int64)]
+    A = 0.5 * np.linalg.norm(np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), axis=1)
+    area = float(A.sum())
+    as_given = np.eye(3), np.zeros(3), False
+    if not area > 0:
+        return as_given
+    c = A @ T.mean(axis=1) / area
+    D = T - c
+    s = D.sum(axis=1)
+    # exact area moments of the flat triangles: second (A/12 (sum d d^T + s s^T)) ...
+    M = (np.einsum("f,fij,fik->jk", A, D, D) + np.einsum("f,fj,fk->jk", A, s, s)) / 12.0
+    w, E = np.linalg.eigh(M)
+    w, E = w[::-1], E[:, ::-1]  # largest first
+    if min(w[0] - w[1], w[1] - w[2]) <= rel * w[0]:
+        return as_given
+    # ... and third: A/10 times the sum of the ten cubic monomials of the corners' coordinates
+    X = D @ E
+    a, b, d = X[:, 0], X[:, 1], X[:, 2]
+    cubic = (a**3 + b**3 + d**3 + a * a * (b + d) + b * b * (a + d) + d * d * (a + b)
+             + a * b * d)
+    skew = A @ cubic / 10.0 / (area * (w[0] / area) ** 1.5)
+    by = np.argsort(-np.abs(skew), kind="stable")
+    if abs(skew[by[1]]) <= rel:
+        return as_given
+    E = E * np.where(skew < 0, -1.0, 1.0)
+    if np.linalg.det(E) < 0:
+        E[:, by[2]] *= -1.0
+    return E, c, True
+
+
 @dataclass
 class Cells:
     """Unit cells (interior edges) in the reference's face-major order.

@@ -1,7 +1,8 @@
 """The design reads the geometry, not its labelling or frame (issue #42).
 
 Exact symmetries of the problem, as properties: the order of a mesh's vertices and faces
-(:func:`pysolver.geometry.canonical_order`), the frame of its conformal layout
+(:func:`pysolver.geometry.canonical_order`), where it lies in space
+(:func:`pysolver.geometry.canonical_pose`), the frame of its conformal layout
 (:func:`pysolver.design.stencil.remesh.flat_frame`) and a rigid motion of the target
 (:class:`pysolver.design.stencil.remesh.FlatDomain`'s stencils).  The whole design stage under
 relabelling and rigid motions is in ``tests/test_stability.py``.
@@ -28,7 +29,8 @@ from pysolver.design.stencil.remesh import (
     resample_dense,
     surface_area,
 )
-from pysolver.geometry import canonical_order, signed_areas_2d
+from pysolver.design.stencil.search import remesh_surface
+from pysolver.geometry import canonical_order, canonical_pose, signed_areas_2d
 from pysolver.params import STENCIL
 
 
@@ -86,6 +88,53 @@ def test_canonical_order_keeps_each_face_and_its_orientation():
     assert old == new
 
 
+@settings(max_examples=10, deadline=None, derandomize=True)
+@given(rotvec=st.tuples(*[st.floats(-3, 3)] * 3), shift=st.tuples(*[st.floats(-200, 200)] * 3),
+       labels=st.integers(0, 2**31 - 1))
+def test_canonical_pose_forgets_where_the_surface_lies(rotvec, shift, labels):
+    """The spiral (no symmetry) moved rigidly and relabelled is put into the same frame: the
+    same canonical order, points within 1e-9 mm; relabelled alone, the same frame to the bit."""
+    s = surfaces.builtin("spiral")
+
+    def posed(V, F):
+        V, F, _, _ = canonical_order(V, F)
+        R, c, decided = canonical_pose(V, F)
+        assert decided and np.isclose(np.linalg.det(R), 1.0)
+        return canonical_order((V - c) @ R, F)[:2], (R, c)
+
+    (P, G), pose = posed(s.V, s.F)
+    Q = Rotation.from_rotvec(rotvec).as_matrix()
+    V2, F2, _ = relabel(s.V @ Q.T + np.array(shift), s.F, labels)
+    (P2, G2), _ = posed(V2, F2)
+    assert np.array_equal(G, G2) and np.abs(P - P2).max() < 1e-9
+    V3, F3, _ = relabel(s.V, s.F, labels)
+    _, again = posed(V3, F3)
+    assert all(np.array_equal(a, b) for a, b in zip(pose, again, strict=True))
+
+
+def test_the_stencil_is_searched_in_the_target_s_frame_and_returned_in_the_user_s():
+    """The spiral moved rigidly gives the stencil of the spiral as given, moved by the same
+    motion, within 1e-6 mm (the search sees both in one frame, so they differ by round-off);
+    and ``info["pose"]`` says so."""
+    s = surfaces.builtin("spiral")
+    Q = Rotation.from_rotvec([-0.8, 2.1, 0.5]).as_matrix()
+    shift = np.array([-40.0, 75.0, 12.0])
+    kw = {"vertices": 60, "seed": 0, "optimize": False, "dense": False}
+    V2, F2, info = remesh_surface(s.V, s.F, **kw)
+    W2, G2, _ = remesh_surface(s.V @ Q.T + shift, s.F, **kw)
+    assert info["pose"] == "principal axes" and np.array_equal(F2, G2)
+    assert np.abs(V2 @ Q.T + shift - W2).max() < 1e-6
+
+
+@pytest.mark.parametrize("name", ["dome", "saddle"])
+def test_a_symmetric_surface_keeps_the_frame_it_was_given(name):
+    """A surface of revolution (two equal principal moments) and one with two mirror planes
+    (two axes without a third moment) have no frame of their own: the pose is the identity."""
+    s = surfaces.builtin(name)
+    R, c, decided = canonical_pose(*canonical_order(s.V, s.F)[:2])
+    assert not decided and np.array_equal(R, np.eye(3)) and not c.any()
+
+
 @pytest.fixture(scope="module")
 def dome():
     s = surfaces.builtin("dome:size=0.7")
@@ -106,6 +155,34 @@ def test_flat_frame_is_the_same_however_the_layout_lies(dome, angle, shift, labe
     assert np.abs(flat_frame(moved, G) - flat_frame(UV, F)).max() < 1e-9
     P = flat_frame(UV, F)
     assert np.all(signed_areas_2d(P, F) * np.sign(signed_areas_2d(UV, F)) > 0)  # no mirror
+
+
+def test_a_mirror_symmetric_layout_takes_one_frame_whatever_the_last_bits():
+    """A target with one mirror plane (x = 0: a trapezoidal strip bent along its length, its
+    mesh mirrored too) lays out with two directions of equal reach, mirror images: the frame
+    is chosen by the side of the target's mirror normal, so a 1e-7 jitter and any turn of
+    the layout give the same frame, within 1e-4 mm (by the reach alone, the jitter decided)."""
+    x, y = np.meshgrid(np.linspace(-30, 30, 25), np.linspace(0, 12, 9))
+    x = x * (1 + y / 10)
+    V = np.c_[x.ravel(), y.ravel(), 0.01 * x.ravel() ** 2]
+    n, F = x.shape[1], []
+    for i in range(x.shape[0] - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j
+            F += [[a, b, c], [a, c, d]] if j < (n - 1) // 2 else [[a, b, d], [b, c, d]]
+    F = np.array(F)
+    UV, _, _ = cetm(V, F)
+    ref = flat_frame(UV, F, V=V)
+    tip = ref[np.argmax(ref[:, 0])]  # the far end of the frame's +x
+    assert abs(abs(V[np.argmax(ref[:, 0]), 0]) - 30 * 2.2) < 1e-9  # (along the strip: a tie)
+    rng = np.random.default_rng(7)
+    for angle in rng.uniform(-np.pi, np.pi, 6):
+        J = V + 1e-7 * 66 * rng.standard_normal(V.shape)
+        UVj, _, _ = cetm(J, F)
+        Rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        got = flat_frame(UVj @ Rot.T, F, V=J)
+        assert np.abs(got - ref).max() < 1e-4
+    assert V[np.argmax(ref[:, 0]), 0] > 0 and tip[0] > 0  # (toward +x of the target)
 
 
 def test_a_stencil_moves_with_its_target(dome):

@@ -330,6 +330,46 @@ def test_pick_keeps_the_size_before_the_margin():
     assert candidates.pick(off, P, 0.3, STENCIL) == _k(100)  # nothing at size
 
 
+def test_pick_takes_the_nearest_count_whose_starts_print_at_full_size():
+    """The counts ranked by their mean scaling (nearest 1 first): when the first has no start
+    that would print held at scale 1, the pick is the next count's best start, not a
+    fallback elsewhere.  (The peer top's counts 120 and 152 tied to 3e-4 in mean log scaling;
+    taking 120, with no such start, fell back to 193 bases, which did not hold at scale 1, and
+    a rounding flipped the design between 235 bases and a refusal.)"""
+    P = UNIT_CELL
+    wide = {"scale3d": 1.006, "max_cell_length_mm": 11.05}  # at size, too long at scale 1
+    good = {"scale3d": 0.952, "max_cell_length_mm": 8.76}
+    better = {"scale3d": 0.960, "max_cell_length_mm": 8.30}
+    other = {"scale3d": 1.033, "max_cell_length_mm": 8.07}
+    tried = {Candidate(120, 0, 0.0): wide, Candidate(152, 0, 0.0): good,
+             Candidate(152, 1, 0.0): better, Candidate(193, 0, 0.0): other}
+    for first in ((120, 152, 193), (152, 120, 193)):
+        assert candidates.pick(tried, P, 0.3, STENCIL, {0.0: first}) == Candidate(152, 1, 0.0)
+    assert candidates.pick(tried, P, 0.3, STENCIL, {0.0: (193, 152)}) == Candidate(193, 0, 0.0)
+
+
+def test_a_failed_polish_tries_the_next_counts_starts():
+    """When the pick does not hold at scale 1, the other seeds of its count are polished, then
+    the starts of the next counts (nearest a mean scaling of 1 first) that keep the size and
+    would print held at 1; at most ``polish_tries`` in all, the pick included."""
+    from types import SimpleNamespace
+
+    def fig(s3, L):
+        return {"scale3d": s3, "max_cell_length_mm": L}
+
+    tried = {Candidate(193, 1, 0.0): fig(1.03, 8.07), Candidate(193, 0, 0.0): fig(1.02, 8.5),
+             Candidate(182, 1, 0.0): fig(0.96, 8.06), Candidate(152, 1, 0.0): fig(0.95, 8.76),
+             Candidate(152, 0, 0.0): fig(0.94, 8.0),    # off the size band
+             Candidate(120, 0, 0.0): fig(1.0, 11.0),    # too long held at 1
+             Candidate(152, 1, 2.0): fig(0.99, 8.0)}    # another rim inset
+    search = SimpleNamespace(settings=STENCIL, params=UNIT_CELL, tried=tried,
+                             flat=dict.fromkeys(tried), centres={0.0: (120, 152, 193, 182)})
+    got = CountSearch.alternates(search, Candidate(193, 1, 0.0))
+    assert got == [Candidate(193, 0, 0.0), Candidate(152, 1, 0.0), Candidate(182, 1, 0.0)]
+    search.settings = replace(STENCIL, polish_tries=2)
+    assert CountSearch.alternates(search, Candidate(193, 1, 0.0)) == [Candidate(193, 0, 0.0)]
+
+
 def test_size_refusal_names_measured_alternatives():
     """A target that prints only far under its size is refused; the fix names a smaller
     --size and --min-bumper 0.1, each searched again."""

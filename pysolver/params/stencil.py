@@ -287,6 +287,13 @@ class CountSearchSettings:
     """float: The polish "held" the scaling at 1 when the stencil kept is within this (log) of
     it: the stencil is then at full size (:func:`pysolver.design.stencil.candidates.full_size`).
     Runs: ``docs/results.md``, "How the stencil settings were chosen"."""
+    polish_tries: int = 4
+    """int: Most stencils polished at scale 1 before the count search gives up the size asked
+    for (:meth:`pysolver.design.stencil.count_search.CountSearch.alternates`): the pick, the other
+    starts of its count, then the starts of the next counts (nearest a mean scaling of 1 first)
+    that keep the size and would print held at scale 1.  A polish that fails to hold is a
+    threshold outcome of a long optimisation: refusing on one alone refused a shape or not with
+    the last bits of its coordinates."""
     hopeless_log_scale: float = 0.35
     """float: A candidate whose stencil, before optimisation, is off the size asked for by more
     than this (|log 3D scaling|, 42 %) is not optimised: the optimisation moves the scaling by

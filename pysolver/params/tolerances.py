@@ -86,6 +86,15 @@ class Tolerances:
     orientation_rel : float
         Relative size (of the extent of the points) under which the sign of an orientation
         test (normals versus centroid) is undecided.
+    frame_tie : float
+        Difference of two directions' third moments (relative to the absolute third moment)
+        under which a flat layout's frame is a tie
+        (:func:`pysolver.design.stencil.remesh.flat_frame`): a mirror symmetry, above what a
+        jitter of 1e-7 of the size moves (the nearest non-tie measured: 3e-5, the spiral).
+    pose_rel : float
+        Relative gap between two principal second moments of a surface (of the largest), or
+        third moment along a principal axis (of the largest extent cubed), under which its
+        principal frame is undecided (a symmetry, :func:`pysolver.geometry.canonical_pose`).
     irls_rel : float
         Relative decrease of the objective under which the robust (IRLS) scan fit stops.
     rank_rtol : float
@@ -143,6 +152,8 @@ class Tolerances:
     input_degenerate: float = 1e-10
     membrane_collapse: float = 1e-3
     orientation_rel: float = 1e-3
+    pose_rel: float = 1e-3
+    frame_tie: float = 1e-5
     irls_rel: float = 1e-10
     irls_eps_mm: float = 1e-4
     rank_rtol: float = 1e-9

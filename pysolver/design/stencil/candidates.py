@@ -174,11 +174,12 @@ def pick(tried: dict, params: UnitCell, margin: float,
     """The count search's pick among the candidates ``tried`` (:class:`Candidate` ->
     figures).
 
-    Given ``centres`` (rim inset mm -> the count the secant found), the candidates of that
-    count (one per seed) that keep the size asked for and would print held at scale 1
-    (:func:`per_scale` within the limit) come first, the shortest longest cell per unit of 3D
-    scaling taken: the best of several starts, which is what the polish delivers, and no
-    longer a choice among the seeds' scatter in scaling.  Otherwise: 3D scaling closest to 1
+    Given ``centres`` (rim inset mm -> the counts the secant tried, the nearest a mean 3D
+    scaling of 1 first), the candidates of the first of those counts that has any (one per
+    seed) that keep the size asked for and would print held at scale 1 (:func:`per_scale`
+    within the limit) come first, the shortest longest cell per unit of 3D scaling taken: the
+    best of several starts, which is what the polish delivers, and no longer a choice among
+    the seeds' scatter in scaling.  Otherwise: 3D scaling closest to 1
     among those that print with ``margin``; else within the limit; else the shortest longest
     cell per unit of 3D scaling (what the polish, holding the scaling, keeps: the longest
     cell alone favours the candidates that happen to be small, and its ties between
@@ -196,8 +197,13 @@ def pick(tried: dict, params: UnitCell, margin: float,
     if not tried:
         return None
     if centres:
-        here = [k for k, c in tried.items() if centres.get(k.inset_mm) == k.vertices
-                and at_size(c, settings or STENCIL) and per_scale(c) <= params.max_cell_length]
+        fit = [k for k, c in tried.items()
+               if at_size(c, settings or STENCIL) and per_scale(c) <= params.max_cell_length]
+        here = []
+        for inset, counts in centres.items():
+            first = next((n for n in counts
+                          if any(k.inset_mm == inset and k.vertices == n for k in fit)), None)
+            here += [k for k in fit if k.inset_mm == inset and k.vertices == first]
         if here:
             return min(here, key=lambda k: (per_scale(tried[k]), k))
     pools = [tried]

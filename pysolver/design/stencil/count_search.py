@@ -9,9 +9,12 @@ shell's size.  The search looks for N so that the shell keeps the size asked for
 **A function of the geometry.**  The same surface must give the same shell however its mesh
 is labelled, placed or rounded, and on any machine (issue #42).  The search reads the target
 in a canonical order (:func:`pysolver.geometry.canonical_order`: relabelled inputs give the
-same stencil to the last bit), the stencils are seeded by position in a frame the target's
-shape sets (:mod:`pysolver.design.stencil.remesh`: a rigid motion or a last-bit jitter
-moves them by as little), and the search does not steer on one noisy start: each count is tried with
+same stencil to the last bit) and, unless a symmetry leaves it undecided, in its own frame
+(:func:`pysolver.geometry.canonical_pose`: a rigidly moved input then differs by the
+round-off of its coordinates only, as on another CPU, where before it reordered every sum),
+the stencils are seeded by position in a frame the target's shape sets
+(:mod:`pysolver.design.stencil.remesh`: a rigid motion or a last-bit jitter moves them by as
+little), and the search does not steer on one noisy start: each count is tried with
 ``StencilSearch.seeds`` CVT seeds, whose 3D scalings scatter by a few per cent (the tightest
 cell decides it), as much as two rungs of the count's ladder.  We chose *several starts per
 count* over one start with a converged objective because the scatter is not the optimiser's
@@ -30,7 +33,10 @@ are fixed linear combinations of the input's).
    from the paper's estimate ``0.38 A / 7^2`` times ``StencilSearch.count_start``, every
    count on one fixed geometric ladder (``StencilSearch.count_ladder``,
    :meth:`CountSearch.rung`); then the next rim inset when nothing is printable.  The count
-   taken is the one tried whose mean scaling is nearest 1, not where the steps stopped.
+   taken is the one tried whose mean scaling is nearest 1 among those with a start that
+   would print at full size, not where the steps stopped (two counts' means can tie to the
+   last bits: the nearest without such a start gave way to a fallback, and a rounding
+   flipped the shell between 235 bases and a refusal).
 2. **The pick** (:func:`pysolver.design.stencil.candidates.pick`, the one place the rule
    lives): among the seeds at that count that keep the size (:func:`~.candidates.at_size`:
    3D scaling within ``[min_scale3d, 1 / min_scale3d]``) and would print held at scale 1,
@@ -42,8 +48,9 @@ are fixed linear combinations of the input's).
 4. **The polish** (:meth:`CountSearch.converge`, :meth:`CountSearch.polish`): the pick
    optimised on until its rounds converge, then with its 3D scaling held at 1.  The size
    asked for is the size delivered: a stencil that prints at scale 1 is taken there, and
-   when the pick's does not, the count's other seeds are polished in turn
-   (:meth:`CountSearch.alternates`).  A stencil that prints only off the size
+   when the pick's does not, the count's other seeds, then the next counts' starts are
+   polished in turn (:meth:`CountSearch.alternates`, at most
+   ``StencilSearch.polish_tries``).  A stencil that prints only off the size
    (:func:`~.candidates.full_size`) is refused by the design stage, naming a measured
    ``--size``.
 5. **The trade** (:meth:`CountSearch.trade`), with a landscape the user gave: fewer, larger
@@ -114,7 +121,7 @@ class CountSearch:
         self.meshes: dict = {}
         self.flat: dict = {}  # key -> optimised flat points, time at them
         self.optimisation: dict = {}  # key -> optimise_stencil's info
-        self.centres: dict = {}  # rim inset (mm) -> the count the secant found
+        self.centres: dict = {}  # rim inset (mm) -> counts, nearest scale 1 first
         self.dom = None
         if method == "cvt":
             h = rim_log_scale(V, F, params, settings) if settings.rim_scale == "free" else None
@@ -251,21 +258,25 @@ class CountSearch:
     def search_inset(self, inset: float, vertices, seeds, start: list) -> None:
         """All candidates of one rim inset: the given count with every seed, or the secant
         steps with every seed and ``candidates`` around their result (``start`` holds the
-        count to start from, updated; the count found is ``self.centres[inset]``)."""
+        count to start from, updated; ``self.centres[inset]`` holds the counts tried with
+        every seed, the nearest a mean scaling of 1 first)."""
         st = self.settings
         if vertices is not None:
             for sd in seeds:
                 self.trial(int(vertices), sd, inset, given=True)
-            self.centres[float(inset)] = max(int(vertices), 8)
+            self.centres[float(inset)] = (max(int(vertices), 8),)
             return
         n = start[0] = self.secant(inset, start[0], seeds)
         visited = sorted({k.vertices for k in self.tried if k.inset_mm == float(inset)
                           and self.log_scale(k.vertices, seeds, inset) is not None
                           and all(Candidate(k.vertices, sd, inset) in self.tried
                                   for sd in seeds)})
-        if visited:  # (the count whose mean scaling is nearest 1, not where the steps ended)
-            n = min(visited, key=lambda m: (abs(self.log_scale(m, seeds, inset)), m))
-        self.centres[float(inset)] = n
+        # the counts by how near 1 their mean scaling is, not where the steps ended: the pick
+        # takes the nearest whose stencils would print at full size
+        ranked = sorted(visited, key=lambda m: (abs(self.log_scale(m, seeds, inset)), m))
+        if ranked:
+            n = ranked[0]
+        self.centres[float(inset)] = tuple(ranked) or (n,)
         for f in st.candidates:
             for sd in seeds:
                 self.trial(round(n * f), sd, inset)
@@ -438,12 +449,22 @@ class CountSearch:
         return Vp, self.figures(Vp, self.meshes[best][1]), opt
 
     def alternates(self, best) -> list:
-        """The other starts (seeds) of the count and rim inset of ``best`` that keep the size
-        asked for, shortest longest cell per unit of scaling first: polished in turn when
-        the polish of ``best`` does not print at full size."""
-        at = [k for k, c in self.tried.items() if k != best and k.vertices == best.vertices
-              and k.inset_mm == best.inset_mm and k in self.flat and at_size(c, self.settings)]
-        return sorted(at, key=lambda k: (per_scale(self.tried[k]), k))
+        """What is polished in turn when the polish of ``best`` does not print at full size:
+        the other starts (seeds) of its count and rim inset that keep the size asked for, then
+        the starts of the other counts of that inset (nearest a mean scaling of 1 first,
+        ``self.centres``) that keep it and would print held at scale 1; within a count, the
+        shortest longest cell per unit of scaling first.  At most
+        ``StencilSearch.polish_tries`` in all, ``best`` included."""
+        st, inset = self.settings, best.inset_mm
+        ok = {k: c for k, c in self.tried.items()
+              if k != best and k.inset_mm == inset and k in self.flat and at_size(c, st)}
+        same = sorted((k for k in ok if k.vertices == best.vertices),
+                      key=lambda k: (per_scale(ok[k]), k))
+        rank = {n: i for i, n in enumerate(self.centres.get(inset, ()))}
+        other = sorted((k for k, c in ok.items() if k.vertices != best.vertices
+                        and k.vertices in rank and per_scale(c) <= self.params.max_cell_length),
+                       key=lambda k: (rank[k.vertices], per_scale(ok[k]), k))
+        return (same + other)[:max(st.polish_tries - 1, 0)]
 
     def trade(self, best: Candidate, V2, F2, chosen: dict, info: dict, seeds=None):
         """Fewer, larger (faster) cells for a landscape that asks for early times.

@@ -62,6 +62,7 @@ from shapely.geometry import LinearRing, Polygon
 from ...errors import InputError
 from ...geometry import face_adjacency, face_normals, signed_areas_2d
 from ...params import STENCIL, StencilSearch
+from ...params import tol as TOL
 from ..flatten import cetm
 
 PAPER_CELL_LENGTH = 7.0  # mm, l_avg of the vertex-count estimate (Supplementary Note 1)
@@ -313,7 +314,7 @@ class FlatDomain:
         self.settings = settings
         self.rim_u = None if rim_log_scale is None else np.asarray(rim_log_scale, float)
         UV, self.u, _ = cetm(self.V, self.F, u_boundary=self.rim_u)
-        self.UV = flat_frame(UV, self.F)
+        self.UV = flat_frame(UV, self.F, V=self.V)
         # log of the relative 3D spacing the time landscape asks for (0 without one)
         self.w = (np.zeros(len(self.V)) if time is None
                   else time_spacing_log(time, settings.timing_grading))
@@ -533,7 +534,7 @@ def quadrature_points(UV, F) -> np.ndarray:
     return np.concatenate(q + [m.mean(axis=1)])
 
 
-def flat_frame(UV, F, orders=range(2, 7)) -> np.ndarray:
+def flat_frame(UV, F, orders=range(2, 7), V=None, tie: float = TOL.frame_tie) -> np.ndarray:
     """A flat layout moved into a frame given by its shape alone.
 
     A conformal flattening is unique up to a rigid motion of the plane, which the solver
@@ -544,13 +545,25 @@ def flat_frame(UV, F, orders=range(2, 7)) -> np.ndarray:
     pronounced (``|m_k| / integral |z|^k dA``, 2 for an elongated shape, 3 for a trefoil),
     of the k directions so given the one toward which the area reaches furthest (the
     largest third moment of x).  A shape with no such moment (a disk) keeps the solver's
-    angle, which is then a symmetry.
+    angle, which is then a symmetry.  A mirror-symmetric layout (the stand) has two such
+    directions, mirror images, whose third moments tie to the last bits (both zero when the
+    two are opposite), and the stencil seeded in one frame is not the mirror image of the
+    one seeded in the other.  With the target ``V`` in its own frame
+    (:func:`pysolver.geometry.canonical_pose`: right-handed, so its axis along the mirror's
+    normal has a sign), of the directions within ``tie`` of the largest (relative to
+    ``integral |x|^3 dA``), the one whose area lies furthest toward the + side of that axis
+    (of ``sum A (x . d) X``, the 3D component in which the tied directions differ most) is
+    taken: the mirror turns that sign.
 
     Parameters
     ----------
     UV : (n, 2) float, mm
     F : (m, 3) int
     orders : iterable of int
+    V : (n, 3) float, mm, optional
+        The target, in its own frame; without it a tie goes to the largest third moment.
+    tie : float
+        :attr:`pysolver.params.Tolerances.frame_tie`.
 
     Returns
     -------
@@ -572,14 +585,23 @@ def flat_frame(UV, F, orders=range(2, 7)) -> np.ndarray:
     A = np.tile(np.abs(signed_areas_2d(UV, F)), 4)
     c = A @ Q / A.sum()
     z = (Q - c) @ np.array([1.0, 1.0j])
-    best, angle = 0.0, 0.0
+    best, angle, ks = 0.0, 0.0, []
     for k in orders:
         mk = A @ z**k
         rel = abs(mk) / max(float(A @ np.abs(z) ** k), 1e-300)
         if rel > best:
             best, angle = rel, float(np.angle(mk)) / k
             ks = [angle + 2 * np.pi * j / k for j in range(k)]
-            angle = max(ks, key=lambda a: float(A @ np.real(z * np.exp(-1j * a)) ** 3))
+    if ks:
+        reach = [float(A @ np.real(z * np.exp(-1j * a)) ** 3) for a in ks]
+        angle = ks[int(np.argmax(reach))]
+        top, scale = max(reach), float(A @ np.abs(z) ** 3)
+        tied = [a for a, r in zip(ks, reach, strict=True) if r >= top - tie * scale]
+        if V is not None and len(tied) > 1:
+            X = np.tile(np.asarray(V, float)[F].mean(axis=1), (4, 1))
+            C = np.array([A @ (np.real(z * np.exp(-1j * a))[:, None] * X) for a in tied])
+            axis = int(np.argmax(np.ptp(C, axis=0)))  # (the mirror's normal)
+            angle = tied[int(np.argmax(C[:, axis]))]
     R = np.array([[np.cos(angle), np.sin(angle)], [-np.sin(angle), np.cos(angle)]])
     return (UV - c) @ R.T
 

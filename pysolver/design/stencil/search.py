@@ -12,6 +12,12 @@ in plain sight in its body rather than by the search calling itself:
    the size asked for, the search again with the rim's scale free
    (:func:`_with_rim_scale`), itself graded or not as in 1-2; the free stencil is taken when
    it prints at size or ranks higher.
+
+The passes see the target in an order and a frame given by its geometry alone
+(:func:`pysolver.geometry.canonical_order`, :func:`pysolver.geometry.canonical_pose`): the
+search is a chain of choices whose branches can differ by a few per cent of bases, and a
+relabelled or rigidly moved input must not choose another branch.  Read so, such an input
+differs from the original by the round-off of its coordinates only, as a run on another CPU does.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...errors import InputError
-from ...geometry import canonical_order
+from ...geometry import canonical_order, canonical_pose
 from ...params import STENCIL, UNIT_CELL, StencilSearch, UnitCell
 from ...params import tol as TOL
 from ..time_landscape import interpolate_to_stencil
@@ -125,9 +131,13 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
         (:meth:`~.count_search.CountSearch.records`), ``polish``, ``rim``
         (:meth:`~.count_search.CountSearch.rim_fallback`), ``rim_scale``,
         ``timing_grading``, ``trade`` (:meth:`~.count_search.CountSearch.trade`),
-        ``warnings``.
+        ``pose`` (the frame the search ran in), ``warnings``.
     """
-    V, F, time, _ = canonical_order(V, F, time)  # (a function of the geometry, not the labels)
+    # a function of the geometry: not of the labels (the order), nor of where it lies (the pose)
+    V, F, time, _ = canonical_order(V, F, time)
+    R, c, posed = canonical_pose(V, F)
+    if posed:
+        V, F, time, _ = canonical_order((V - c) @ R, F, time)
     if settings.rim_scale not in ("auto", "kept", "free"):
         raise InputError(f"StencilSearch.rim_scale={settings.rim_scale!r}",
                          fix='use "auto", "kept" or "free"')
@@ -138,7 +148,8 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
     V2, F2, info = _with_rim_scale(req, used, done)
     if graded is not None:  # (whichever rim was taken, the grading was not)
         info["timing_grading"] = graded
-    return V2, F2, info
+    info["pose"] = "principal axes" if posed else "as given (a symmetry leaves it undecided)"
+    return (V2 @ R.T + c if posed else V2), F2, info
 
 
 def _ungraded_if_needed(req: _Request, settings: StencilSearch):
