@@ -24,7 +24,11 @@ Writes ``<out>/coupon_bias.json``.  Usage::
 
     .venv/bin/python bench/bench_coupon_bias.py [--design build/bench/tolerance_petal]
         [--samples 2,4,20] [--variants two,one,oracle] [--model-samples 64] [--model-only]
-        [--coupon-sim] [--out build/bench]
+        [--coupon-sim] [--reach] [--out build/bench]
+
+``--reach`` (only): per compliance 0.5-2, the share of the design's cells that the
+reprogramming puts at the thinnest printable bracket, and the share whose thinnest brackets
+close more than 10 s after t* (what no coupon can correct).
 
 ``--coupon-sim``: the coupon itself, designed as ``morphshell coupon`` makes it, simulated at
 the nominal print to 300 s (could the simulator's closing times ship with the coupon?).
@@ -174,6 +178,29 @@ def coupon_in_the_simulator(out: Path, t_end: float = 300.0) -> dict:
             "verdict": r["verdict"], "reasons": r["reasons"][:4]}
 
 
+def reach(design: Path, compliances=(0.5, 0.6, 0.8, 1.0, 1.5, 2.0)) -> list:
+    """Can the reprogramming reach a print of compliance ``s``?  Per ``s``: the share of the
+    design's cells reprogrammed (exact factors) with a bracket at the thinnest printable
+    thickness, and the share whose thinnest brackets close more than 10 s after t* (the
+    time model's)."""
+    from pysolver.params import UNIT_CELL
+    from pysolver.temporal import coupon as tc
+
+    ctx = _context(design)
+    sh, h, h_min = ctx["shell"], ctx["h"], UNIT_CELL.thickness_min
+    from pysolver.tolerance import coupon as cp
+    rows = []
+    for s in compliances:
+        h2 = cp.reprogrammed_thickness(sh, h, ctx["mat"], {"compliance": {"value": s},
+                                                           "modulus": {"value": 1.0}})
+        t = tc.closing_times(ctx["mat"], sh["b0"], sh["x"], sh["f_bracket"],
+                             np.full_like(h, h_min), s, 1.0)
+        rows.append({"compliance": s,
+                     "at_thinnest": float(np.mean(np.any(h2 <= h_min + 1e-6, axis=1))),
+                     "late_by_10s_at_thinnest": float(np.mean(t > ctx["t_star"] + 10.0))})
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--design", default=str(ROOT / "build" / "bench" / "tolerance_petal"))
@@ -181,6 +208,8 @@ def main() -> int:
     ap.add_argument("--variants", default="two0,one0,two,one,oracle")
     ap.add_argument("--model-samples", type=int, default=64)
     ap.add_argument("--model-only", action="store_true")
+    ap.add_argument("--reach", action="store_true",
+                    help="only: how much of the design the reprogramming can reach per compliance")
     ap.add_argument("--coupon-sim", action="store_true",
                     help="also simulate the coupon itself at the nominal print")
     ap.add_argument("--out", default=str(ROOT / "build" / "bench"))
@@ -188,6 +217,10 @@ def main() -> int:
     from pysolver.core.writes import atomic_write_text
 
     design = Path(a.design)
+    if a.reach:
+        for r in reach(design):
+            print(json.dumps(r), flush=True)
+        return 0
     variants = a.variants.split(",")
     ctx = _context(design)
     res = {"design": str(design),
