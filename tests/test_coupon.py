@@ -7,6 +7,7 @@ second.  The render of the coupon (its engraved labels) is run by ``make coupon`
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 from pysolver import cli
 from pysolver.coupon import make_coupon
 from pysolver.errors import EXIT_BAD_INPUT, EXIT_OK
-from pysolver.params import COUPON, UNIT_CELL
+from pysolver.params import COUPON, UNCERTAINTY, UNIT_CELL
 from pysolver.temporal import coupon as tc
 from pysolver.temporal.program import load_material
 
@@ -45,8 +46,22 @@ def _measured(out, tmp_path, times, rows=None) -> str:
 
 
 def _synthetic(d: dict, material, s, m, rng, sd=COUPON.reading_sd_s):
-    t = tc.closing_times(material, d["b0"], d["x"], d["f_bracket"], d["thickness"], s, m)
-    return t + rng.normal(0.0, sd, len(t))
+    """Closing times of the mean print of the coupon (each cell's expected time under the
+    per-bracket scatter, as the fit models it) read with an error of sd ``sd`` s; a cell
+    past the model's 120 s is written ``never`` (inf), as a maker would."""
+    t = tc.expected_closing_times(material, d["b0"], d["x"], d["f_bracket"], d["thickness"],
+                                  s, m)
+    t = t + rng.normal(0.0, sd, len(t))
+    return np.where(t <= 120.0, t, np.inf)
+
+
+def _printed(d: dict, material, s, rng, h_sd=UNCERTAINTY.thickness_sd):
+    """Closing times of one printed coupon: every bracket ``h + N(0, h_sd)``, read with 1 s
+    of error; a cell past the model's range is written ``never`` (inf)."""
+    th = np.maximum(d["thickness"] + h_sd * rng.standard_normal(d["thickness"].shape), 0.05)
+    t = tc.closing_times(material, d["b0"], d["x"], d["f_bracket"], th, s, 1.0)
+    t = t + rng.normal(0.0, COUPON.reading_sd_s, len(t))
+    return np.where(np.isfinite(t) & (t <= 120.0), np.maximum(t, 1.0), np.inf)
 
 
 def test_coupon_table_spans_the_programmable_thicknesses(coupon, material):
@@ -89,6 +104,45 @@ def test_fit_recovers_the_compliance(coupon, material, tmp_path, s, m):
     assert fit["compliance"]["z_from_model"] > 3.0  # far from the shipped model, and says so
 
 
+def test_expected_closing_time_is_the_mean_of_the_later_layer(coupon, material):
+    """Each cell's expected closing time (Gauss-Hermite per layer, then Clark) against 2000
+    printed coupons: the median cell within 0.4 s of the Monte Carlo mean (its standard error
+    is under 0.15 s), every cell within 2.5 s (the slowest cells, whose time bends sharply
+    near the model's end, are the worst), and later than the nominal time on average."""
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    k = 2000
+    rng = np.random.default_rng(45)
+    rep = {c: np.repeat(d[c], k, axis=0) for c in ("b0", "x", "f_bracket", "thickness")}
+    th = rep["thickness"] + UNCERTAINTY.thickness_sd * rng.standard_normal(rep["thickness"].shape)
+    mc = tc.closing_times(material, rep["b0"], rep["x"], rep["f_bracket"], th).reshape(-1, k)
+    ok = np.all(np.isfinite(mc), axis=1)
+    assert ok.sum() >= 15
+    e = tc.expected_closing_times(material, d["b0"], d["x"], d["f_bracket"], d["thickness"])
+    t0 = tc.closing_times(material, d["b0"], d["x"], d["f_bracket"], d["thickness"])
+    err = np.abs(e[ok] - mc[ok].mean(axis=1))
+    assert np.median(err) < 0.4 and err.max() < 2.5
+    assert np.mean(e[ok] - t0[ok]) > 0.5
+
+
+def test_the_fit_reads_no_stiffness_into_the_coupons_own_scatter(coupon, material):
+    """Six printed coupons of a print 1.3 times as compliant (every bracket scattered by the
+    default 0.02 mm, 1 s reading error): the fit recovers the compliance within 4 % on
+    average; the fit of nominal times (``later_layer`` off, before issue #45 item 2) reads the
+    later layers' lateness as stiffer brackets, at least 5 % lower."""
+    out, _ = coupon
+    d = tc.read_coupon_csv(out / tc.CSV_NAME)
+    rng = np.random.default_rng(2)
+    new, old = [], []
+    nominal = dataclasses.replace(COUPON, later_layer=False)
+    for _ in range(6):
+        p = dict(d, t=_printed(d, material, 1.3, rng))
+        new.append(np.log(tc.fit_coupon(p, material)["compliance"]["value"] / 1.3))
+        old.append(np.log(tc.fit_coupon(p, material, nominal)["compliance"]["value"] / 1.3))
+    assert abs(np.mean(new)) < 0.04
+    assert np.mean(old) < np.mean(new) - 0.05
+
+
 def test_fit_of_the_shipped_model_is_near_one(coupon, material, tmp_path):
     out, _ = coupon
     d = tc.read_coupon_csv(out / tc.CSV_NAME)
@@ -101,12 +155,15 @@ def test_a_weaker_membrane_is_separated_or_folded_into_the_compliance(coupon, ma
                                                                       tmp_path):
     """A membrane 15 % weaker, read without error: the fit either separates it (modulus within
     3 % of 0.85) or folds it into a stiffer bracket (compliance < 1); either way its factors
-    reproduce the coupon's times within 2 s rms."""
+    reproduce the coupon's times within 2.5 s rms.  (With each cell's expected time, the
+    slowest cells pass the model's 120 s and are censored; the two factors' estimates then
+    correlate at -0.99, the modulus is folded and 2.3 s rms is left; nominal times were
+    separated exactly.)"""
     out, _ = coupon
     d = tc.read_coupon_csv(out / tc.CSV_NAME)
     t = _synthetic(d, material, 1.0, 0.85, np.random.default_rng(5), sd=0.0)
     fit = tc.fit_coupon(tc.read_coupon_csv(_measured(out, tmp_path, t)), material)
-    assert fit["residual_rms_s"] < 2.0
+    assert fit["residual_rms_s"] < 2.5
     if fit["modulus_fitted"]:
         assert fit["modulus"]["value"] == pytest.approx(0.85, rel=0.03)
     else:

@@ -177,6 +177,19 @@ class Coupon:
         otherwise the modulus is kept at 1 (the compliance then carries both).
     confidence : float
         Level of the printed confidence intervals.
+    later_layer : bool
+        The fit models each coupon cell's closing time as the *expected* time of the later of
+        its two layers under the per-bracket thickness scatter
+        (:data:`pysolver.params.UNCERTAINTY` ``thickness_sd``; Clark's moments,
+        :func:`pysolver.temporal.cell_time.timing_sd`), not as the later nominal layer: a
+        printed cell closes late on average, and a fit that ignores it reads the lateness as
+        a stiffer bracket (measured: ``bench/bench_coupon_bias.py``, docs/results.md, issue
+        #45).  False: the nominal time (the fit before this option).
+    later_layer_rounds : int
+        Times the lateness is evaluated at the current fit and the compliance fitted again
+        (it depends on the print's factors only through each bracket's sensitivity; measured
+        on 12 synthetic coupons, compliance 0.6-1.8: 2 rounds give the compliance of a fit
+        that evaluates the lateness at every step within 1.8 %, with fewer model evaluations).
     """
 
     rows: int = 2
@@ -190,6 +203,8 @@ class Coupon:
     modulus_bounds: tuple = (0.3, 3.0)
     max_correlation: float = 0.95
     confidence: float = 0.95
+    later_layer: bool = True
+    later_layer_rounds: int = 2
 
 
 COUPON = Coupon()

@@ -46,12 +46,13 @@ from ..core.writes import atomic_write_text
 from ..design.time_landscape import read_option_text
 from ..errors import InputError
 from ..material.model import CompliantBracketModel, model_dict
-from ..params import COUPON, UNIT_CELL, Coupon
+from ..params import COUPON, TOLERANCE_RUN, UNCERTAINTY, UNIT_CELL, Coupon
 from ..tables import read_table
 from .membrane_model import load_membrane_model
 from .program import (
     bracket_target_force,
     completion_time,
+    later_layer_moments,
     load_material,
     membrane_factors,
     solve_thickness,
@@ -132,6 +133,46 @@ def closing_times(material, b0, x, f_bracket, thickness, compliance=1.0, modulus
     t = completion_time(mat, th, np.repeat(b0[:, None], 2, 1), np.asarray(x, float),
                         np.repeat(np.broadcast_to(f, b0.shape)[:, None], 2, 1))
     return t.max(axis=1)
+
+
+def expected_closing_times(material, b0, x, f_bracket, thickness, compliance=1.0, modulus=1.0,
+                           thickness_sd: float = UNCERTAINTY.thickness_sd):
+    """Expected closing time of each cell of a print whose brackets scatter by
+    ``thickness_sd`` each: the later of two independently printed layers closes late on
+    average.
+
+    Each layer's mean and sd under ``h + N(0, thickness_sd)`` by three-point Gauss-Hermite
+    quadrature (nodes ``h``, ``h +- sqrt(3) thickness_sd``: exact for a closing time cubic in
+    the thickness, so the curvature of ``t(h)`` counts, not only its slope), then the later
+    layer's mean by Clark's moments (:func:`pysolver.temporal.cell_time.later_layer_moments`).
+
+    Parameters are :func:`closing_times`' (``compliance`` and ``modulus`` scalars), and
+    ``thickness_sd`` (float, mm).
+
+    Returns
+    -------
+    t : (n,) float, s -- the nominal time (:func:`closing_times`) where a layer does not close
+        within the model's range at one of the nodes (``inf`` where it never closes).
+    """
+    t = closing_times(material, b0, x, f_bracket, thickness, compliance, modulus)
+    if thickness_sd <= 0:
+        return t
+    mat = material if compliance == 1.0 else CompliantBracketModel(material, compliance)
+    b0 = np.asarray(b0, float)
+    bb = np.repeat(b0[:, None], 2, 1)
+    ff = np.repeat((np.asarray(f_bracket, float) * float(modulus))[:, None], 2, 1)
+    h = np.asarray(thickness, float)
+    k = math.sqrt(3.0) * thickness_sd
+    lo, mid, hi = (completion_time(mat, np.maximum(h + dh, TOLERANCE_RUN.thickness_floor_mm), bb,
+                                   np.asarray(x, float), ff) for dh in (-k, 0.0, k))
+    ok = np.all(np.isfinite(lo) & np.isfinite(mid) & np.isfinite(hi), axis=1)
+    with np.errstate(invalid="ignore"):
+        mean = (lo + 4.0 * mid + hi) / 6.0
+        sd = np.sqrt(np.maximum((lo ** 2 + 4.0 * mid ** 2 + hi ** 2) / 6.0 - mean ** 2, 0.0))
+    origin = np.where(ok, mid.max(axis=1), 0.0)
+    m, _ = later_layer_moments(np.where(ok[:, None], mean - origin[:, None], 0.0),
+                               np.where(ok[:, None], sd, 0.0))
+    return np.where(ok, origin + m, t)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -330,24 +371,37 @@ def check_fit_data(d: dict, material, coupon: Coupon = COUPON) -> None:
                              "water temperature) or a mistyped time")
 
 
-def _residuals(p, d: dict, material, t_cap: float):
+def _residuals(p, d: dict, material, t_cap: float, late):
     s = math.exp(p[0])
     m = math.exp(p[1]) if len(p) > 1 else 1.0
-    t = closing_times(material, d["b0"], d["x"], d["f_bracket"], d["thickness"], s, m)
+    t = closing_times(material, d["b0"], d["x"], d["f_bracket"], d["thickness"], s, m) + late
     t = np.where(np.isfinite(t), t, t_cap)
     never = np.isposinf(d["t"])  # censored: only a model closing it in the bath is an error
     return np.where(never, np.minimum(t - time_limit(material), 0.0),
                     t - np.where(never, 0.0, d["t"]))
 
 
-def _fit(d: dict, material, n_par: int, coupon: Coupon) -> dict:
-    """Least squares in ``(ln s[, ln m])``; covariance from the Jacobian and the residual sd
-    (floored at the reading error)."""
+def _lateness(d: dict, material, p) -> np.ndarray:
+    """Each cell's mean lateness (n,) s under the per-bracket scatter at the factors ``p``
+    (``(ln s[, ln m])``): :func:`expected_closing_times` minus :func:`closing_times`; 0 where
+    either is not finite."""
+    s = math.exp(p[0])
+    m = math.exp(p[1]) if len(p) > 1 else 1.0
+    args = (material, d["b0"], d["x"], d["f_bracket"], d["thickness"], s, m)
+    with np.errstate(invalid="ignore"):  # inf - inf: a cell that never closes
+        late = expected_closing_times(*args, UNCERTAINTY.thickness_sd) - closing_times(*args)
+    return np.where(np.isfinite(late), late, 0.0)
+
+
+def _fit(d: dict, material, n_par: int, coupon: Coupon, late=0.0) -> dict:
+    """Least squares in ``(ln s[, ln m])``, each cell's model time plus its mean lateness
+    ``late`` (s, (n,) or 0); covariance from the Jacobian and the residual sd (floored at the
+    reading error)."""
     lo = [math.log(coupon.compliance_bounds[0]), math.log(coupon.modulus_bounds[0])][:n_par]
     hi = [math.log(coupon.compliance_bounds[1]), math.log(coupon.modulus_bounds[1])][:n_par]
     t_cap = 2.0 * time_limit(material)
     r = optimize.least_squares(_residuals, np.zeros(n_par), bounds=(lo, hi), method="trf",
-                               diff_step=1e-3, x_scale=0.1, args=(d, material, t_cap))
+                               diff_step=1e-3, x_scale=0.1, args=(d, material, t_cap, late))
     n = int(np.sum(np.isfinite(d["t"])))
     dof = max(n - n_par, 1)
     sd = max(math.sqrt(float(r.fun @ r.fun) / dof), coupon.reading_sd_s)
@@ -359,6 +413,20 @@ def _fit(d: dict, material, n_par: int, coupon: Coupon) -> dict:
     at_bound = bool(np.any(np.isclose(r.x, lo, atol=1e-6) | np.isclose(r.x, hi, atol=1e-6)))
     return {"p": r.x, "cov": cov, "sd_s": sd, "dof": dof, "at_bound": at_bound,
             "rms_s": math.sqrt(float(r.fun @ r.fun) / n), "residuals": r.fun}
+
+
+def _fit_later_layer(d: dict, material, coupon: Coupon) -> tuple[dict, np.ndarray]:
+    """The compliance fitted to the cells' expected closing times (:attr:`Coupon.later_layer`):
+    the lateness is evaluated at the current fit and the fit repeated
+    (:attr:`Coupon.later_layer_rounds` times).  Returns (fit, lateness (n,) s)."""
+    late = np.zeros(len(d["t"]))
+    fit = _fit(d, material, 1, coupon, late)
+    for _ in range(coupon.later_layer_rounds if coupon.later_layer else 0):
+        if fit["at_bound"]:
+            break
+        late = _lateness(d, material, fit["p"])
+        fit = _fit(d, material, 1, coupon, late)
+    return fit, late
 
 
 def _interval(p: float, var: float, dof: int, level: float) -> tuple[float, float, float]:
@@ -404,7 +472,7 @@ def fit_coupon(d: dict, material=None, coupon: Coupon = COUPON) -> dict:
     """
     material = load_material(material)
     check_fit_data(d, material, coupon)
-    fit1 = _fit(d, material, 1, coupon)
+    fit1, late = _fit_later_layer(d, material, coupon)
     if fit1["at_bound"]:
         raise InputError(f"no bracket compliance in {list(coupon.compliance_bounds)} explains "
                          f"these times (the fit stops at s = {math.exp(fit1['p'][0]):.3g}, "
@@ -412,7 +480,9 @@ def fit_coupon(d: dict, material=None, coupon: Coupon = COUPON) -> dict:
                          fix="check the CSV belongs to this coupon and the times are seconds in "
                              "the bath (docs/coupon.md)")
     n = int(np.sum(np.isfinite(d["t"])))
-    fit2 = _fit(d, material, 2, coupon) if n > coupon.min_cells else None
+    fit2 = _fit(d, material, 2, coupon, late) if n > coupon.min_cells else None
+    if fit2 is not None and coupon.later_layer and not fit2["at_bound"]:
+        fit2 = _fit(d, material, 2, coupon, _lateness(d, material, fit2["p"]))
     use2 = fit2 is not None and _separable(fit2, coupon)
     f = fit2 if use2 else fit1
     rho = None
@@ -496,6 +566,6 @@ def calibrate(csv_path, out, material=None) -> str:
 
 
 __all__ = ["CSV_NAME", "COLUMNS", "coupon_source", "cell_geometry", "closing_times",
-           "spread_order", "coupon_thicknesses", "coupon_rows", "coupon_csv_text",
+           "expected_closing_times", "spread_order", "coupon_thicknesses", "coupon_rows", "coupon_csv_text",
            "read_coupon_csv", "check_fit_data", "fit_coupon", "calibrated_model", "fit_text",
            "calibrate"]
