@@ -49,8 +49,7 @@ def sampler(n: int, cells: int) -> dict:
 def curves() -> dict:
     """``ln r`` of every wet curve (as :func:`material_scatter` computes it), with its load
     and geometry."""
-    from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements
-    from pysolver.material.measurements import wet_eval_rows
+    from pysolver.material.measurements import SPECIMEN_BRACKETS, load_measurements, wet_eval_rows
     from pysolver.material.model import load_bracket_model
 
     mod = load_bracket_model(None)

@@ -180,8 +180,10 @@ class Coupon:
     later_layer : bool
         The fit models each coupon cell's closing time as the *expected* time of the later of
         its two layers under the per-bracket thickness scatter
-        (:data:`pysolver.params.UNCERTAINTY` ``thickness_sd``; Clark's moments,
-        :func:`pysolver.temporal.cell_time.timing_sd`), not as the later nominal layer: a
+        (``thickness_sd`` of :func:`pysolver.temporal.coupon.fit_coupon`, by default
+        :data:`pysolver.params.UNCERTAINTY`'s; :func:`pysolver.temporal.coupon.
+        expected_closing_times`, the later layer by Clark's moments,
+        :func:`pysolver.temporal.cell_time.later_layer_moments`), not as the later nominal layer: a
         printed cell closes late on average, and a fit that ignores it reads the lateness as
         a stiffer bracket (measured: ``bench/bench_coupon_bias.py``, docs/results.md, issue
         #45).  False: the nominal time (the fit before this option).

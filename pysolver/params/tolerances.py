@@ -93,7 +93,8 @@ class Tolerances:
         jitter of 1e-7 of the size moves (the nearest non-tie measured: 3e-5, the spiral).
     pose_rel : float
         Relative gap between two principal second moments of a surface (of the largest), or
-        third moment along a principal axis (of the largest extent cubed), under which its
+        third moment along a principal axis (of the area times the largest principal sd
+        cubed), under which its
         principal frame is undecided (a symmetry, :func:`pysolver.geometry.canonical_pose`).
     irls_rel : float
         Relative decrease of the objective under which the robust (IRLS) scan fit stops.

@@ -142,8 +142,9 @@ def expected_closing_times(material, b0, x, f_bracket, thickness, compliance=1.0
     average.
 
     Each layer's mean and sd under ``h + N(0, thickness_sd)`` by three-point Gauss-Hermite
-    quadrature (nodes ``h``, ``h +- sqrt(3) thickness_sd``: exact for a closing time cubic in
-    the thickness, so the curvature of ``t(h)`` counts, not only its slope), then the later
+    quadrature (nodes ``h``, ``h +- sqrt(3) thickness_sd``: the mean exact for a closing time
+    cubic in the thickness, the sd for one quadratic, so the curvature of ``t(h)`` counts, not
+    only its slope), then the later
     layer's mean by Clark's moments (:func:`pysolver.temporal.cell_time.later_layer_moments`).
 
     Parameters are :func:`closing_times`' (``compliance`` and ``modulus`` scalars), and
@@ -381,15 +382,15 @@ def _residuals(p, d: dict, material, t_cap: float, late):
                     t - np.where(never, 0.0, d["t"]))
 
 
-def _lateness(d: dict, material, p) -> np.ndarray:
-    """Each cell's mean lateness (n,) s under the per-bracket scatter at the factors ``p``
-    (``(ln s[, ln m])``): :func:`expected_closing_times` minus :func:`closing_times`; 0 where
-    either is not finite."""
+def _lateness(d: dict, material, p, thickness_sd: float) -> np.ndarray:
+    """Each cell's mean lateness (n,) s under the per-bracket scatter ``thickness_sd`` (mm)
+    at the factors ``p`` (``(ln s[, ln m])``): :func:`expected_closing_times` minus
+    :func:`closing_times`; 0 where either is not finite."""
     s = math.exp(p[0])
     m = math.exp(p[1]) if len(p) > 1 else 1.0
     args = (material, d["b0"], d["x"], d["f_bracket"], d["thickness"], s, m)
     with np.errstate(invalid="ignore"):  # inf - inf: a cell that never closes
-        late = expected_closing_times(*args, UNCERTAINTY.thickness_sd) - closing_times(*args)
+        late = expected_closing_times(*args, thickness_sd) - closing_times(*args)
     return np.where(np.isfinite(late), late, 0.0)
 
 
@@ -415,7 +416,8 @@ def _fit(d: dict, material, n_par: int, coupon: Coupon, late=0.0) -> dict:
             "rms_s": math.sqrt(float(r.fun @ r.fun) / n), "residuals": r.fun}
 
 
-def _fit_later_layer(d: dict, material, coupon: Coupon) -> tuple[dict, np.ndarray]:
+def _fit_later_layer(d: dict, material, coupon: Coupon,
+                     thickness_sd: float) -> tuple[dict, np.ndarray]:
     """The compliance fitted to the cells' expected closing times (:attr:`Coupon.later_layer`):
     the lateness is evaluated at the current fit and the fit repeated
     (:attr:`Coupon.later_layer_rounds` times).  Returns (fit, lateness (n,) s)."""
@@ -424,7 +426,7 @@ def _fit_later_layer(d: dict, material, coupon: Coupon) -> tuple[dict, np.ndarra
     for _ in range(coupon.later_layer_rounds if coupon.later_layer else 0):
         if fit["at_bound"]:
             break
-        late = _lateness(d, material, fit["p"])
+        late = _lateness(d, material, fit["p"], thickness_sd)
         fit = _fit(d, material, 1, coupon, late)
     return fit, late
 
@@ -445,7 +447,8 @@ def _separable(fit2: dict, coupon: Coupon) -> bool:
     return abs(rho) <= coupon.max_correlation
 
 
-def fit_coupon(d: dict, material=None, coupon: Coupon = COUPON) -> dict:
+def fit_coupon(d: dict, material=None, coupon: Coupon = COUPON,
+               thickness_sd: float = UNCERTAINTY.thickness_sd) -> dict:
     """Fit the print's factors to a measured coupon (:func:`read_coupon_csv`).
 
     The compliance ``s`` alone first; then ``s`` and the membrane modulus ``m`` together,
@@ -455,6 +458,10 @@ def fit_coupon(d: dict, material=None, coupon: Coupon = COUPON) -> dict:
     ----------
     d : dict -- the measured coupon
     material : path-like or bracket model, optional (default: the committed model)
+    coupon : Coupon
+    thickness_sd : float, mm
+        The printer's per-bracket thickness scatter, which makes each cell close late on
+        average (:attr:`Coupon.later_layer`); default the tolerance model's.
 
     Returns
     -------
@@ -471,8 +478,11 @@ def fit_coupon(d: dict, material=None, coupon: Coupon = COUPON) -> dict:
         of :attr:`Coupon.compliance_bounds` (the times are not the coupon's).
     """
     material = load_material(material)
+    if not thickness_sd >= 0:
+        raise InputError(f"a thickness sd of {thickness_sd!r} mm",
+                         fix="give the printer's per-bracket thickness sd, 0 mm or more")
     check_fit_data(d, material, coupon)
-    fit1, late = _fit_later_layer(d, material, coupon)
+    fit1, late = _fit_later_layer(d, material, coupon, thickness_sd)
     if fit1["at_bound"]:
         raise InputError(f"no bracket compliance in {list(coupon.compliance_bounds)} explains "
                          f"these times (the fit stops at s = {math.exp(fit1['p'][0]):.3g}, "
@@ -482,7 +492,7 @@ def fit_coupon(d: dict, material=None, coupon: Coupon = COUPON) -> dict:
     n = int(np.sum(np.isfinite(d["t"])))
     fit2 = _fit(d, material, 2, coupon, late) if n > coupon.min_cells else None
     if fit2 is not None and coupon.later_layer and not fit2["at_bound"]:
-        fit2 = _fit(d, material, 2, coupon, _lateness(d, material, fit2["p"]))
+        fit2 = _fit(d, material, 2, coupon, _lateness(d, material, fit2["p"], thickness_sd))
     use2 = fit2 is not None and _separable(fit2, coupon)
     f = fit2 if use2 else fit1
     rho = None
@@ -566,6 +576,7 @@ def calibrate(csv_path, out, material=None) -> str:
 
 
 __all__ = ["CSV_NAME", "COLUMNS", "coupon_source", "cell_geometry", "closing_times",
-           "expected_closing_times", "spread_order", "coupon_thicknesses", "coupon_rows", "coupon_csv_text",
+           "expected_closing_times", "spread_order", "coupon_thicknesses", "coupon_rows",
+           "coupon_csv_text",
            "read_coupon_csv", "check_fit_data", "fit_coupon", "calibrated_model", "fit_text",
            "calibrate"]

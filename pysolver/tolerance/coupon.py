@@ -110,7 +110,7 @@ def coupon_fit(setup: dict, material, draw: dict, rng, thickness_sd: float):
     """The fit of one print's coupon, or None when ``calibrate-time`` would refuse it."""
     d = simulated_coupon(setup, material, draw, rng, thickness_sd)
     try:
-        return tc.fit_coupon(d, material)
+        return tc.fit_coupon(d, material, thickness_sd=thickness_sd)
     except InputError:
         return None
 

@@ -109,10 +109,13 @@ class CountSearch:
     optimize : bool
     graded : bool -- the CVT spacing follows the landscape
     progress : callable or None
+    posed : bool -- V is in the target's own frame (:func:`pysolver.geometry.canonical_pose`
+        decided it): the flat frame's mirror ties are broken by it
     """
 
     def __init__(self, V, F, time, *, params: UnitCell, settings: StencilSearch,
-                 method: str, optimize: bool, graded: bool, progress=None):
+                 method: str, optimize: bool, graded: bool, progress=None,
+                 posed: bool = False):
         self.V, self.F, self.time = V, F, time
         self.params, self.settings = params, settings
         self.method, self.optimize, self.progress = method, optimize, progress
@@ -126,7 +129,7 @@ class CountSearch:
         if method == "cvt":
             h = rim_log_scale(V, F, params, settings) if settings.rim_scale == "free" else None
             self.dom = FlatDomain(V, F, settings, time=time if graded else None,
-                                  rim_log_scale=h)
+                                  rim_log_scale=h, posed=posed)
             # insets in mm: a fraction of the edge of the smallest regular cell the
             # min-bumper rule allows (fixed, so that the 3D scaling stays monotone in N)
             edge = np.sqrt(3) * 2 * (params.base_r + params.min_bumper)
@@ -453,8 +456,8 @@ class CountSearch:
         the other starts (seeds) of its count and rim inset that keep the size asked for, then
         the starts of the other counts of that inset (nearest a mean scaling of 1 first,
         ``self.centres``) that keep it and would print held at scale 1; within a count, the
-        shortest longest cell per unit of scaling first.  At most
-        ``StencilSearch.polish_tries`` in all, ``best`` included."""
+        shortest longest cell per unit of scaling first; ``StencilSearch.polish_tries - 1``
+        at most (``best`` itself is always polished)."""
         st, inset = self.settings, best.inset_mm
         ok = {k: c for k, c in self.tried.items()
               if k != best and k.inset_mm == inset and k in self.flat and at_size(c, st)}

@@ -306,15 +306,20 @@ class FlatDomain:
         The flattening's boundary log-scale (:func:`pysolver.design.stencil.feasibility.
         rim_log_scale`, harmonic; its rim values are the Dirichlet data); default 0, the
         rim's lengths kept.
+    posed : bool
+        ``V`` is in the target's own frame (:func:`pysolver.geometry.canonical_pose`
+        decided it): :func:`flat_frame` breaks a mirror tie by it.  Not in a frame given by
+        the user's file, whose axes a rigid motion turns.
     """
 
-    def __init__(self, V, F, settings: StencilSearch = STENCIL, time=None, rim_log_scale=None):
+    def __init__(self, V, F, settings: StencilSearch = STENCIL, time=None, rim_log_scale=None,
+                 posed: bool = False):
         self.V = np.asarray(V, float)
         self.F = np.asarray(F, dtype=np.int64)
         self.settings = settings
         self.rim_u = None if rim_log_scale is None else np.asarray(rim_log_scale, float)
         UV, self.u, _ = cetm(self.V, self.F, u_boundary=self.rim_u)
-        self.UV = flat_frame(UV, self.F, V=self.V)
+        self.UV = flat_frame(UV, self.F, V=self.V if posed else None)
         # log of the relative 3D spacing the time landscape asks for (0 without one)
         self.w = (np.zeros(len(self.V)) if time is None
                   else time_spacing_log(time, settings.timing_grading))

@@ -17,7 +17,9 @@ The passes see the target in an order and a frame given by its geometry alone
 (:func:`pysolver.geometry.canonical_order`, :func:`pysolver.geometry.canonical_pose`): the
 search is a chain of choices whose branches can differ by a few per cent of bases, and a
 relabelled or rigidly moved input must not choose another branch.  Read so, such an input
-differs from the original by the round-off of its coordinates only, as a run on another CPU does.
+differs from the original by the round-off of its coordinates only, as a run on another CPU
+does, unless a symmetry leaves the target's frame undecided (it is then read in the frame it
+was given, and a rigid motion reorders the search's sums).
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ class _Request:
     optimize: bool
     user_times: bool
     progress: object
+    posed: bool
 
 
 @dataclass
@@ -143,7 +146,7 @@ def remesh_surface(V, F, *, vertices=None, seed=None, target_bases=None,
                          fix='use "auto", "kept" or "free"')
     req = _Request(V=V, F=F, time=time, vertices=vertices, seed=seed,
                    target_bases=target_bases, params=params, method=method, dense=dense,
-                   optimize=optimize, user_times=user_times, progress=progress)
+                   optimize=optimize, user_times=user_times, progress=progress, posed=posed)
     done, used, graded = _ungraded_if_needed(req, settings)
     V2, F2, info = _with_rim_scale(req, used, done)
     if graded is not None:  # (whichever rim was taken, the grading was not)
@@ -186,7 +189,8 @@ def _one_pass(req: _Request, settings: StencilSearch) -> _Pass:
     graded = (req.method == "cvt" and req.user_times and time is not None
               and settings.timing_grading > 0)
     search = CountSearch(V, F, time, params=params, settings=settings, method=req.method,
-                         optimize=req.optimize, graded=graded, progress=req.progress)
+                         optimize=req.optimize, graded=graded, progress=req.progress,
+                         posed=req.posed)
     seeds = ([int(req.seed)] if req.seed is not None
              else [0] if req.method == "pymeshlab"  # (it has no seed)
              else list(range(settings.seeds)))
