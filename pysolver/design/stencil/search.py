@@ -66,7 +66,7 @@ class _Request:
     optimize: bool
     user_times: bool
     progress: object
-    posed: bool
+    posed: bool = False
 
 
 @dataclass
