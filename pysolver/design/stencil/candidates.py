@@ -163,6 +163,13 @@ def per_scale(c: dict) -> float:
     return c["max_cell_length_mm"] / c["scale3d"]
 
 
+def would_print_at_size(c: dict, params: UnitCell, settings: StencilSearch = STENCIL) -> bool:
+    """Whether a candidate keeps the size asked for (:func:`at_size`) and would print held at
+    scale 1 (:func:`per_scale` within the limit): what the pick and the polish's
+    alternates look for."""
+    return at_size(c, settings) and per_scale(c) <= params.max_cell_length
+
+
 def tier(c: dict, params: UnitCell, margin: float) -> int:
     """0 when the candidate prints with ``margin`` (mm), 1 when within the limit, 2 otherwise
     (or when the layout failed)."""
@@ -198,7 +205,7 @@ def pick(tried: dict, params: UnitCell, margin: float,
         return None
     if centres:
         fit = [k for k, c in tried.items()
-               if at_size(c, settings or STENCIL) and per_scale(c) <= params.max_cell_length]
+               if would_print_at_size(c, params, settings or STENCIL)]
         here = []
         for inset, counts in centres.items():
             first = next((n for n in counts
@@ -220,4 +227,4 @@ def pick(tried: dict, params: UnitCell, margin: float,
 
 
 __all__ = ["Candidate", "stencil_figures", "area_covered", "laid_out", "at_size", "full_size",
-           "prints", "prints_at_full_size", "per_scale", "tier", "pick"]
+           "prints", "prints_at_full_size", "per_scale", "would_print_at_size", "tier", "pick"]

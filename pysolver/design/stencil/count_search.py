@@ -85,6 +85,7 @@ from .candidates import (
     prints,
     stencil_figures,
     tier,
+    would_print_at_size,
 )
 from .feasibility import rim_log_scale
 from .optimise import optimize_stencil
@@ -465,7 +466,7 @@ class CountSearch:
                       key=lambda k: (per_scale(ok[k]), k))
         rank = {n: i for i, n in enumerate(self.centres.get(inset, ()))}
         other = sorted((k for k, c in ok.items() if k.vertices != best.vertices
-                        and k.vertices in rank and per_scale(c) <= self.params.max_cell_length),
+                        and k.vertices in rank and would_print_at_size(c, self.params, st)),
                        key=lambda k: (rank[k.vertices], per_scale(ok[k]), k))
         return (same + other)[:max(st.polish_tries - 1, 0)]
 
